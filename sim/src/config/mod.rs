@@ -1,0 +1,479 @@
+//! Configuration in two layers (see `docs/config.md` for the schema).
+//!
+//! 1. [`RawConfig`] mirrors the JSON file. Parsing checks only what the user
+//!    wrote: syntax (with line and column), unknown keys and wrong types (with
+//!    the key's dotted path). Every section has STEP1 defaults, so a file
+//!    only needs what differs.
+//! 2. [`Plan`] is the validated run: ranges checked with the offending key
+//!    named, datasets enumerated (PSF × shear), seeds fixed.
+//!
+//! Overrides from the command line (`--set key.path=value`) are applied to the
+//! JSON tree between the two steps; the value is parsed as JSON when it can
+//! be (`--set image.n_images=4`, `--set run.name="x"`) and taken as a string
+//! otherwise (`--set run.name=x`).
+
+mod image;
+mod population;
+mod psf;
+mod render;
+
+pub use image::{RawImage, RawInstrument, RawTelescope};
+pub use population::{
+    Cosmology, Flattening, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Source,
+};
+pub use psf::{Aberration, RawPsf, RawPsfModel};
+pub use render::{Compression, RawOutput, RawRender, SampleFormat};
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// An error in a configuration: always names the file and the key or line.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file is not valid JSON.
+    #[error("{path}: line {line}, column {column}: malformed JSON: {message}")]
+    Syntax {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line.
+        line: usize,
+        /// 1-based column.
+        column: usize,
+        /// What the parser said.
+        message: String,
+    },
+    /// A key is unknown, or a value has the wrong type.
+    #[error("{path}: key `{key}`{}: {message}", at_line(*line))]
+    Key {
+        /// The file (or `--set` for an override).
+        path: PathBuf,
+        /// Dotted key path, e.g. `population.stars.density_per_arcmin2`.
+        key: String,
+        /// Line in the file, when known.
+        line: Option<usize>,
+        /// What is wrong.
+        message: String,
+    },
+    /// A `--set` override is malformed.
+    #[error("--set {arg}: {message}")]
+    Override {
+        /// The override as given.
+        arg: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A value is out of its allowed range.
+    #[error("{path}: key `{key}`: {message}")]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// Dotted key path.
+        key: String,
+        /// What is wrong, with the offending value.
+        message: String,
+    },
+}
+
+fn at_line(line: Option<usize>) -> String {
+    line.map(|l| format!(" (line {l})")).unwrap_or_default()
+}
+
+/// The whole configuration as written in the JSON file (after defaults).
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RawConfig {
+    /// Run identity and master seed.
+    pub run: RawRun,
+    /// Image geometry and the number of base fields.
+    pub image: RawImage,
+    /// Detector, sky and exposure.
+    pub instrument: RawInstrument,
+    /// Telescope pupil and wavelength used by the optical PSFs.
+    pub telescope: RawTelescope,
+    /// Galaxy and star population.
+    pub population: RawPopulation,
+    /// The PSF models; each makes one group of datasets.
+    pub psfs: Vec<RawPsf>,
+    /// The applied shears; every PSF is run with every shear.
+    pub shears: Vec<RawShear>,
+    /// Accuracy of the renderer.
+    pub render: RawRender,
+    /// What gets written.
+    pub output: RawOutput,
+}
+
+impl Default for RawConfig {
+    fn default() -> Self {
+        Self {
+            run: RawRun::default(),
+            image: RawImage::default(),
+            instrument: RawInstrument::default(),
+            telescope: RawTelescope::default(),
+            population: RawPopulation::default(),
+            psfs: RawPsf::step1_set(),
+            shears: RawShear::step1_set(),
+            render: RawRender::default(),
+            output: RawOutput::default(),
+        }
+    }
+}
+
+/// Run identity and master seed.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct RawRun {
+    /// A name for humans (appears in the private half only).
+    pub name: String,
+    /// Master seed: every random stream derives from it (see [`crate::seed`]).
+    pub seed: u64,
+}
+
+impl Default for RawRun {
+    fn default() -> Self {
+        Self {
+            name: "step1".into(),
+            seed: 20060101,
+        }
+    }
+}
+
+/// One applied reduced shear (κ = 0 as in STEP1).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RawShear {
+    /// g1: positive stretches along x.
+    pub g1: f64,
+    /// g2: positive stretches along y = x.
+    #[serde(default)]
+    pub g2: f64,
+}
+
+impl RawShear {
+    /// The STEP1 shears (paper section 3): g1 = 0, 0.005, 0.01, 0.05, 0.1; g2 = 0.
+    pub fn step1_set() -> Vec<Self> {
+        [0.0, 0.005, 0.01, 0.05, 0.1]
+            .iter()
+            .map(|&g1| Self { g1, g2: 0.0 })
+            .collect()
+    }
+}
+
+impl RawConfig {
+    /// Reads, overrides and parses a config file.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.into(),
+            source,
+        })?;
+        Self::parse(&text, path, overrides)
+    }
+
+    /// Parses config text; `path` is only used in messages.
+    pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
+        let _: serde_json::Value = serde_json::from_str(text).map_err(|e| ConfigError::Syntax {
+            path: path.into(),
+            line: e.line(),
+            column: e.column(),
+            message: strip_position(&e.to_string()),
+        })?;
+        // First pass straight from the text, so that errors carry a line.
+        let mut de = serde_json::Deserializer::from_str(text);
+        let raw: RawConfig =
+            serde_path_to_error::deserialize(&mut de).map_err(|e| ConfigError::Key {
+                path: path.into(),
+                key: e.path().to_string(),
+                line: Some(e.inner().line()),
+                message: strip_position(&e.inner().to_string()),
+            })?;
+        if overrides.is_empty() {
+            return Ok(raw);
+        }
+        // Overrides apply on top of the resolved config (defaults filled in),
+        // so that `shears.1.g1` works even when the file does not list shears.
+        let mut tree = serde_json::to_value(&raw).expect("config serialises");
+        for arg in overrides {
+            apply_override(&mut tree, arg)?;
+        }
+        serde_path_to_error::deserialize(tree).map_err(|e| ConfigError::Key {
+            path: PathBuf::from("--set"),
+            key: e.path().to_string(),
+            line: None,
+            message: e.inner().to_string(),
+        })
+    }
+
+    /// The config as pretty JSON (the "resolved copy" written beside outputs).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("config serialises")
+    }
+}
+
+fn strip_position(msg: &str) -> String {
+    match msg.rfind(" at line ") {
+        Some(i) => msg[..i].to_string(),
+        None => msg.to_string(),
+    }
+}
+
+/// Applies one `key.path=value` override to a JSON tree. Array elements are
+/// addressed by index (`psfs.1.target_chi=0.05`).
+pub fn apply_override(tree: &mut serde_json::Value, arg: &str) -> Result<(), ConfigError> {
+    let bad = |message: &str| ConfigError::Override {
+        arg: arg.into(),
+        message: message.into(),
+    };
+    let (key, value) = arg
+        .split_once('=')
+        .ok_or_else(|| bad("expected key.path=value"))?;
+    if key.is_empty() || key.split('.').any(str::is_empty) {
+        return Err(bad("empty key path"));
+    }
+    let value: serde_json::Value =
+        serde_json::from_str(value).unwrap_or_else(|_| serde_json::Value::String(value.into()));
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut node = tree;
+    for (i, part) in parts.iter().enumerate() {
+        let last = i + 1 == parts.len();
+        node = match node {
+            serde_json::Value::Object(map) => {
+                if last {
+                    map.insert((*part).to_string(), value);
+                    return Ok(());
+                }
+                map.entry((*part).to_string())
+                    .or_insert_with(|| serde_json::json!({}))
+            }
+            serde_json::Value::Array(items) => {
+                let idx: usize = part
+                    .parse()
+                    .map_err(|_| bad(&format!("`{part}` is not an array index")))?;
+                let len = items.len();
+                let slot = items
+                    .get_mut(idx)
+                    .ok_or_else(|| bad(&format!("index {idx} out of range (array has {len})")))?;
+                if last {
+                    *slot = value;
+                    return Ok(());
+                }
+                slot
+            }
+            _ => return Err(bad(&format!("`{}` is not an object", parts[..i].join(".")))),
+        };
+    }
+    unreachable!("loop returns on the last part")
+}
+
+/// One dataset: a PSF and a shear. Its index `id` is stable: `psf * n_shears + shear`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset {
+    /// Index in [`Plan::datasets`].
+    pub index: u32,
+    /// Index of the PSF in [`RawConfig::psfs`].
+    pub psf: usize,
+    /// Index of the shear in [`RawConfig::shears`].
+    pub shear: usize,
+    /// Applied g1.
+    pub g1: f64,
+    /// Applied g2.
+    pub g2: f64,
+}
+
+/// A validated run: the raw config plus everything derived from it.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    /// The config it came from (after overrides and defaults).
+    pub raw: RawConfig,
+    /// Where it came from (for messages).
+    pub source: PathBuf,
+    /// Every PSF × shear pair, PSF-major.
+    pub datasets: Vec<Dataset>,
+}
+
+impl Plan {
+    /// Validates a raw config.
+    pub fn new(raw: RawConfig, source: &Path) -> Result<Self, ConfigError> {
+        let invalid = |key: &str, message: String| ConfigError::Invalid {
+            path: source.into(),
+            key: key.into(),
+            message,
+        };
+        raw.image.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.instrument.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.telescope.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.population.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.render.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.output.validate().map_err(|(k, m)| invalid(&k, m))?;
+        if raw.psfs.is_empty() {
+            return Err(invalid("psfs", "at least one PSF is needed".into()));
+        }
+        let mut names = std::collections::HashSet::new();
+        for (i, p) in raw.psfs.iter().enumerate() {
+            p.validate()
+                .map_err(|(k, m)| invalid(&format!("psfs.{i}.{k}"), m))?;
+            if !names.insert(p.name.clone()) {
+                return Err(invalid(
+                    &format!("psfs.{i}.name"),
+                    format!("duplicate PSF name {:?}", p.name),
+                ));
+            }
+        }
+        if raw.shears.is_empty() {
+            return Err(invalid("shears", "at least one shear is needed".into()));
+        }
+        for (i, s) in raw.shears.iter().enumerate() {
+            let g = s.g1.hypot(s.g2);
+            if !s.g1.is_finite() || !s.g2.is_finite() || g >= 1.0 {
+                return Err(invalid(
+                    &format!("shears.{i}"),
+                    format!("|g| must be < 1, got g1={} g2={}", s.g1, s.g2),
+                ));
+            }
+        }
+        let n_shears = raw.shears.len();
+        let datasets = (0..raw.psfs.len())
+            .flat_map(|p| (0..n_shears).map(move |s| (p, s)))
+            .map(|(psf, shear)| Dataset {
+                index: (psf * n_shears + shear) as u32,
+                psf,
+                shear,
+                g1: raw.shears[shear].g1,
+                g2: raw.shears[shear].g2,
+            })
+            .collect();
+        Ok(Self {
+            raw,
+            source: source.into(),
+            datasets,
+        })
+    }
+
+    /// Loads, overrides and validates a config file in one go.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
+        Self::new(RawConfig::load(path, overrides)?, path)
+    }
+
+    /// Number of base fields (images per dataset).
+    pub fn n_fields(&self) -> u32 {
+        self.raw.image.n_images
+    }
+
+    /// Master seed.
+    pub fn seed(&self) -> u64 {
+        self.raw.run.seed
+    }
+}
+
+/// Checks that `value` lies in `[lo, hi]`; the error names `key`.
+pub(crate) fn check_range(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), (String, String)> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(())
+    } else {
+        Err((key.into(), format!("must be in [{lo}, {hi}], got {value}")))
+    }
+}
+
+/// Checks that `value` is finite and strictly positive; the error names `key`.
+pub(crate) fn check_positive(key: &str, value: f64) -> Result<(), (String, String)> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err((key.into(), format!("must be > 0, got {value}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<RawConfig, ConfigError> {
+        RawConfig::parse(text, Path::new("test.json"), &[])
+    }
+
+    #[test]
+    fn empty_object_gives_step1_defaults() {
+        let raw = parse("{}").unwrap();
+        assert_eq!(raw, RawConfig::default());
+        let plan = Plan::new(raw, Path::new("test.json")).unwrap();
+        assert_eq!(plan.datasets.len(), 30);
+        assert_eq!(plan.datasets[7].psf, 1);
+        assert_eq!(plan.datasets[7].shear, 2);
+        assert_eq!(plan.datasets[7].g1, 0.01);
+    }
+
+    #[test]
+    fn unknown_key_is_named_with_its_path_and_line() {
+        let err = parse("{\n  \"image\": {\n    \"widht_px\": 10\n  }\n}").unwrap_err();
+        let msg = err.to_string();
+        assert!(msg.contains("image.widht_px"), "{msg}");
+        assert!(msg.contains("line 3"), "{msg}");
+    }
+
+    #[test]
+    fn malformed_json_names_the_line() {
+        let err = parse("{\n \"run\": {\n \"seed\": 1,\n }\n}").unwrap_err();
+        assert!(matches!(err, ConfigError::Syntax { line: 4, .. }), "{err}");
+    }
+
+    #[test]
+    fn overrides_reach_nested_keys_and_array_elements() {
+        let raw = RawConfig::parse(
+            "{}",
+            Path::new("t.json"),
+            &[
+                "image.n_images=4".into(),
+                "run.name=abc".into(),
+                "shears.1.g1=0.02".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!(raw.image.n_images, 4);
+        assert_eq!(raw.run.name, "abc");
+        assert_eq!(raw.shears[1].g1, 0.02);
+    }
+
+    #[test]
+    fn bad_overrides_are_refused() {
+        for arg in [
+            "noequals",
+            "=3",
+            "image..x=1",
+            "shears.9.g1=0",
+            "image.nope=1",
+        ] {
+            assert!(
+                RawConfig::parse("{}", Path::new("t.json"), &[arg.into()]).is_err(),
+                "{arg}"
+            );
+        }
+    }
+
+    #[test]
+    fn out_of_range_values_name_the_key() {
+        let raw = RawConfig::parse("{}", Path::new("t.json"), &["shears.0.g1=1.5".into()]).unwrap();
+        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
+        assert!(err.contains("shears.0"), "{err}");
+        let raw = RawConfig::parse(
+            "{}",
+            Path::new("t.json"),
+            &["image.pixel_scale_arcsec=-1".into()],
+        )
+        .unwrap();
+        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
+        assert!(err.contains("image.pixel_scale_arcsec"), "{err}");
+    }
+
+    #[test]
+    fn resolved_json_round_trips() {
+        let raw = RawConfig::default();
+        let again = parse(&raw.to_json()).unwrap();
+        assert_eq!(raw, again);
+    }
+}

@@ -1,0 +1,125 @@
+//! File input and output. Nothing in the numerical core touches files: all
+//! reading and writing of FITS, CSV, JSON and SkyMaker lists lives here.
+//!
+//! Every writer goes through [`write_atomically`]: the file is written under a
+//! temporary name in the same directory and renamed into place only when
+//! complete, so a killed run never leaves a truncated file under a final name.
+
+pub mod truth;
+
+use std::path::{Path, PathBuf};
+
+/// An I/O error naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum IoError {
+    /// Operating-system error.
+    #[error("{path}: {source}")]
+    Os {
+        /// The file.
+        path: PathBuf,
+        /// The error.
+        source: std::io::Error,
+    },
+    /// cfitsio error.
+    #[error("{path}: FITS error: {message}")]
+    Fits {
+        /// The file.
+        path: PathBuf,
+        /// What cfitsio said.
+        message: String,
+    },
+    /// The file's content is not what was expected.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong (names line and column where they exist).
+        message: String,
+    },
+}
+
+impl IoError {
+    /// Wraps an OS error.
+    pub fn os(path: &Path, source: std::io::Error) -> Self {
+        Self::Os {
+            path: path.into(),
+            source,
+        }
+    }
+    /// Wraps a cfitsio error.
+    pub fn fits(path: &Path, e: impl std::fmt::Display) -> Self {
+        Self::Fits {
+            path: path.into(),
+            message: e.to_string(),
+        }
+    }
+    /// A content error.
+    pub fn format(path: &Path, message: impl Into<String>) -> Self {
+        Self::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// The temporary name used while `path` is written: same directory, so the
+/// final rename is atomic; ends in `.tmp` so that it is never mistaken for a
+/// finished file. The process id keeps two concurrent writers apart.
+pub fn temporary_name(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Writes `path` atomically: `write` receives a temporary path to create; on
+/// success it is renamed to `path`, on failure it is removed.
+pub fn write_atomically<E>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E>
+where
+    E: From<IoError>,
+{
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
+    }
+    let tmp = temporary_name(path);
+    let _ = std::fs::remove_file(&tmp);
+    match write(&tmp) {
+        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            E::from(IoError::os(path, e))
+        }),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Writes bytes atomically.
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    write_atomically(path, |tmp| {
+        std::fs::write(tmp, bytes).map_err(|e| IoError::os(tmp, e))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failed_write_leaves_nothing_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a/b.txt");
+        let r: Result<(), IoError> = write_atomically(&path, |tmp| {
+            std::fs::write(tmp, b"half").unwrap();
+            Err(IoError::format(tmp, "boom"))
+        });
+        assert!(r.is_err());
+        assert!(!path.exists());
+        assert_eq!(std::fs::read_dir(dir.path().join("a")).unwrap().count(), 0);
+        write_bytes_atomically(&path, b"whole").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"whole");
+        assert_eq!(std::fs::read_dir(dir.path().join("a")).unwrap().count(), 1);
+    }
+}

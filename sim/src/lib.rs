@@ -1,0 +1,29 @@
+//! # stepsim-sim
+//!
+//! The simulator behind `stepsim`: a Stuff-style galaxy and star population,
+//! the STEP1 PSF models, a Fourier-space stamp renderer, noise and FITS output.
+//!
+//! ## Units (one system inside)
+//! * Angles on the sky: **arcsec** (positions on the image: FITS pixels,
+//!   first pixel centre at 1.0; x along NAXIS1).
+//! * Position angles: **radians** in code, counter-clockwise from +x; degrees
+//!   only in files (`_deg` columns).
+//! * Fluxes: **electrons** over the exposure; ADU only when writing pixels.
+//! * Frequencies: cycles per arcsec.
+//! * Ellipticity: the reduced-shear type e = (1−β)/(1+β) e^{2iθ} (paper eq. 1)
+//!   unless a name says `chi` (distortion).
+//!
+//! ## Invariants
+//! * The numerical core does no file I/O: everything on disk goes through
+//!   [`io`].
+//! * Every random draw comes from a generator keyed by
+//!   (run seed, base field, dataset, purpose) — see [`seed`].
+//! * Objects are immutable values.
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod io;
+pub mod psf;
+pub mod run_layout;
+pub mod seed;
+pub mod truth;

@@ -1,0 +1,27 @@
+//! One module per subcommand; each has `Args` (clap) and `run`.
+
+pub mod config;
+
+use std::path::PathBuf;
+
+/// Arguments shared by every command that reads a config.
+#[derive(Debug, clap::Args)]
+pub struct ConfigArgs {
+    /// The JSON config file (see docs/config.md).
+    #[arg(long, value_name = "FILE")]
+    pub config: PathBuf,
+    /// Override one config value: `--set image.n_images=4` (repeatable; the
+    /// value is read as JSON when it parses, as a string otherwise).
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    pub overrides: Vec<String>,
+}
+
+impl ConfigArgs {
+    /// Loads and validates the config with its overrides.
+    pub fn plan(&self) -> anyhow::Result<stepsim_sim::config::Plan> {
+        Ok(stepsim_sim::config::Plan::load(
+            &self.config,
+            &self.overrides,
+        )?)
+    }
+}

@@ -1,0 +1,82 @@
+//! End-to-end checks of `stepsim config`: exit codes and messages.
+
+use std::process::Command;
+
+fn stepsim() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_stepsim"))
+}
+
+#[test]
+fn resolved_config_is_printed_with_overrides() {
+    let out = stepsim()
+        .args([
+            "config",
+            "--config",
+            "configs/step1-mini.json",
+            "--set",
+            "image.n_images=3",
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["image"]["n_images"], 3);
+    assert_eq!(v["image"]["width_px"], 1024);
+}
+
+#[test]
+fn bad_configs_exit_1_naming_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "unknown.json",
+            "{\"image\": {\"n_imgs\": 2}}",
+            "image.n_imgs",
+        ),
+        (
+            "malformed.json",
+            "{\n\"image\": {\n\"n_images\": 2,,\n}}",
+            "line 3",
+        ),
+        (
+            "negative.json",
+            "{\"image\": {\"pixel_scale_arcsec\": -0.2}}",
+            "image.pixel_scale_arcsec",
+        ),
+        (
+            "emptyq.json",
+            "{\"population\": {\"galaxies\": {\"flattening\": {\"min\": 0.8, \"max\": 0.5}}}}",
+            "population.galaxies.flattening",
+        ),
+    ];
+    for (name, text, needle) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let out = stepsim()
+            .args(["config", "--config"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(needle), "{name}: expected {needle:?} in {err}");
+        assert!(
+            err.contains(name),
+            "{name}: message should name the file: {err}"
+        );
+    }
+}
+
+#[test]
+fn usage_errors_exit_2() {
+    let out = stepsim()
+        .args(["config", "--no-such-flag"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}

@@ -1,0 +1,58 @@
+//! Every preset in configs/ loads, validates and describes what its name says.
+
+use std::path::Path;
+use stepsim_sim::config::Plan;
+
+fn load(name: &str) -> Plan {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs")
+        .join(name);
+    Plan::load(&path, &[]).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+#[test]
+fn every_preset_validates() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "json") {
+            Plan::load(&path, &[]).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            n += 1;
+        }
+    }
+    assert!(n >= 2, "expected at least the two STEP1 presets, found {n}");
+}
+
+#[test]
+fn step1_is_the_paper_design() {
+    let p = load("step1.json");
+    let r = &p.raw;
+    assert_eq!(
+        (r.image.width_px, r.image.height_px, r.image.n_images),
+        (4096, 4096, 64)
+    );
+    assert_eq!(r.image.pixel_scale_arcsec, 0.206);
+    assert_eq!(r.psfs.len(), 6);
+    let g1: Vec<f64> = r.shears.iter().map(|s| s.g1).collect();
+    assert_eq!(g1, [0.0, 0.005, 0.01, 0.05, 0.1]);
+    assert!(r.shears.iter().all(|s| s.g2 == 0.0));
+    assert_eq!(p.datasets.len(), 30);
+    assert_eq!(r.instrument.sky_mag_arcsec2, 19.2);
+}
+
+#[test]
+fn mini_has_the_same_datasets_on_small_images() {
+    let full = load("step1.json");
+    let mini = load("step1-mini.json");
+    assert_eq!(mini.datasets, full.datasets);
+    assert_eq!(mini.raw.psfs, full.raw.psfs);
+    assert_eq!(
+        (
+            mini.raw.image.width_px,
+            mini.raw.image.height_px,
+            mini.raw.image.n_images
+        ),
+        (1024, 1024, 2)
+    );
+}
