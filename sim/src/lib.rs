@@ -27,3 +27,4 @@ pub mod psf;
 pub mod run_layout;
 pub mod seed;
 pub mod truth;
+pub mod wcs;
