@@ -21,8 +21,10 @@
 //! * Objects are immutable values.
 #![deny(missing_docs)]
 
+pub mod blind;
 pub mod config;
 pub mod io;
+pub mod noise;
 pub mod psf;
 pub mod run_layout;
 pub mod seed;

@@ -1,0 +1,388 @@
+//! Simulated images as FITS files (SPEC §4).
+//!
+//! * Pixels are ADU, row-major with index `(y − 1) · width + (x − 1)` for FITS
+//!   pixel (x, y); x runs along NAXIS1.
+//! * `float32` (default): BITPIX −32, the primary HDU holds the image.
+//! * `int32`: BITPIX 32, ADU rounded to the nearest integer. With
+//!   `compression = "rice"` the image is Rice tile-compressed by cfitsio
+//!   (lossless for integers); it then sits in HDU 1 (a `ZIMAGE` binary table
+//!   behind an empty primary), which every FITS reader opens transparently.
+//! * Header: a TAN WCS (`CTYPEi`, `CRVALi`, `CRPIXi`, `CDi_j`, `CUNITi`,
+//!   `RADESYS`, `EQUINOX`), `BUNIT = 'ADU'` and the instrument keywords
+//!   `GAIN` (e⁻/ADU), `RDNOISE` (e⁻), `SATURATE` (ADU), `EXPTIME` (s),
+//!   `MAGZERO` and `PIXSCALE` (arcsec). `MAGZERO` is the zeropoint of the
+//!   image *in ADU*: m = MAGZERO − 2.5 log10(total ADU) =
+//!   zeropoint_mag + 2.5 log10(exposure_s) − 2.5 log10(gain) (SExtractor's
+//!   `MAG_ZEROPOINT` for this image).
+//! * Nothing else: no PSF, shear, seed or other truth, and no `DATE` or any
+//!   time-dependent keyword, so a rerun writes identical bytes.
+//!
+//! Files are written atomically ([`super::write_atomically`]).
+
+use super::{IoError, write_atomically};
+use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
+use crate::wcs::TanWcs;
+use fitsio::FitsFile;
+use fitsio::hdu::HduInfo;
+use fitsio::images::{ImageDescription, ImageType};
+use std::path::Path;
+
+/// What goes into the header of an image besides its pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageHeader {
+    /// The TAN WCS of the image's base field.
+    pub wcs: TanWcs,
+    /// GAIN, e⁻/ADU.
+    pub gain_e_per_adu: f64,
+    /// RDNOISE, e⁻.
+    pub read_noise_e: f64,
+    /// SATURATE, ADU.
+    pub saturation_adu: f64,
+    /// EXPTIME, s.
+    pub exposure_s: f64,
+    /// MAGZERO: magnitude of a source of 1 ADU in total.
+    pub magzero_adu: f64,
+    /// PIXSCALE, arcsec.
+    pub pixel_scale_arcsec: f64,
+}
+
+impl ImageHeader {
+    /// The header of every image of base field `field`.
+    pub fn new(image: &RawImage, instrument: &RawInstrument, field: u32) -> Self {
+        Self {
+            wcs: TanWcs::for_field(image, field),
+            gain_e_per_adu: instrument.gain_e_per_adu,
+            read_noise_e: instrument.read_noise_e,
+            saturation_adu: instrument.saturation_adu,
+            exposure_s: instrument.exposure_s,
+            magzero_adu: instrument.zp_eff() - 2.5 * instrument.gain_e_per_adu.log10(),
+            pixel_scale_arcsec: image.pixel_scale_arcsec,
+        }
+    }
+}
+
+/// An image read back from a file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FitsImage {
+    /// NAXIS1.
+    pub width: u32,
+    /// NAXIS2.
+    pub height: u32,
+    /// Pixels (ADU), row-major.
+    pub pixels: Vec<f32>,
+}
+
+/// The integer written for an ADU value in `int32` output: nearest integer,
+/// clamped to the i32 range.
+pub fn adu_to_i32(v: f32) -> i32 {
+    let r = f64::from(v).round();
+    r.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+}
+
+/// Writes an image atomically. `pixels_adu` has `width × height` values.
+pub fn write_image_fits(
+    path: &Path,
+    pixels_adu: &[f32],
+    width: u32,
+    height: u32,
+    header: &ImageHeader,
+    format: SampleFormat,
+    compression: Compression,
+) -> Result<(), IoError> {
+    let n = width as usize * height as usize;
+    if pixels_adu.len() != n {
+        return Err(IoError::format(
+            path,
+            format!(
+                "image has {} pixels, expected {width} × {height} = {n}",
+                pixels_adu.len()
+            ),
+        ));
+    }
+    if compression == Compression::Rice && format == SampleFormat::Float32 {
+        return Err(IoError::format(
+            path,
+            "rice compression is only offered for int32 output",
+        ));
+    }
+    write_atomically(path, |tmp| {
+        let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+        let name = match compression {
+            Compression::None => tmp.to_string_lossy().into_owned(),
+            Compression::Rice => format!("{}[compress R]", tmp.to_string_lossy()),
+        };
+        let dims = [height as usize, width as usize];
+        let desc = ImageDescription {
+            data_type: match format {
+                SampleFormat::Float32 => ImageType::Float,
+                SampleFormat::Int32 => ImageType::Long,
+            },
+            dimensions: &dims,
+        };
+        let mut f = FitsFile::create(&name)
+            .with_custom_primary(&desc)
+            .open()
+            .map_err(fe)?;
+        // The image is the last HDU: the primary, or HDU 1 behind an empty
+        // primary when cfitsio tile-compresses it.
+        let last = f.num_hdus().map_err(fe)? - 1;
+        let hdu = f.hdu(last).map_err(fe)?;
+        // fitsio names the new HDU `_PRIMARY`; that is not a FITS keyword
+        // anyone needs, so remove it again.
+        delete_key(&mut f, "EXTNAME").map_err(|e| IoError::fits(path, e))?;
+        match format {
+            SampleFormat::Float32 => hdu.write_image(&mut f, pixels_adu).map_err(fe)?,
+            SampleFormat::Int32 => {
+                let ints: Vec<i32> = pixels_adu.iter().map(|&v| adu_to_i32(v)).collect();
+                hdu.write_image(&mut f, &ints).map_err(fe)?
+            }
+        }
+        let w = &header.wcs;
+        let s = |f: &mut FitsFile, k: &str, v: &str, c: &str| hdu.write_key(f, k, (v, c));
+        let d = |f: &mut FitsFile, k: &str, v: f64, c: &str| write_f64(f, k, v, c);
+        s(&mut f, "BUNIT", "ADU", "pixel unit").map_err(fe)?;
+        s(&mut f, "CTYPE1", "RA---TAN", "gnomonic projection").map_err(fe)?;
+        s(&mut f, "CTYPE2", "DEC--TAN", "gnomonic projection").map_err(fe)?;
+        s(&mut f, "CUNIT1", "deg", "").map_err(fe)?;
+        s(&mut f, "CUNIT2", "deg", "").map_err(fe)?;
+        s(&mut f, "RADESYS", "ICRS", "").map_err(fe)?;
+        d(&mut f, "EQUINOX", 2000.0, "").map_err(fe)?;
+        d(&mut f, "CRVAL1", w.crval1, "[deg] RA of reference point").map_err(fe)?;
+        d(&mut f, "CRVAL2", w.crval2, "[deg] Dec of reference point").map_err(fe)?;
+        d(&mut f, "CRPIX1", w.crpix1, "reference pixel x").map_err(fe)?;
+        d(&mut f, "CRPIX2", w.crpix2, "reference pixel y").map_err(fe)?;
+        d(&mut f, "CD1_1", w.cd1_1, "[deg/pixel]").map_err(fe)?;
+        d(&mut f, "CD1_2", 0.0, "[deg/pixel]").map_err(fe)?;
+        d(&mut f, "CD2_1", 0.0, "[deg/pixel]").map_err(fe)?;
+        d(&mut f, "CD2_2", w.cd2_2, "[deg/pixel]").map_err(fe)?;
+        d(&mut f, "GAIN", header.gain_e_per_adu, "[e-/ADU]").map_err(fe)?;
+        d(&mut f, "RDNOISE", header.read_noise_e, "[e-] read noise").map_err(fe)?;
+        d(
+            &mut f,
+            "SATURATE",
+            header.saturation_adu,
+            "[ADU] clip level",
+        )
+        .map_err(fe)?;
+        d(&mut f, "EXPTIME", header.exposure_s, "[s] exposure").map_err(fe)?;
+        d(
+            &mut f,
+            "MAGZERO",
+            header.magzero_adu,
+            "m = MAGZERO - 2.5 log10(ADU total)",
+        )
+        .map_err(fe)?;
+        d(
+            &mut f,
+            "PIXSCALE",
+            header.pixel_scale_arcsec,
+            "[arcsec/pixel]",
+        )
+        .map_err(fe)?;
+        Ok(())
+    })
+}
+
+/// Writes a double keyword with 17 significant digits (cfitsio's default of
+/// 15 would not read back exactly).
+fn write_f64(f: &mut FitsFile, key: &str, value: f64, comment: &str) -> fitsio::errors::Result<()> {
+    let c_key = std::ffi::CString::new(key)?;
+    let c_comment = std::ffi::CString::new(comment)?;
+    let mut status = 0;
+    // SAFETY: `f` is an open, writable cfitsio file; ffpkyd appends one card
+    // to the current HDU's header and reads only the two C strings.
+    unsafe {
+        fitsio::sys::ffpkyd(
+            f.as_raw(),
+            c_key.as_ptr(),
+            value,
+            -17,
+            c_comment.as_ptr(),
+            &mut status,
+        );
+    }
+    if status == 0 {
+        Ok(())
+    } else {
+        Err(fitsio::errors::Error::Message(format!(
+            "cannot write keyword {key}: cfitsio status {status}"
+        )))
+    }
+}
+
+fn delete_key(f: &mut FitsFile, key: &str) -> Result<(), String> {
+    let c_key = std::ffi::CString::new(key).map_err(|e| e.to_string())?;
+    let mut status = 0;
+    // SAFETY: `f` is an open, writable cfitsio file whose current HDU is the
+    // image just created; ffdkey only edits that header.
+    unsafe {
+        fitsio::sys::ffdkey(f.as_raw(), c_key.as_ptr(), &mut status);
+    }
+    if status == 0 {
+        Ok(())
+    } else {
+        Err(format!("cannot delete {key}: cfitsio status {status}"))
+    }
+}
+
+/// Reads the first 2-D image of a file (primary HDU, or HDU 1 of a
+/// tile-compressed file) as ADU.
+pub fn read_image_fits(path: &Path) -> Result<FitsImage, IoError> {
+    let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+    let mut f = FitsFile::open(path).map_err(fe)?;
+    let n_hdus = f.num_hdus().map_err(fe)?;
+    for i in 0..n_hdus {
+        let hdu = f.hdu(i).map_err(fe)?;
+        if let HduInfo::ImageInfo { shape, .. } = &hdu.info
+            && shape.len() == 2
+        {
+            let (height, width) = (shape[0] as u32, shape[1] as u32);
+            let pixels: Vec<f32> = hdu.read_image(&mut f).map_err(fe)?;
+            return Ok(FitsImage {
+                width,
+                height,
+                pixels,
+            });
+        }
+    }
+    Err(IoError::format(path, "no 2-D image in the file"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header() -> ImageHeader {
+        let mut img = RawImage::default();
+        img.width_px = 40;
+        img.height_px = 30;
+        ImageHeader::new(&img, &RawInstrument::default(), 2)
+    }
+
+    fn pixels() -> Vec<f32> {
+        (0..1200)
+            .map(|i| 20_000.0 + ((i * 7919) % 1000) as f32 * 0.37 - 150.0)
+            .collect()
+    }
+
+    fn key_f64(path: &Path, hdu: usize, key: &str) -> f64 {
+        let mut f = FitsFile::open(path).unwrap();
+        let h = f.hdu(hdu).unwrap();
+        h.read_key(&mut f, key).unwrap()
+    }
+
+    #[test]
+    fn float32_round_trip_is_exact_and_header_is_complete() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.fits");
+        let px = pixels();
+        let h = header();
+        write_image_fits(
+            &path,
+            &px,
+            40,
+            30,
+            &h,
+            SampleFormat::Float32,
+            Compression::None,
+        )
+        .unwrap();
+        let back = read_image_fits(&path).unwrap();
+        assert_eq!((back.width, back.height), (40, 30));
+        assert_eq!(back.pixels, px);
+        assert_eq!(key_f64(&path, 0, "GAIN"), 4.0);
+        assert_eq!(key_f64(&path, 0, "RDNOISE"), 5.0);
+        assert_eq!(key_f64(&path, 0, "SATURATE"), 65535.0);
+        assert_eq!(key_f64(&path, 0, "EXPTIME"), 3600.0);
+        assert_eq!(key_f64(&path, 0, "PIXSCALE"), 0.206);
+        assert_eq!(key_f64(&path, 0, "CRPIX1"), 20.5);
+        assert_eq!(key_f64(&path, 0, "CRPIX2"), 15.5);
+        assert_eq!(key_f64(&path, 0, "CD1_1"), -0.206 / 3600.0);
+        assert_eq!(key_f64(&path, 0, "CRVAL1"), h.wcs.crval1);
+        // MAGZERO = 26 + 2.5 log10(3600) − 2.5 log10(4) = 33.385606
+        assert!((key_f64(&path, 0, "MAGZERO") - 33.385_606).abs() < 1e-6);
+        // The raw header: BITPIX −32, WCS types, no time, no EXTNAME.
+        let bytes = std::fs::read(&path).unwrap();
+        let head = String::from_utf8_lossy(&bytes[..2880]);
+        assert!(head.contains("BITPIX  =                  -32"), "{head}");
+        assert!(head.contains("'RA---TAN'") && head.contains("'DEC--TAN'"));
+        for banned in ["DATE", "EXTNAME", "CHECKSUM"] {
+            assert!(!head.contains(banned), "{banned} in header");
+        }
+    }
+
+    #[test]
+    fn rice_int32_round_trip_is_exact_and_smaller() {
+        let dir = tempfile::tempdir().unwrap();
+        let px: Vec<f32> = (0..256 * 256)
+            .map(|i: i64| (20_000 + (i * 48_271 % 97) - 48) as f32)
+            .collect();
+        let h = header();
+        let rice = dir.path().join("r.fits");
+        let plain = dir.path().join("p.fits");
+        for (path, c) in [(&rice, Compression::Rice), (&plain, Compression::None)] {
+            write_image_fits(path, &px, 256, 256, &h, SampleFormat::Int32, c).unwrap();
+            let back = read_image_fits(path).unwrap();
+            assert_eq!((back.width, back.height), (256, 256));
+            assert_eq!(back.pixels, px);
+        }
+        let (r, p) = (
+            std::fs::metadata(&rice).unwrap().len(),
+            std::fs::metadata(&plain).unwrap().len(),
+        );
+        assert!(r < p / 2, "rice {r} bytes vs plain {p}");
+        assert_eq!(key_f64(&rice, 1, "GAIN"), 4.0);
+        // Identical bytes on rewrite (nothing time-dependent in the file).
+        let first = std::fs::read(&rice).unwrap();
+        write_image_fits(
+            &rice,
+            &px,
+            256,
+            256,
+            &h,
+            SampleFormat::Int32,
+            Compression::Rice,
+        )
+        .unwrap();
+        assert_eq!(std::fs::read(&rice).unwrap(), first);
+        assert!(!String::from_utf8_lossy(&first).contains("DATE"));
+    }
+
+    #[test]
+    fn int32_rounds_to_nearest() {
+        assert_eq!(adu_to_i32(2.4), 2);
+        assert_eq!(adu_to_i32(2.6), 3);
+        assert_eq!(adu_to_i32(-2.6), -3);
+        assert_eq!(adu_to_i32(1e12), i32::MAX);
+    }
+
+    #[test]
+    fn bad_input_writes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.fits");
+        let err = write_image_fits(
+            &path,
+            &[1.0; 10],
+            4,
+            4,
+            &header(),
+            SampleFormat::Float32,
+            Compression::None,
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("x.fits"), "{err}");
+        assert!(
+            write_image_fits(
+                &path,
+                &[1.0; 16],
+                4,
+                4,
+                &header(),
+                SampleFormat::Float32,
+                Compression::Rice
+            )
+            .is_err()
+        );
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}

@@ -1,0 +1,347 @@
+//! Sky, photon noise, read noise, gain and saturation: from a noise-free model
+//! in electrons to the pixel values of a FITS image in ADU (SPEC §4).
+//!
+//! For each pixel with noise-free, sky-free model value `m` (electrons over
+//! the exposure):
+//!
+//! ```text
+//! λ    = max(m + sky, 0)                      expected electrons
+//! e    = Poisson(λ) + Normal(0, read_noise)   exact Poisson, any λ
+//! adu  = min(e / gain, saturation_adu)
+//! ```
+//!
+//! and without noise (`output.noise = false`) `adu = min(λ / gain, saturation_adu)`.
+//! The sky level per pixel is `mag_to_electrons(sky_mag_arcsec2) × p²` for
+//! pixel scale `p` (the sky stays in the image, as in STEP1). Negative model
+//! values (ringing of a Fourier renderer) are clamped so that λ ≥ 0.
+//!
+//! Reproducibility: the image is cut into blocks of [`BLOCK_ROWS`] rows; block
+//! `b` draws from its own generator keyed by [`block_key`]`(key, b)`, so the
+//! bytes never depend on the number of threads. [`realise_reference`] is the
+//! slow, obvious sequential twin (one pixel at a time, a fresh distribution
+//! per pixel) that the fast [`realise`] is tested against, bit for bit.
+//!
+//! Measured statistics are in `docs/noise.md`.
+
+use crate::config::RawInstrument;
+use crate::seed::{SeedKey, SimRng};
+use rand::RngExt;
+use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
+use rayon::prelude::*;
+
+/// Rows per noise block (each block has its own generator). Part of the
+/// on-disk contract: changing it changes every noisy image.
+pub const BLOCK_ROWS: usize = 64;
+
+/// The detector and sky seen by one image, in electrons and ADU.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Detector {
+    /// Sky level per pixel, electrons over the exposure.
+    pub sky_e_per_px: f64,
+    /// Electrons per ADU.
+    pub gain_e_per_adu: f64,
+    /// Gaussian read noise, electrons rms.
+    pub read_noise_e: f64,
+    /// Clip level in ADU.
+    pub saturation_adu: f64,
+}
+
+impl Detector {
+    /// The detector of `instrument` at pixel scale `pixel_scale_arcsec`.
+    pub fn new(instrument: &RawInstrument, pixel_scale_arcsec: f64) -> Self {
+        Self {
+            sky_e_per_px: sky_e_per_pixel(instrument, pixel_scale_arcsec),
+            gain_e_per_adu: instrument.gain_e_per_adu,
+            read_noise_e: instrument.read_noise_e,
+            saturation_adu: instrument.saturation_adu,
+        }
+    }
+
+    /// Noise σ of an empty sky pixel in electrons: sqrt(sky + read_noise²).
+    pub fn sky_sigma_e(&self) -> f64 {
+        (self.sky_e_per_px + self.read_noise_e * self.read_noise_e).sqrt()
+    }
+
+    /// Expected value of a pixel in ADU before clipping: (m + sky) / gain.
+    pub fn expected_adu(&self, model_e: f32) -> f64 {
+        expected_e(model_e, self.sky_e_per_px) / self.gain_e_per_adu
+    }
+}
+
+/// Sky electrons per pixel: the sky surface brightness converted with the
+/// instrument's effective zeropoint, times the pixel area in arcsec².
+pub fn sky_e_per_pixel(instrument: &RawInstrument, pixel_scale_arcsec: f64) -> f64 {
+    instrument.mag_to_electrons(instrument.sky_mag_arcsec2)
+        * pixel_scale_arcsec
+        * pixel_scale_arcsec
+}
+
+/// Key of the generator of noise block `block` of the image keyed by `key`:
+/// the sub-stream index is `(key.index << 32) | block`, so that an image can
+/// use `key.index` to tell apart two images of the same field and dataset
+/// (e.g. the 90°-rotated twin uses index 1).
+pub fn block_key(key: SeedKey, block: usize) -> SeedKey {
+    key.with_index((key.index << 32) | block as u64)
+}
+
+fn expected_e(model_e: f32, sky_e: f64) -> f64 {
+    (f64::from(model_e) + sky_e).max(0.0)
+}
+
+fn to_adu(e: f64, det: &Detector) -> f32 {
+    (e / det.gain_e_per_adu).min(det.saturation_adu) as f32
+}
+
+/// Turns a noise-free, sky-free model (electrons, row-major, `width` pixels
+/// per row) into the pixel values of the image in ADU: sky added, then photon
+/// and read noise drawn when `noise` holds a key (none: noise-free image with
+/// sky), divided by the gain and clipped at saturation. Parallel over blocks
+/// of [`BLOCK_ROWS`] rows; the result does not depend on the thread count.
+pub fn realise(model_e: &[f32], width: usize, det: &Detector, noise: Option<SeedKey>) -> Vec<f32> {
+    assert!(
+        width > 0 && model_e.len() % width == 0,
+        "model length {} is not a multiple of width {width}",
+        model_e.len()
+    );
+    let mut out = vec![0f32; model_e.len()];
+    let chunk = BLOCK_ROWS * width;
+    out.par_chunks_mut(chunk)
+        .zip(model_e.par_chunks(chunk))
+        .enumerate()
+        .for_each(|(block, (dst, src))| match noise {
+            None => {
+                for (d, &m) in dst.iter_mut().zip(src) {
+                    *d = to_adu(expected_e(m, det.sky_e_per_px), det);
+                }
+            }
+            Some(key) => noisy_block(dst, src, det, &mut block_key(key, block).rng()),
+        });
+    out
+}
+
+/// Fast path of one block: reuses the Poisson distribution while the mean
+/// stays the same (every empty sky pixel has the same mean).
+fn noisy_block(dst: &mut [f32], src: &[f32], det: &Detector, rng: &mut SimRng) {
+    let mut last: Option<(f64, Poisson<f64>)> = None;
+    for (d, &m) in dst.iter_mut().zip(src) {
+        let lambda = expected_e(m, det.sky_e_per_px);
+        let mut e = if lambda > 0.0 {
+            let dist = match &last {
+                Some((l, dist)) if *l == lambda => *dist,
+                _ => {
+                    let dist = poisson(lambda);
+                    last = Some((lambda, dist));
+                    dist
+                }
+            };
+            rng.sample(dist)
+        } else {
+            0.0
+        };
+        if det.read_noise_e > 0.0 {
+            let n: f64 = rng.sample(StandardNormal);
+            e += det.read_noise_e * n;
+        }
+        *d = to_adu(e, det);
+    }
+}
+
+fn poisson(lambda: f64) -> Poisson<f64> {
+    // λ is finite and > 0 here; beyond MAX_LAMBDA (1.8e19 e⁻, far above any
+    // saturation level) the count is clipped anyway.
+    Poisson::new(lambda.min(Poisson::<f64>::MAX_LAMBDA)).expect("0 < λ ≤ MAX_LAMBDA")
+}
+
+/// The slow, obvious twin of [`realise`]: one thread, blocks in order, pixels
+/// in order, a fresh Poisson and Normal distribution for every pixel. Kept as
+/// the reference that [`realise`] must match bit for bit.
+pub fn realise_reference(
+    model_e: &[f32],
+    width: usize,
+    det: &Detector,
+    noise: Option<SeedKey>,
+) -> Vec<f32> {
+    let mut out = Vec::with_capacity(model_e.len());
+    for (block, src) in model_e.chunks(BLOCK_ROWS * width).enumerate() {
+        let mut rng = noise.map(|k| block_key(k, block).rng());
+        for &m in src {
+            let lambda = (f64::from(m) + det.sky_e_per_px).max(0.0);
+            let e = match rng.as_mut() {
+                None => lambda,
+                Some(rng) => {
+                    let photons = if lambda > 0.0 {
+                        Poisson::new(lambda).unwrap().sample(rng)
+                    } else {
+                        0.0
+                    };
+                    let read = if det.read_noise_e > 0.0 {
+                        Normal::new(0.0, det.read_noise_e).unwrap().sample(rng)
+                    } else {
+                        0.0
+                    };
+                    photons + read
+                }
+            };
+            out.push((e / det.gain_e_per_adu).min(det.saturation_adu) as f32);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::seed::Stream;
+
+    fn key() -> SeedKey {
+        SeedKey::image(7, 1, 2, Stream::Noise)
+    }
+
+    fn det(sky: f64, gain: f64, ron: f64) -> Detector {
+        Detector {
+            sky_e_per_px: sky,
+            gain_e_per_adu: gain,
+            read_noise_e: ron,
+            saturation_adu: 65535.0,
+        }
+    }
+
+    fn moments(x: &[f32]) -> (f64, f64, f64) {
+        let n = x.len() as f64;
+        let mean = x.iter().map(|&v| f64::from(v)).sum::<f64>() / n;
+        let m2 = x
+            .iter()
+            .map(|&v| (f64::from(v) - mean).powi(2))
+            .sum::<f64>()
+            / n;
+        let m3 = x
+            .iter()
+            .map(|&v| (f64::from(v) - mean).powi(3))
+            .sum::<f64>()
+            / n;
+        (mean, m2, m3)
+    }
+
+    #[test]
+    fn step1_sky_level() {
+        // 19.2 mag/arcsec² with zp_eff = 26 + 2.5 log10(3600): 10^(0.4 (34.890756 − 19.2))
+        // = 1.8884e6 e⁻/arcsec², times 0.206² = 0.042436 arcsec² → 80 138 e⁻/px.
+        let d = Detector::new(&RawInstrument::default(), 0.206);
+        let want = 10f64.powf(0.4 * (26.0 + 2.5 * 3600f64.log10() - 19.2)) * 0.206 * 0.206;
+        assert!((d.sky_e_per_px - want).abs() < 1e-6 * want);
+        assert!(
+            (d.sky_e_per_px - 80_138.0).abs() < 50.0,
+            "{}",
+            d.sky_e_per_px
+        );
+        assert!((d.sky_sigma_e() - (d.sky_e_per_px + 25.0).sqrt()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn sky_only_mean_and_variance_match_poisson_plus_read_noise() {
+        // 512² pixels: the relative standard error of the variance is
+        // sqrt(2/262144) = 0.28%, so the 1% tolerance is > 3.5σ.
+        let (w, h) = (512, 512);
+        let model = vec![0f32; w * h];
+        for (sky, gain, ron) in [(80_138.0, 4.0, 5.0), (30.0, 2.0, 5.0), (400.0, 1.5, 12.0)] {
+            let d = det(sky, gain, ron);
+            let img = realise(&model, w, &d, Some(key()));
+            let (mean, var, _) = moments(&img);
+            let want_mean = sky / gain;
+            let want_var = sky / (gain * gain) + (ron / gain).powi(2);
+            assert!(
+                (mean / want_mean - 1.0).abs() < 0.01,
+                "sky {sky}: mean {mean} vs {want_mean}"
+            );
+            assert!(
+                (var / want_var - 1.0).abs() < 0.01,
+                "sky {sky}: variance {var} vs {want_var}"
+            );
+        }
+    }
+
+    #[test]
+    fn faint_level_follows_poisson_not_gaussian_statistics() {
+        // λ = 2 e⁻, gain 1, no read noise: counts are non-negative integers
+        // with P(k) = e^−2 2^k / k! and all central moments up to 3 equal to λ.
+        let (w, h) = (512, 512);
+        let model = vec![0f32; w * h];
+        let img = realise(&model, w, &det(2.0, 1.0, 0.0), Some(key()));
+        assert!(img.iter().all(|&v| v >= 0.0 && v.fract() == 0.0));
+        let n = img.len() as f64;
+        let mut p_want = (-2f64).exp();
+        for k in 0..5 {
+            let p = img.iter().filter(|&&v| v == k as f32).count() as f64 / n;
+            // standard error ≤ sqrt(0.25/262144) = 0.001
+            assert!((p - p_want).abs() < 0.004, "P({k}) = {p}, want {p_want}");
+            p_want *= 2.0 / f64::from(k + 1);
+        }
+        let (mean, var, m3) = moments(&img);
+        assert!((mean - 2.0).abs() < 0.01, "{mean}");
+        assert!((var / 2.0 - 1.0).abs() < 0.02, "{var}");
+        // Third central moment = λ for Poisson, 0 for a Gaussian; standard
+        // error here ≈ 0.06 (3%), tolerance 15%.
+        assert!((m3 / 2.0 - 1.0).abs() < 0.15, "{m3}");
+    }
+
+    #[test]
+    fn saturation_clips_exactly() {
+        let mut d = det(100.0, 4.0, 5.0);
+        d.saturation_adu = 1000.0;
+        let mut model = vec![0f32; 64 * 3];
+        model[5] = 1e9;
+        model[100] = 3900.0; // 4000 e⁻ expected = 1000 ADU: clipped about half the time
+        for noise in [None, Some(key())] {
+            let img = realise(&model, 64, &d, noise);
+            assert_eq!(img[5], 1000.0);
+            assert!(img.iter().all(|&v| v <= 1000.0));
+        }
+    }
+
+    #[test]
+    fn noise_free_mode_is_model_plus_sky_over_gain() {
+        let d = det(80.0, 4.0, 5.0);
+        let model: Vec<f32> = (0..200).map(|i| i as f32 * 3.5 - 100.0).collect();
+        let img = realise(&model, 20, &d, None);
+        for (i, &v) in img.iter().enumerate() {
+            let want = ((f64::from(model[i]) + 80.0).max(0.0) / 4.0) as f32;
+            assert_eq!(v, want, "pixel {i}");
+            assert_eq!(f64::from(v), f64::from(d.expected_adu(model[i]) as f32));
+        }
+    }
+
+    #[test]
+    fn fast_matches_reference_bit_for_bit_at_any_thread_count() {
+        // Objects of all brightnesses (varying λ, including λ ≤ 0) over 3.5 blocks.
+        let (w, h) = (50, BLOCK_ROWS * 3 + 32);
+        let model: Vec<f32> = (0..w * h)
+            .map(|i| match i % 7 {
+                0 => 0.0,
+                1 => 5e4 * ((i % 13) as f32),
+                2 => -500.0,
+                _ => (i % 97) as f32 * 0.25,
+            })
+            .collect();
+        let d = det(60.0, 3.0, 4.0);
+        for noise in [None, Some(key())] {
+            let want = realise_reference(&model, w, &d, noise);
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let got = pool.install(|| realise(&model, w, &d, noise));
+                assert!(
+                    got.iter()
+                        .zip(&want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "threads {threads}"
+                );
+            }
+        }
+        // A different image key gives different noise.
+        let a = realise(&model, w, &d, Some(key()));
+        let b = realise(&model, w, &d, Some(key().with_index(1)));
+        assert_ne!(a, b);
+    }
+}
