@@ -23,6 +23,7 @@
 
 pub mod blind;
 pub mod config;
+pub mod generate;
 pub mod io;
 pub mod noise;
 pub mod psf;

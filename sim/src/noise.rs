@@ -225,7 +225,7 @@ mod tests {
     #[test]
     fn step1_sky_level() {
         // 19.2 mag/arcsec² with zp_eff = 26 + 2.5 log10(3600): 10^(0.4 (34.890756 − 19.2))
-        // = 1.8884e6 e⁻/arcsec², times 0.206² = 0.042436 arcsec² → 80 138 e⁻/px.
+        // = 1.88929e6 e⁻/arcsec², times 0.206² = 0.042436 arcsec² → 80 174.6 e⁻/px.
         let d = Detector::new(&RawInstrument::default(), 0.206);
         let want = 10f64.powf(0.4 * (26.0 + 2.5 * 3600f64.log10() - 19.2)) * 0.206 * 0.206;
         assert!((d.sky_e_per_px - want).abs() < 1e-6 * want);

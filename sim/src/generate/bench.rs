@@ -1,0 +1,174 @@
+//! The pieces of `stepsim bench`: one image made stage by stage with each
+//! stage timed (a benchmark, never a test assertion). Galaxies and stars are
+//! drawn separately so that their costs can be told apart; the sum of the two
+//! drawings is the model that the noise stage uses.
+
+use super::{GenerateError, deps};
+use crate::config::Plan;
+use crate::io::image_fits::{ImageHeader, write_image_fits};
+use crate::noise::{self, Detector};
+use crate::seed::{SeedKey, Stream};
+use std::path::Path;
+use std::time::Instant;
+
+/// Wall-clock seconds of each stage of one image, and what it held.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Base field and shear.
+    pub population_s: f64,
+    /// Building (calibrating) the PSF and its renderer.
+    pub psf_s: f64,
+    /// Drawing the galaxies.
+    pub galaxies_s: f64,
+    /// Drawing the stars.
+    pub stars_s: f64,
+    /// Sky, photon and read noise.
+    pub noise_s: f64,
+    /// Writing the FITS file.
+    pub write_s: f64,
+    /// Galaxies in the base field.
+    pub n_galaxies: usize,
+    /// Stars in the base field.
+    pub n_stars: usize,
+}
+
+impl StageTimes {
+    /// Total of the stages.
+    pub fn total_s(&self) -> f64 {
+        self.population_s
+            + self.psf_s
+            + self.galaxies_s
+            + self.stars_s
+            + self.noise_s
+            + self.write_s
+    }
+}
+
+/// Makes image `field` of the dataset with PSF `psf_index` and the last
+/// shear of the plan, writing it to `scratch` (overwritten), and times every
+/// stage.
+pub fn run_once(
+    plan: &Plan,
+    psf_index: usize,
+    field: u32,
+    scratch: &Path,
+) -> Result<StageTimes, GenerateError> {
+    let raw = &plan.raw;
+    let (w, h) = (raw.image.width_px, raw.image.height_px);
+    let pixel_scale = raw.image.pixel_scale_arcsec;
+    let shear = raw.shears.last().expect("validated plan has shears");
+    let mut t = StageTimes::default();
+
+    let clock = Instant::now();
+    let base = deps::base_field(plan, field)
+        .map_err(|source| GenerateError::Population { field, source })?;
+    let rows = deps::sheared(&base, shear.g1, shear.g2);
+    let (galaxies, stars): (Vec<_>, Vec<_>) = rows.into_iter().partition(|r| !r.is_star());
+    t.population_s = clock.elapsed().as_secs_f64();
+    t.n_galaxies = galaxies.len();
+    t.n_stars = stars.len();
+
+    let clock = Instant::now();
+    let det = Detector::new(&raw.instrument, pixel_scale);
+    let psf_raw = &raw.psfs[psf_index];
+    let psf = deps::build_psf(psf_raw, &raw.telescope, pixel_scale).map_err(|source| {
+        GenerateError::Psf {
+            index: psf_index,
+            name: psf_raw.name.clone(),
+            source,
+        }
+    })?;
+    let renderer = deps::renderer(psf, pixel_scale, &raw.render, det.sky_sigma_e());
+    t.psf_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let mut model = deps::draw_image(&renderer, &galaxies, w, h);
+    t.galaxies_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let star_img = deps::draw_image(&renderer, &stars, w, h);
+    for (m, s) in model.iter_mut().zip(&star_img) {
+        *m += s;
+    }
+    drop(star_img);
+    t.stars_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let key = SeedKey::image(plan.seed(), field, 0, Stream::Noise);
+    let pixels = noise::realise(&model, w as usize, &det, Some(key));
+    t.noise_s = clock.elapsed().as_secs_f64();
+    drop(model);
+
+    let clock = Instant::now();
+    let header = ImageHeader::new(&raw.image, &raw.instrument, field);
+    write_image_fits(
+        scratch,
+        &pixels,
+        w,
+        h,
+        &header,
+        raw.output.format,
+        raw.output.compression,
+    )?;
+    t.write_s = clock.elapsed().as_secs_f64();
+    Ok(t)
+}
+
+/// Peak resident memory of this process in bytes (`VmHWM` of
+/// `/proc/self/status`), when the system reports it.
+pub fn peak_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Median of a non-empty list (mean of the two middle values for an even count).
+pub fn median(values: &[f64]) -> f64 {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_of_odd_and_even_lists() {
+        assert_eq!(median(&[3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(&[4.0, 1.0, 3.0, 2.0]), 2.5);
+        assert!(median(&[]).is_nan());
+    }
+
+    #[test]
+    fn one_small_image_runs_every_stage() {
+        let raw = crate::config::RawConfig::parse(
+            "{}",
+            Path::new("t.json"),
+            &[
+                "image.width_px=64".into(),
+                "image.height_px=64".into(),
+                "image.n_images=1".into(),
+            ],
+        )
+        .unwrap();
+        let plan = Plan::new(raw, Path::new("t.json")).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.fits");
+        let t = run_once(&plan, 1, 0, &path).unwrap();
+        assert!(t.n_galaxies > 0 && t.n_stars > 0);
+        assert!(t.total_s() >= t.noise_s);
+        let img = crate::io::image_fits::read_image_fits(&path).unwrap();
+        assert_eq!(img.pixels.len(), 64 * 64);
+        assert!(peak_memory_bytes().is_some_and(|b| b > 0));
+    }
+}

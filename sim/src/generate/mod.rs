@@ -1,0 +1,714 @@
+//! `stepsim generate`: a whole blind data release (SPEC §5, `docs/run-layout.md`).
+//!
+//! The run is a list of images in canonical order — for each base field k,
+//! for the field and (with `population.rotated_pairs`) its 90°-rotated twin,
+//! for each dataset d (PSF × shear) — and every image is a pure function of
+//! (config, k, rotated, d):
+//!
+//! 1. truth rows = `sheared(base_field(k) [rotated], g1(d), g2(d))`;
+//! 2. model = `draw_image(renderer of PSF(d), rows)` (electrons, no sky);
+//! 3. pixels = [`noise::realise`](crate::noise::realise) with key
+//!    `SeedKey::image(seed, k, d, Noise).with_index(rotated)`;
+//! 4. `public/<dataset-id>/<image-id>.fits`, `private/truth/<image-id>.fits`,
+//!    optionally `private/model/<image-id>.fits`, and last the sidecar
+//!    `private/done/<image-id>.json` holding the files' SHA-256.
+//!
+//! Images are made field by field (the base field is drawn once and shared by
+//! the datasets), in parallel over the images of a field and within each
+//! image. A rerun skips every image whose sidecar matches the files on disk
+//! (resume), and `--shard K/N` makes only image j with j mod N = K − 1. The
+//! manifest is (re)written by whichever process finds every sidecar present,
+//! so after the last shard has run it is complete.
+//!
+//! All calls into the population, PSF and rendering modules go through
+//! [`deps`].
+
+pub mod bench;
+pub mod deps;
+mod readme;
+mod shard;
+
+pub use readme::{SUBMISSION_FORMAT, participants_readme};
+pub use shard::{BadShard, Shard};
+
+use crate::blind::{BlindingKey, sha256_hex};
+use crate::config::{Plan, SampleFormat};
+use crate::io::image_fits::{ImageHeader, write_image_fits};
+use crate::io::{IoError, truth::write_truth_fits, write_bytes_atomically};
+use crate::noise::{self, Detector};
+use crate::run_layout::{
+    DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
+    Manifest, ManifestImage,
+};
+use crate::seed::{SeedKey, Stream};
+use crate::truth::TruthRow;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum GenerateError {
+    /// Reading or writing a file failed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// The population of a base field could not be made.
+    #[error("base field {field}: {source}")]
+    Population {
+        /// The base field.
+        field: u32,
+        /// The population's error.
+        source: deps::PopulationError,
+    },
+    /// A PSF could not be built.
+    #[error("psfs.{index} ({name}): {source}")]
+    Psf {
+        /// Index in the config's `psfs`.
+        index: usize,
+        /// Its name.
+        name: String,
+        /// The PSF module's error.
+        source: deps::PsfError,
+    },
+    /// The output directory holds a run made from another config.
+    #[error("{path} holds a run made from a different config; use another --out (or delete it)")]
+    DifferentRun {
+        /// The existing `private/config.json`.
+        path: PathBuf,
+    },
+    /// Two opaque ids collided (practically impossible; change `run.seed`).
+    #[error("opaque id {id} is not unique; choose another run.seed")]
+    IdCollision {
+        /// The id.
+        id: String,
+    },
+}
+
+/// One image of the run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Job {
+    /// Position in the canonical order (for sharding).
+    pub order: usize,
+    /// Base field.
+    pub field: u32,
+    /// 90°-rotated twin of the base field.
+    pub rotated: bool,
+    /// Dataset index in [`Plan::datasets`].
+    pub dataset: u32,
+    /// Opaque dataset id.
+    pub dataset_id: String,
+    /// Opaque image id.
+    pub image_id: String,
+}
+
+impl Job {
+    /// Image path relative to `public/`.
+    pub fn public_file(&self) -> String {
+        format!("{}/{}.fits", self.dataset_id, self.image_id)
+    }
+    /// Key of the image's noise.
+    pub fn noise_key(&self, run_seed: u64) -> SeedKey {
+        SeedKey::image(run_seed, self.field, self.dataset, Stream::Noise)
+            .with_index(u64::from(self.rotated))
+    }
+}
+
+/// Every image of a plan in canonical order, with its opaque ids.
+pub fn jobs(plan: &Plan, key: &BlindingKey) -> Result<Vec<Job>, GenerateError> {
+    let rotations: &[bool] = if plan.raw.population.rotated_pairs {
+        &[false, true]
+    } else {
+        &[false]
+    };
+    let dataset_ids: Vec<String> = plan
+        .datasets
+        .iter()
+        .map(|d| key.dataset_id(d.index))
+        .collect();
+    let mut out = Vec::new();
+    for field in 0..plan.n_fields() {
+        for &rotated in rotations {
+            for d in &plan.datasets {
+                out.push(Job {
+                    order: out.len(),
+                    field,
+                    rotated,
+                    dataset: d.index,
+                    dataset_id: dataset_ids[d.index as usize].clone(),
+                    image_id: key.image_id(d.index, field, rotated),
+                });
+            }
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    for id in dataset_ids.iter().chain(out.iter().map(|j| &j.image_id)) {
+        if !seen.insert(id.as_str()) {
+            return Err(GenerateError::IdCollision { id: id.clone() });
+        }
+    }
+    Ok(out)
+}
+
+/// The sidecar `private/done/<image-id>.json`, written after an image's
+/// files: it marks the image finished and lets a rerun verify it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sidecar {
+    /// Opaque image id.
+    pub image: String,
+    /// Opaque dataset id.
+    pub dataset: String,
+    /// Image path relative to `public/`.
+    pub file: String,
+    /// SHA-256 of the public image.
+    pub sha256: String,
+    /// SHA-256 of `private/truth/<image-id>.fits`.
+    pub truth_sha256: String,
+    /// SHA-256 of `private/model/<image-id>.fits`, when written.
+    #[serde(default)]
+    pub model_sha256: Option<String>,
+}
+
+/// Paths of a run directory.
+#[derive(Debug, Clone)]
+pub struct RunPaths {
+    /// `RUN`.
+    pub root: PathBuf,
+}
+
+impl RunPaths {
+    /// `RUN/public`.
+    pub fn public(&self) -> PathBuf {
+        self.root.join("public")
+    }
+    /// `RUN/private`.
+    pub fn private(&self) -> PathBuf {
+        self.root.join("private")
+    }
+    /// The public image of a job.
+    pub fn image(&self, job: &Job) -> PathBuf {
+        self.public().join(job.public_file())
+    }
+    /// The truth table of a job.
+    pub fn truth(&self, job: &Job) -> PathBuf {
+        self.private()
+            .join("truth")
+            .join(format!("{}.fits", job.image_id))
+    }
+    /// The noise-free model of a job.
+    pub fn model(&self, job: &Job) -> PathBuf {
+        self.private()
+            .join("model")
+            .join(format!("{}.fits", job.image_id))
+    }
+    /// The sidecar of a job.
+    pub fn sidecar(&self, job: &Job) -> PathBuf {
+        self.private()
+            .join("done")
+            .join(format!("{}.json", job.image_id))
+    }
+    /// The PSF file of PSF `name`.
+    pub fn psf(&self, name: &str) -> PathBuf {
+        self.private().join("psf").join(format!("{name}.fits"))
+    }
+}
+
+/// Options of a run besides the config.
+#[derive(Debug, Clone, Default)]
+pub struct Options {
+    /// Which share of the images to make.
+    pub shard: Shard,
+    /// The submission-format paragraph of the participants' README
+    /// (default [`SUBMISSION_FORMAT`]).
+    pub submission_format: Option<String>,
+}
+
+/// What the run reports while it works (for a progress bar).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Event {
+    /// Work starts: `pending` images to make, `done` already verified.
+    Start {
+        /// Images this process will make.
+        pending: usize,
+        /// Images of this shard found finished and verified.
+        done: usize,
+    },
+    /// One image was written.
+    ImageWritten,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// Images in the whole run.
+    pub total: usize,
+    /// Images of this shard.
+    pub in_shard: usize,
+    /// Images written by this process.
+    pub written: usize,
+    /// Images of this shard found finished and verified (skipped).
+    pub skipped: usize,
+    /// Images of the whole run finished (sidecar present) at the end.
+    pub finished: usize,
+    /// True when `public/manifest.json` was written (every image finished).
+    pub manifest_written: bool,
+    /// Leftover temporary files (`*.tmp`) found under the run directory:
+    /// from killed runs, or being written by another shard right now.
+    pub stray_tmp: Vec<PathBuf>,
+}
+
+/// Makes (this shard's share of) the run described by `plan` in `out`.
+/// Parallel in the current rayon pool; `progress` is told what happens.
+pub fn generate(
+    plan: &Plan,
+    out: &Path,
+    options: &Options,
+    progress: &(dyn Fn(Event) + Sync),
+) -> Result<Summary, GenerateError> {
+    let paths = RunPaths { root: out.into() };
+    let key = BlindingKey::from_seed(plan.seed());
+    let all = jobs(plan, &key)?;
+    let config_json = format!("{}\n", plan.raw.to_json());
+    let config_path = paths.private().join("config.json");
+    if let Ok(existing) = std::fs::read_to_string(&config_path)
+        && existing != config_json
+    {
+        return Err(GenerateError::DifferentRun { path: config_path });
+    }
+
+    // Resume: verify what is already there (read only).
+    let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
+    let want_model = plan.raw.output.write_model;
+    let done: Vec<bool> = mine
+        .par_iter()
+        .map(|j| verify(&paths, j, want_model))
+        .collect();
+    let pending: Vec<&Job> = mine
+        .iter()
+        .zip(&done)
+        .filter(|(_, d)| !**d)
+        .map(|(j, _)| *j)
+        .collect();
+
+    // PSFs: built once, only those this process needs.
+    let ds = &plan.datasets;
+    let mut psf_needed: Vec<usize> = pending.iter().map(|j| ds[j.dataset as usize].psf).collect();
+    if plan.raw.output.write_psf {
+        for j in &mine {
+            let p = ds[j.dataset as usize].psf;
+            if !paths.psf(&plan.raw.psfs[p].name).exists() {
+                psf_needed.push(p);
+            }
+        }
+    }
+    psf_needed.sort_unstable();
+    psf_needed.dedup();
+    let pixel_scale = plan.raw.image.pixel_scale_arcsec;
+    let det = Detector::new(&plan.raw.instrument, pixel_scale);
+    let mut renderers: BTreeMap<usize, deps::Renderer> = BTreeMap::new();
+    let mut built = Vec::new();
+    for &p in &psf_needed {
+        let raw = &plan.raw.psfs[p];
+        let psf = deps::build_psf(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
+            GenerateError::Psf {
+                index: p,
+                name: raw.name.clone(),
+                source,
+            }
+        })?;
+        renderers.insert(
+            p,
+            deps::renderer(
+                psf.clone(),
+                pixel_scale,
+                &plan.raw.render,
+                det.sky_sigma_e(),
+            ),
+        );
+        built.push((p, psf));
+    }
+
+    progress(Event::Start {
+        pending: pending.len(),
+        done: mine.len() - pending.len(),
+    });
+
+    // Field by field: the base field is drawn once for all its images.
+    let mut by_field: BTreeMap<u32, Vec<&Job>> = BTreeMap::new();
+    for j in &pending {
+        by_field.entry(j.field).or_default().push(j);
+    }
+    let mut shared_written = false;
+    for (&field, field_jobs) in &by_field {
+        let base = deps::base_field(plan, field)
+            .map_err(|source| GenerateError::Population { field, source })?;
+        if !shared_written {
+            write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
+            shared_written = true;
+        }
+        let twin = if field_jobs.iter().any(|j| j.rotated) {
+            Some(deps::rotated(&base))
+        } else {
+            None
+        };
+        field_jobs.par_iter().try_for_each(|job| {
+            let rows = if job.rotated {
+                twin.as_deref().expect("twin drawn")
+            } else {
+                &base
+            };
+            let renderer = &renderers[&ds[job.dataset as usize].psf];
+            make_image(plan, &paths, job, rows, renderer, &det)?;
+            progress(Event::ImageWritten);
+            Ok::<(), GenerateError>(())
+        })?;
+    }
+    if !shared_written {
+        write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
+    }
+
+    let (finished, manifest_written) = write_manifest_if_complete(plan, &paths, &all)?;
+    let mut stray_tmp = Vec::new();
+    find_tmp(out, &mut stray_tmp);
+    stray_tmp.sort();
+    Ok(Summary {
+        total: all.len(),
+        in_shard: mine.len(),
+        written: pending.len(),
+        skipped: mine.len() - pending.len(),
+        finished,
+        manifest_written,
+        stray_tmp,
+    })
+}
+
+/// True when the image's sidecar exists and every file it lists is on disk
+/// with the recorded SHA-256.
+pub fn verify(paths: &RunPaths, job: &Job, want_model: bool) -> bool {
+    let Some(side) = read_sidecar(paths, job) else {
+        return false;
+    };
+    let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| sha256_hex(&b) == want);
+    side.image == job.image_id
+        && side.file == job.public_file()
+        && same(&paths.image(job), &side.sha256)
+        && same(&paths.truth(job), &side.truth_sha256)
+        && match (&side.model_sha256, want_model) {
+            (Some(m), true) => same(&paths.model(job), m),
+            (None, false) => true,
+            _ => false,
+        }
+}
+
+fn read_sidecar(paths: &RunPaths, job: &Job) -> Option<Sidecar> {
+    let text = std::fs::read_to_string(paths.sidecar(job)).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// Makes one image and its private files; the sidecar is written last.
+fn make_image(
+    plan: &Plan,
+    paths: &RunPaths,
+    job: &Job,
+    base: &[TruthRow],
+    renderer: &deps::Renderer,
+    det: &Detector,
+) -> Result<(), GenerateError> {
+    let raw = &plan.raw;
+    let d = &plan.datasets[job.dataset as usize];
+    let (w, h) = (raw.image.width_px, raw.image.height_px);
+    let rows = deps::sheared(base, d.g1, d.g2);
+    let model = deps::draw_image(renderer, &rows, w, h);
+    let noise_key = raw.output.noise.then(|| job.noise_key(plan.seed()));
+    let pixels = noise::realise(&model, w as usize, det, noise_key);
+    let header = ImageHeader::new(&raw.image, &raw.instrument, job.field);
+    let image_path = paths.image(job);
+    write_image_fits(
+        &image_path,
+        &pixels,
+        w,
+        h,
+        &header,
+        raw.output.format,
+        raw.output.compression,
+    )?;
+    drop(pixels);
+    let truth_path = paths.truth(job);
+    let keywords = [
+        (
+            "FIELD".to_string(),
+            f64::from(job.field),
+            "base field".into(),
+        ),
+        (
+            "ROTATED".to_string(),
+            f64::from(u8::from(job.rotated)),
+            "1: 90-degree rotated twin".into(),
+        ),
+        ("PSF_ID".to_string(), d.psf as f64, "index in psfs".into()),
+        ("G1".to_string(), d.g1, "applied reduced shear".into()),
+        ("G2".to_string(), d.g2, "applied reduced shear".into()),
+    ];
+    write_truth_fits(&truth_path, &rows, &keywords)?;
+    let model_sha256 = if raw.output.write_model {
+        let adu: Vec<f32> = model
+            .iter()
+            .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
+            .collect();
+        let path = paths.model(job);
+        write_image_fits(
+            &path,
+            &adu,
+            w,
+            h,
+            &header,
+            SampleFormat::Float32,
+            crate::config::Compression::None,
+        )?;
+        Some(file_sha256(&path)?)
+    } else {
+        None
+    };
+    let side = Sidecar {
+        image: job.image_id.clone(),
+        dataset: job.dataset_id.clone(),
+        file: job.public_file(),
+        sha256: file_sha256(&image_path)?,
+        truth_sha256: file_sha256(&truth_path)?,
+        model_sha256,
+    };
+    let text = serde_json::to_string_pretty(&side).expect("sidecar serialises") + "\n";
+    write_bytes_atomically(&paths.sidecar(job), text.as_bytes())?;
+    Ok(())
+}
+
+fn file_sha256(path: &Path) -> Result<String, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
+    Ok(sha256_hex(&bytes))
+}
+
+/// The files every shard writes identically: resolved config, datasets,
+/// blinding key, participants' README, and the PSFs this process built.
+fn write_shared(
+    plan: &Plan,
+    paths: &RunPaths,
+    key: &BlindingKey,
+    all: &[Job],
+    config_json: &str,
+    options: &Options,
+    psfs: &[(usize, Arc<dyn crate::psf::Psf>)],
+) -> Result<(), GenerateError> {
+    let private = paths.private();
+    write_bytes_atomically(&private.join("config.json"), config_json.as_bytes())?;
+    write_bytes_atomically(
+        &private.join("blinding.key"),
+        format!("{}\n", key.to_hex()).as_bytes(),
+    )?;
+    let datasets = datasets_json(plan, all);
+    let text = serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n";
+    write_bytes_atomically(&private.join("datasets.json"), text.as_bytes())?;
+    let para = options
+        .submission_format
+        .as_deref()
+        .unwrap_or(SUBMISSION_FORMAT);
+    write_bytes_atomically(
+        &paths.public().join("README.md"),
+        participants_readme(plan, para).as_bytes(),
+    )?;
+    if plan.raw.output.write_psf {
+        for (p, psf) in psfs {
+            let raw = &plan.raw.psfs[*p];
+            deps::write_psf_fits(
+                &paths.psf(&raw.name),
+                psf,
+                raw,
+                plan.raw.image.pixel_scale_arcsec,
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// `private/datasets.json` of a run.
+pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
+    let img = &plan.raw.image;
+    Datasets {
+        format: DATASETS_FORMAT.into(),
+        width_px: img.width_px,
+        height_px: img.height_px,
+        pixel_scale_arcsec: img.pixel_scale_arcsec,
+        datasets: plan
+            .datasets
+            .iter()
+            .map(|d| {
+                let images: Vec<&Job> = all.iter().filter(|j| j.dataset == d.index).collect();
+                DatasetEntry {
+                    dataset: images
+                        .first()
+                        .map(|j| j.dataset_id.clone())
+                        .unwrap_or_default(),
+                    psf_id: d.psf as u32,
+                    psf: plan.raw.psfs[d.psf].name.clone(),
+                    g1: d.g1,
+                    g2: d.g2,
+                    images: images
+                        .iter()
+                        .map(|j| DatasetImage {
+                            image: j.image_id.clone(),
+                            field: j.field,
+                            rotated: j.rotated,
+                        })
+                        .collect(),
+                }
+            })
+            .collect(),
+    }
+}
+
+/// The public instrument facts of a plan.
+pub fn instrument_facts(plan: &Plan) -> InstrumentFacts {
+    let (img, ins) = (&plan.raw.image, &plan.raw.instrument);
+    InstrumentFacts {
+        width_px: img.width_px,
+        height_px: img.height_px,
+        pixel_scale_arcsec: img.pixel_scale_arcsec,
+        gain_e_per_adu: ins.gain_e_per_adu,
+        read_noise_e: ins.read_noise_e,
+        saturation_adu: ins.saturation_adu,
+        exposure_s: ins.exposure_s,
+        zeropoint_mag: ins.zeropoint_mag,
+    }
+}
+
+/// Writes `public/manifest.json` from the sidecars when every image of the
+/// run has one. Returns (images finished, manifest written).
+fn write_manifest_if_complete(
+    plan: &Plan,
+    paths: &RunPaths,
+    all: &[Job],
+) -> Result<(usize, bool), GenerateError> {
+    let sides: Vec<Option<Sidecar>> = all
+        .iter()
+        .map(|j| {
+            read_sidecar(paths, j).filter(|s| paths.image(j).is_file() && s.image == j.image_id)
+        })
+        .collect();
+    let finished = sides.iter().filter(|s| s.is_some()).count();
+    if finished < all.len() {
+        return Ok((finished, false));
+    }
+    let mut images: Vec<ManifestImage> = sides
+        .into_iter()
+        .flatten()
+        .map(|s| ManifestImage {
+            image: s.image,
+            dataset: s.dataset,
+            file: s.file,
+            sha256: s.sha256,
+        })
+        .collect();
+    images.sort_by(|a, b| (&a.dataset, &a.image).cmp(&(&b.dataset, &b.image)));
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        instrument: instrument_facts(plan),
+        images,
+    };
+    let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises") + "\n";
+    write_bytes_atomically(&paths.public().join("manifest.json"), text.as_bytes())?;
+    Ok((finished, true))
+}
+
+fn find_tmp(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            find_tmp(&p, out);
+        } else if p.extension().is_some_and(|x| x == "tmp") {
+            out.push(p);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::RawConfig;
+
+    fn plan(overrides: &[&str]) -> Plan {
+        let mut o: Vec<String> = [
+            "image.width_px=48",
+            "image.height_px=40",
+            "image.n_images=2",
+            "image.margin_arcsec=0",
+            "psfs=[{\"name\":\"a\",\"model\":\"gaussian\"},{\"name\":\"b\",\"model\":\"gaussian\",\"fwhm_arcsec\":1.1}]",
+            "shears=[{\"g1\":0.0},{\"g1\":0.04,\"g2\":-0.02}]",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        o.extend(overrides.iter().map(|s| s.to_string()));
+        let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
+        Plan::new(raw, Path::new("t.json")).unwrap()
+    }
+
+    #[test]
+    fn jobs_enumerate_fields_twins_and_datasets() {
+        let p = plan(&["population.rotated_pairs=true"]);
+        let key = BlindingKey::from_seed(p.seed());
+        let js = jobs(&p, &key).unwrap();
+        assert_eq!(js.len(), 2 * 2 * 4);
+        assert_eq!((js[0].field, js[0].rotated, js[0].dataset), (0, false, 0));
+        assert_eq!((js[5].field, js[5].rotated, js[5].dataset), (0, true, 1));
+        assert_eq!((js[15].field, js[15].rotated, js[15].dataset), (1, true, 3));
+        assert!(js.iter().enumerate().all(|(i, j)| j.order == i));
+        // Dataset ids are shared by the images of a dataset only.
+        assert_eq!(js[1].dataset_id, js[5].dataset_id);
+        assert_ne!(js[1].dataset_id, js[2].dataset_id);
+        // Twins get different noise.
+        assert_ne!(js[0].noise_key(1).seed(), js[4].noise_key(1).seed());
+    }
+
+    #[test]
+    fn run_writes_layout_and_resumes() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = plan(&[]);
+        let quiet = |_: Event| {};
+        let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
+        assert_eq!((s.total, s.written, s.skipped), (8, 8, 0));
+        assert!(s.manifest_written && s.stray_tmp.is_empty());
+        let m: Manifest = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("public/manifest.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(m.images.len(), 8);
+        for im in &m.images {
+            let bytes = std::fs::read(dir.path().join("public").join(&im.file)).unwrap();
+            assert_eq!(sha256_hex(&bytes), im.sha256);
+        }
+        let d: Datasets = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("private/datasets.json")).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(d.datasets[3].psf, "b");
+        assert_eq!((d.datasets[3].g1, d.datasets[3].g2), (0.04, -0.02));
+        // Truth rows carry the dataset's shear.
+        let im = &d.datasets[3].images[1];
+        let rows = crate::io::truth::read_truth_fits(
+            &dir.path().join(format!("private/truth/{}.fits", im.image)),
+        )
+        .unwrap();
+        assert!(!rows.is_empty() && rows.iter().all(|r| r.g1 == 0.04 && r.g2 == -0.02));
+        // Second run: everything verified, nothing written.
+        let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
+        assert_eq!((s.written, s.skipped), (0, 8));
+        // A different config into the same directory is refused.
+        let other = plan(&["run.seed=5"]);
+        let err = generate(&other, dir.path(), &Options::default(), &quiet).unwrap_err();
+        assert!(matches!(err, GenerateError::DifferentRun { .. }), "{err}");
+    }
+}
