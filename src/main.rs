@@ -20,12 +20,18 @@ struct Cli {
 enum Command {
     /// Validate a config and print it fully resolved (defaults, overrides).
     Config(cmd::config::Args),
+    /// Make the blind data release: images, truth, manifest (resumable, shardable).
+    Generate(cmd::generate::Args),
+    /// Time one full image stage by stage (population, PSF, galaxies, stars, noise, write).
+    Bench(cmd::bench::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
+        Command::Generate(args) => cmd::generate::run(&args),
+        Command::Bench(args) => cmd::bench::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,6 +1,8 @@
 //! One module per subcommand; each has `Args` (clap) and `run`.
 
+pub mod bench;
 pub mod config;
+pub mod generate;
 
 use std::path::PathBuf;
 

@@ -7,7 +7,7 @@
 //!
 //! 1. truth rows = `sheared(base_field(k) [rotated], g1(d), g2(d))`;
 //! 2. model = `draw_image(renderer of PSF(d), rows)` (electrons, no sky);
-//! 3. pixels = [`noise::realise`](crate::noise::realise) with key
+//! 3. pixels = [`crate::noise::realise`] with key
 //!    `SeedKey::image(seed, k, d, Noise).with_index(rotated)`;
 //! 4. `public/<dataset-id>/<image-id>.fits`, `private/truth/<image-id>.fits`,
 //!    optionally `private/model/<image-id>.fits`, and last the sidecar

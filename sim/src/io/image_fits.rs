@@ -183,23 +183,41 @@ pub fn write_image_fits(
     })
 }
 
-/// Writes a double keyword with 17 significant digits (cfitsio's default of
-/// 15 would not read back exactly).
+/// The shortest text of `value` that reads back exactly, as a FITS real
+/// (mantissa with a decimal point, exponent with `E`).
+pub fn fits_real(value: f64) -> String {
+    let text = format!("{value:?}");
+    let (mantissa, exponent) = match text.split_once('e') {
+        Some((m, e)) => (m.to_string(), Some(e.to_string())),
+        None => (text, None),
+    };
+    let mantissa = if mantissa.contains('.') {
+        mantissa
+    } else {
+        format!("{mantissa}.0")
+    };
+    match exponent {
+        Some(e) => format!("{mantissa}E{e}"),
+        None => mantissa,
+    }
+}
+
+/// Writes a double keyword as a fixed-format card with the shortest exact
+/// text of the value (cfitsio's own writer keeps 15 digits, or 17 with
+/// noise such as 0.20599999999999999).
 fn write_f64(f: &mut FitsFile, key: &str, value: f64, comment: &str) -> fitsio::errors::Result<()> {
-    let c_key = std::ffi::CString::new(key)?;
-    let c_comment = std::ffi::CString::new(comment)?;
+    let mut card = format!("{key:<8}= {:>20}", fits_real(value));
+    if !comment.is_empty() {
+        card.push_str(" / ");
+        card.push_str(comment);
+    }
+    card.truncate(80);
+    let c_card = std::ffi::CString::new(card)?;
     let mut status = 0;
-    // SAFETY: `f` is an open, writable cfitsio file; ffpkyd appends one card
-    // to the current HDU's header and reads only the two C strings.
+    // SAFETY: `f` is an open, writable cfitsio file; ffprec appends one
+    // 80-character card to the current HDU's header and only reads `c_card`.
     unsafe {
-        fitsio::sys::ffpkyd(
-            f.as_raw(),
-            c_key.as_ptr(),
-            value,
-            -17,
-            c_comment.as_ptr(),
-            &mut status,
-        );
+        fitsio::sys::ffprec(f.as_raw(), c_card.as_ptr(), &mut status);
     }
     if status == 0 {
         Ok(())
@@ -253,9 +271,11 @@ mod tests {
     use super::*;
 
     fn header() -> ImageHeader {
-        let mut img = RawImage::default();
-        img.width_px = 40;
-        img.height_px = 30;
+        let img = RawImage {
+            width_px: 40,
+            height_px: 30,
+            ..Default::default()
+        };
         ImageHeader::new(&img, &RawInstrument::default(), 2)
     }
 
@@ -306,6 +326,10 @@ mod tests {
         let head = String::from_utf8_lossy(&bytes[..2880]);
         assert!(head.contains("BITPIX  =                  -32"), "{head}");
         assert!(head.contains("'RA---TAN'") && head.contains("'DEC--TAN'"));
+        assert!(
+            head.contains("PIXSCALE=                0.206 / [arcsec/pixel]"),
+            "{head}"
+        );
         for banned in ["DATE", "EXTNAME", "CHECKSUM"] {
             assert!(!head.contains(banned), "{banned} in header");
         }
@@ -346,6 +370,18 @@ mod tests {
         .unwrap();
         assert_eq!(std::fs::read(&rice).unwrap(), first);
         assert!(!String::from_utf8_lossy(&first).contains("DATE"));
+    }
+
+    #[test]
+    fn reals_are_shortest_exact_fits_text() {
+        assert_eq!(fits_real(0.206), "0.206");
+        assert_eq!(fits_real(4.0), "4.0");
+        assert_eq!(fits_real(-5.722222222222222e-5), "-5.722222222222222E-5");
+        assert_eq!(fits_real(1e-5), "1.0E-5");
+        assert_eq!(fits_real(1e300), "1.0E300");
+        for v in [0.1, 1.0 / 3.0, -2.5e-12, 150.0 + 3.0 / 0.9993908270190958] {
+            assert_eq!(fits_real(v).replace('E', "e").parse::<f64>().unwrap(), v);
+        }
     }
 
     #[test]

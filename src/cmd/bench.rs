@@ -1,0 +1,125 @@
+//! `stepsim bench`: time one full image stage by stage (a benchmark; the
+//! numbers go to BENCHMARKS.md, never into a test).
+
+use anyhow::{Context as _, bail};
+use std::path::{Path, PathBuf};
+use stepsim_sim::config::{Plan, RawConfig};
+use stepsim_sim::generate::bench::{StageTimes, median, peak_memory_bytes, run_once};
+
+/// Arguments of `stepsim bench`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Config file (default: the built-in STEP1 preset, one 4096² image).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Override one config value (repeatable), as for `generate`.
+    #[arg(long = "set", value_name = "KEY.PATH=VALUE")]
+    overrides: Vec<String>,
+    /// Name of the PSF to use.
+    #[arg(long, value_name = "NAME", default_value = "coma")]
+    psf: String,
+    /// Base field to draw.
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    field: u32,
+    /// Repeats; the median of each stage is reported.
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    repeats: usize,
+    /// Worker threads (0: one per core).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    threads: usize,
+    /// Directory for the scratch image (default: the system temp dir);
+    /// the file is removed afterwards.
+    #[arg(long, value_name = "DIR")]
+    scratch: Option<PathBuf>,
+}
+
+/// Runs the benchmark and prints a table.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let plan = match &args.config {
+        Some(path) => Plan::load(path, &args.overrides)?,
+        None => {
+            let source = Path::new("<built-in STEP1 preset>");
+            Plan::new(RawConfig::parse("{}", source, &args.overrides)?, source)?
+        }
+    };
+    let Some(psf_index) = plan.raw.psfs.iter().position(|p| p.name == args.psf) else {
+        let names: Vec<&str> = plan.raw.psfs.iter().map(|p| p.name.as_str()).collect();
+        bail!(
+            "--psf {}: no such PSF in the config (have: {})",
+            args.psf,
+            names.join(", ")
+        );
+    };
+    if args.repeats == 0 {
+        bail!("--repeats must be at least 1");
+    }
+    if args.field >= plan.n_fields() {
+        bail!(
+            "--field {} out of range (the config has {} base fields)",
+            args.field,
+            plan.n_fields()
+        );
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()
+        .context("cannot start the thread pool")?;
+    let dir = args.scratch.clone().unwrap_or_else(std::env::temp_dir);
+    let scratch = dir.join(format!("stepsim-bench-{}.fits", std::process::id()));
+    let mut runs: Vec<StageTimes> = Vec::new();
+    for i in 0..args.repeats {
+        let t = pool.install(|| run_once(&plan, psf_index, args.field, &scratch));
+        let _ = std::fs::remove_file(&scratch);
+        let t = t.with_context(|| format!("repeat {}", i + 1))?;
+        eprintln!(
+            "stepsim bench: repeat {} of {}: {:.3} s",
+            i + 1,
+            args.repeats,
+            t.total_s()
+        );
+        runs.push(t);
+    }
+    type Stage = fn(&StageTimes) -> f64;
+    let stage = |f: Stage| -> (f64, f64, f64) {
+        let v: Vec<f64> = runs.iter().map(f).collect();
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (median(&v), lo, hi)
+    };
+    let img = &plan.raw.image;
+    println!(
+        "image {} × {} px, PSF {}, {} galaxies, {} stars, {} repeats, {} threads",
+        img.width_px,
+        img.height_px,
+        args.psf,
+        runs[0].n_galaxies,
+        runs[0].n_stars,
+        args.repeats,
+        pool.current_num_threads()
+    );
+    println!("| stage | median s | min s | max s |");
+    println!("|---|---|---|---|");
+    let rows: [(&str, Stage); 7] = [
+        ("population", |t| t.population_s),
+        ("psf", |t| t.psf_s),
+        ("galaxies", |t| t.galaxies_s),
+        ("stars", |t| t.stars_s),
+        ("noise", |t| t.noise_s),
+        ("write", |t| t.write_s),
+        ("total", |t| t.total_s()),
+    ];
+    for (name, f) in rows {
+        let (m, lo, hi) = stage(f);
+        println!("| {name} | {m:.3} | {lo:.3} | {hi:.3} |");
+    }
+    let (gal, _, _) = stage(|t| t.galaxies_s);
+    println!(
+        "µs per galaxy: {:.1}",
+        gal * 1e6 / runs[0].n_galaxies.max(1) as f64
+    );
+    match peak_memory_bytes() {
+        Some(b) => println!("peak memory (VmHWM): {:.1} MiB", b as f64 / 1048576.0),
+        None => println!("peak memory (VmHWM): unavailable"),
+    }
+    Ok(())
+}

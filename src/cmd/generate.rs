@@ -1,0 +1,79 @@
+//! `stepsim generate`: make the blind data release of a config (SPEC §5).
+
+use super::ConfigArgs;
+use anyhow::Context as _;
+use std::io::IsTerminal as _;
+use std::path::PathBuf;
+use stepsim_sim::generate::{self, Event, Options, Shard};
+
+/// Arguments of `stepsim generate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    config: ConfigArgs,
+    /// The run directory (public/ and private/ are made inside it).
+    #[arg(long, value_name = "RUN")]
+    out: PathBuf,
+    /// Worker threads (0: one per core). The output does not depend on it.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    threads: usize,
+    /// Make only share K of N of the images (1 ≤ K ≤ N); the manifest is
+    /// written by whichever shard finds every image finished.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<Shard>,
+}
+
+/// Runs (or resumes) the generation.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let plan = args.config.plan()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()
+        .context("cannot start the thread pool")?;
+    let bar = if std::io::stderr().is_terminal() && std::env::var_os("CI").is_none() {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} {pos}/{len} images [{elapsed_precise}, eta {eta}] {wide_bar}",
+        )
+        .expect("valid template"),
+    );
+    let progress = |e: Event| match e {
+        Event::Start { pending, .. } => bar.set_length(pending as u64),
+        Event::ImageWritten => bar.inc(1),
+    };
+    let options = Options {
+        shard: args.shard.unwrap_or_default(),
+        submission_format: None,
+    };
+    let summary = pool
+        .install(|| generate::generate(&plan, &args.out, &options, &progress))
+        .with_context(|| format!("generating {}", args.out.display()))?;
+    bar.finish_and_clear();
+    eprintln!(
+        "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
+        options.shard, summary.written, summary.skipped, summary.in_shard, summary.total
+    );
+    if summary.manifest_written {
+        eprintln!(
+            "stepsim: all {} images finished; wrote {}",
+            summary.total,
+            args.out.join("public/manifest.json").display()
+        );
+    } else {
+        eprintln!(
+            "stepsim: {} of {} images finished; the manifest is written once the other shards have run",
+            summary.finished, summary.total
+        );
+    }
+    for p in &summary.stray_tmp {
+        eprintln!(
+            "stepsim: warning: leftover temporary file {} (from a killed run, or another shard at work); it is never taken for a finished file",
+            p.display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,355 @@
+//! End-to-end checks of `stepsim generate`: reproducibility at any thread
+//! count and shard split, blindness of the public half, resume, Rice output
+//! and refused configs.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// 2 PSFs × 2 shears × 2 images of 128², with secrets that are easy to grep.
+const CONFIG: &str = r#"{
+  "run": {"name": "runNameSecret", "seed": 8675309},
+  "image": {"width_px": 128, "height_px": 96, "n_images": 2, "margin_arcsec": 2.0},
+  "psfs": [
+    {"name": "psfAlphaSecret", "model": "gaussian", "fwhm_arcsec": 0.9},
+    {"name": "psfBetaSecret", "model": "moffat", "beta": 3.5, "fwhm_arcsec": 0.85}
+  ],
+  "shears": [{"g1": 0.0173, "g2": -0.0231}, {"g1": 0.0419, "g2": 0.0067}]
+}"#;
+
+const SECRETS: &[&str] = &[
+    "runNameSecret",
+    "8675309",
+    "psfAlphaSecret",
+    "psfBetaSecret",
+    "0.0173",
+    "-0.0231",
+    "0.0231",
+    "0.0419",
+    "0.0067",
+    "moffat",
+    "gaussian",
+];
+
+fn stepsim(args: &[&str], dir: &Path) -> Output {
+    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args(args)
+        .current_dir(dir)
+        .env("CI", "1")
+        .output()
+        .unwrap();
+    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+fn setup() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("c.json"), CONFIG).unwrap();
+    dir
+}
+
+fn generate(dir: &Path, out: &str, extra: &[&str]) -> Output {
+    let mut args = vec!["generate", "--config", "c.json", "--out", out];
+    args.extend_from_slice(extra);
+    let o = stepsim(&args, dir);
+    assert!(o.status.success(), "generate {extra:?} failed");
+    o
+}
+
+/// Every file under `root` (relative path -> bytes).
+fn files(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, Vec<u8>>) {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                walk(root, &p, out);
+            } else {
+                out.insert(
+                    p.strip_prefix(root).unwrap().into(),
+                    std::fs::read(&p).unwrap(),
+                );
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk(root, root, &mut out);
+    out
+}
+
+/// The files that must be identical between runs: public/ and private/
+/// except the PSF files (written by whichever shard built the PSF).
+fn release(run: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut f = files(&run.join("public"));
+    for (k, v) in files(&run.join("private")) {
+        if !k.starts_with("psf") {
+            f.insert(Path::new("private").join(k), v);
+        }
+    }
+    f
+}
+
+fn manifest(run: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(run.join("public/manifest.json")).unwrap()).unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn threads_and_shards_write_identical_bytes() {
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "t1", &["--threads", "1"]);
+    generate(d, "t2", &["--threads", "2"]);
+    for k in 1..=3 {
+        let o = generate(d, "sh", &["--shard", &format!("{k}/3"), "--threads", "2"]);
+        let has_manifest = d.join("sh/public/manifest.json").exists();
+        assert_eq!(has_manifest, k == 3, "after shard {k}/3: {}", stderr(&o));
+    }
+    let a = release(&d.join("t1"));
+    // 8 images + 8 truth tables + 8 sidecars + manifest, README, config,
+    // datasets, blinding key.
+    assert_eq!(a.len(), 8 * 3 + 5, "{:?}", a.keys().collect::<Vec<_>>());
+    let images: Vec<_> = a
+        .keys()
+        .filter(|k| {
+            k.to_string_lossy().starts_with('d') && k.extension().is_some_and(|e| e == "fits")
+        })
+        .collect();
+    assert_eq!(images.len(), 8);
+    for (name, other) in [
+        ("threads 2", release(&d.join("t2"))),
+        ("shards", release(&d.join("sh"))),
+    ] {
+        assert_eq!(
+            a.keys().collect::<Vec<_>>(),
+            other.keys().collect::<Vec<_>>(),
+            "{name}"
+        );
+        for (k, v) in &a {
+            assert!(other[k] == *v, "{name}: {} differs", k.display());
+        }
+    }
+    // The manifest lists every image with the SHA-256 of its bytes.
+    let m = manifest(&d.join("t1"));
+    let list = m["images"].as_array().unwrap();
+    assert_eq!(list.len(), 8);
+    for im in list {
+        let file = im["file"].as_str().unwrap();
+        let bytes = &a[Path::new(file)];
+        assert_eq!(
+            stepsim_sim::blind::sha256_hex(bytes),
+            im["sha256"].as_str().unwrap()
+        );
+    }
+    // The images are noisy sky-level images of the right size with objects.
+    let img = stepsim_sim::io::image_fits::read_image_fits(
+        &d.join("t1/public").join(list[0]["file"].as_str().unwrap()),
+    )
+    .unwrap();
+    assert_eq!((img.width, img.height), (128, 96));
+    let sky_adu = 80_174.626 / 4.0;
+    let mut sorted = img.pixels.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = f64::from(sorted[sorted.len() / 2]);
+    assert!((median / sky_adu - 1.0).abs() < 0.01, "median {median}");
+}
+
+#[test]
+fn public_half_reveals_no_secret() {
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "run", &[]);
+    let public = files(&d.join("run/public"));
+    assert!(public.len() >= 10);
+    for (path, bytes) in &public {
+        let name = path.to_string_lossy();
+        let text = String::from_utf8_lossy(bytes);
+        for s in SECRETS {
+            assert!(!name.contains(s), "{s} in file name {name}");
+            assert!(!text.contains(s), "{s} in {name}");
+        }
+        // A public FITS header names neither a PSF nor a shear.
+        if name.ends_with(".fits") {
+            let header = &text[..2880];
+            for k in ["PSF", "SHEAR", "G1 ", "G2 ", "SEED"] {
+                assert!(!header.contains(k), "{k} in header of {name}");
+            }
+        }
+    }
+    // The private half does hold them (so that the check above can fail).
+    let private = files(&d.join("run/private"));
+    let all: String = private
+        .iter()
+        .filter(|(k, _)| k.extension().is_some_and(|e| e == "json"))
+        .map(|(_, v)| String::from_utf8_lossy(v).into_owned())
+        .collect();
+    for s in [
+        "runNameSecret",
+        "8675309",
+        "psfAlphaSecret",
+        "0.0173",
+        "-0.0231",
+    ] {
+        assert!(all.contains(s), "{s} missing from private/");
+    }
+}
+
+#[test]
+fn resume_rewrites_only_missing_or_damaged_images() {
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "ref", &[]);
+    generate(d, "run", &[]);
+    let before = release(&d.join("run"));
+    let m = manifest(&d.join("run"));
+    let list = m["images"].as_array().unwrap();
+    let file = |i: usize| d.join("run/public").join(list[i]["file"].as_str().unwrap());
+    let mtime = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
+    let untouched = file(7);
+    let untouched_time = mtime(&untouched);
+    // Image 0: deleted, but its complete bytes left under a temporary name.
+    let tmp = file(0).with_file_name(format!(
+        ".{}.99999.tmp",
+        file(0).file_name().unwrap().to_string_lossy()
+    ));
+    std::fs::rename(file(0), &tmp).unwrap();
+    // Image 1: truncated under its final name.
+    let bytes = std::fs::read(file(1)).unwrap();
+    std::fs::write(file(1), &bytes[..bytes.len() / 2]).unwrap();
+    // Image 2: one pixel changed.
+    let mut bytes = std::fs::read(file(2)).unwrap();
+    let n = bytes.len();
+    bytes[n - 100] ^= 1;
+    std::fs::write(file(2), &bytes).unwrap();
+    let o = generate(d, "run", &["--threads", "2"]);
+    let err = stderr(&o);
+    assert!(
+        err.contains("3 images written, 5 already finished and verified"),
+        "{err}"
+    );
+    assert!(err.contains("leftover temporary file"), "{err}");
+    assert_eq!(mtime(&untouched), untouched_time);
+    std::fs::remove_file(&tmp).unwrap();
+    assert!(release(&d.join("run")) == before);
+    assert!(release(&d.join("ref")) == before);
+    // Nothing left to do.
+    let o = generate(d, "run", &[]);
+    assert!(
+        stderr(&o).contains("0 images written, 8 already"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn rice_int32_output_is_the_float_image_rounded_exactly() {
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "f", &[]);
+    generate(
+        d,
+        "r",
+        &[
+            "--set",
+            "output.format=int32",
+            "--set",
+            "output.compression=rice",
+        ],
+    );
+    let (mf, mr) = (manifest(&d.join("f")), manifest(&d.join("r")));
+    let (lf, lr) = (
+        mf["images"].as_array().unwrap(),
+        mr["images"].as_array().unwrap(),
+    );
+    // Same ids (same seed), same noise: the Rice image is the float image
+    // rounded to integers, read back exactly.
+    assert_eq!(lf.len(), lr.len());
+    for (a, b) in lf.iter().zip(lr) {
+        assert_eq!(a["file"], b["file"]);
+        let fa = d.join("f/public").join(a["file"].as_str().unwrap());
+        let fb = d.join("r/public").join(b["file"].as_str().unwrap());
+        let x = stepsim_sim::io::image_fits::read_image_fits(&fa).unwrap();
+        let y = stepsim_sim::io::image_fits::read_image_fits(&fb).unwrap();
+        assert_eq!(x.pixels.len(), y.pixels.len());
+        for (p, q) in x.pixels.iter().zip(&y.pixels) {
+            assert_eq!(stepsim_sim::io::image_fits::adu_to_i32(*p) as f32, *q);
+        }
+        assert!(std::fs::metadata(&fb).unwrap().len() < std::fs::metadata(&fa).unwrap().len());
+    }
+}
+
+#[test]
+fn refused_input_exits_1_and_writes_nothing() {
+    let dir = setup();
+    let d = dir.path();
+    std::fs::write(d.join("bad.json"), r#"{"image": {"widht_px": 64}}"#).unwrap();
+    let cases: [(&[&str], &str); 4] = [
+        (
+            &["generate", "--config", "bad.json", "--out", "x"],
+            "image.widht_px",
+        ),
+        (
+            &[
+                "generate",
+                "--config",
+                "c.json",
+                "--out",
+                "x",
+                "--set",
+                "image.width_px=0",
+            ],
+            "image.width_px",
+        ),
+        (
+            &[
+                "generate",
+                "--config",
+                "c.json",
+                "--out",
+                "x",
+                "--set",
+                "output.compression=rice",
+            ],
+            "output.compression",
+        ),
+        (
+            &["generate", "--config", "missing.json", "--out", "x"],
+            "missing.json",
+        ),
+    ];
+    for (args, needle) in cases {
+        let o = stepsim(args, d);
+        assert_eq!(o.status.code(), Some(1), "{args:?}");
+        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
+        assert!(!d.join("x").exists(), "{args:?} wrote something");
+    }
+    // Usage errors exit 2.
+    let o = stepsim(
+        &[
+            "generate", "--config", "c.json", "--out", "x", "--shard", "4/3",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!d.join("x").exists());
+    // A run directory made from another config is refused, untouched.
+    generate(d, "y", &[]);
+    let before = files(&d.join("y"));
+    let o = stepsim(
+        &[
+            "generate",
+            "--config",
+            "c.json",
+            "--out",
+            "y",
+            "--set",
+            "run.seed=1",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("different config"), "{}", stderr(&o));
+    assert!(files(&d.join("y")) == before);
+}
