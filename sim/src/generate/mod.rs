@@ -353,17 +353,22 @@ pub fn generate(
         } else {
             None
         };
-        field_jobs.par_iter().try_for_each(|job| {
-            let rows = if job.rotated {
-                twin.as_deref().expect("twin drawn")
-            } else {
-                &base
-            };
-            let renderer = &renderers[&ds[job.dataset as usize].psf];
-            make_image(plan, &paths, job, rows, renderer, &det)?;
-            progress(Event::ImageWritten);
-            Ok::<(), GenerateError>(())
-        })?;
+        // At most one image per thread in flight (a thread waiting inside an
+        // image's own parallel loop could otherwise steal further images and
+        // hold all their buffers at once).
+        for chunk in field_jobs.chunks(rayon::current_num_threads().max(1)) {
+            chunk.par_iter().try_for_each(|job| {
+                let rows = if job.rotated {
+                    twin.as_deref().expect("twin drawn")
+                } else {
+                    &base
+                };
+                let renderer = &renderers[&ds[job.dataset as usize].psf];
+                make_image(plan, &paths, job, rows, renderer, &det)?;
+                progress(Event::ImageWritten);
+                Ok::<(), GenerateError>(())
+            })?;
+        }
     }
     if !shared_written {
         write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
@@ -641,10 +646,10 @@ mod tests {
 
     fn plan(overrides: &[&str]) -> Plan {
         let mut o: Vec<String> = [
-            "image.width_px=48",
-            "image.height_px=40",
+            "image.width_px=96",
+            "image.height_px=80",
             "image.n_images=2",
-            "image.margin_arcsec=0",
+            "image.margin_arcsec=5",
             "psfs=[{\"name\":\"a\",\"model\":\"gaussian\"},{\"name\":\"b\",\"model\":\"gaussian\",\"fwhm_arcsec\":1.1}]",
             "shears=[{\"g1\":0.0},{\"g1\":0.04,\"g2\":-0.02}]",
         ]
@@ -710,5 +715,37 @@ mod tests {
         let other = plan(&["run.seed=5"]);
         let err = generate(&other, dir.path(), &Options::default(), &quiet).unwrap_err();
         assert!(matches!(err, GenerateError::DifferentRun { .. }), "{err}");
+    }
+
+    #[test]
+    fn noise_free_image_is_model_plus_sky_and_model_is_verified() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = plan(&["output.noise=false", "output.write_model=true"]);
+        let quiet = |_: Event| {};
+        generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
+        let key = BlindingKey::from_seed(p.seed());
+        let js = jobs(&p, &key).unwrap();
+        let paths = RunPaths {
+            root: dir.path().into(),
+        };
+        let det = Detector::new(&p.raw.instrument, p.raw.image.pixel_scale_arcsec);
+        let sky_adu = det.sky_e_per_px / det.gain_e_per_adu;
+        for j in &js {
+            let img = crate::io::image_fits::read_image_fits(&paths.image(j)).unwrap();
+            let model = crate::io::image_fits::read_image_fits(&paths.model(j)).unwrap();
+            assert!(model.pixels.iter().any(|&m| m > 1.0), "model has objects");
+            for (a, m) in img.pixels.iter().zip(&model.pixels) {
+                // float32 rounding at 2e4 ADU: ulp 0.002
+                assert!((f64::from(a - m) - sky_adu).abs() < 0.01, "{a} - {m}");
+            }
+            let side = read_sidecar(&paths, j).unwrap();
+            assert!(side.model_sha256.is_some());
+            assert!(verify(&paths, j, true));
+        }
+        // A damaged model makes its image pending again.
+        std::fs::write(paths.model(&js[3]), b"junk").unwrap();
+        assert!(!verify(&paths, &js[3], true));
+        let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
+        assert_eq!((s.written, s.skipped), (1, 7));
     }
 }
