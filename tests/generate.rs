@@ -353,3 +353,51 @@ fn refused_input_exits_1_and_writes_nothing() {
     assert!(stderr(&o).contains("different config"), "{}", stderr(&o));
     assert!(files(&d.join("y")) == before);
 }
+
+#[test]
+fn killed_run_leaves_no_truncated_file_and_resumes_identically() {
+    let dir = setup();
+    let d = dir.path();
+    let big = [
+        "--set",
+        "image.width_px=512",
+        "--set",
+        "image.height_px=512",
+        "--set",
+        "image.n_images=3",
+    ];
+    generate(d, "ref", &big);
+    let mut args = vec!["generate", "--config", "c.json", "--out", "run"];
+    args.extend_from_slice(&big);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args(&args)
+        .current_dir(d)
+        .env("CI", "1")
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Kill it while it works (wherever it is: the checks hold at any moment).
+    while !d.join("run/private/truth").exists() {
+        if child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(30));
+    let _ = child.kill();
+    child.wait().unwrap();
+    // Every file under a final name is complete.
+    for (path, _) in files(&d.join("run/public")) {
+        let name = path.to_string_lossy().into_owned();
+        if name.ends_with(".fits") && !name.contains("/.") {
+            let img =
+                stepsim_sim::io::image_fits::read_image_fits(&d.join("run/public").join(&path))
+                    .unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(img.pixels.len(), 512 * 512);
+        }
+    }
+    generate(d, "run", &big);
+    let (a, b) = (release(&d.join("ref")), release(&d.join("run")));
+    assert_eq!(a.len(), 12 * 3 + 5);
+    assert!(a == b, "resumed run differs from a straight run");
+}
