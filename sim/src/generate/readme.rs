@@ -73,6 +73,7 @@ back a catalogue.
   m = {magzero:.4} − 2.5 log10(total ADU) (`MAGZERO`), i.e.
   {zp} − 2.5 log10(electrons per second).
 - Pixels at or above {saturation} ADU (`SATURATE`) are clipped (saturated).
+- Stars (point sources) are in every image: use them to model the PSF.
 - Every image carries a TAN WCS (`CTYPE`, `CRVAL`, `CRPIX`, `CD`): north up,
   east left.
 
@@ -80,9 +81,10 @@ back a catalogue.
 
 - Pixel coordinates are FITS coordinates: the centre of the first pixel is
   (1.0, 1.0) and x runs along NAXIS1.
-- Shear: reduced shear g = γ/(1−κ); positive g1 stretches an image along x,
-  positive g2 along the line y = x. Report your estimate of the shear (γ̂),
-  not an ellipticity: for a round source, γ̂ = g.
+- Shear: reduced shear g = γ/(1−κ) with κ = 0; positive g1 stretches an
+  image along x, positive g2 along the line y = x. Report, for every galaxy,
+  your estimate γ̂ of the shear (not its ellipticity): averaged over many
+  galaxies it should give the dataset's shear.
 - Position angles are counter-clockwise from the +x axis.
 
 ## Submission format
