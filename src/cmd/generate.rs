@@ -69,9 +69,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             summary.finished, summary.total
         );
     }
+    for p in &summary.removed_tmp {
+        eprintln!("stepsim: removed {} (left by a killed run)", p.display());
+    }
     for p in &summary.stray_tmp {
         eprintln!(
-            "stepsim: warning: leftover temporary file {} (from a killed run, or another shard at work); it is never taken for a finished file",
+            "stepsim: warning: leftover temporary file {} (another shard at work, or not stepsim's); it is never taken for a finished file",
             p.display()
         );
     }

@@ -254,8 +254,10 @@ pub struct Summary {
     pub finished: usize,
     /// True when `public/manifest.json` was written (every image finished).
     pub manifest_written: bool,
-    /// Leftover temporary files (`*.tmp`) found under the run directory:
-    /// from killed runs, or being written by another shard right now.
+    /// Temporary files of killed writers removed at the start.
+    pub removed_tmp: Vec<PathBuf>,
+    /// Temporary files (`*.tmp`) still under the run directory at the end:
+    /// being written by another shard right now, or not ours.
     pub stray_tmp: Vec<PathBuf>,
 }
 
@@ -277,6 +279,9 @@ pub fn generate(
     {
         return Err(GenerateError::DifferentRun { path: config_path });
     }
+    // Temporaries left by a killed run are junk (never finished files): remove
+    // them so that they can't reach a release; a live shard's stay.
+    let removed_tmp = crate::io::remove_stale_temporaries(out);
 
     // Resume: verify what is already there (read only).
     let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
@@ -385,6 +390,7 @@ pub fn generate(
         skipped: mine.len() - pending.len(),
         finished,
         manifest_written,
+        removed_tmp,
         stray_tmp,
     })
 }

@@ -74,6 +74,46 @@ pub fn temporary_name(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
+/// The process id of the writer of a temporary file made by
+/// [`temporary_name`] (`.<name>.<pid>.tmp`), or `None` if `path` is not one.
+pub fn temporary_owner(path: &Path) -> Option<u32> {
+    let name = path.file_name()?.to_str()?;
+    let stem = name.strip_prefix('.')?.strip_suffix(".tmp")?;
+    stem.rsplit_once('.')?.1.parse().ok()
+}
+
+/// Whether process `pid` is alive. Where that cannot be told (no `/proc`),
+/// it is assumed alive, so that nothing another writer still needs is removed.
+fn process_alive(pid: u32) -> bool {
+    let proc = Path::new("/proc");
+    !proc.join("self").exists() || proc.join(pid.to_string()).exists()
+}
+
+/// Removes, below `dir`, the temporary files of [`write_atomically`] whose
+/// writer process is gone (a killed run); those of live writers (another
+/// shard at work, this process) stay. Returns the removed paths, sorted.
+pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
+    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if temporary_owner(&p).is_some_and(|pid| !process_alive(pid))
+                && std::fs::remove_file(&p).is_ok()
+            {
+                out.push(p);
+            }
+        }
+    }
+    let mut removed = Vec::new();
+    walk(dir, &mut removed);
+    removed.sort();
+    removed
+}
+
 /// Writes `path` atomically: `write` receives a temporary path to create; on
 /// success it is renamed to `path`, on failure it is removed.
 pub fn write_atomically<E>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E>
@@ -120,7 +160,29 @@ mod tests {
         assert!(!path.exists());
         assert_eq!(std::fs::read_dir(dir.path().join("a")).unwrap().count(), 0);
         write_bytes_atomically(&path, b"whole").unwrap();
+        assert_eq!(
+            temporary_owner(&temporary_name(&path)),
+            Some(std::process::id())
+        );
+        assert_eq!(temporary_owner(&path), None);
         assert_eq!(std::fs::read(&path).unwrap(), b"whole");
         assert_eq!(std::fs::read_dir(dir.path().join("a")).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn only_temporaries_of_dead_writers_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let sub = dir.path().join("d");
+        std::fs::create_dir_all(&sub).unwrap();
+        // A pid that cannot be alive (beyond Linux's pid_max of 2^22).
+        let dead = sub.join(".img.fits.4194305.tmp");
+        let live = temporary_name(&sub.join("img2.fits")); // this process
+        let other = sub.join("notes.tmp"); // not ours: never touched
+        let done = sub.join("img.fits");
+        for p in [&dead, &live, &other, &done] {
+            std::fs::write(p, b"x").unwrap();
+        }
+        assert_eq!(remove_stale_temporaries(dir.path()), vec![dead.clone()]);
+        assert!(!dead.exists() && live.exists() && other.exists() && done.exists());
     }
 }
