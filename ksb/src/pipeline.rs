@@ -1,0 +1,339 @@
+//! One image, end to end: background, detection, windowed centroids and
+//! sizes, star selection, PSF model, KSB+ shear estimates, cuts and weights.
+
+use crate::background::Background;
+use crate::centroid::{WindowSettings, windowed};
+use crate::error::KsbError;
+use crate::filter::{noise_factor, smooth};
+use crate::flags;
+use crate::image::Image;
+use crate::moments::{KsbShape, PixelNoise, ksb_integrals};
+use crate::params::{KsbParams, PgammaMode};
+use crate::psf_model::PsfModel;
+use crate::segment::detect;
+use crate::shear::{PgammaFit, ShearEstimate, estimate, estimate_with, weight};
+use crate::stars::{Locus, SizeMag, find_locus};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// What the pipeline needs to know about the image besides its pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageInfo {
+    /// Magnitude of 1 electron over the exposure: zeropoint_mag + 2.5 log10(exposure_s).
+    pub zeropoint_eff_mag: f64,
+    /// Saturation level in electrons (as read, sky included), if any.
+    pub saturation_e: Option<f64>,
+}
+
+/// One measured object (a galaxy candidate; stars are not reported).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasuredObject {
+    /// Windowed centroid, FITS pixels (first pixel centre 1.0).
+    pub x: f64,
+    /// Windowed centroid, FITS pixels.
+    pub y: f64,
+    /// Shear estimate γ̂₁ (0 when it could not be computed).
+    pub e1: f64,
+    /// Shear estimate γ̂₂ (0 when it could not be computed).
+    pub e2: f64,
+    /// Weight 1 / (σ_int² + σ_γ²); 0 exactly when `flags != 0`.
+    pub weight: f64,
+    /// Why the weight is zero ([`crate::flags`]).
+    pub flags: u32,
+    /// Weight scale r_g (pixels).
+    pub rg_px: f64,
+    /// Gaussian-weighted S/N ν.
+    pub sn: f64,
+    /// Magnitude from the Gaussian-matched flux.
+    pub mag: f64,
+    /// ½Tr P^γ used (NaN without a PSF model).
+    pub pgamma: f64,
+}
+
+/// Everything measured on one image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageMeasurement {
+    /// Galaxy candidates, sorted by y then x.
+    pub objects: Vec<MeasuredObject>,
+    /// Number of detections (before removing stars).
+    pub n_detections: usize,
+    /// Stars on the locus / used for the PSF model.
+    pub n_stars: usize,
+    /// Stellar locus, if found.
+    pub locus: Option<Locus>,
+    /// PSF model polynomial order, if a model was built.
+    pub psf_order: Option<usize>,
+    /// Background noise σ (electrons).
+    pub background_rms_e: f64,
+    /// Seconds per stage (for benchmarks; not part of any output file).
+    pub timings: Vec<(&'static str, f64)>,
+}
+
+/// Per-detection intermediate result.
+struct Candidate {
+    x: f64,
+    y: f64,
+    rg: f64,
+    flags: u32,
+    shape: Option<KsbShape>,
+}
+
+/// Measures one image (electrons, sky included).
+pub fn measure_image(
+    img: &Image,
+    info: &ImageInfo,
+    params: &KsbParams,
+) -> Result<ImageMeasurement, KsbError> {
+    params.validate()?;
+    let mut timings = Vec::new();
+    let mut t0 = Instant::now();
+    let mut lap = |name: &'static str, t: &mut Instant| {
+        timings.push((name, t.elapsed().as_secs_f64()));
+        *t = Instant::now();
+    };
+
+    let bg = Background::estimate(img, params.background_mesh_px, params.background_clip_sigma);
+    let sub = bg.subtract(img);
+    lap("background", &mut t0);
+
+    let filtered = smooth(&sub, params.detect_filter_sigma_px);
+    let sigma_f = bg.rms * noise_factor(params.detect_filter_sigma_px);
+    let dets = if sigma_f > 0.0 {
+        detect(&filtered, sigma_f, img, info.saturation_e, params)
+    } else {
+        Vec::new()
+    };
+    drop(filtered);
+    lap("detection", &mut t0);
+
+    let noise = PixelNoise {
+        background_var: bg.rms * bg.rms,
+        poisson: params.poisson_variance,
+    };
+    let settings = WindowSettings {
+        radius_rg: params.window_radius_rg,
+        rg_min: params.rg_min_px,
+        rg_max: params.rg_max_px,
+        tol: params.centroid_tol_px,
+        max_iter: params.centroid_max_iter,
+    };
+    let mut cands: Vec<Candidate> = dets
+        .par_iter()
+        .map(|d| {
+            let mut f = 0;
+            if d.touches_edge {
+                f |= flags::EDGE;
+            }
+            if d.saturated {
+                f |= flags::SATURATED;
+            }
+            if d.blended {
+                f |= flags::BLENDED;
+            }
+            let rg0 = ((d.area as f64 / std::f64::consts::PI).sqrt() * 0.5)
+                .max(params.detect_filter_sigma_px);
+            let Some(c) = windowed(&sub, d.x, d.y, rg0, true, &settings) else {
+                return Candidate {
+                    x: d.x,
+                    y: d.y,
+                    rg: rg0,
+                    flags: f | flags::MOMENTS,
+                    shape: None,
+                };
+            };
+            if !c.converged || (c.x - d.x).hypot(c.y - d.y) > params.centroid_max_shift_px {
+                f |= flags::CENTROID;
+            }
+            if c.at_bound && c.rg >= params.rg_max_px {
+                f |= flags::LARGE;
+            }
+            let m = ksb_integrals(
+                &sub,
+                c.x,
+                c.y,
+                c.rg,
+                params.window_radius_rg * c.rg,
+                Some(noise),
+            );
+            if m.clipped {
+                f |= flags::EDGE;
+            }
+            let shape = m.shape();
+            if shape.is_none() {
+                f |= flags::MOMENTS;
+            }
+            Candidate {
+                x: c.x,
+                y: c.y,
+                rg: c.rg,
+                flags: f,
+                shape,
+            }
+        })
+        .collect();
+    flag_close_pairs(&mut cands, params.close_pair_px);
+    lap("centroids+moments", &mut t0);
+
+    let sizemag: Vec<SizeMag> = cands
+        .iter()
+        .map(|c| SizeMag {
+            rg: c.rg,
+            sn: c.shape.map_or(0.0, |s| s.sn),
+            clean: c.flags & flags::NOT_FOR_PSF == 0 && c.shape.is_some(),
+        })
+        .collect();
+    let locus = find_locus(&sizemag, params);
+    let star: Vec<bool> = sizemag
+        .iter()
+        .map(|o| locus.is_some_and(|l| l.is_star(o, params)))
+        .collect();
+    let psf_stars: Vec<(f64, f64)> = cands
+        .iter()
+        .zip(&sizemag)
+        .filter(|(_, o)| locus.is_some_and(|l| l.is_psf_star(o, params)))
+        .map(|(c, _)| (c.x, c.y))
+        .collect();
+    lap("stars", &mut t0);
+
+    let model = locus.and_then(|l| {
+        let rg_hi = cands
+            .iter()
+            .zip(&star)
+            .filter(|(c, s)| !**s && c.flags & flags::NOT_FOR_PSF == 0)
+            .map(|(c, _)| c.rg)
+            .fold(l.rg_star, f64::max)
+            .min(params.rg_max_px);
+        PsfModel::build(
+            &sub,
+            &psf_stars,
+            l.rg_star / params.scale_step,
+            rg_hi,
+            params,
+        )
+    });
+    lap("psf model", &mut t0);
+
+    // Shear estimates with each galaxy's own P^γ.
+    let mut rows: Vec<(
+        MeasuredObject,
+        Option<(KsbShape, crate::psf_model::PsfCorrection)>,
+    )> = cands
+        .iter()
+        .zip(&star)
+        .filter(|(_, s)| !**s)
+        .map(|(c, _)| {
+            let mut f = c.flags;
+            let sn = c.shape.map_or(0.0, |s| s.sn);
+            let mag = c.shape.filter(|s| s.flux_e > 0.0).map_or(f64::NAN, |s| {
+                info.zeropoint_eff_mag - 2.5 * s.flux_e.log10()
+            });
+            if let Some(l) = locus {
+                if c.rg <= params.size_min_factor * l.rg_star {
+                    f |= flags::SMALL;
+                }
+            }
+            if sn < params.min_sn {
+                f |= flags::LOW_SN;
+            }
+            let obj = MeasuredObject {
+                x: c.x + 1.0,
+                y: c.y + 1.0,
+                e1: 0.0,
+                e2: 0.0,
+                weight: 0.0,
+                flags: f,
+                rg_px: c.rg,
+                sn,
+                mag,
+                pgamma: f64::NAN,
+            };
+            match (&model, c.shape) {
+                (Some(m), Some(s)) => (obj, Some((s, m.at(c.x, c.y, c.rg)))),
+                (None, _) => (
+                    MeasuredObject {
+                        flags: f | flags::NO_PSF,
+                        ..obj
+                    },
+                    None,
+                ),
+                (_, None) => (obj, None),
+            }
+        })
+        .collect();
+    let fit = match (params.pgamma_mode, locus) {
+        (PgammaMode::FitSize, Some(l)) => {
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter(|(o, _)| o.flags == 0)
+                .filter_map(|(o, sc)| sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c))))
+                .collect();
+            PgammaFit::fit(&pts, l.rg_star)
+        }
+        _ => None,
+    };
+    for (o, sc) in &mut rows {
+        let Some((s, c)) = sc else { continue };
+        let est: ShearEstimate = match &fit {
+            Some(fit) => estimate_with(s, c, fit.eval(o.rg_px)),
+            None => estimate(s, c),
+        };
+        o.pgamma = est.pgamma;
+        if !(est.pgamma >= params.min_pgamma) {
+            o.flags |= flags::PGAMMA;
+        }
+        let g = est.gamma;
+        if g[0].is_finite() && g[1].is_finite() {
+            o.e1 = g[0];
+            o.e2 = g[1];
+            if g[0].hypot(g[1]) >= params.max_shear {
+                o.flags |= flags::BIG_SHEAR;
+            }
+        } else {
+            o.flags |= flags::MOMENTS;
+        }
+        if o.flags == 0 {
+            o.weight = weight(est.sigma_gamma, params.sigma_int);
+        }
+    }
+    let (w, h) = (img.width as f64, img.height as f64);
+    let mut objects: Vec<MeasuredObject> = rows
+        .into_iter()
+        .map(|r| r.0)
+        .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
+        .collect();
+    objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    lap("shear", &mut t0);
+    Ok(ImageMeasurement {
+        objects,
+        n_detections: cands.len(),
+        n_stars: psf_stars.len(),
+        locus,
+        psf_order: model.as_ref().map(PsfModel::order),
+        background_rms_e: bg.rms,
+        timings,
+    })
+}
+
+/// Flags both members of every pair closer than `d` pixels as BLENDED
+/// (sweep over objects sorted by y).
+fn flag_close_pairs(cands: &mut [Candidate], d: f64) {
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| cands[a].y.total_cmp(&cands[b].y).then(a.cmp(&b)));
+    let mut hit = vec![false; cands.len()];
+    for (k, &i) in order.iter().enumerate() {
+        for &j in &order[k + 1..] {
+            if cands[j].y - cands[i].y >= d {
+                break;
+            }
+            if (cands[j].x - cands[i].x).hypot(cands[j].y - cands[i].y) < d {
+                hit[i] = true;
+                hit[j] = true;
+            }
+        }
+    }
+    for (c, h) in cands.iter_mut().zip(hit) {
+        if h {
+            c.flags |= flags::BLENDED;
+        }
+    }
+}
