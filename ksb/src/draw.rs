@@ -164,3 +164,99 @@ mod tests {
         );
     }
 }
+
+/// A synthetic STEP-like scene for tests and the benchmark: Gaussian
+/// galaxies and Gaussian stars through one Gaussian PSF, point-sampled,
+/// with sky and noise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneSpec {
+    /// NAXIS1.
+    pub width: usize,
+    /// NAXIS2.
+    pub height: usize,
+    /// Number of galaxy *pairs*: each galaxy also appears rotated by 90°
+    /// elsewhere on the image (shape noise cancels in the mean).
+    pub n_galaxy_pairs: usize,
+    /// Number of stars.
+    pub n_stars: usize,
+    /// PSF covariance (pixels²).
+    pub psf: Mat2,
+    /// Reduced shear applied to the galaxies.
+    pub shear: [f64; 2],
+    /// Galaxy intrinsic σ range (pixels, log-uniform).
+    pub galaxy_sigma_px: (f64, f64),
+    /// Galaxy flux range (electrons, log-uniform).
+    pub galaxy_flux_e: (f64, f64),
+    /// Star flux range (electrons); counts rise by 10^0.3 per magnitude.
+    pub star_flux_e: (f64, f64),
+    /// Rms of each intrinsic ellipticity component (clipped at |e| < 0.7).
+    pub sigma_e: f64,
+    /// Sky per pixel (electrons).
+    pub sky_e: f64,
+    /// Read noise (electrons).
+    pub read_noise_e: f64,
+    /// Seed of every draw.
+    pub seed: u64,
+}
+
+/// One object of a synthetic scene (array coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneObject {
+    /// Centre x.
+    pub x: f64,
+    /// Centre y.
+    pub y: f64,
+    /// Flux (electrons).
+    pub flux_e: f64,
+    /// Covariance after shear and PSF.
+    pub cov: Mat2,
+    /// A star.
+    pub is_star: bool,
+}
+
+/// Draws the scene: returns its objects and the image (electrons, sky in).
+pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
+    use stepsim_sim::seed::Stream;
+    let mut rng = SeedKey::base(spec.seed, 0, Stream::Test).rng();
+    let (w, h) = (spec.width as f64, spec.height as f64);
+    let mut objects = Vec::new();
+    for _ in 0..spec.n_galaxy_pairs {
+        let sigma = uniform(&mut rng, spec.galaxy_sigma_px.0.ln(), spec.galaxy_sigma_px.1.ln()).exp();
+        let flux = uniform(&mut rng, spec.galaxy_flux_e.0.ln(), spec.galaxy_flux_e.1.ln()).exp();
+        let e = loop {
+            let e1: f64 = spec.sigma_e * rng.sample::<f64, _>(rand_distr::StandardNormal);
+            let e2: f64 = spec.sigma_e * rng.sample::<f64, _>(rand_distr::StandardNormal);
+            if e1.hypot(e2) < 0.7 {
+                break [e1, e2];
+            }
+        };
+        for rot in [e, [-e[0], -e[1]]] {
+            let cov = convolve(&shear_covariance(&covariance(sigma, rot), spec.shear), &spec.psf);
+            objects.push(SceneObject {
+                x: uniform(&mut rng, -5.0, w + 5.0),
+                y: uniform(&mut rng, -5.0, h + 5.0),
+                flux_e: flux,
+                cov,
+                is_star: false,
+            });
+        }
+    }
+    // Star fluxes with dN/dm ∝ 10^(0.3 m): flux^(−0.75) per ln flux.
+    let (a, b) = (spec.star_flux_e.0.powf(-0.75), spec.star_flux_e.1.powf(-0.75));
+    for _ in 0..spec.n_stars {
+        let flux = uniform(&mut rng, b, a).powf(-1.0 / 0.75);
+        objects.push(SceneObject {
+            x: uniform(&mut rng, 0.0, w),
+            y: uniform(&mut rng, 0.0, h),
+            flux_e: flux,
+            cov: spec.psf,
+            is_star: true,
+        });
+    }
+    let mut img = Image::zeros(spec.width, spec.height);
+    for o in &objects {
+        draw_gaussian_sampled(&mut img, o.x, o.y, o.flux_e, &o.cov);
+    }
+    add_sky_and_noise(&mut img, spec.sky_e, spec.read_noise_e, SeedKey::base(spec.seed, 1, Stream::Test));
+    (objects, img)
+}

@@ -7,8 +7,14 @@
 //!
 //! 1. candidates: clean objects (no flag of [`crate::flags::NOT_FOR_PSF`])
 //!    with S/N ≥ `star_min_sn`;
-//! 2. the mode of ln r_g among them, from a Gaussian kernel density of width
-//!    `locus_bandwidth` evaluated on a grid of bandwidth/4;
+//! 2. the peak of the *narrow excess* of ln r_g among them: a Gaussian
+//!    kernel density of width h = `locus_bandwidth` minus one of width 5h
+//!    (both normalised), on a grid of h/4. The broad density of galaxies
+//!    cancels in the difference, the narrow stellar branch does not, so a
+//!    crowd of galaxies does not pull the peak as much. Stars are the
+//!    smallest objects, so the locus is the smallest-size local maximum of
+//!    that excess reaching 30 % of its highest maximum (a pile of compact
+//!    bright galaxies just above the stars can be as dense as the locus);
 //! 3. r_g* = the median of candidates within 2 bandwidths of the mode, and
 //!    the locus half-width = max(`locus_nsigma` × 1.4826 MAD,
 //!    `locus_min_halfwidth`) in ln r_g of those.
@@ -59,7 +65,7 @@ impl Locus {
 pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     let ln: Vec<f64> = objects
         .iter()
-        .filter(|o| o.clean && o.sn >= params.star_min_sn && o.rg > 0.0 && o.rg.is_finite())
+        .filter(|o| o.clean && o.sn >= params.star_min_sn && o.rg > 1.05 * params.rg_min_px && o.rg.is_finite())
         .map(|o| o.rg.ln())
         .collect();
     if ln.len() < params.psf_min_stars {
@@ -70,18 +76,21 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     let hi = ln.iter().copied().fold(f64::NEG_INFINITY, f64::max) + 2.0 * h;
     let step = h / 4.0;
     let n = ((hi - lo) / step).ceil() as usize + 1;
-    let mut best = (f64::NEG_INFINITY, lo);
-    for k in 0..n {
-        let t = lo + k as f64 * step;
-        let d: f64 = ln
-            .iter()
-            .map(|v| (-0.5 * ((v - t) / h).powi(2)).exp())
-            .sum();
-        // Strictly greater: ties go to the smaller size.
-        if d > best.0 {
-            best = (d, t);
-        }
-    }
+    let score: Vec<f64> = (0..n)
+        .map(|k| {
+            let t = lo + k as f64 * step;
+            let narrow: f64 = ln.iter().map(|v| (-0.5 * ((v - t) / h).powi(2)).exp()).sum();
+            let broad: f64 = ln.iter().map(|v| (-0.5 * ((v - t) / (5.0 * h)).powi(2)).exp()).sum();
+            narrow - broad / 5.0
+        })
+        .collect();
+    let top = score.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let first_peak = (0..n).find(|&k| {
+        let left = if k > 0 { score[k - 1] } else { f64::NEG_INFINITY };
+        let right = if k + 1 < n { score[k + 1] } else { f64::NEG_INFINITY };
+        score[k] >= 0.3 * top && score[k] >= left && score[k] >= right
+    })?;
+    let best = (score[first_peak], lo + first_peak as f64 * step);
     let mode = best.1;
     let mut near: Vec<f64> = ln
         .iter()
