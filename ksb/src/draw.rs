@@ -221,8 +221,18 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
     let (w, h) = (spec.width as f64, spec.height as f64);
     let mut objects = Vec::new();
     for _ in 0..spec.n_galaxy_pairs {
-        let sigma = uniform(&mut rng, spec.galaxy_sigma_px.0.ln(), spec.galaxy_sigma_px.1.ln()).exp();
-        let flux = uniform(&mut rng, spec.galaxy_flux_e.0.ln(), spec.galaxy_flux_e.1.ln()).exp();
+        let sigma = uniform(
+            &mut rng,
+            spec.galaxy_sigma_px.0.ln(),
+            spec.galaxy_sigma_px.1.ln(),
+        )
+        .exp();
+        let flux = uniform(
+            &mut rng,
+            spec.galaxy_flux_e.0.ln(),
+            spec.galaxy_flux_e.1.ln(),
+        )
+        .exp();
         let e = loop {
             let e1: f64 = spec.sigma_e * rng.sample::<f64, _>(rand_distr::StandardNormal);
             let e2: f64 = spec.sigma_e * rng.sample::<f64, _>(rand_distr::StandardNormal);
@@ -231,7 +241,10 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
             }
         };
         for rot in [e, [-e[0], -e[1]]] {
-            let cov = convolve(&shear_covariance(&covariance(sigma, rot), spec.shear), &spec.psf);
+            let cov = convolve(
+                &shear_covariance(&covariance(sigma, rot), spec.shear),
+                &spec.psf,
+            );
             objects.push(SceneObject {
                 x: uniform(&mut rng, -5.0, w + 5.0),
                 y: uniform(&mut rng, -5.0, h + 5.0),
@@ -242,7 +255,10 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
         }
     }
     // Star fluxes with dN/dm ∝ 10^(0.3 m): flux^(−0.75) per ln flux.
-    let (a, b) = (spec.star_flux_e.0.powf(-0.75), spec.star_flux_e.1.powf(-0.75));
+    let (a, b) = (
+        spec.star_flux_e.0.powf(-0.75),
+        spec.star_flux_e.1.powf(-0.75),
+    );
     for _ in 0..spec.n_stars {
         let flux = uniform(&mut rng, b, a).powf(-1.0 / 0.75);
         objects.push(SceneObject {
@@ -257,6 +273,11 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
     for o in &objects {
         draw_gaussian_sampled(&mut img, o.x, o.y, o.flux_e, &o.cov);
     }
-    add_sky_and_noise(&mut img, spec.sky_e, spec.read_noise_e, SeedKey::base(spec.seed, 1, Stream::Test));
+    add_sky_and_noise(
+        &mut img,
+        spec.sky_e,
+        spec.read_noise_e,
+        SeedKey::base(spec.seed, 1, Stream::Test),
+    );
     (objects, img)
 }

@@ -89,7 +89,9 @@ pub struct KsbParams {
     /// Two detections closer than this are a close pair, both flagged
     /// BLENDED (10 px ≈ 2″, CH's close-pair cut).
     pub close_pair_px: f64,
-    /// How P^γ is used.
+    /// How P^γ is used (per object: on synthetic scenes the fit against
+    /// size loses the per-object ellipticity dependence of P^sh and gives a
+    /// 2–4 % more negative m; see docs/ksb.md).
     pub pgamma_mode: PgammaMode,
     /// Include the objects' own photon noise in the pixel variance (true).
     pub poisson_variance: bool,
@@ -129,7 +131,7 @@ impl Default for KsbParams {
             max_shear: 1.0,
             sigma_int: 0.3,
             close_pair_px: 10.0,
-            pgamma_mode: PgammaMode::FitSize,
+            pgamma_mode: PgammaMode::PerObject,
             poisson_variance: true,
         }
     }

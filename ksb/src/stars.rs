@@ -65,7 +65,12 @@ impl Locus {
 pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     let ln: Vec<f64> = objects
         .iter()
-        .filter(|o| o.clean && o.sn >= params.star_min_sn && o.rg > 1.05 * params.rg_min_px && o.rg.is_finite())
+        .filter(|o| {
+            o.clean
+                && o.sn >= params.star_min_sn
+                && o.rg > 1.05 * params.rg_min_px
+                && o.rg.is_finite()
+        })
         .map(|o| o.rg.ln())
         .collect();
     if ln.len() < params.psf_min_stars {
@@ -79,15 +84,29 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     let score: Vec<f64> = (0..n)
         .map(|k| {
             let t = lo + k as f64 * step;
-            let narrow: f64 = ln.iter().map(|v| (-0.5 * ((v - t) / h).powi(2)).exp()).sum();
-            let broad: f64 = ln.iter().map(|v| (-0.5 * ((v - t) / (5.0 * h)).powi(2)).exp()).sum();
+            let narrow: f64 = ln
+                .iter()
+                .map(|v| (-0.5 * ((v - t) / h).powi(2)).exp())
+                .sum();
+            let broad: f64 = ln
+                .iter()
+                .map(|v| (-0.5 * ((v - t) / (5.0 * h)).powi(2)).exp())
+                .sum();
             narrow - broad / 5.0
         })
         .collect();
     let top = score.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let first_peak = (0..n).find(|&k| {
-        let left = if k > 0 { score[k - 1] } else { f64::NEG_INFINITY };
-        let right = if k + 1 < n { score[k + 1] } else { f64::NEG_INFINITY };
+        let left = if k > 0 {
+            score[k - 1]
+        } else {
+            f64::NEG_INFINITY
+        };
+        let right = if k + 1 < n {
+            score[k + 1]
+        } else {
+            f64::NEG_INFINITY
+        };
         score[k] >= 0.3 * top && score[k] >= left && score[k] >= right
     })?;
     let best = (score[first_peak], lo + first_peak as f64 * step);
