@@ -20,12 +20,15 @@ struct Cli {
 enum Command {
     /// Validate a config and print it fully resolved (defaults, overrides).
     Config(cmd::config::Args),
+    /// Measure shears of a public run with the KSB+ reference pipeline.
+    Measure(cmd::measure::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
+        Command::Measure(args) => cmd::measure::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

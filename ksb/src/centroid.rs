@@ -64,7 +64,7 @@ pub fn windowed(
     let mut at_bound = false;
     for it in 1..=s.max_iter {
         let m = ksb_integrals(img, x, y, rg, s.radius_rg * rg, None);
-        if !(m.s0 > 0.0) {
+        if m.s0.is_nan() || m.s0 <= 0.0 {
             return None;
         }
         let mut dx = 2.0 * m.first[0] / m.s0;

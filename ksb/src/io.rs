@@ -67,6 +67,25 @@ pub fn read_fits_image(path: &Path) -> Result<Image, KsbError> {
     })
 }
 
+/// Writes `img` as a BITPIX −32 primary image, atomically (for tests,
+/// benchmarks and synthetic data; the simulator has its own writer).
+pub fn write_fits_image(path: &Path, img: &Image) -> Result<(), KsbError> {
+    use fitsio::images::{ImageDescription, ImageType};
+    write_atomically(path, |tmp| -> Result<(), KsbError> {
+        let fe = |e: fitsio::errors::Error| KsbError::Io(IoError::fits(path, e));
+        let mut f = FitsFile::create(tmp)
+            .with_custom_primary(&ImageDescription {
+                data_type: ImageType::Float,
+                dimensions: &[img.height, img.width],
+            })
+            .open()
+            .map_err(fe)?;
+        let hdu = f.primary_hdu().map_err(fe)?;
+        hdu.write_image(&mut f, &img.data).map_err(fe)?;
+        Ok(())
+    })
+}
+
 /// Column header line of a submission (SPEC §6).
 pub const SUBMISSION_HEADER: &str = "# image x y e1 e2 weight flags";
 

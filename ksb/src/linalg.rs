@@ -58,7 +58,7 @@ pub fn solve_spd(a: &[f64], b: &[f64]) -> Option<Vec<f64>> {
                 s -= l[i * n + k] * l[j * n + k];
             }
             if i == j {
-                if !(s > 1e-14 * a[i * n + i].abs()) {
+                if s.is_nan() || s <= 1e-14 * a[i * n + i].abs() {
                     return None;
                 }
                 l[i * n + i] = s.sqrt();

@@ -278,7 +278,7 @@ pub fn measure_image(
             None => estimate(s, c),
         };
         o.pgamma = est.pgamma;
-        if !(est.pgamma >= params.min_pgamma) {
+        if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
             o.flags |= flags::PGAMMA;
         }
         let g = est.gamma;
@@ -373,24 +373,6 @@ mod tests {
             zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
             saturation_e: Some(SAT_E - 2.0),
         }
-    }
-
-    fn mean_shear(spec: &SceneSpec, params: &KsbParams) -> ([f64; 2], usize) {
-        let (_o, mut img) = synthetic_scene(spec);
-        for v in &mut img.data {
-            *v = v.min(SAT_E as f32);
-        }
-        let m = measure_image(&img, &info(), params).unwrap();
-        let (mut s1, mut s2, mut sw) = (0.0, 0.0, 0.0);
-        for o in &m.objects {
-            s1 += o.weight * o.e1;
-            s2 += o.weight * o.e2;
-            sw += o.weight;
-        }
-        (
-            [s1 / sw, s2 / sw],
-            m.objects.iter().filter(|o| o.weight > 0.0).count(),
-        )
     }
 
     #[test]

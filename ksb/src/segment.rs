@@ -51,7 +51,7 @@ pub fn detect(
     let mut pixels: Vec<usize> = Vec::new();
     let mut out = Vec::new();
     for start in 0..w * h {
-        if label[start] || !(filtered.data[start] > thresh) {
+        if label[start] || filtered.data[start].is_nan() || filtered.data[start] <= thresh {
             continue;
         }
         // Flood fill the footprint.
