@@ -21,6 +21,16 @@ fn peak_rss_mib() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
+/// CPU seconds (user + system) used by this process so far, from
+/// /proc/self/stat (clock ticks of 1/100 s).
+fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let after = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 fn main() {
     let repeats: usize = std::env::args()
         .nth(1)
@@ -59,8 +69,10 @@ fn main() {
     let mut totals = Vec::new();
     for r in 0..repeats {
         let t = Instant::now();
+        let cpu0 = cpu_seconds().unwrap_or(f64::NAN);
         let m = measure_image(&img, &info, &KsbParams::default()).expect("measure");
         let total = t.elapsed().as_secs_f64();
+        let cpu = cpu_seconds().unwrap_or(f64::NAN) - cpu0;
         totals.push(total);
         let stages: Vec<String> = m
             .timings
@@ -74,7 +86,7 @@ fn main() {
             sw += o.weight;
         }
         println!(
-            "run {r}: total {total:.3} s | {} | detections {} rows {} weighted {weighted} stars {} order {:?} <g1> {:.4}",
+            "run {r}: wall {total:.3} s, cpu {cpu:.2} s | {} | detections {} rows {} weighted {weighted} stars {} order {:?} <g1> {:.4}",
             stages.join(", "),
             m.n_detections,
             m.objects.len(),
