@@ -120,6 +120,10 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
         last = key;
     }
     assert!(weighted > 20, "{weighted} weighted rows");
+    let mut keys: Vec<(&str, &str, &str)> = rows.iter().map(|r| (r[0], r[1], r[2])).collect();
+    keys.sort();
+    keys.dedup();
+    assert_eq!(keys.len(), rows.len(), "duplicate rows");
     assert!(rows.iter().any(|r| r[0] == "ia1") && rows.iter().any(|r| r[0] == "ib2"));
 }
 

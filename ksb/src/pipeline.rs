@@ -117,7 +117,7 @@ pub fn measure_image(
         tol: params.centroid_tol_px,
         max_iter: params.centroid_max_iter,
     };
-    let mut cands: Vec<Candidate> = dets
+    let cands: Vec<Candidate> = dets
         .par_iter()
         .map(|d| {
             let mut f = 0;
@@ -171,6 +171,7 @@ pub fn measure_image(
             }
         })
         .collect();
+    let mut cands = merge_duplicates(cands);
     flag_close_pairs(&mut cands, params.close_pair_px);
     lap("centroids+moments", &mut t0);
 
@@ -314,6 +315,46 @@ pub fn measure_image(
     })
 }
 
+/// Two detections whose windowed centroids converged to within 1 px are
+/// one object (e.g. two peaks of one galaxy): keep the one with the higher
+/// S/N (the earlier on ties), flagged BLENDED. This also guarantees that no
+/// two rows of a submission share a position.
+fn merge_duplicates(cands: Vec<Candidate>) -> Vec<Candidate> {
+    let sn = |c: &Candidate| c.shape.map_or(0.0, |s| s.sn);
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&a, &b| cands[a].y.total_cmp(&cands[b].y).then(a.cmp(&b)));
+    let mut drop = vec![false; cands.len()];
+    let mut merged = vec![false; cands.len()];
+    for (k, &i) in order.iter().enumerate() {
+        for &j in &order[k + 1..] {
+            if cands[j].y - cands[i].y >= 1.0 {
+                break;
+            }
+            if (cands[j].x - cands[i].x).hypot(cands[j].y - cands[i].y) < 1.0 {
+                let (keep, lose) =
+                    if sn(&cands[j]) > sn(&cands[i]) || (sn(&cands[j]) == sn(&cands[i]) && j < i) {
+                        (j, i)
+                    } else {
+                        (i, j)
+                    };
+                drop[lose] = true;
+                merged[keep] = true;
+            }
+        }
+    }
+    cands
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !drop[*i])
+        .map(|(i, mut c)| {
+            if merged[i] {
+                c.flags |= flags::BLENDED;
+            }
+            c
+        })
+        .collect()
+}
+
 /// Flags both members of every pair closer than `d` pixels as BLENDED
 /// (sweep over objects sorted by y).
 fn flag_close_pairs(cands: &mut [Candidate], d: f64) {
@@ -373,6 +414,33 @@ mod tests {
             zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
             saturation_e: Some(SAT_E - 2.0),
         }
+    }
+
+    #[test]
+    fn detections_converging_to_one_centroid_are_merged() {
+        let c = |x: f64, y: f64, sn: f64| Candidate {
+            x,
+            y,
+            rg: 2.0,
+            flags: 0,
+            shape: Some(KsbShape {
+                sigma_w: 2.0,
+                e: [0.0; 2],
+                psm: [[0.0; 2]; 2],
+                psh: [[0.0; 2]; 2],
+                sigma_e: [0.0; 2],
+                sn,
+                flux_e: 1.0,
+            }),
+        };
+        let out = merge_duplicates(vec![
+            c(10.0, 10.0, 5.0),
+            c(30.0, 10.0, 9.0),
+            c(10.3, 10.4, 8.0),
+        ]);
+        assert_eq!(out.len(), 2);
+        assert!(out.iter().any(|o| o.x == 10.3 && o.flags == flags::BLENDED));
+        assert!(out.iter().any(|o| o.x == 30.0 && o.flags == 0));
     }
 
     #[test]
