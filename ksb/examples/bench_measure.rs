@@ -42,6 +42,7 @@ fn main() {
         n_galaxy_pairs: 5000,
         n_stars: 2000,
         psf: covariance(4.37 / 2.3548, [0.04, 0.02]),
+        psf_halo: None,
         shear: [0.05, 0.0],
         galaxy_sigma_px: (1.0, 4.0),
         galaxy_flux_e: (1.5e4, 1e6),

@@ -181,6 +181,10 @@ pub struct SceneSpec {
     pub n_stars: usize,
     /// PSF covariance (pixels²).
     pub psf: Mat2,
+    /// Optional PSF halo: this fraction of every object's flux is drawn
+    /// through this second (wider) PSF covariance instead, giving the PSF
+    /// non-Gaussian wings.
+    pub psf_halo: Option<(f64, Mat2)>,
     /// Reduced shear applied to the galaxies.
     pub shear: [f64; 2],
     /// Galaxy intrinsic σ range (pixels, log-uniform).
@@ -271,7 +275,25 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
     }
     let mut img = Image::zeros(spec.width, spec.height);
     for o in &objects {
-        draw_gaussian_sampled(&mut img, o.x, o.y, o.flux_e, &o.cov);
+        match spec.psf_halo {
+            None => draw_gaussian_sampled(&mut img, o.x, o.y, o.flux_e, &o.cov),
+            Some((f, halo)) => {
+                // Intrinsic covariance = cov − psf; convolve it with each
+                // PSF component.
+                let intrinsic = [
+                    [o.cov[0][0] - spec.psf[0][0], o.cov[0][1] - spec.psf[0][1]],
+                    [o.cov[1][0] - spec.psf[1][0], o.cov[1][1] - spec.psf[1][1]],
+                ];
+                draw_gaussian_sampled(&mut img, o.x, o.y, (1.0 - f) * o.flux_e, &o.cov);
+                draw_gaussian_sampled(
+                    &mut img,
+                    o.x,
+                    o.y,
+                    f * o.flux_e,
+                    &convolve(&intrinsic, &halo),
+                );
+            }
+        }
     }
     add_sky_and_noise(
         &mut img,
