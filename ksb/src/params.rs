@@ -38,7 +38,10 @@ pub struct KsbParams {
     pub deblend_min_dip: f64,
     /// ... and when they are at least this far apart (3 px).
     pub deblend_min_sep_px: f64,
-    /// Largest number of peaks kept per footprint (8).
+    /// A split source is flagged BLENDED when another peak of its footprint
+    /// is closer than this (20 px = 5 r_g of a PSF-sized object).
+    pub deblend_flag_px: f64,
+    /// Largest number of peaks kept per footprint (32).
     pub deblend_max_peaks: usize,
     /// Largest number of windowed-centroid iterations (60).
     pub centroid_max_iter: usize,
@@ -111,7 +114,8 @@ impl Default for KsbParams {
             detect_peak_sn: 5.0,
             deblend_min_dip: 0.3,
             deblend_min_sep_px: 3.0,
-            deblend_max_peaks: 8,
+            deblend_max_peaks: 32,
+            deblend_flag_px: 20.0,
             centroid_max_iter: 60,
             centroid_tol_px: 1e-3,
             centroid_max_shift_px: 3.0,

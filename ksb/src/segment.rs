@@ -9,7 +9,9 @@
 //! kept as a separate object if, towards every peak already kept, it lies at
 //! least `deblend_min_sep_px` away and the smoothed image dips on the
 //! straight line between them below (1 − `deblend_min_dip`) × its own
-//! height. Pixels of a split footprint go to the nearest kept peak.
+//! height. Pixels of a split footprint go to the nearest kept peak. A split
+//! source is marked blended when another peak of its footprint is closer
+//! than `deblend_flag_px` (farther neighbours do not reach its weight window).
 
 use crate::image::Image;
 use crate::params::KsbParams;
@@ -25,7 +27,8 @@ pub struct Detection {
     pub peak_sn: f64,
     /// Number of footprint pixels assigned to this source.
     pub area: usize,
-    /// Split from a footprint with other sources.
+    /// Split from a footprint with another source whose peak is closer
+    /// than `deblend_flag_px`.
     pub blended: bool,
     /// The footprint touches the image border.
     pub touches_edge: bool,
@@ -170,12 +173,20 @@ fn split_footprint(
         .iter()
         .map(|&(hgt, p)| {
             let (x, y) = xy(p);
+            let nearest = kept
+                .iter()
+                .filter(|&&(_, q)| q != p)
+                .map(|&(_, q)| {
+                    let (qx, qy) = xy(q);
+                    (qx - x).hypot(qy - y)
+                })
+                .fold(f64::INFINITY, f64::min);
             Detection {
                 x,
                 y,
                 peak_sn: hgt / sigma_f,
                 area: 0,
-                blended,
+                blended: nearest < params.deblend_flag_px,
                 touches_edge: false,
                 saturated: false,
             }
@@ -219,9 +230,15 @@ mod tests {
         draw_gaussian_sampled(&mut img, 30.0, 30.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
         draw_gaussian_sampled(&mut img, 39.0, 31.0, 600.0, &covariance(1.8, [0.0, 0.0]));
         // An elongated single source: one peak.
+        // Two sources 40 px apart joined by a faint bridge: split, not blended.
+        draw_gaussian_sampled(&mut img, 10.0, 50.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
+        draw_gaussian_sampled(&mut img, 50.0, 50.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
+        for x in 10..=50 {
+            *img.at_mut(x, 50) += 3.0;
+        }
         draw_gaussian_sampled(&mut img, 60.0, 15.0, 1000.0, &covariance(2.5, [0.5, 0.0]));
         let d = detect(&img, 1.0, &img, Some(40.0), &p);
-        assert_eq!(d.len(), 3, "{d:?}");
+        assert_eq!(d.len(), 5, "{d:?}");
         let blended: Vec<_> = d.iter().filter(|d| d.blended).collect();
         assert_eq!(blended.len(), 2);
         assert!(
@@ -234,10 +251,11 @@ mod tests {
                 .iter()
                 .any(|d| (d.x - 39.0).abs() <= 1.0 && (d.y - 31.0).abs() <= 1.0)
         );
-        let single = d.iter().find(|d| !d.blended).unwrap();
+        let single = d.iter().find(|d| !d.blended && d.y == 15.0).unwrap();
+        assert_eq!(d.iter().filter(|d| d.y == 50.0 && !d.blended).count(), 2);
         assert_eq!((single.x, single.y), (60.0, 15.0));
         // Peak of the 1000 e⁻ round source is 1000/(2π 1.8²) = 49 > 40: saturated.
-        assert!(d.iter().any(|d| d.saturated && d.x == 30.0));
+        assert!(d.iter().any(|d| d.saturated && d.x == 30.0 && d.y == 30.0));
         assert!(!single.saturated);
     }
 }
