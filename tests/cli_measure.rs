@@ -129,6 +129,51 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
 }
 
 #[test]
+fn pgamma_fit_and_psf_order_options_are_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let out_a = dir.path().join("fit.txt");
+    let out = stepsim()
+        .args([
+            "measure",
+            "--pgamma",
+            "fit-size",
+            "--psf-order",
+            "1",
+            "--run",
+        ])
+        .arg(&run)
+        .arg("--out")
+        .arg(&out_a)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("PSF order 1") || err.contains("PSF order 0"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&out_a).unwrap();
+    let weighted = text
+        .lines()
+        .skip(1)
+        .filter(|l| l.split_whitespace().nth(6) == Some("0"))
+        .count();
+    assert!(weighted > 20, "{weighted}");
+    // Orders above 4 are a usage error.
+    let out = stepsim()
+        .args(["measure", "--psf-order", "7", "--run", "x", "--out", "y"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
 fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = measure(&dir.path().join("nowhere"), &dir.path().join("s.txt"), "1");
