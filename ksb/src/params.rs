@@ -65,6 +65,10 @@ pub struct KsbParams {
     pub locus_bandwidth: f64,
     /// Half-width of the locus in robust σ of ln r_g (3).
     pub locus_nsigma: f64,
+    /// Least fraction of the candidates within ±6 bandwidths of the locus
+    /// peak that must lie within ±2 bandwidths (0.5; a flat distribution
+    /// gives 1/3, stars with noise-limited sizes nearly 1).
+    pub locus_min_concentration: f64,
     /// Smallest half-width of the locus in ln r_g (0.03, i.e. ±3 %).
     pub locus_min_halfwidth: f64,
     /// Polynomial order of the PSF model across the field (2, like MB, CH, HH, LV).
@@ -127,6 +131,7 @@ impl Default for KsbParams {
             locus_bandwidth: 0.03,
             locus_nsigma: 3.0,
             locus_min_halfwidth: 0.03,
+            locus_min_concentration: 0.5,
             psf_order: 2,
             psf_clip_sigma: 3.0,
             psf_stars_per_term: 3.0,
@@ -178,6 +183,7 @@ impl KsbParams {
         pos("star_min_sn", self.star_min_sn)?;
         pos("locus_bandwidth", self.locus_bandwidth)?;
         pos("locus_nsigma", self.locus_nsigma)?;
+        pos("locus_min_concentration", self.locus_min_concentration)?;
         pos("psf_clip_sigma", self.psf_clip_sigma)?;
         pos("psf_stars_per_term", self.psf_stars_per_term)?;
         pos("scale_step", self.scale_step - 1.0)?;

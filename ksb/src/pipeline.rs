@@ -189,15 +189,24 @@ pub fn measure_image(
             clean: c.flags & flags::NOT_FOR_PSF == 0 && c.shape.is_some(),
         })
         .collect();
-    let locus = find_locus(&sizemag, params);
+    // Too few bright stars (a small image): retry with the fainter stars
+    // down to the classification limit `star_class_min_sn`.
+    let relaxed = KsbParams {
+        star_min_sn: params.star_class_min_sn.min(params.star_min_sn),
+        ..params.clone()
+    };
+    let (locus, star_params) = match find_locus(&sizemag, params) {
+        Some(l) => (Some(l), params),
+        None => (find_locus(&sizemag, &relaxed), &relaxed),
+    };
     let star: Vec<bool> = sizemag
         .iter()
-        .map(|o| locus.is_some_and(|l| l.is_star(o, params)))
+        .map(|o| locus.is_some_and(|l| l.is_star(o, star_params)))
         .collect();
     let psf_stars: Vec<(f64, f64)> = cands
         .iter()
         .zip(&sizemag)
-        .filter(|(_, o)| locus.is_some_and(|l| l.is_psf_star(o, params)))
+        .filter(|(_, o)| locus.is_some_and(|l| l.is_psf_star(o, star_params)))
         .map(|(c, _)| (c.x, c.y))
         .collect();
     lap("stars", &mut t0);
@@ -453,6 +462,27 @@ mod tests {
                 "{o:?}"
             );
         }
+    }
+
+    #[test]
+    fn faint_stars_are_used_when_there_are_no_bright_ones() {
+        // Stars of 4e4–8e4 e⁻ on an 80 000 e⁻ sky have ν ≈ 20–45 < 50: the
+        // locus is found on the retry with ν ≥ 20 and a PSF model is made.
+        // (Galaxies of σ 1.5–5 px: with σ down to 1 px their convolved
+        // sizes pile up just above the PSF and, with no bright star at all,
+        // that pile is taken for the locus — see docs/ksb.md.)
+        let mut spec = step_like([0.0, 0.0], [0.05, -0.03], 3);
+        spec.star_flux_e = (4e4, 8e4);
+        spec.galaxy_sigma_px = (1.5, 5.0);
+        let m = measured(&spec);
+        let l = m.locus.expect("locus from faint stars");
+        assert!((l.rg_star / 1.856 - 1.0).abs() < 0.02, "{l:?}");
+        assert!(
+            m.psf_order.is_some() && m.n_stars >= 10,
+            "{} stars",
+            m.n_stars
+        );
+        assert!(m.objects.iter().any(|o| o.weight > 0.0));
     }
 
     #[test]

@@ -17,7 +17,10 @@
 //!    bright galaxies just above the stars can be as dense as the locus);
 //! 3. r_g* = the median of candidates within 2 bandwidths of the mode, and
 //!    the locus half-width = max(`locus_nsigma` × 1.4826 MAD,
-//!    `locus_min_halfwidth`) in ln r_g of those.
+//!    `locus_min_halfwidth`) in ln r_g of those. If fewer than
+//!    `locus_min_concentration` of the candidates within 6 bandwidths of
+//!    the peak lie within 2 bandwidths, the peak is a broad clump of
+//!    galaxies, not stars, and there is no locus.
 //!
 //! An object is a star when |ln r_g − ln r_g*| ≤ half-width and its S/N is at
 //! least `star_class_min_sn` (fainter objects' sizes are too noisy to tell).
@@ -119,6 +122,13 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     let centre = crate::background::median(&mut near)?;
     let mut dev: Vec<f64> = near.iter().map(|v| (v - centre).abs()).collect();
     let mad = crate::background::median(&mut dev)?;
+    // Stars scatter in size only by measurement noise: most candidates
+    // within ±6h of a stellar peak lie within ±2h (a flat distribution
+    // puts a third there). A broad "locus" is a clump of galaxies.
+    let wide = ln.iter().filter(|v| (*v - mode).abs() <= 6.0 * h).count();
+    if (near.len() as f64) < params.locus_min_concentration * wide as f64 {
+        return None;
+    }
     let half_width = (params.locus_nsigma * 1.4826 * mad).max(params.locus_min_halfwidth);
     let n_stars = ln
         .iter()
@@ -179,6 +189,21 @@ mod tests {
                 assert!(!locus.is_star(o, &params), "{o:?} {locus:?}");
             }
         }
+    }
+
+    #[test]
+    fn a_broad_clump_of_galaxies_is_not_a_locus() {
+        // 200 bright objects with ln r_g uniform over ±0.3 about ln 2.3 and
+        // no stars: about 1/3 of those within ±6h lie within ±2h (< 0.5).
+        let params = KsbParams::default();
+        let objs: Vec<SizeMag> = (0..200)
+            .map(|k| SizeMag {
+                rg: 2.3 * (0.6 * (k as f64 / 199.0 - 0.5)).exp(),
+                sn: 100.0,
+                clean: true,
+            })
+            .collect();
+        assert!(find_locus(&objs, &params).is_none());
     }
 
     #[test]
