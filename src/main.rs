@@ -24,6 +24,8 @@ enum Command {
     Generate(cmd::generate::Args),
     /// Time one full image stage by stage (population, PSF, galaxies, stars, noise, write).
     Bench(cmd::bench::Args),
+    /// Measure shears of a public run with the KSB+ reference pipeline.
+    Measure(cmd::measure::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +34,7 @@ fn main() -> ExitCode {
         Command::Config(args) => cmd::config::run(&args),
         Command::Generate(args) => cmd::generate::run(&args),
         Command::Bench(args) => cmd::bench::run(&args),
+        Command::Measure(args) => cmd::measure::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod config;
 pub mod generate;
+pub mod measure;
 
 use std::path::PathBuf;
 

@@ -1,0 +1,80 @@
+//! Why an object got zero weight: the bits of the `flags` column of a
+//! submission. An object with `flags == 0` has a positive weight.
+//!
+//! | bit | value | name | meaning |
+//! |---|---|---|---|
+//! | 0 | 1 | `EDGE` | footprint on the border or weight window beyond the image |
+//! | 1 | 2 | `SATURATED` | a footprint pixel at or above saturation |
+//! | 2 | 4 | `BLENDED` | split from a footprint with another peak within `deblend_flag_px`, another object within `close_pair_px`, or two detections merged |
+//! | 3 | 8 | `CENTROID` | windowed centroid did not converge or moved > `centroid_max_shift_px` |
+//! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |
+//! | 5 | 32 | `SMALL` | r_g ≤ `size_min_factor` × r_g* (star-like or smaller) |
+//! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |
+//! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `min_sn` |
+//! | 8 | 256 | `PGAMMA` | ½Tr P^γ < `min_pgamma` |
+//! | 9 | 512 | `BIG_SHEAR` | |γ̂| ≥ `max_shear` |
+//! | 10 | 1024 | `NO_PSF` | too few stars for a PSF model on this image |
+
+/// Footprint on the border or window beyond the image.
+pub const EDGE: u32 = 1;
+/// Saturated pixel in the footprint.
+pub const SATURATED: u32 = 2;
+/// Deblended or close pair.
+pub const BLENDED: u32 = 4;
+/// Centroid failed.
+pub const CENTROID: u32 = 8;
+/// Moments failed.
+pub const MOMENTS: u32 = 16;
+/// Too small (r_g ≤ size_min_factor × r_g*).
+pub const SMALL: u32 = 32;
+/// Too large (r_g at rg_max).
+pub const LARGE: u32 = 64;
+/// Too faint (ν < min_sn).
+pub const LOW_SN: u32 = 128;
+/// P^γ too small.
+pub const PGAMMA: u32 = 256;
+/// |γ̂| too large.
+pub const BIG_SHEAR: u32 = 512;
+/// No PSF model.
+pub const NO_PSF: u32 = 1024;
+
+/// Names of the bits, lowest first.
+pub const NAMES: [&str; 11] = [
+    "EDGE",
+    "SATURATED",
+    "BLENDED",
+    "CENTROID",
+    "MOMENTS",
+    "SMALL",
+    "LARGE",
+    "LOW_SN",
+    "PGAMMA",
+    "BIG_SHEAR",
+    "NO_PSF",
+];
+
+/// Flags that disqualify an object from the star sample and the PSF model.
+pub const NOT_FOR_PSF: u32 = EDGE | SATURATED | BLENDED | CENTROID | MOMENTS | LARGE;
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn bits_are_distinct_and_named_in_order() {
+        let all = [
+            super::EDGE,
+            super::SATURATED,
+            super::BLENDED,
+            super::CENTROID,
+            super::MOMENTS,
+            super::SMALL,
+            super::LARGE,
+            super::LOW_SN,
+            super::PGAMMA,
+            super::BIG_SHEAR,
+            super::NO_PSF,
+        ];
+        for (i, b) in all.iter().enumerate() {
+            assert_eq!(*b, 1 << i, "{}", super::NAMES[i]);
+        }
+    }
+}

@@ -1,0 +1,207 @@
+//! Files: the public manifest, FITS images, and the submission table.
+
+use crate::error::KsbError;
+use crate::image::Image;
+use crate::pipeline::MeasuredObject;
+use fitsio::FitsFile;
+use fitsio::hdu::HduInfo;
+use std::fmt::Write as _;
+use std::path::Path;
+use stepsim_sim::io::{IoError, write_atomically};
+use stepsim_sim::run_layout::{MANIFEST_FORMAT, Manifest};
+
+/// Reads and checks `manifest.json`.
+pub fn read_manifest(path: &Path) -> Result<Manifest, KsbError> {
+    let text = std::fs::read_to_string(path).map_err(|e| IoError::os(path, e))?;
+    let m: Manifest = serde_json::from_str(&text).map_err(|e| KsbError::Manifest {
+        path: path.into(),
+        message: format!("line {}, column {}: {e}", e.line(), e.column()),
+    })?;
+    if m.format != MANIFEST_FORMAT {
+        return Err(KsbError::Manifest {
+            path: path.into(),
+            message: format!("format is {:?}, expected {MANIFEST_FORMAT:?}", m.format),
+        });
+    }
+    let i = &m.instrument;
+    if !(i.gain_e_per_adu > 0.0 && i.gain_e_per_adu.is_finite()) {
+        return Err(KsbError::Manifest {
+            path: path.into(),
+            message: format!(
+                "instrument.gain_e_per_adu = {} must be > 0",
+                i.gain_e_per_adu
+            ),
+        });
+    }
+    Ok(m)
+}
+
+/// Reads the first HDU with 2-D image data (a primary image, or an image
+/// extension such as a tile-compressed one) as f32, in the file's units.
+pub fn read_fits_image(path: &Path) -> Result<Image, KsbError> {
+    let fe = |e: fitsio::errors::Error| KsbError::Io(IoError::fits(path, e));
+    if !path.is_file() {
+        return Err(KsbError::Io(IoError::os(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        )));
+    }
+    let mut f = FitsFile::open(path).map_err(fe)?;
+    let n = f.num_hdus().map_err(fe)?;
+    for k in 0..n {
+        let hdu = f.hdu(k).map_err(fe)?;
+        if let HduInfo::ImageInfo { shape, .. } = &hdu.info {
+            if shape.len() == 2 && shape[0] > 0 && shape[1] > 0 {
+                let (h, w) = (shape[0], shape[1]);
+                let data: Vec<f32> = hdu.read_image(&mut f).map_err(fe)?;
+                return Image::from_vec(w, h, data).ok_or_else(|| KsbError::Image {
+                    path: path.into(),
+                    message: format!("HDU {k}: pixel count does not match {w} × {h}"),
+                });
+            }
+        }
+    }
+    Err(KsbError::Image {
+        path: path.into(),
+        message: "no HDU with 2-D image data".into(),
+    })
+}
+
+/// Writes `img` as a BITPIX −32 primary image, atomically (for tests,
+/// benchmarks and synthetic data; the simulator has its own writer).
+pub fn write_fits_image(path: &Path, img: &Image) -> Result<(), KsbError> {
+    use fitsio::images::{ImageDescription, ImageType};
+    write_atomically(path, |tmp| -> Result<(), KsbError> {
+        let fe = |e: fitsio::errors::Error| KsbError::Io(IoError::fits(path, e));
+        let mut f = FitsFile::create(tmp)
+            .with_custom_primary(&ImageDescription {
+                data_type: ImageType::Float,
+                dimensions: &[img.height, img.width],
+            })
+            .open()
+            .map_err(fe)?;
+        let hdu = f.primary_hdu().map_err(fe)?;
+        hdu.write_image(&mut f, &img.data).map_err(fe)?;
+        Ok(())
+    })
+}
+
+/// Column header line of a submission (SPEC §6).
+pub const SUBMISSION_HEADER: &str = "# image x y e1 e2 weight flags";
+
+/// Formats a submission: the header line, then one line per object.
+pub fn format_submission<'a>(
+    rows: impl IntoIterator<Item = (&'a str, &'a MeasuredObject)>,
+) -> String {
+    let mut s = String::new();
+    s.push_str(SUBMISSION_HEADER);
+    s.push('\n');
+    for (image, o) in rows {
+        let _ = writeln!(
+            s,
+            "{image} {:.3} {:.3} {:.6} {:.6} {:.6} {}",
+            o.x, o.y, o.e1, o.e2, o.weight, o.flags
+        );
+    }
+    s
+}
+
+/// Writes a submission atomically.
+pub fn write_submission<'a>(
+    path: &Path,
+    rows: impl IntoIterator<Item = (&'a str, &'a MeasuredObject)>,
+) -> Result<(), KsbError> {
+    let text = format_submission(rows);
+    write_atomically(path, |tmp| -> Result<(), KsbError> {
+        std::fs::write(tmp, text.as_bytes()).map_err(|e| IoError::os(tmp, e))?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fits_images_round_trip_plain_and_rice_compressed() {
+        use fitsio::images::{ImageDescription, ImageType};
+        let dir = tempfile::tempdir().unwrap();
+        let data: Vec<f32> = (0..12 * 7).map(|k| k as f32 * 1.5).collect();
+        let plain = dir.path().join("a.fits");
+        {
+            let mut f = FitsFile::create(&plain)
+                .with_custom_primary(&ImageDescription {
+                    data_type: ImageType::Float,
+                    dimensions: &[7, 12],
+                })
+                .open()
+                .unwrap();
+            let hdu = f.primary_hdu().unwrap();
+            hdu.write_image(&mut f, &data).unwrap();
+        }
+        let img = read_fits_image(&plain).unwrap();
+        assert_eq!((img.width, img.height), (12, 7));
+        assert_eq!(img.at(3, 2), data[2 * 12 + 3]);
+        // Rice-compressed int32 in an image extension.
+        let rice = dir.path().join("b.fits");
+        let ints: Vec<i32> = (0..12 * 7).map(|k| 1000 + k).collect();
+        {
+            let name = format!("{}[compress R]", rice.display());
+            let mut f = FitsFile::create(&name).open().unwrap();
+            let hdu = f
+                .create_image(
+                    "SCI",
+                    &ImageDescription {
+                        data_type: ImageType::Long,
+                        dimensions: &[7, 12],
+                    },
+                )
+                .unwrap();
+            hdu.write_image(&mut f, &ints).unwrap();
+        }
+        let img = read_fits_image(&rice).unwrap();
+        assert_eq!((img.width, img.height), (12, 7));
+        assert_eq!(img.at(5, 6), (1000 + 6 * 12 + 5) as f32);
+        // Missing and non-image files are refused naming the file.
+        let e = read_fits_image(&dir.path().join("none.fits"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("none.fits"), "{e}");
+        std::fs::write(dir.path().join("junk.fits"), b"not fits").unwrap();
+        let e = read_fits_image(&dir.path().join("junk.fits"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("junk.fits"), "{e}");
+    }
+
+    #[test]
+    fn submission_has_the_spec_header_and_one_line_per_object() {
+        let o = MeasuredObject {
+            x: 10.5,
+            y: 20.25,
+            e1: 0.0123456,
+            e2: -0.5,
+            weight: 7.5,
+            flags: 0,
+            rg_px: 2.0,
+            sn: 30.0,
+            mag: 22.0,
+            pgamma: 0.5,
+        };
+        let s = format_submission([
+            ("img1", &o),
+            (
+                "img1",
+                &MeasuredObject {
+                    flags: 5,
+                    weight: 0.0,
+                    ..o
+                },
+            ),
+        ]);
+        let lines: Vec<&str> = s.lines().collect();
+        assert_eq!(lines[0], "# image x y e1 e2 weight flags");
+        assert_eq!(lines[1], "img1 10.500 20.250 0.012346 -0.500000 7.500000 0");
+        assert_eq!(lines[2], "img1 10.500 20.250 0.012346 -0.500000 0.000000 5");
+    }
+}

@@ -1,0 +1,223 @@
+//! Every tunable number of the pipeline in one place, with its default and
+//! where it comes from (STYLE §4). Sizes are in pixels, significances in
+//! units of the noise of the quantity named.
+
+use crate::error::KsbError;
+
+/// How P^γ enters the estimator (paper appendix A4; KSB table row
+/// "P^γ correction").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PgammaMode {
+    /// Each galaxy's own ½Tr[P^γ] (like CH and TS: "no fit").
+    PerObject,
+    /// ½Tr[P^γ] fitted as a smooth function of r_g over the image's good
+    /// galaxies (like MB and HH): less noise, one number per size.
+    FitSize,
+}
+
+/// The pipeline's parameters. `KsbParams::default()` is the setting used by
+/// `stepsim measure`; every default is justified next to its field.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KsbParams {
+    /// Side of a background mesh (SExtractor's BACK_SIZE default, 64).
+    pub background_mesh_px: usize,
+    /// κ of the κσ clipping of each mesh (3, SExtractor).
+    pub background_clip_sigma: f64,
+    /// σ of the Gaussian detection filter (1.5 px ≈ 0.8 × the σ of a 0.9″
+    /// PSF at 0.206″/px: close to matched for the faint, PSF-sized sources).
+    pub detect_filter_sigma_px: f64,
+    /// Pixels of the filtered image above this many filtered-noise σ belong
+    /// to a source (2; the isophote that defines footprints).
+    pub detect_thresh: f64,
+    /// Smallest footprint in pixels (5, SExtractor's DETECT_MINAREA).
+    pub detect_min_area: usize,
+    /// A source's filtered peak must reach this many filtered-noise σ (5).
+    pub detect_peak_sn: f64,
+    /// Two peaks of one footprint are split when the filtered image dips by
+    /// at least this fraction of the lower peak on the line between them (0.3).
+    pub deblend_min_dip: f64,
+    /// ... and when they are at least this far apart (3 px).
+    pub deblend_min_sep_px: f64,
+    /// A split source is flagged BLENDED when another peak of its footprint
+    /// is closer than this (20 px = 5 r_g of a PSF-sized object).
+    pub deblend_flag_px: f64,
+    /// Largest number of peaks kept per footprint (32).
+    pub deblend_max_peaks: usize,
+    /// Largest number of windowed-centroid iterations (60).
+    pub centroid_max_iter: usize,
+    /// Convergence of the windowed centroid (1e-3 px, and 1e-3 relative in r_g).
+    pub centroid_tol_px: f64,
+    /// Largest distance the windowed centroid may move from the detection
+    /// peak (3 px; the |d| < 3 pix cut of MH and TS).
+    pub centroid_max_shift_px: f64,
+    /// Smallest weight scale r_g (0.5 px).
+    pub rg_min_px: f64,
+    /// Largest weight scale r_g (15 px ≈ 3″); larger objects are flagged LARGE.
+    pub rg_max_px: f64,
+    /// Moments are summed over |θ| ≤ this × r_g (4, the θ_max = 4 r_g of MB, CH, LV).
+    pub window_radius_rg: f64,
+    /// Objects used to find the stellar locus and model the PSF need this
+    /// Gaussian-weighted S/N (50).
+    pub star_min_sn: f64,
+    /// Objects fainter than this S/N are never called stars (20).
+    pub star_class_min_sn: f64,
+    /// Kernel width, in ln r_g, of the density estimate that finds the locus (0.03).
+    pub locus_bandwidth: f64,
+    /// Half-width of the locus in robust σ of ln r_g (3).
+    pub locus_nsigma: f64,
+    /// Least fraction of the candidates within ±6 bandwidths of the locus
+    /// peak that must lie within ±2 bandwidths (0.5; a flat distribution
+    /// gives 1/3, stars with noise-limited sizes nearly 1).
+    pub locus_min_concentration: f64,
+    /// Smallest half-width of the locus in ln r_g (0.03, i.e. ±3 %).
+    pub locus_min_halfwidth: f64,
+    /// Polynomial order of the PSF model across the field (2, like MB, CH, HH, LV).
+    pub psf_order: usize,
+    /// κ of the κσ clipping of the PSF fit (3).
+    pub psf_clip_sigma: f64,
+    /// The order drops until there are at least this many stars per
+    /// polynomial coefficient (3).
+    pub psf_stars_per_term: f64,
+    /// Fewest stars that give a PSF model at all (order 0) (3).
+    pub psf_min_stars: usize,
+    /// Ratio of neighbouring weight scales of the stellar ladder (1.06).
+    pub scale_step: f64,
+    /// Galaxies need r_g > this × r_g* (1.25; CH and TS 1.2, MB and MH 1.0).
+    /// KSB's bias is worst for the smallest galaxies: on synthetic scenes
+    /// with a PSF halo m went from −0.083 (1.1) to −0.056 (1.3) and −0.022
+    /// (1.6, with a third of the galaxies); see docs/ksb.md.
+    pub size_min_factor: f64,
+    /// Galaxies need Gaussian-weighted S/N ν ≥ this (10, like CH and C1/C2).
+    pub min_sn: f64,
+    /// Galaxies need ½Tr[P^γ] ≥ this (0.1).
+    pub min_pgamma: f64,
+    /// Galaxies need |γ̂| < this (1).
+    pub max_shear: f64,
+    /// Intrinsic shear-estimate dispersion per component in the weights
+    /// w = 1 / (σ_int² + σ_γ²) (0.3; Hoekstra et al. 2000).
+    pub sigma_int: f64,
+    /// Two detections closer than this are a close pair, both flagged
+    /// BLENDED (10 px ≈ 2″, CH's close-pair cut).
+    pub close_pair_px: f64,
+    /// How P^γ is used (per object: on synthetic scenes the fit against
+    /// size loses the per-object ellipticity dependence of P^sh and gives a
+    /// 2–4 % more negative m; see docs/ksb.md).
+    pub pgamma_mode: PgammaMode,
+    /// Include the objects' own photon noise in the pixel variance (true).
+    pub poisson_variance: bool,
+}
+
+impl Default for KsbParams {
+    fn default() -> Self {
+        Self {
+            background_mesh_px: 64,
+            background_clip_sigma: 3.0,
+            detect_filter_sigma_px: 1.5,
+            detect_thresh: 2.0,
+            detect_min_area: 5,
+            detect_peak_sn: 5.0,
+            deblend_min_dip: 0.3,
+            deblend_min_sep_px: 3.0,
+            deblend_max_peaks: 32,
+            deblend_flag_px: 20.0,
+            centroid_max_iter: 60,
+            centroid_tol_px: 1e-3,
+            centroid_max_shift_px: 3.0,
+            rg_min_px: 0.5,
+            rg_max_px: 15.0,
+            window_radius_rg: 4.0,
+            star_min_sn: 50.0,
+            star_class_min_sn: 20.0,
+            locus_bandwidth: 0.03,
+            locus_nsigma: 3.0,
+            locus_min_halfwidth: 0.03,
+            locus_min_concentration: 0.5,
+            psf_order: 2,
+            psf_clip_sigma: 3.0,
+            psf_stars_per_term: 3.0,
+            psf_min_stars: 3,
+            scale_step: 1.06,
+            size_min_factor: 1.25,
+            min_sn: 10.0,
+            min_pgamma: 0.1,
+            max_shear: 1.0,
+            sigma_int: 0.3,
+            close_pair_px: 10.0,
+            pgamma_mode: PgammaMode::PerObject,
+            poisson_variance: true,
+        }
+    }
+}
+
+impl KsbParams {
+    /// Checks every range; the first offending parameter is named.
+    pub fn validate(&self) -> Result<(), KsbError> {
+        let pos = |name: &'static str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(KsbError::Param {
+                    name,
+                    value: v,
+                    reason: "must be finite and > 0",
+                })
+            }
+        };
+        if self.background_mesh_px < 8 {
+            return Err(KsbError::Param {
+                name: "background_mesh_px",
+                value: self.background_mesh_px as f64,
+                reason: "must be at least 8",
+            });
+        }
+        pos("background_clip_sigma", self.background_clip_sigma)?;
+        pos("detect_filter_sigma_px", self.detect_filter_sigma_px)?;
+        pos("detect_thresh", self.detect_thresh)?;
+        pos("detect_peak_sn", self.detect_peak_sn)?;
+        pos("deblend_min_dip", self.deblend_min_dip)?;
+        pos("centroid_tol_px", self.centroid_tol_px)?;
+        pos("centroid_max_shift_px", self.centroid_max_shift_px)?;
+        pos("rg_min_px", self.rg_min_px)?;
+        pos("rg_max_px", self.rg_max_px - self.rg_min_px)?;
+        pos("window_radius_rg", self.window_radius_rg - 1.0)?;
+        pos("star_min_sn", self.star_min_sn)?;
+        pos("locus_bandwidth", self.locus_bandwidth)?;
+        pos("locus_nsigma", self.locus_nsigma)?;
+        pos("locus_min_concentration", self.locus_min_concentration)?;
+        pos("psf_clip_sigma", self.psf_clip_sigma)?;
+        pos("psf_stars_per_term", self.psf_stars_per_term)?;
+        pos("scale_step", self.scale_step - 1.0)?;
+        pos("min_pgamma", self.min_pgamma)?;
+        pos("max_shear", self.max_shear)?;
+        pos("sigma_int", self.sigma_int)?;
+        if self.psf_order > 4 {
+            return Err(KsbError::Param {
+                name: "psf_order",
+                value: self.psf_order as f64,
+                reason: "must be at most 4",
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_bad_values_are_named() {
+        KsbParams::default().validate().unwrap();
+        let p = KsbParams {
+            scale_step: 0.9,
+            ..KsbParams::default()
+        };
+        let e = p.validate().unwrap_err().to_string();
+        assert!(e.contains("scale_step"), "{e}");
+        let p = KsbParams {
+            psf_order: 7,
+            ..KsbParams::default()
+        };
+        assert!(p.validate().unwrap_err().to_string().contains("psf_order"));
+    }
+}

@@ -1,0 +1,261 @@
+//! Detection: threshold the smoothed image, label 8-connected footprints by
+//! flood fill, drop small or insignificant ones, and split footprints with
+//! two or more well-separated peaks (simple deblending).
+//!
+//! A footprint is the set of connected pixels whose smoothed value exceeds
+//! `detect_thresh` × σ_f, where σ_f is the noise of the smoothed image. Its
+//! peaks are the local maxima (3 × 3) of the smoothed image above
+//! `detect_peak_sn` × σ_f. Peaks are taken from the highest down; a peak is
+//! kept as a separate object if, towards every peak already kept, it lies at
+//! least `deblend_min_sep_px` away and the smoothed image dips on the
+//! straight line between them below (1 − `deblend_min_dip`) × its own
+//! height. Pixels of a split footprint go to the nearest kept peak. A split
+//! source is marked blended when another peak of its footprint is closer
+//! than `deblend_flag_px` (farther neighbours do not reach its weight window).
+
+use crate::image::Image;
+use crate::params::KsbParams;
+
+/// One detected source.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Peak of the smoothed image, array coordinates.
+    pub x: f64,
+    /// Peak of the smoothed image, array coordinates.
+    pub y: f64,
+    /// Smoothed peak in units of σ_f.
+    pub peak_sn: f64,
+    /// Number of footprint pixels assigned to this source.
+    pub area: usize,
+    /// Split from a footprint with another source whose peak is closer
+    /// than `deblend_flag_px`.
+    pub blended: bool,
+    /// The footprint touches the image border.
+    pub touches_edge: bool,
+    /// A pixel of the footprint is at or above the saturation level.
+    pub saturated: bool,
+}
+
+/// Detects sources. `filtered` is the background-subtracted image smoothed
+/// by [`crate::filter::smooth`], `sigma_f` its noise; `raw` the image as read
+/// (electrons, sky included) and `saturation_e` its saturation level.
+pub fn detect(
+    filtered: &Image,
+    sigma_f: f64,
+    raw: &Image,
+    saturation_e: Option<f64>,
+    params: &KsbParams,
+) -> Vec<Detection> {
+    let (w, h) = (filtered.width, filtered.height);
+    let thresh = (params.detect_thresh * sigma_f) as f32;
+    let peak_min = params.detect_peak_sn * sigma_f;
+    let mut label = vec![false; w * h];
+    let mut stack = Vec::new();
+    let mut pixels: Vec<usize> = Vec::new();
+    let mut out = Vec::new();
+    for start in 0..w * h {
+        if label[start] || filtered.data[start].is_nan() || filtered.data[start] <= thresh {
+            continue;
+        }
+        // Flood fill the footprint.
+        pixels.clear();
+        stack.push(start);
+        label[start] = true;
+        while let Some(p) = stack.pop() {
+            pixels.push(p);
+            let (x, y) = ((p % w) as i64, (p / w) as i64);
+            for dy in -1..=1i64 {
+                for dx in -1..=1i64 {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                        continue;
+                    }
+                    let q = ny as usize * w + nx as usize;
+                    if !label[q] && filtered.data[q] > thresh {
+                        label[q] = true;
+                        stack.push(q);
+                    }
+                }
+            }
+        }
+        if pixels.len() < params.detect_min_area {
+            continue;
+        }
+        out.extend(split_footprint(
+            filtered,
+            sigma_f,
+            raw,
+            saturation_e,
+            &pixels,
+            peak_min,
+            params,
+        ));
+    }
+    out
+}
+
+fn is_local_max(img: &Image, p: usize) -> bool {
+    let (w, h) = (img.width, img.height);
+    let (x, y) = ((p % w) as i64, (p / w) as i64);
+    let v = img.data[p];
+    for dy in -1..=1i64 {
+        for dx in -1..=1i64 {
+            if dx == 0 && dy == 0 {
+                continue;
+            }
+            let (nx, ny) = (x + dx, y + dy);
+            if nx < 0 || ny < 0 || nx >= w as i64 || ny >= h as i64 {
+                continue;
+            }
+            let q = ny as usize * w + nx as usize;
+            // Ties: the first pixel in memory order of a plateau wins.
+            let u = img.data[q];
+            if u > v || (u == v && q < p) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Lowest smoothed value on the segment between two pixels (nearest-pixel
+/// samples every 0.5 px).
+fn min_on_line(img: &Image, a: (f64, f64), b: (f64, f64)) -> f64 {
+    let d = ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
+    let n = (2.0 * d).ceil().max(1.0) as usize;
+    (0..=n)
+        .map(|k| {
+            let t = k as f64 / n as f64;
+            let x = (a.0 + t * (b.0 - a.0)).round() as usize;
+            let y = (a.1 + t * (b.1 - a.1)).round() as usize;
+            f64::from(img.at(x, y))
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn split_footprint(
+    filtered: &Image,
+    sigma_f: f64,
+    raw: &Image,
+    saturation_e: Option<f64>,
+    pixels: &[usize],
+    peak_min: f64,
+    params: &KsbParams,
+) -> Vec<Detection> {
+    let w = filtered.width;
+    let mut peaks: Vec<(f64, usize)> = pixels
+        .iter()
+        .filter(|&&p| f64::from(filtered.data[p]) >= peak_min && is_local_max(filtered, p))
+        .map(|&p| (f64::from(filtered.data[p]), p))
+        .collect();
+    if peaks.is_empty() {
+        return Vec::new();
+    }
+    peaks.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    let xy = |p: usize| ((p % w) as f64, (p / w) as f64);
+    let mut kept: Vec<(f64, usize)> = vec![peaks[0]];
+    for &(hgt, p) in &peaks[1..] {
+        if kept.len() >= params.deblend_max_peaks {
+            break;
+        }
+        let separate = kept.iter().all(|&(_, k)| {
+            let (a, b) = (xy(p), xy(k));
+            let d = ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt();
+            d >= params.deblend_min_sep_px
+                && min_on_line(filtered, a, b) <= (1.0 - params.deblend_min_dip) * hgt
+        });
+        if separate {
+            kept.push((hgt, p));
+        }
+    }
+    let blended = kept.len() > 1;
+    let mut dets: Vec<Detection> = kept
+        .iter()
+        .map(|&(hgt, p)| {
+            let (x, y) = xy(p);
+            let nearest = kept
+                .iter()
+                .filter(|&&(_, q)| q != p)
+                .map(|&(_, q)| {
+                    let (qx, qy) = xy(q);
+                    (qx - x).hypot(qy - y)
+                })
+                .fold(f64::INFINITY, f64::min);
+            Detection {
+                x,
+                y,
+                peak_sn: hgt / sigma_f,
+                area: 0,
+                blended: nearest < params.deblend_flag_px,
+                touches_edge: false,
+                saturated: false,
+            }
+        })
+        .collect();
+    for &p in pixels {
+        let (x, y) = xy(p);
+        let k = if blended {
+            dets.iter()
+                .enumerate()
+                .map(|(i, d)| (i, (d.x - x).powi(2) + (d.y - y).powi(2)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map_or(0, |m| m.0)
+        } else {
+            0
+        };
+        let d = &mut dets[k];
+        d.area += 1;
+        if x == 0.0 || y == 0.0 || x as usize == w - 1 || y as usize == filtered.height - 1 {
+            d.touches_edge = true;
+        }
+        if let Some(s) = saturation_e {
+            if f64::from(raw.data[p]) >= s {
+                d.saturated = true;
+            }
+        }
+    }
+    dets
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::draw::{covariance, draw_gaussian_sampled};
+
+    #[test]
+    fn two_close_peaks_are_split_and_one_elongated_source_is_not() {
+        let p = KsbParams::default();
+        let mut img = Image::zeros(80, 60);
+        // Two round sources 9 px apart: the dip between them is deep.
+        draw_gaussian_sampled(&mut img, 30.0, 30.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
+        draw_gaussian_sampled(&mut img, 39.0, 31.0, 600.0, &covariance(1.8, [0.0, 0.0]));
+        // An elongated single source: one peak.
+        // Two sources 40 px apart joined by a faint bridge: split, not blended.
+        draw_gaussian_sampled(&mut img, 10.0, 50.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
+        draw_gaussian_sampled(&mut img, 50.0, 50.0, 1000.0, &covariance(1.8, [0.0, 0.0]));
+        for x in 10..=50 {
+            *img.at_mut(x, 50) += 3.0;
+        }
+        draw_gaussian_sampled(&mut img, 60.0, 15.0, 1000.0, &covariance(2.5, [0.5, 0.0]));
+        let d = detect(&img, 1.0, &img, Some(40.0), &p);
+        assert_eq!(d.len(), 5, "{d:?}");
+        let blended: Vec<_> = d.iter().filter(|d| d.blended).collect();
+        assert_eq!(blended.len(), 2);
+        assert!(
+            blended
+                .iter()
+                .any(|d| (d.x - 30.0).abs() <= 1.0 && (d.y - 30.0).abs() <= 1.0)
+        );
+        assert!(
+            blended
+                .iter()
+                .any(|d| (d.x - 39.0).abs() <= 1.0 && (d.y - 31.0).abs() <= 1.0)
+        );
+        let single = d.iter().find(|d| !d.blended && d.y == 15.0).unwrap();
+        assert_eq!(d.iter().filter(|d| d.y == 50.0 && !d.blended).count(), 2);
+        assert_eq!((single.x, single.y), (60.0, 15.0));
+        // Peak of the 1000 e⁻ round source is 1000/(2π 1.8²) = 49 > 40: saturated.
+        assert!(d.iter().any(|d| d.saturated && d.x == 30.0 && d.y == 30.0));
+        assert!(!single.saturated);
+    }
+}

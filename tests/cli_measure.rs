@@ -1,0 +1,201 @@
+//! End-to-end checks of `stepsim measure`: a synthetic public run, output
+//! format, thread-count independence, and refused input.
+
+use std::path::Path;
+use std::process::Command;
+use stepsim_ksb::draw::{SceneSpec, covariance, synthetic_scene};
+use stepsim_ksb::io::write_fits_image;
+use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
+
+fn stepsim() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_stepsim"))
+}
+
+/// Writes a public half with two 512² synthetic images (ADU, gain 4).
+fn public_run(dir: &Path) {
+    let mut images = Vec::new();
+    for (k, id) in ["ib2", "ia1"].iter().enumerate() {
+        let spec = SceneSpec {
+            width: 512,
+            height: 512,
+            n_galaxy_pairs: 60,
+            n_stars: 80,
+            psf: covariance(4.37 / 2.3548, [0.04, 0.01]),
+            psf_halo: None,
+            shear: [0.05, 0.0],
+            galaxy_sigma_px: (1.0, 4.0),
+            galaxy_flux_e: (1.5e4, 1e6),
+            star_flux_e: (1e5, 3e6),
+            sigma_e: 0.25,
+            sky_e: 80_000.0,
+            read_noise_e: 5.0,
+            seed: 100 + k as u64,
+        };
+        let (_, img) = synthetic_scene(&spec);
+        let adu = img.scaled(0.25);
+        let file = format!("d0/{id}.fits");
+        write_fits_image(&dir.join(&file), &adu).unwrap();
+        images.push(ManifestImage {
+            image: id.to_string(),
+            dataset: "d0".into(),
+            file,
+            sha256: String::new(),
+        });
+    }
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        instrument: InstrumentFacts {
+            width_px: 512,
+            height_px: 512,
+            pixel_scale_arcsec: 0.206,
+            gain_e_per_adu: 4.0,
+            read_noise_e: 5.0,
+            saturation_adu: 65535.0,
+            exposure_s: 3600.0,
+            zeropoint_mag: 26.0,
+        },
+        images,
+    };
+    std::fs::write(
+        dir.join("manifest.json"),
+        serde_json::to_string_pretty(&manifest).unwrap(),
+    )
+    .unwrap();
+}
+
+fn measure(run: &Path, out: &Path, threads: &str) -> std::process::Output {
+    stepsim()
+        .args(["measure", "--run"])
+        .arg(run)
+        .arg("--out")
+        .arg(out)
+        .args(["--threads", threads])
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn measure_writes_a_sorted_submission_independent_of_threads() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let (a, b) = (dir.path().join("a.txt"), dir.path().join("b.txt"));
+    let out = measure(&run, &a, "1");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = measure(&run, &b, "2");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(&a).unwrap();
+    assert_eq!(text, std::fs::read_to_string(&b).unwrap());
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("# image x y e1 e2 weight flags"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split_whitespace().collect()).collect();
+    assert!(rows.len() > 60, "{} rows", rows.len());
+    let mut last = (String::new(), f64::NEG_INFINITY, f64::NEG_INFINITY);
+    let mut weighted = 0;
+    for r in &rows {
+        assert_eq!(r.len(), 7, "{r:?}");
+        let (x, y): (f64, f64) = (r[1].parse().unwrap(), r[2].parse().unwrap());
+        assert!((0.5..=512.5).contains(&x) && (0.5..=512.5).contains(&y));
+        let (e1, e2, w): (f64, f64, f64) = (
+            r[3].parse().unwrap(),
+            r[4].parse().unwrap(),
+            r[5].parse().unwrap(),
+        );
+        assert!(e1.is_finite() && e2.is_finite() && w >= 0.0);
+        let flags: u32 = r[6].parse().unwrap();
+        assert_eq!(flags == 0, w > 0.0, "{r:?}");
+        weighted += usize::from(w > 0.0);
+        let key = (r[0].to_string(), y, x);
+        assert!(
+            key.0 > last.0 || (key.0 == last.0 && (y, x) >= (last.1, last.2)),
+            "{r:?} after {last:?}"
+        );
+        last = key;
+    }
+    assert!(weighted > 20, "{weighted} weighted rows");
+    let mut keys: Vec<(&str, &str, &str)> = rows.iter().map(|r| (r[0], r[1], r[2])).collect();
+    keys.sort();
+    keys.dedup();
+    assert_eq!(keys.len(), rows.len(), "duplicate rows");
+    assert!(rows.iter().any(|r| r[0] == "ia1") && rows.iter().any(|r| r[0] == "ib2"));
+}
+
+#[test]
+fn pgamma_fit_and_psf_order_options_are_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let out_a = dir.path().join("fit.txt");
+    let out = stepsim()
+        .args([
+            "measure",
+            "--pgamma",
+            "fit-size",
+            "--psf-order",
+            "1",
+            "--run",
+        ])
+        .arg(&run)
+        .arg("--out")
+        .arg(&out_a)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("PSF order 1") || err.contains("PSF order 0"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&out_a).unwrap();
+    let weighted = text
+        .lines()
+        .skip(1)
+        .filter(|l| l.split_whitespace().nth(6) == Some("0"))
+        .count();
+    assert!(weighted > 20, "{weighted}");
+    // Orders above 4 are a usage error.
+    let out = stepsim()
+        .args(["measure", "--psf-order", "7", "--run", "x", "--out", "y"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = measure(&dir.path().join("nowhere"), &dir.path().join("s.txt"), "1");
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("manifest.json"), "{err}");
+    assert!(!dir.path().join("s.txt").exists());
+
+    let run = dir.path().join("public");
+    public_run(&run);
+    std::fs::write(run.join("d0/ia1.fits"), b"SIMPLE  = this is not FITS").unwrap();
+    let out = measure(&run, &dir.path().join("s.txt"), "1");
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("ia1.fits"), "{err}");
+    assert!(!dir.path().join("s.txt").exists());
+
+    std::fs::write(run.join("manifest.json"), b"{\"format\": 3}").unwrap();
+    let out = measure(&run, &dir.path().join("s.txt"), "1");
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("manifest.json"));
+
+    let out = stepsim().args(["measure", "--run", "x"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}
