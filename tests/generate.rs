@@ -211,7 +211,7 @@ fn resume_rewrites_only_missing_or_damaged_images() {
     let untouched_time = mtime(&untouched);
     // Image 0: deleted, but its complete bytes left under a temporary name.
     let tmp = file(0).with_file_name(format!(
-        ".{}.99999.tmp",
+        ".{}.4194305.tmp",
         file(0).file_name().unwrap().to_string_lossy()
     ));
     std::fs::rename(file(0), &tmp).unwrap();
@@ -229,8 +229,8 @@ fn resume_rewrites_only_missing_or_damaged_images() {
         err.contains("3 images written, 5 already finished and verified"),
         "{err}"
     );
-    // The dead writer's temporary (pid 99999) is removed, never taken as finished.
-    assert!(err.contains("removed") && err.contains(".99999.tmp"), "{err}");
+    // The dead writer's temporary (pid 4194305, above pid_max) is removed, never taken as finished.
+    assert!(err.contains("removed") && err.contains(".4194305.tmp"), "{err}");
     assert!(!tmp.exists());
     assert_eq!(mtime(&untouched), untouched_time);
     assert!(release(&d.join("run")) == before);
