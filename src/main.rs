@@ -20,12 +20,18 @@ struct Cli {
 enum Command {
     /// Validate a config and print it fully resolved (defaults, overrides).
     Config(cmd::config::Args),
+    /// Score a shear catalogue against a run's truth (report.json, report.md, plots).
+    Score(cmd::score::Args),
+    /// Rank several score reports in one table.
+    Leaderboard(cmd::leaderboard::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
+        Command::Score(args) => cmd::score::run(&args),
+        Command::Leaderboard(args) => cmd::leaderboard::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

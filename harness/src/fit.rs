@@ -31,13 +31,12 @@ fn solve_inverse(m: &[Vec<f64>], b: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
             row
         })
         .collect();
-    let scale = m
-        .iter()
-        .flat_map(|r| r.iter())
-        .fold(0.0f64, |s, v| s.max(v.abs()));
+    // Singularity is judged per column, relative to its own diagonal: the
+    // weights of different points may span many decades.
+    let diag: Vec<f64> = (0..p).map(|i| m[i][i].abs()).collect();
     for col in 0..p {
         let piv = (col..p).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if !(a[piv][col].abs() > scale * 1e-14) {
+        if !(a[piv][col].abs() > diag[col] * 1e-13) {
             return None;
         }
         a.swap(col, piv);
@@ -184,6 +183,22 @@ mod tests {
         assert!(f.err[2].unwrap() < 1e-8);
         // Fewer points than parameters: no fit.
         assert!(fit_poly(&x[..2], &y[..2], &[None; 2], 3).is_none());
+        // All x equal: the slope is undetermined.
+        assert!(fit_poly(&[0.1; 3], &[1.0, 2.0, 3.0], &[None; 3], 2).is_none());
+        // Weights spanning 40 decades still give the exact line.
+        let yl: Vec<f64> = x.iter().map(|x| 0.5 + 2.0 * x).collect();
+        let s = [
+            Some(1e-19),
+            Some(1e-9),
+            Some(1e-10),
+            Some(1e-3),
+            Some(1e-12),
+        ];
+        let f = fit_poly(&x, &yl, &s, 2).unwrap();
+        assert!(
+            (f.coef[0] - 0.5).abs() < 1e-12 && (f.coef[1] - 2.0).abs() < 1e-9,
+            "{f:?}"
+        );
         // n = p: exact, errors unknown.
         let f = fit_poly(&x[..3], &y[..3], &[None; 3], 3).unwrap();
         assert_eq!(f.err, vec![None, None, None]);

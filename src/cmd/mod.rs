@@ -1,6 +1,8 @@
 //! One module per subcommand; each has `Args` (clap) and `run`.
 
 pub mod config;
+pub mod leaderboard;
+pub mod score;
 
 use std::path::PathBuf;
 
