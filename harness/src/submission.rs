@@ -454,10 +454,18 @@ fn parse_fits(
         HarnessError::submission(path, None, None, format!("FITS error: {e}"))
     };
     let mut f = fitsio::FitsFile::open(path).map_err(fe)?;
-    let n_hdus = f.iter().count();
     let mut found = None;
-    for i in 1..n_hdus {
-        let hdu = f.hdu(i).map_err(fe)?;
+    let mut last_error = String::from("none");
+    // Walk the extensions by index (fitsio's HDU iterator panics on a
+    // corrupt header; `hdu(i)` returns an error instead).
+    for i in 1..=999 {
+        let hdu = match f.hdu(i) {
+            Ok(h) => h,
+            Err(e) => {
+                last_error = e.to_string();
+                break;
+            }
+        };
         if let HduInfo::TableInfo {
             column_descriptions,
             num_rows,
@@ -473,7 +481,7 @@ fn parse_fits(
             path,
             None,
             None,
-            "no table extension in this FITS file",
+            format!("no readable table extension in this FITS file (cfitsio: {last_error})"),
         ));
     };
     let names: Vec<String> = cols.iter().map(|c| c.name.clone()).collect();
