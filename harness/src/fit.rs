@@ -36,7 +36,7 @@ fn solve_inverse(m: &[Vec<f64>], b: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
     let diag: Vec<f64> = (0..p).map(|i| m[i][i].abs()).collect();
     for col in 0..p {
         let piv = (col..p).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if !(a[piv][col].abs() > diag[col] * 1e-13) {
+        if a[piv][col].abs() <= diag[col] * 1e-13 || !a[piv][col].is_finite() {
             return None;
         }
         a.swap(col, piv);
@@ -48,8 +48,9 @@ fn solve_inverse(m: &[Vec<f64>], b: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)>
             if r != col {
                 let f = a[r][col];
                 if f != 0.0 {
-                    for c in 0..2 * p + 1 {
-                        a[r][c] -= f * a[col][c];
+                    let pivot_row = a[col].clone();
+                    for (v, pv) in a[r].iter_mut().zip(&pivot_row) {
+                        *v -= f * pv;
                     }
                 }
             }

@@ -4,8 +4,9 @@
 //! paper's rule; each counts). Ties in distance go to the lower truth index,
 //! so the result is unique.
 //!
-//! [`match_nearest`] is the fast matcher (a uniform grid of cell size equal
-//! to the radius, so only the 3 × 3 neighbouring cells are searched);
+//! [`match_nearest`] is the fast matcher (a uniform grid of cells no
+//! smaller than the radius, so only the 3 × 3 neighbouring cells are
+//! searched; about one truth object per cell);
 //! [`match_nearest_brute`] is its slow, obvious reference.
 
 /// Index of the matched truth object for each query, or `None`.
@@ -42,7 +43,7 @@ pub fn match_nearest_brute(truth: &[(f64, f64)], queries: &[(f64, f64)], radius:
 /// and searches the 3 × 3 cells around each query. Same result as
 /// [`match_nearest_brute`] (same distance formula, same tie rule).
 pub fn match_nearest(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) -> Matches {
-    if truth.is_empty() || !(radius > 0.0) {
+    if truth.is_empty() || radius.is_nan() || radius <= 0.0 {
         return match_nearest_brute(truth, queries, radius.max(0.0));
     }
     let r2 = radius * radius;
@@ -53,8 +54,12 @@ pub fn match_nearest(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) 
         x1 = x1.max(x);
         y1 = y1.max(y);
     }
-    // Cap the grid size so that a tiny radius cannot exhaust memory.
-    let cell = radius.max((x1 - x0).max(y1 - y0) / 4096.0);
+    // Cells of about one object each, never smaller than the radius (so the
+    // 3 × 3 neighbourhood suffices) and never more cells than objects.
+    let area = ((x1 - x0) * (y1 - y0)).max(0.0);
+    let cell = radius
+        .max((area / truth.len() as f64).sqrt())
+        .max((x1 - x0).max(y1 - y0) / 4096.0);
     let nx = ((x1 - x0) / cell).floor() as usize + 1;
     let ny = ((y1 - y0) / cell).floor() as usize + 1;
     // Counting sort of truth indices by cell (CSR layout).

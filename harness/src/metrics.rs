@@ -311,10 +311,11 @@ pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
     }
 }
 
-/// Straight-line fit y = m x + c over points (x, y, σ).
-fn fit_linear(
-    points: &[(f64, f64, Option<f64>)],
-) -> ((Option<f64>, Option<f64>), (Option<f64>, Option<f64>)) {
+/// A value and its error, either possibly missing.
+pub type ValErr = (Option<f64>, Option<f64>);
+
+/// Straight-line fit y = m x + c over points (x, y, σ): (m, c).
+fn fit_linear(points: &[(f64, f64, Option<f64>)]) -> (ValErr, ValErr) {
     let x: Vec<f64> = points.iter().map(|p| p.0).collect();
     let y: Vec<f64> = points.iter().map(|p| p.1).collect();
     let s: Vec<Option<f64>> = points.iter().map(|p| p.2).collect();

@@ -158,7 +158,7 @@ pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> 
         ));
     }
     let mut warnings = p.warnings.clone();
-    let zero_w = stats.iter().filter(|s| !(s.sw > 0.0)).count();
+    let zero_w = stats.iter().filter(|s| s.sw <= 0.0).count();
     if zero_w > 0 {
         warnings.push(format!(
             "{zero_w} images have zero total weight and do not enter the shear means"

@@ -88,7 +88,7 @@ const MARGIN: (f64, f64, f64, f64) = (70.0, 15.0, 28.0, 45.0); // left, right, t
 
 /// "Nice" tick values covering [lo, hi] (about five).
 pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
-    if !(hi > lo) {
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return vec![lo];
     }
     let raw = (hi - lo) / 5.0;
@@ -332,10 +332,11 @@ impl Figure {
                         colour,
                         dashed,
                     } => {
+                        let mut phase = 0.0;
                         for seg in pts.windows(2) {
                             let a = f.px(seg[0].0, seg[0].1);
                             let b = f.px(seg[1].0, seg[1].1);
-                            r.line(a, b, *colour, *dashed);
+                            phase = r.line_from(a, b, *colour, dashed.then_some(phase));
                         }
                     }
                     Item::Points { pts, colour } => {
@@ -412,20 +413,29 @@ impl Raster {
     }
     /// A line of width ~1.5 px; dashes 6 px on, 4 off.
     pub fn line(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dashed: bool) {
-        if !(a.0.is_finite() && a.1.is_finite() && b.0.is_finite() && b.1.is_finite()) {
-            return;
-        }
+        self.line_from(a, b, c, dashed.then_some(0.0));
+    }
+
+    /// A line; with `Some(phase)` dashed (6 px on, 4 off) starting `phase`
+    /// px into the pattern. Returns the phase at the end, so that the dashes
+    /// of a polyline run on across its vertices.
+    pub fn line_from(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dash: Option<f64>) -> f64 {
+        let phase = dash.unwrap_or(0.0);
         let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
+        if !(len.is_finite() && a.0.is_finite() && a.1.is_finite()) {
+            return phase;
+        }
         let n = (len.ceil() as usize).clamp(1, 100_000);
         for i in 0..=n {
             let t = i as f64 / n as f64;
-            if dashed && (t * len) % 10.0 >= 6.0 {
+            if dash.is_some() && (phase + t * len) % 10.0 >= 6.0 {
                 continue;
             }
             let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
             self.set(x, y, c);
             self.set(x + 0.5, y + 0.5, c);
         }
+        (phase + len) % 10.0
     }
     /// A filled disk.
     pub fn disk(&mut self, cx: f64, cy: f64, r: f64, c: Colour) {

@@ -75,6 +75,10 @@ impl SynthSpec {
     }
 }
 
+/// A submission rule: (truth row, dataset index) -> (e1, e2, weight), or
+/// `None` to leave the object out.
+pub type Rule<'a> = dyn Fn(&TruthRow, usize) -> Option<(f64, f64, f64)> + 'a;
+
 /// A run in memory.
 #[derive(Debug, Clone)]
 pub struct SynthRun {
@@ -263,10 +267,7 @@ impl SynthRun {
     /// A synthetic submission: `rule(truth row, dataset index)` gives the
     /// row's (e1, e2, weight), or `None` to leave the object out. Stars are
     /// offered to the rule too. Positions are the truth positions.
-    pub fn submission(
-        &self,
-        rule: &dyn Fn(&TruthRow, usize) -> Option<(f64, f64, f64)>,
-    ) -> Vec<Vec<SubRow>> {
+    pub fn submission(&self, rule: &Rule) -> Vec<Vec<SubRow>> {
         let index = self.index();
         index
             .images
