@@ -184,7 +184,7 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
     ] {
         let png = std::fs::read(fx.path(&format!("out/{f}.png"))).unwrap();
         assert!(
-            stepsim_harness::plots::png::decode_indexed(&png).is_some(),
+            stepsim_harness::png::decode_indexed(&png).is_some(),
             "{f}.png"
         );
         let svg = std::fs::read_to_string(fx.path(&format!("out/{f}.svg"))).unwrap();

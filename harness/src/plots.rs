@@ -1,8 +1,8 @@
 //! Plots like the paper's Figures 2–5, written by our own small plotter as
 //! SVG (with titles, axis labels and tick labels) and PNG (the same drawing
 //! rasterised **without text**, so that no font is needed anywhere; the SVG
-//! is the labelled version). The PNG encoder ([`png`]) is ours too: palette
-//! colour, zlib "stored" blocks, CRC-32 and Adler-32; CI installs nothing.
+//! is the labelled version). The PNG encoder ([`crate::png`]) is ours too;
+//! CI installs nothing.
 
 use crate::report::Report;
 use std::fmt::Write as _;
@@ -368,7 +368,7 @@ impl Figure {
                 r.line((x0, b), (x0 + 5.0, b), BLACK, false);
             }
         }
-        png::encode_indexed(w, h, &PALETTE, &r.pix)
+        crate::png::encode_indexed(w, h, &PALETTE, &r.pix)
     }
 }
 
@@ -460,132 +460,6 @@ impl Raster {
                 self.pix[y * self.w + x] = c;
             }
         }
-    }
-}
-
-/// A minimal PNG writer: 8-bit palette images, uncompressed deflate.
-pub mod png {
-    /// CRC-32 (IEEE, reflected, as PNG and zlib use), bit by bit.
-    pub fn crc32(bytes: &[u8]) -> u32 {
-        let mut c = 0xffff_ffffu32;
-        for &b in bytes {
-            c ^= u32::from(b);
-            for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    0xedb8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-            }
-        }
-        !c
-    }
-
-    /// Adler-32 checksum of zlib.
-    pub fn adler32(bytes: &[u8]) -> u32 {
-        let (mut a, mut b) = (1u32, 0u32);
-        for chunk in bytes.chunks(5552) {
-            for &x in chunk {
-                a += u32::from(x);
-                b += a;
-            }
-            a %= 65521;
-            b %= 65521;
-        }
-        (b << 16) | a
-    }
-
-    fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
-        out.extend_from_slice(&(data.len() as u32).to_be_bytes());
-        let start = out.len();
-        out.extend_from_slice(kind);
-        out.extend_from_slice(data);
-        let crc = crc32(&out[start..]);
-        out.extend_from_slice(&crc.to_be_bytes());
-    }
-
-    /// zlib stream of `raw` in stored (uncompressed) deflate blocks.
-    pub fn zlib_stored(raw: &[u8]) -> Vec<u8> {
-        let mut z = vec![0x78, 0x01];
-        let mut blocks = raw.chunks(65_535).peekable();
-        if blocks.peek().is_none() {
-            z.extend_from_slice(&[1, 0, 0, 0xff, 0xff]);
-        }
-        while let Some(b) = blocks.next() {
-            z.push(u8::from(blocks.peek().is_none()));
-            let n = b.len() as u16;
-            z.extend_from_slice(&n.to_le_bytes());
-            z.extend_from_slice(&(!n).to_le_bytes());
-            z.extend_from_slice(b);
-        }
-        z.extend_from_slice(&adler32(raw).to_be_bytes());
-        z
-    }
-
-    /// Encodes a `w` × `h` image of palette indices (row-major from the top).
-    pub fn encode_indexed(w: usize, h: usize, palette: &[[u8; 3]], pix: &[u8]) -> Vec<u8> {
-        let mut out = vec![0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a];
-        let mut ihdr = Vec::new();
-        ihdr.extend_from_slice(&(w as u32).to_be_bytes());
-        ihdr.extend_from_slice(&(h as u32).to_be_bytes());
-        ihdr.extend_from_slice(&[8, 3, 0, 0, 0]);
-        chunk(&mut out, b"IHDR", &ihdr);
-        let plte: Vec<u8> = palette.iter().flatten().copied().collect();
-        chunk(&mut out, b"PLTE", &plte);
-        let mut raw = Vec::with_capacity((w + 1) * h);
-        for row in pix.chunks(w.max(1)).take(h) {
-            raw.push(0);
-            raw.extend_from_slice(row);
-        }
-        chunk(&mut out, b"IDAT", &zlib_stored(&raw));
-        chunk(&mut out, b"IEND", &[]);
-        out
-    }
-
-    /// Reference decoder of what [`encode_indexed`] writes (checks every CRC
-    /// and the Adler-32; stored blocks only): returns (w, h, palette indices).
-    pub fn decode_indexed(png: &[u8]) -> Option<(usize, usize, Vec<u8>)> {
-        if png.get(..8)? != [0x89, b'P', b'N', b'G', 0x0d, 0x0a, 0x1a, 0x0a] {
-            return None;
-        }
-        let (mut i, mut w, mut h, mut idat) = (8, 0, 0, Vec::new());
-        while i + 12 <= png.len() {
-            let n = u32::from_be_bytes(png[i..i + 4].try_into().ok()?) as usize;
-            let kind = png.get(i + 4..i + 8)?;
-            let data = png.get(i + 8..i + 8 + n)?;
-            let crc = u32::from_be_bytes(png.get(i + 8 + n..i + 12 + n)?.try_into().ok()?);
-            if crc32(&png[i + 4..i + 8 + n]) != crc {
-                return None;
-            }
-            match kind {
-                b"IHDR" => {
-                    w = u32::from_be_bytes(data[0..4].try_into().ok()?) as usize;
-                    h = u32::from_be_bytes(data[4..8].try_into().ok()?) as usize;
-                }
-                b"IDAT" => idat.extend_from_slice(data),
-                _ => {}
-            }
-            i += 12 + n;
-        }
-        let mut raw = Vec::new();
-        let mut p = 2;
-        loop {
-            let last = *idat.get(p)? & 1;
-            let n = u16::from_le_bytes(idat.get(p + 1..p + 3)?.try_into().ok()?) as usize;
-            raw.extend_from_slice(idat.get(p + 5..p + 5 + n)?);
-            p += 5 + n;
-            if last == 1 {
-                break;
-            }
-        }
-        if u32::from_be_bytes(idat.get(p..p + 4)?.try_into().ok()?) != adler32(&raw) {
-            return None;
-        }
-        let mut pix = Vec::with_capacity(w * h);
-        for row in raw.chunks(w + 1) {
-            pix.extend_from_slice(&row[1..]);
-        }
-        Some((w, h, pix))
     }
 }
 
@@ -765,27 +639,8 @@ pub fn fig5(r: &Report) -> Figure {
 
 #[cfg(test)]
 mod tests {
-    use super::png::*;
     use super::*;
-
-    #[test]
-    fn checksums_match_their_published_check_values() {
-        assert_eq!(crc32(b"123456789"), 0xcbf4_3926);
-        assert_eq!(adler32(b"Wikipedia"), 0x11e6_0398);
-    }
-
-    #[test]
-    fn png_round_trips_through_the_reference_decoder() {
-        let (w, h) = (300, 250); // > 65535 raw bytes: several stored blocks
-        let pix: Vec<u8> = (0..w * h).map(|i| ((i * 7 + i / w) % 8) as u8).collect();
-        let png = encode_indexed(w, h, &PALETTE, &pix);
-        let (dw, dh, dp) = decode_indexed(&png).unwrap();
-        assert_eq!((dw, dh), (w, h));
-        assert_eq!(dp, pix);
-        let mut bad = png.clone();
-        bad[40] ^= 1;
-        assert!(decode_indexed(&bad).is_none(), "a flipped bit is caught");
-    }
+    use crate::png::decode_indexed;
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {
