@@ -49,6 +49,15 @@ impl Fixture {
         p
     }
     fn score(&self, sub: &Path, out: &str, extra: &[&str]) -> Output {
+        self.score_threads(sub, out, extra, None)
+    }
+    fn score_threads(
+        &self,
+        sub: &Path,
+        out: &str,
+        extra: &[&str],
+        threads: Option<&str>,
+    ) -> Output {
         let truth = self.path("private");
         let out = self.path(out);
         let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![
@@ -63,7 +72,14 @@ impl Fixture {
         for e in extra {
             args.push(e);
         }
-        stepsim(&args)
+        let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
+        for a in args {
+            c.arg(a);
+        }
+        if let Some(t) = threads {
+            c.env("RAYON_NUM_THREADS", t);
+        }
+        c.output().unwrap()
     }
 }
 
@@ -190,13 +206,15 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
         let svg = std::fs::read_to_string(fx.path(&format!("out/{f}.svg"))).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
     }
-    // Same input, same bytes (bootstrap included).
-    let o = fx.score(&sub, "out2", &["--name", "Team A"]);
-    assert!(o.status.success());
-    assert_eq!(
-        std::fs::read_to_string(fx.path("out2/report.json")).unwrap(),
-        text
-    );
+    // Same input, same bytes (bootstrap included), whatever the thread count.
+    for (out, threads) in [("out1", "1"), ("out3", "3")] {
+        let o = fx.score_threads(&sub, out, &["--name", "Team A"], Some(threads));
+        assert!(o.status.success());
+        let again = std::fs::read_to_string(fx.path(&format!("{out}/report.json"))).unwrap();
+        assert_eq!(again, text, "{threads} threads");
+        let md = std::fs::read(fx.path(&format!("{out}/report.md"))).unwrap();
+        assert_eq!(md, std::fs::read(fx.path("out/report.md")).unwrap());
+    }
     // No overwrite without --force.
     let o = fx.score(&sub, "out", &["--name", "other"]);
     assert_eq!(o.status.code(), Some(1));

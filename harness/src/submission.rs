@@ -2,7 +2,8 @@
 //! tables, checked strictly against the run's images.
 //!
 //! Accepted forms, told apart by content (not by file name):
-//! * **FITS binary table** (the file starts with `SIMPLE  =`): the first
+//! * **FITS binary table** (the file starts with `SIMPLE  =`, or is
+//!   gzip-compressed, which cfitsio reads): the first
 //!   binary or ASCII table extension is read; column names are matched
 //!   case-insensitively; `image` must be a string column.
 //! * **Whitespace ASCII**: the first non-blank line is the header, `#`
@@ -171,7 +172,8 @@ pub fn parse_file(
     index: &ImageIndex,
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
-    let fr = if bytes.starts_with(b"SIMPLE  =") {
+    let is_fits = bytes.starts_with(b"SIMPLE  =") || bytes.starts_with(&[0x1f, 0x8b]);
+    let fr = if is_fits {
         parse_fits(path, index, fixed)?
     } else {
         parse_text(path, bytes, index, fixed)?
@@ -184,7 +186,7 @@ pub fn parse_file(
             "no rows (empty table)",
         ));
     }
-    check_duplicates(path, &fr.rows, index, !bytes.starts_with(b"SIMPLE  ="))?;
+    check_duplicates(path, &fr.rows, index, !is_fits)?;
     Ok(fr)
 }
 
