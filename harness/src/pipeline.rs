@@ -116,7 +116,7 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
         .map(|&i| {
             let info = &p.truth.index.images[i];
             let path = p.truth.truth_path(&info.image);
-            let truth = stepsim_sim::io::truth::read_truth_fits(&path)?;
+            let truth = crate::truth_set::read_scoring_columns(&path)?;
             let rows = &p.submission.per_image[i];
             let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
             let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
