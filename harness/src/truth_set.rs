@@ -249,4 +249,53 @@ mod tests {
         let e = read_scoring_columns(&dir.path().join("none.fits")).unwrap_err();
         assert!(e.to_string().contains("none.fits"));
     }
+
+    #[test]
+    fn bad_datasets_json_is_refused_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = load_truth_set(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("datasets.json") && e.contains("cannot read"),
+            "{e}"
+        );
+        let p = dir.path().join("datasets.json");
+        let entry = |id: &str| {
+            format!(
+                "{{\"dataset\": \"d{id}\", \"psf_id\": 0, \"psf\": \"none\", \"g1\": 0.0, \"g2\": 0.0, \
+                 \"images\": [{{\"image\": \"i1\", \"field\": 0}}]}}"
+            )
+        };
+        let doc = |fmt: &str, scale: f64, ds: &str| {
+            format!(
+                "{{\"format\": \"{fmt}\", \"width_px\": 10, \"height_px\": 10, \
+                 \"pixel_scale_arcsec\": {scale}, \"datasets\": [{ds}]}}"
+            )
+        };
+        let cases = [
+            (doc("other-1", 0.2, &entry("a")), "format `other-1`"),
+            (
+                doc(DATASETS_FORMAT, 0.0, &entry("a")),
+                "pixel_scale_arcsec 0",
+            ),
+            (
+                doc(
+                    DATASETS_FORMAT,
+                    0.2,
+                    &format!("{},{}", entry("a"), entry("b")),
+                ),
+                "image id `i1` appears twice",
+            ),
+            ("{\"format\": 1}".to_owned(), "not a datasets.json"),
+        ];
+        for (text, want) in cases {
+            std::fs::write(&p, &text).unwrap();
+            let e = load_truth_set(dir.path()).unwrap_err().to_string();
+            assert!(e.contains("datasets.json") && e.contains(want), "{e}");
+        }
+        std::fs::write(&p, doc(DATASETS_FORMAT, 0.2, &entry("a"))).unwrap();
+        let t = load_truth_set(dir.path()).unwrap();
+        assert_eq!(t.index.images.len(), 1);
+        assert!((t.index.image_area_arcmin2() - (2.0f64 / 60.0).powi(2)).abs() < 1e-15);
+        assert!(t.index.on_image(0.5, 10.5) && !t.index.on_image(0.49, 1.0));
+    }
 }
