@@ -87,6 +87,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "median of 3: parse {a:.2} s, match {b:.2} s, metrics {c:.2} s, report {d:.2} s, total {:.2} s",
         a + b + c + d
     );
+    // Peak resident memory of the whole process (building the run included).
+    if let Ok(status) = std::fs::read_to_string("/proc/self/status") {
+        if let Some(l) = status.lines().find(|l| l.starts_with("VmHWM")) {
+            println!("peak memory ({l})");
+        }
+    }
     if std::env::var_os("STEPSIM_BENCH_KEEP").is_some() {
         println!("kept {}", dir.keep().display());
     }
