@@ -361,6 +361,14 @@ fn directory_submissions_and_the_leaderboard() {
     assert_eq!(j["entries"][0]["submission"], "perimage");
     assert_eq!(j["entries"][0]["rank"], 1);
     assert_eq!(j["entries"][1]["submission"], "worse.txt");
+    let png = std::fs::read(lb.join("fig3_m_sigma_c.png")).unwrap();
+    assert!(stepsim_harness::png::decode_indexed(&png).is_some());
+    let svg = std::fs::read_to_string(lb.join("fig3_m_sigma_c.svg")).unwrap();
+    assert_eq!(
+        svg.matches("<circle").count(),
+        2,
+        "one point per submission"
+    );
     let md = std::fs::read_to_string(lb.join("leaderboard.md")).unwrap();
     assert!(md.find("perimage").unwrap() < md.find("worse.txt").unwrap());
     let o = stepsim(&[&"leaderboard", &a, &fx.path("best/report.md")]);
