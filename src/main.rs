@@ -26,6 +26,10 @@ enum Command {
     Bench(cmd::bench::Args),
     /// Measure shears of a public run with the KSB+ reference pipeline.
     Measure(cmd::measure::Args),
+    /// Score a shear catalogue against a run's truth (report.json, report.md, plots).
+    Score(cmd::score::Args),
+    /// Rank several score reports in one table.
+    Leaderboard(cmd::leaderboard::Args),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +39,8 @@ fn main() -> ExitCode {
         Command::Generate(args) => cmd::generate::run(&args),
         Command::Bench(args) => cmd::bench::run(&args),
         Command::Measure(args) => cmd::measure::run(&args),
+        Command::Score(args) => cmd::score::run(&args),
+        Command::Leaderboard(args) => cmd::leaderboard::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

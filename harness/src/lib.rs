@@ -3,4 +3,42 @@
 //! Scores shear catalogues against the truth of a stepsim run, the way the
 //! STEP1 paper did (section "Analysis"). Metrics are pure functions of tables;
 //! reading and writing live at the edges.
+//!
+//! ```text
+//! submission.rs  read + check a submission (text, CSV, FITS, directory)
+//! truth_set.rs   RUN/private: datasets.json, truth/<image>.fits
+//! matching.rs    nearest truth object within the radius (grid + brute force)
+//! metrics.rs     per-image sums -> per-dataset, per-PSF, summary, bins
+//! fit.rs         weighted least squares, means with errors
+//! bootstrap.rs   intervals from resampled base fields
+//! pipeline.rs    the stages end to end, writing the outputs
+//! report.rs      report.json types      markdown.rs  report.md
+//! plots.rs       Figs 2-5 as SVG + PNG  leaderboard.rs  ranking reports
+//! ```
+//!
+//! Units: positions in FITS pixels (first pixel centre 1.0), the match radius
+//! in arcsec at the edge (pixels inside), shears dimensionless.
 #![deny(missing_docs)]
+
+pub mod bootstrap;
+pub mod error;
+pub mod fit;
+pub mod leaderboard;
+pub mod markdown;
+pub mod matching;
+pub mod metrics;
+pub mod pipeline;
+pub mod plots;
+pub mod png;
+pub mod report;
+pub mod submission;
+pub mod synthetic;
+pub mod truth_set;
+
+pub use error::HarnessError;
+pub use pipeline::{ScoreOptions, score, write_outputs};
+pub use report::Report;
+
+/// How to submit and what the score means, in Markdown: shown by
+/// `stepsim score --help` and meant for the participants' README.
+pub const SUBMISSION_FORMAT_MD: &str = include_str!("submission_format.md");

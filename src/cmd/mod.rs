@@ -4,6 +4,8 @@ pub mod bench;
 pub mod config;
 pub mod generate;
 pub mod measure;
+pub mod leaderboard;
+pub mod score;
 
 use std::path::PathBuf;
 

@@ -1,0 +1,185 @@
+//! `report.md`: the paper's Table 4 (per dataset) and Table 5 (summary) for
+//! one submission, plus the per-PSF fits and the binned residuals.
+
+use crate::report::{Binned, Report};
+use std::fmt::Write as _;
+
+/// Formats an optional number with `d` decimals; `—` when missing.
+pub fn num(v: Option<f64>, d: usize) -> String {
+    match v {
+        Some(x) if x.is_finite() => format!("{x:.d$}"),
+        _ => "—".into(),
+    }
+}
+
+/// Formats `value ± error`.
+pub fn pm(v: Option<f64>, e: Option<f64>, d: usize) -> String {
+    match e {
+        Some(_) => format!("{} ± {}", num(v, d), num(e, d)),
+        None => num(v, d),
+    }
+}
+
+/// The Table 5 header (leaderboard and report share it).
+pub const TABLE5_HEADER: &str =
+    "| ⟨m⟩ | σ_c | ⟨q⟩ | ⟨m_uncontaminated⟩ | ⟨m_selc⟩ | σ_c selc | ⟨m_weight⟩ | Q_c |";
+
+/// The Table 5 cells of one report (without the leading name cell).
+pub fn table5_cells(r: &Report) -> String {
+    let s = &r.summary;
+    format!(
+        "| {} | {} | {} | {} | {} | {} | {} | {} |",
+        num(s.m_mean, 4),
+        num(s.sigma_c, 5),
+        num(s.q_mean, 3),
+        num(s.m_uncontaminated_mean, 4),
+        num(s.m_selc_mean, 4),
+        num(s.sigma_c_selc, 5),
+        num(s.m_weight_mean, 4),
+        num(s.q_c, 1)
+    )
+}
+
+fn binned(out: &mut String, title: &str, unit: &str, b: &Binned) {
+    let _ = writeln!(out, "\n## {title}\n");
+    let _ = writeln!(
+        out,
+        "| bin ({unit}) | galaxies | γ1 − γ1_true | γ2 − γ2_true |"
+    );
+    let _ = writeln!(out, "|---|---:|---:|---:|");
+    for bin in b.bins.iter().chain(std::iter::once(&b.all)) {
+        let label = match (bin.lo, bin.hi) {
+            (None, None) => "all".to_owned(),
+            (None, Some(h)) => format!("< {h}"),
+            (Some(l), None) => format!("≥ {l}"),
+            (Some(l), Some(h)) => format!("{l} – {h}"),
+        };
+        let _ = writeln!(
+            out,
+            "| {label} | {} | {} | {} |",
+            bin.n_objects,
+            pm(bin.g1_residual, bin.g1_residual_err, 5),
+            pm(bin.g2_residual, bin.g2_residual_err, 5)
+        );
+    }
+}
+
+/// The Markdown report.
+pub fn report_markdown(r: &Report) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "# Score of `{}`\n", r.submission);
+    let _ = writeln!(
+        o,
+        "Matched within {} arcsec. Definitions: `docs/scoring.md` (paper section 4).\n",
+        r.match_radius_arcsec
+    );
+    for w in &r.warnings {
+        let _ = writeln!(o, "- **warning:** {w}");
+    }
+    let _ = writeln!(
+        o,
+        "\n## Table 5: calibration, PSF residuals, non-linearity\n"
+    );
+    let _ = writeln!(o, "| submission {TABLE5_HEADER}");
+    let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(o, "| {} {}", r.submission, table5_cells(r));
+    if let Some(b) = &r.summary.bootstrap {
+        let ci = |v: Option<[f64; 2]>, d: usize| match v {
+            Some([a, b]) => format!("[{a:.d$}, {b:.d$}]"),
+            None => "—".into(),
+        };
+        let _ = writeln!(
+            o,
+            "| {:.0} % interval ({} resamples of base fields) | {} | {} | {} | {} | {} | {} | {} | {} |",
+            100.0 * b.confidence,
+            b.n_resamples,
+            ci(b.m_mean, 4),
+            ci(b.sigma_c, 5),
+            ci(b.q_mean, 3),
+            ci(b.m_uncontaminated_mean, 4),
+            ci(b.m_selc_mean, 4),
+            ci(b.sigma_c_selc, 5),
+            ci(b.m_weight_mean, 4),
+            ci(b.q_c, 1)
+        );
+    }
+    let _ = writeln!(o, "\n## Fits per PSF\n");
+    let _ = writeln!(
+        o,
+        "| PSF | m | q | c1 | c2 | linear | m_uncontaminated | m_selc | c1_selc | c2_selc | m_weight | c1_weight |"
+    );
+    let _ = writeln!(
+        o,
+        "|---|---:|---:|---:|---:|:-:|---:|---:|---:|---:|---:|---:|"
+    );
+    for p in &r.psfs {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            p.psf,
+            pm(p.m, p.m_err, 4),
+            pm(p.q, p.q_err, 3),
+            pm(p.c1, p.c1_err, 5),
+            pm(p.c2, p.c2_err, 5),
+            if p.linear { "yes" } else { "no" },
+            pm(p.m_uncontaminated, p.m_uncontaminated_err, 4),
+            pm(p.m_selc, p.m_selc_err, 4),
+            pm(p.c1_selc, p.c1_selc_err, 5),
+            pm(p.c2_selc, p.c2_selc_err, 5),
+            pm(p.m_weight, p.m_weight_err, 4),
+            pm(p.c1_weight, p.c1_weight_err, 5)
+        );
+    }
+    let _ = writeln!(
+        o,
+        "\n## Table 4: number density, contamination, signal-to-noise\n"
+    );
+    let _ = writeln!(
+        o,
+        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
+    );
+    let _ = writeln!(
+        o,
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    for d in &r.datasets {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            d.dataset,
+            d.psf,
+            d.g1_true,
+            d.g2_true,
+            d.n_images,
+            d.n_objects,
+            d.ngal_per_arcmin2,
+            d.pct_stars,
+            d.pct_false,
+            num(d.pct_stars_weighted, 2),
+            num(d.pct_false_weighted, 2),
+            pm(d.g1, d.g1_err, 5),
+            pm(d.g2, d.g2_err, 5),
+            num(d.snr, 1),
+            num(d.sn_shot, 1),
+            num(d.sn_shot_weighted, 1)
+        );
+    }
+    binned(
+        &mut o,
+        "Residual by true magnitude",
+        "I mag",
+        &r.by_magnitude,
+    );
+    binned(
+        &mut o,
+        "Residual by true disk scale length",
+        "arcsec",
+        &r.by_disk_size,
+    );
+    let _ = writeln!(
+        o,
+        "\nPlots: `fig2_shear_response`, `fig3_m_sigma_c`, `fig4_mselc_muncontaminated`, \
+         `fig5_residual_magnitude` (`.svg` labelled, `.png` without text)."
+    );
+    o
+}

@@ -1,0 +1,647 @@
+//! The metrics of SPEC §7 (paper section 4) as pure functions of tables.
+//!
+//! Stage 1, [`image_stats`]: one image's submitted rows, their matches and
+//! its truth table are reduced to sums ([`ImageStats`]). Stage 2,
+//! [`score_tables`]: the sums of every image give the per-dataset numbers,
+//! the per-PSF fits, the summary and the binned residuals. The bootstrap
+//! reruns stage 2 on resampled images. Every definition is written out in
+//! `docs/scoring.md`.
+
+use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
+use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
+use crate::submission::SubRow;
+use stepsim_sim::truth::TruthRow;
+
+/// Edges of the true-magnitude bins (I, Vega); the outer bins are open.
+pub const MAG_EDGES: [f64; 8] = [
+    f64::NEG_INFINITY,
+    20.0,
+    21.0,
+    22.0,
+    23.0,
+    24.0,
+    25.0,
+    f64::INFINITY,
+];
+
+/// Edges of the true disk scale length bins (arcsec); the last is open.
+/// Pure bulges (`disk_h_arcsec` = 0) fall in the first bin.
+pub const DISK_EDGES_ARCSEC: [f64; 8] = [
+    f64::NEG_INFINITY,
+    0.1,
+    0.2,
+    0.3,
+    0.5,
+    0.8,
+    1.2,
+    f64::INFINITY,
+];
+
+/// Q_c constants (GREAT3, Mandelbaum et al. 2014, eq. 15 style).
+pub const QC_NORM: f64 = 2000.0 * 1.232;
+/// Target additive bias σ*_c.
+pub const QC_SIGMA_C: f64 = 2e-4;
+/// Target multiplicative bias σ*_m.
+pub const QC_SIGMA_M: f64 = 2e-3;
+/// σ²_min added under the root.
+pub const QC_FLOOR: f64 = 4.0;
+
+/// Weighted sums of the shear estimates of the galaxies in one bin.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BinAcc {
+    /// Rows.
+    pub n: u64,
+    /// Σw.
+    pub sw: f64,
+    /// Σw γ̂1.
+    pub swe1: f64,
+    /// Σw γ̂2.
+    pub swe2: f64,
+}
+
+impl BinAcc {
+    fn add(&mut self, w: f64, e1: f64, e2: f64) {
+        self.n += 1;
+        self.sw += w;
+        self.swe1 += w * e1;
+        self.swe2 += w * e2;
+    }
+}
+
+/// The sums one image contributes to every metric.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImageStats {
+    /// Dataset index.
+    pub dataset: usize,
+    /// Base field.
+    pub field: u32,
+    /// Rows.
+    pub n: u64,
+    /// Rows matched to galaxies.
+    pub n_gal: u64,
+    /// Rows matched to stars.
+    pub n_star: u64,
+    /// Rows matched to nothing.
+    pub n_false: u64,
+    /// Σw, Σw over stars, Σw over false detections.
+    pub sw: f64,
+    /// Σw over rows matched to stars.
+    pub sw_star: f64,
+    /// Σw over unmatched rows.
+    pub sw_false: f64,
+    /// All rows: Σw γ̂1, Σw γ̂2.
+    pub all: BinAcc,
+    /// Rows matched to galaxies: Σw, Σw γ̂1, Σw γ̂2.
+    pub gal: BinAcc,
+    /// Matched galaxies: Σ e1 (true sheared), Σw e1.
+    pub sum_e1_true: f64,
+    /// Σw e1 (true sheared).
+    pub sw_e1_true: f64,
+    /// Matched galaxies: Σ e1_int, Σ e2_int, Σw e1_int.
+    pub sum_e1_int: f64,
+    /// Σ e2_int.
+    pub sum_e2_int: f64,
+    /// Σw e1_int.
+    pub sw_e1_int: f64,
+    /// Galaxy rows by true magnitude ([`MAG_EDGES`]).
+    pub by_mag: Vec<BinAcc>,
+    /// Galaxy rows by true disk scale length ([`DISK_EDGES_ARCSEC`]).
+    pub by_disk: Vec<BinAcc>,
+}
+
+/// Index of the bin of `v` among `edges` (lower edge inclusive).
+pub fn bin_of(edges: &[f64], v: f64) -> usize {
+    let k = edges.partition_point(|e| *e <= v);
+    k.saturating_sub(1).min(edges.len() - 2)
+}
+
+/// Reduces one image: `rows` submitted, `matches[i]` the truth index of row
+/// i (or `None`), `truth` the image's truth table.
+pub fn image_stats(
+    dataset: usize,
+    field: u32,
+    rows: &[SubRow],
+    matches: &[Option<usize>],
+    truth: &[TruthRow],
+) -> ImageStats {
+    let mut s = ImageStats {
+        dataset,
+        field,
+        by_mag: vec![BinAcc::default(); MAG_EDGES.len() - 1],
+        by_disk: vec![BinAcc::default(); DISK_EDGES_ARCSEC.len() - 1],
+        ..Default::default()
+    };
+    for (r, m) in rows.iter().zip(matches) {
+        let w = r.weight;
+        s.n += 1;
+        s.sw += w;
+        s.all.add(w, r.e1, r.e2);
+        match m.map(|j| &truth[j]) {
+            None => {
+                s.n_false += 1;
+                s.sw_false += w;
+            }
+            Some(t) if t.is_star() => {
+                s.n_star += 1;
+                s.sw_star += w;
+            }
+            Some(t) => {
+                s.n_gal += 1;
+                s.gal.add(w, r.e1, r.e2);
+                s.sum_e1_true += t.e1;
+                s.sw_e1_true += w * t.e1;
+                s.sum_e1_int += t.e1_int;
+                s.sum_e2_int += t.e2_int;
+                s.sw_e1_int += w * t.e1_int;
+                s.by_mag[bin_of(&MAG_EDGES, t.mag)].add(w, r.e1, r.e2);
+                s.by_disk[bin_of(&DISK_EDGES_ARCSEC, t.disk_h_arcsec)].add(w, r.e1, r.e2);
+            }
+        }
+    }
+    s
+}
+
+/// A dataset as the metrics need it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetMeta {
+    /// Opaque id.
+    pub dataset: String,
+    /// PSF index (groups datasets into PSFs).
+    pub psf_id: u32,
+    /// PSF name.
+    pub psf: String,
+    /// Applied g1.
+    pub g1: f64,
+    /// Applied g2.
+    pub g2: f64,
+}
+
+/// Per-dataset values that feed the fits.
+#[derive(Debug, Clone, Default)]
+struct Core {
+    g1: (Option<f64>, Option<f64>),
+    g2: (Option<f64>, Option<f64>),
+    g1u: (Option<f64>, Option<f64>),
+    e1s: (Option<f64>, Option<f64>),
+    e2s: (Option<f64>, Option<f64>),
+    dw: (Option<f64>, Option<f64>),
+}
+
+fn ratio(a: f64, b: f64) -> Option<f64> {
+    (b != 0.0).then(|| a / b)
+}
+
+fn per_image<'a>(
+    imgs: &'a [&'a ImageStats],
+    f: impl Fn(&ImageStats) -> Option<f64> + 'a,
+) -> (Option<f64>, Option<f64>) {
+    let v: Vec<f64> = imgs.iter().filter_map(|s| f(s)).collect();
+    mean_and_error(&v)
+}
+
+fn sn(g_true: f64, err: Option<f64>) -> Option<f64> {
+    match err {
+        Some(e) if g_true != 0.0 && e > 0.0 => Some(g_true / e),
+        _ => None,
+    }
+}
+
+fn dataset_numbers(
+    meta: &DatasetMeta,
+    imgs: &[&ImageStats],
+    area_arcmin2: f64,
+) -> (DatasetReport, Core) {
+    let core = Core {
+        g1: per_image(imgs, |s| ratio(s.all.swe1, s.all.sw)),
+        g2: per_image(imgs, |s| ratio(s.all.swe2, s.all.sw)),
+        g1u: per_image(imgs, |s| ratio(s.gal.swe1, s.gal.sw)),
+        e1s: per_image(imgs, |s| ratio(s.sum_e1_int, s.n_gal as f64)),
+        e2s: per_image(imgs, |s| ratio(s.sum_e2_int, s.n_gal as f64)),
+        dw: per_image(imgs, |s| {
+            Some(ratio(s.sum_e1_int, s.n_gal as f64)? - ratio(s.sw_e1_int, s.gal.sw)?)
+        }),
+    };
+    let n: u64 = imgs.iter().map(|s| s.n).sum();
+    let sw: f64 = imgs.iter().map(|s| s.sw).sum();
+    let sw_star: f64 = imgs.iter().map(|s| s.sw_star).sum();
+    let sw_false: f64 = imgs.iter().map(|s| s.sw_false).sum();
+    let n_star: u64 = imgs.iter().map(|s| s.n_star).sum();
+    let n_false: u64 = imgs.iter().map(|s| s.n_false).sum();
+    let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
+    let shot = per_image(imgs, |s| ratio(s.sum_e1_true, s.n_gal as f64)).1;
+    let shot_w = per_image(imgs, |s| ratio(s.sw_e1_true, s.gal.sw)).1;
+    let rep = DatasetReport {
+        dataset: meta.dataset.clone(),
+        psf: meta.psf.clone(),
+        g1_true: meta.g1,
+        g2_true: meta.g2,
+        n_images: imgs.len(),
+        n_objects: n,
+        g1: core.g1.0,
+        g1_err: core.g1.1,
+        g2: core.g2.0,
+        g2_err: core.g2.1,
+        ngal_per_arcmin2: if imgs.is_empty() {
+            0.0
+        } else {
+            n as f64 / (imgs.len() as f64 * area_arcmin2)
+        },
+        pct_stars: pct(n_star as f64, n as f64),
+        pct_false: pct(n_false as f64, n as f64),
+        pct_stars_weighted: (sw > 0.0).then(|| pct(sw_star, sw)),
+        pct_false_weighted: (sw > 0.0).then(|| pct(sw_false, sw)),
+        snr: sn(meta.g1, core.g1.1),
+        sn_shot: sn(meta.g1, shot),
+        sn_shot_weighted: sn(meta.g1, shot_w),
+    };
+    (rep, core)
+}
+
+/// The fitted response of one component: γ − γ_true = q γ_true² + m γ_true + c.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Response {
+    /// m and its error.
+    pub m: (Option<f64>, Option<f64>),
+    /// q and its error (q = 0, error `None` when linear).
+    pub q: (Option<f64>, Option<f64>),
+    /// c and its error.
+    pub c: (Option<f64>, Option<f64>),
+    /// True when the linear model was kept.
+    pub linear: bool,
+}
+
+fn coef(f: &PolyFit, k: usize) -> (Option<f64>, Option<f64>) {
+    (Some(f.coef[k]), f.err[k])
+}
+
+/// Fits γ − γ_true = q γ_true² + m γ_true + c over points (γ_true, γ, σ).
+/// Quadratic first (with ≥ 3 points); when |q| < 2σ_q, or σ_q is unknown,
+/// refits with q = 0. With one point only c = γ − γ_true.
+pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
+    let x: Vec<f64> = points.iter().map(|p| p.0).collect();
+    let y: Vec<f64> = points.iter().map(|p| p.1 - p.0).collect();
+    let s: Vec<Option<f64>> = points.iter().map(|p| p.2).collect();
+    let quadratic = if points.len() >= 3 {
+        fit_poly(&x, &y, &s, 3)
+    } else {
+        None
+    };
+    if let Some(f) = quadratic.filter(|f| f.err[2].is_some_and(|qe| f.coef[2].abs() >= 2.0 * qe)) {
+        return Response {
+            m: coef(&f, 1),
+            q: coef(&f, 2),
+            c: coef(&f, 0),
+            linear: false,
+        };
+    }
+    if let Some(f) = fit_poly(&x, &y, &s, 2) {
+        return Response {
+            m: coef(&f, 1),
+            q: (Some(0.0), None),
+            c: coef(&f, 0),
+            linear: true,
+        };
+    }
+    let (c, ce) = mean_with_errors(points.iter().map(|p| (p.1 - p.0, p.2)));
+    Response {
+        m: (None, None),
+        q: (None, None),
+        c: (c, ce),
+        linear: true,
+    }
+}
+
+/// A value and its error, either possibly missing.
+pub type ValErr = (Option<f64>, Option<f64>);
+
+/// Straight-line fit y = m x + c over points (x, y, σ): (m, c).
+fn fit_linear(points: &[(f64, f64, Option<f64>)]) -> (ValErr, ValErr) {
+    let x: Vec<f64> = points.iter().map(|p| p.0).collect();
+    let y: Vec<f64> = points.iter().map(|p| p.1).collect();
+    let s: Vec<Option<f64>> = points.iter().map(|p| p.2).collect();
+    match fit_poly(&x, &y, &s, 2) {
+        Some(f) => (coef(&f, 1), coef(&f, 0)),
+        None => (
+            (None, None),
+            mean_with_errors(points.iter().map(|p| (p.1, p.2))),
+        ),
+    }
+}
+
+/// Plain mean of values with errors; error = sqrt(Σσ²)/n when every σ is
+/// known.
+fn mean_with_errors(v: impl Iterator<Item = (f64, Option<f64>)>) -> (Option<f64>, Option<f64>) {
+    let v: Vec<(f64, Option<f64>)> = v.collect();
+    if v.is_empty() {
+        return (None, None);
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().map(|p| p.0).sum::<f64>() / n;
+    let err = v
+        .iter()
+        .map(|p| p.1.map(|e| e * e))
+        .sum::<Option<f64>>()
+        .map(|s| s.sqrt() / n);
+    (Some(mean), err)
+}
+
+fn points(
+    cores: &[(&DatasetMeta, &Core)],
+    x: impl Fn(&DatasetMeta) -> f64,
+    y: impl Fn(&Core) -> (Option<f64>, Option<f64>),
+) -> Vec<(f64, f64, Option<f64>)> {
+    cores
+        .iter()
+        .filter_map(|(m, c)| {
+            let (v, e) = y(c);
+            Some((x(m), v?, e))
+        })
+        .collect()
+}
+
+fn psf_numbers(name: &str, cores: &[(&DatasetMeta, &Core)]) -> PsfReport {
+    let g1 = |m: &DatasetMeta| m.g1;
+    let r1 = fit_response(&points(cores, g1, |c| c.g1));
+    let g2_const = cores.windows(2).all(|w| w[0].0.g2 == w[1].0.g2);
+    let (c2, r2) = if g2_const {
+        let p = points(cores, |m| m.g2, |c| c.g2);
+        (mean_with_errors(p.iter().map(|p| (p.1 - p.0, p.2))), None)
+    } else {
+        let r = fit_response(&points(cores, |m| m.g2, |c| c.g2));
+        (r.c, Some(r))
+    };
+    let ru = fit_response(&points(cores, g1, |c| c.g1u));
+    let (m_selc, c1_selc) = fit_linear(&points(cores, g1, |c| c.e1s));
+    let c2_selc = mean_with_errors(points(cores, g1, |c| c.e2s).iter().map(|p| (p.1, p.2)));
+    let (m_weight, c1_weight) = fit_linear(&points(cores, g1, |c| c.dw));
+    PsfReport {
+        psf: name.to_owned(),
+        m: r1.m.0,
+        m_err: r1.m.1,
+        q: r1.q.0,
+        q_err: r1.q.1,
+        c1: r1.c.0,
+        c1_err: r1.c.1,
+        c2: c2.0,
+        c2_err: c2.1,
+        linear: r1.linear,
+        m2: r2.as_ref().and_then(|r| r.m.0),
+        m2_err: r2.as_ref().and_then(|r| r.m.1),
+        q2: r2.as_ref().and_then(|r| r.q.0),
+        q2_err: r2.as_ref().and_then(|r| r.q.1),
+        m_uncontaminated: ru.m.0,
+        m_uncontaminated_err: ru.m.1,
+        m_selc: m_selc.0,
+        m_selc_err: m_selc.1,
+        c1_selc: c1_selc.0,
+        c1_selc_err: c1_selc.1,
+        c2_selc: c2_selc.0,
+        c2_selc_err: c2_selc.1,
+        m_weight: m_weight.0,
+        m_weight_err: m_weight.1,
+        c1_weight: c1_weight.0,
+        c1_weight_err: c1_weight.1,
+    }
+}
+
+fn mean_of(v: impl Iterator<Item = Option<f64>>) -> Option<f64> {
+    let v: Vec<f64> = v.flatten().collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// Q_c = 2000·1.232 / sqrt(⟨(c1/σ*_c)² + (c2/σ*_c)² + (m/σ*_m)² [+ (m2/σ*_m)²]⟩_PSF + 4),
+/// the average over PSFs of the squared scaled biases (see docs/scoring.md).
+pub fn q_c(psfs: &[PsfReport]) -> Option<f64> {
+    let terms: Vec<f64> = psfs
+        .iter()
+        .filter_map(|p| {
+            let mut t = (p.c1? / QC_SIGMA_C).powi(2) + (p.c2? / QC_SIGMA_C).powi(2);
+            t += (p.m? / QC_SIGMA_M).powi(2);
+            if let Some(m2) = p.m2 {
+                t += (m2 / QC_SIGMA_M).powi(2);
+            }
+            Some(t)
+        })
+        .collect();
+    if terms.is_empty() {
+        return None;
+    }
+    let mean = terms.iter().sum::<f64>() / terms.len() as f64;
+    Some(QC_NORM / (mean + QC_FLOOR).sqrt())
+}
+
+/// The summary over PSFs.
+pub fn summarize(psfs: &[PsfReport]) -> Summary {
+    let pooled = |a: fn(&PsfReport) -> Option<f64>, b: fn(&PsfReport) -> Option<f64>| {
+        let v: Vec<f64> = psfs.iter().flat_map(|p| [a(p), b(p)]).flatten().collect();
+        population_std(&v)
+    };
+    Summary {
+        m_mean: mean_of(psfs.iter().map(|p| p.m)),
+        q_mean: mean_of(psfs.iter().map(|p| p.q)),
+        sigma_c: pooled(|p| p.c1, |p| p.c2),
+        m_uncontaminated_mean: mean_of(psfs.iter().map(|p| p.m_uncontaminated)),
+        m_selc_mean: mean_of(psfs.iter().map(|p| p.m_selc)),
+        sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
+        m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
+        q_c: q_c(psfs),
+        bootstrap: None,
+    }
+}
+
+/// Everything computed from image sums.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scores {
+    /// Per dataset (datasets with at least one image).
+    pub datasets: Vec<DatasetReport>,
+    /// Per PSF, ordered by PSF id.
+    pub psfs: Vec<PsfReport>,
+    /// Averages over PSFs.
+    pub summary: Summary,
+}
+
+/// Per-dataset numbers, per-PSF fits and the summary from the image sums.
+/// `stats` may hold several images of one dataset in any order; datasets
+/// without images are left out.
+pub fn score_tables(meta: &[DatasetMeta], stats: &[ImageStats], area_arcmin2: f64) -> Scores {
+    let mut by_ds: Vec<Vec<&ImageStats>> = vec![Vec::new(); meta.len()];
+    for s in stats {
+        by_ds[s.dataset].push(s);
+    }
+    let mut datasets = Vec::new();
+    let mut cores = Vec::new();
+    for (d, m) in meta.iter().enumerate() {
+        if by_ds[d].is_empty() {
+            continue;
+        }
+        let (rep, core) = dataset_numbers(m, &by_ds[d], area_arcmin2);
+        datasets.push(rep);
+        cores.push((m, core));
+    }
+    let mut psf_ids: Vec<u32> = cores.iter().map(|(m, _)| m.psf_id).collect();
+    psf_ids.sort_unstable();
+    psf_ids.dedup();
+    let psfs: Vec<PsfReport> = psf_ids
+        .iter()
+        .map(|&p| {
+            let mut group: Vec<(&DatasetMeta, &Core)> = cores
+                .iter()
+                .filter(|(m, _)| m.psf_id == p)
+                .map(|(m, c)| (*m, c))
+                .collect();
+            group.sort_by(|a, b| a.0.g1.total_cmp(&b.0.g1));
+            psf_numbers(&group[0].0.psf, &group)
+        })
+        .collect();
+    let summary = summarize(&psfs);
+    Scores {
+        datasets,
+        psfs,
+        summary,
+    }
+}
+
+fn bin_report(
+    meta: &[DatasetMeta],
+    stats: &[ImageStats],
+    lo: f64,
+    hi: f64,
+    pick: impl Fn(&ImageStats) -> BinAcc,
+) -> BinReport {
+    let mut per_ds: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new()); meta.len()];
+    let mut n = 0;
+    for s in stats {
+        let b = pick(s);
+        n += b.n;
+        if b.sw > 0.0 {
+            let m = &meta[s.dataset];
+            per_ds[s.dataset].0.push(b.swe1 / b.sw - m.g1);
+            per_ds[s.dataset].1.push(b.swe2 / b.sw - m.g2);
+        }
+    }
+    let comp = |k: usize| {
+        mean_with_errors(per_ds.iter().filter_map(|v| {
+            let v = if k == 0 { &v.0 } else { &v.1 };
+            let (m, e) = mean_and_error(v);
+            Some((m?, e))
+        }))
+    };
+    let (g1, g1e) = comp(0);
+    let (g2, g2e) = comp(1);
+    let edge = |e: f64| e.is_finite().then_some(e);
+    BinReport {
+        lo: edge(lo),
+        hi: edge(hi),
+        n_objects: n,
+        g1_residual: g1,
+        g1_residual_err: g1e,
+        g2_residual: g2,
+        g2_residual_err: g2e,
+    }
+}
+
+/// Residuals γ − γ_true of the matched galaxies binned in a true property:
+/// for each bin and dataset, per-image weighted mean of the bin's galaxies,
+/// mean over images minus the applied shear, then the plain mean over
+/// datasets (error: sqrt(Σσ_d²)/n_d).
+pub fn binned_residuals(
+    meta: &[DatasetMeta],
+    stats: &[ImageStats],
+    variable: &str,
+    edges: &[f64],
+    pick: fn(&ImageStats) -> &[BinAcc],
+) -> Binned {
+    let all = bin_report(meta, stats, edges[0], edges[edges.len() - 1], |s| s.gal);
+    let bins = (0..edges.len() - 1)
+        .map(|k| bin_report(meta, stats, edges[k], edges[k + 1], |s| pick(s)[k]))
+        .collect();
+    Binned {
+        variable: variable.to_owned(),
+        all,
+        bins,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bins_include_their_lower_edge() {
+        assert_eq!(bin_of(&MAG_EDGES, 10.0), 0);
+        assert_eq!(bin_of(&MAG_EDGES, 20.0), 1);
+        assert_eq!(bin_of(&MAG_EDGES, 24.999), 5);
+        assert_eq!(bin_of(&MAG_EDGES, 30.0), 6);
+        assert_eq!(bin_of(&DISK_EDGES_ARCSEC, 0.0), 0);
+    }
+
+    #[test]
+    fn response_keeps_a_significant_quadratic_and_drops_a_null_one() {
+        let xs = [0.0, 0.005, 0.01, 0.05, 0.1];
+        let quad: Vec<_> = xs
+            .iter()
+            .map(|&x| (x, x + 0.001 - 0.02 * x + 1.5 * x * x, Some(1e-4)))
+            .collect();
+        let r = fit_response(&quad);
+        assert!(!r.linear);
+        assert!((r.q.0.unwrap() - 1.5).abs() < 1e-9);
+        assert!((r.m.0.unwrap() + 0.02).abs() < 1e-10);
+        assert!((r.c.0.unwrap() - 0.001).abs() < 1e-12);
+        let lin: Vec<_> = xs
+            .iter()
+            .enumerate()
+            .map(|(i, &x)| {
+                (
+                    x,
+                    x + 0.03 * x + if i % 2 == 0 { 1e-4 } else { -1e-4 },
+                    Some(1e-4),
+                )
+            })
+            .collect();
+        let r = fit_response(&lin);
+        assert!(r.linear);
+        assert_eq!(r.q, (Some(0.0), None));
+        assert!((r.m.0.unwrap() - 0.03).abs() < 5e-3);
+    }
+
+    #[test]
+    fn q_c_of_a_perfect_method_is_the_normalisation_over_two() {
+        let p = PsfReport {
+            psf: "a".into(),
+            m: Some(0.0),
+            m_err: None,
+            q: Some(0.0),
+            q_err: None,
+            c1: Some(0.0),
+            c1_err: None,
+            c2: Some(0.0),
+            c2_err: None,
+            linear: true,
+            m2: None,
+            m2_err: None,
+            q2: None,
+            q2_err: None,
+            m_uncontaminated: None,
+            m_uncontaminated_err: None,
+            m_selc: None,
+            m_selc_err: None,
+            c1_selc: None,
+            c1_selc_err: None,
+            c2_selc: None,
+            c2_selc_err: None,
+            m_weight: None,
+            m_weight_err: None,
+            c1_weight: None,
+            c1_weight_err: None,
+        };
+        assert!((q_c(std::slice::from_ref(&p)).unwrap() - 1232.0).abs() < 1e-9);
+        let p2 = PsfReport {
+            m: Some(2e-3),
+            c1: Some(2e-4),
+            c2: Some(-2e-4),
+            ..p
+        };
+        // terms 1 + 1 + 1 + 4 = 7
+        assert!((q_c(&[p2]).unwrap() - 2464.0 / 7f64.sqrt()).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,229 @@
+//! Scoring end to end: read the truth set and the submission, match image
+//! by image, compute the metrics, write the report. The stages are public so
+//! that the benchmark can time them.
+
+use crate::bootstrap::{DEFAULT_RESAMPLES, DEFAULT_SEED, bootstrap};
+use crate::error::HarnessError;
+use crate::matching::match_nearest;
+use crate::metrics::{
+    DISK_EDGES_ARCSEC, DatasetMeta, ImageStats, MAG_EDGES, binned_residuals, image_stats,
+    score_tables,
+};
+use crate::report::Report;
+use crate::submission::{Submission, read_submission};
+use crate::truth_set::{TruthSet, load_truth_set};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// Default match radius (SPEC §7, the paper's 1″).
+pub const DEFAULT_MATCH_RADIUS_ARCSEC: f64 = 1.0;
+
+/// What to score and how.
+#[derive(Debug, Clone)]
+pub struct ScoreOptions {
+    /// `RUN/private`.
+    pub truth_dir: PathBuf,
+    /// The submission file or directory.
+    pub submission: PathBuf,
+    /// Name in the report (default: the submission's file name).
+    pub name: Option<String>,
+    /// Match radius.
+    pub match_radius_arcsec: f64,
+    /// Score a partial submission.
+    pub allow_missing_images: bool,
+    /// Bootstrap resamples (0: no intervals).
+    pub bootstrap_resamples: usize,
+    /// Bootstrap seed.
+    pub bootstrap_seed: u64,
+}
+
+impl ScoreOptions {
+    /// Options with the defaults of `stepsim score`.
+    pub fn new(truth_dir: impl Into<PathBuf>, submission: impl Into<PathBuf>) -> Self {
+        Self {
+            truth_dir: truth_dir.into(),
+            submission: submission.into(),
+            name: None,
+            match_radius_arcsec: DEFAULT_MATCH_RADIUS_ARCSEC,
+            allow_missing_images: false,
+            bootstrap_resamples: DEFAULT_RESAMPLES,
+            bootstrap_seed: DEFAULT_SEED,
+        }
+    }
+}
+
+/// Truth set and submission, read and checked.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// The private half of the run.
+    pub truth: TruthSet,
+    /// The submission.
+    pub submission: Submission,
+    /// Warnings for the report.
+    pub warnings: Vec<String>,
+}
+
+/// Stage 1: reads and checks the truth set and the submission.
+pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
+    let r = opts.match_radius_arcsec;
+    if !(r > 0.0 && r.is_finite()) {
+        return Err(HarnessError::BadOption {
+            name: "--match-radius-arcsec".into(),
+            message: format!("{r} is not a positive number"),
+        });
+    }
+    let truth = load_truth_set(&opts.truth_dir)?;
+    let submission = read_submission(&opts.submission, &truth.index)?;
+    let missing = submission.missing_images();
+    let mut warnings = Vec::new();
+    if !missing.is_empty() {
+        if !opts.allow_missing_images {
+            return Err(HarnessError::MissingImages {
+                path: opts.submission.clone(),
+                n_missing: missing.len(),
+                n_total: truth.index.images.len(),
+                first: truth.index.images[missing[0]].image.clone(),
+            });
+        }
+        warnings.push(format!(
+            "{} of {} images have no rows and are not scored",
+            missing.len(),
+            truth.index.images.len()
+        ));
+    }
+    if !submission.ignored_columns.is_empty() {
+        warnings.push(format!(
+            "columns ignored: {}",
+            submission.ignored_columns.join(", ")
+        ));
+    }
+    Ok(Prepared {
+        truth,
+        submission,
+        warnings,
+    })
+}
+
+/// Stage 2: reads the truth table of every submitted image, matches its rows
+/// and reduces it to [`ImageStats`] (in parallel, in image order).
+pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>, HarnessError> {
+    let which: Vec<usize> = (0..p.truth.index.images.len())
+        .filter(|&i| !p.submission.per_image[i].is_empty())
+        .collect();
+    let radius_px = radius_arcsec / p.truth.index.pixel_scale_arcsec;
+    which
+        .par_iter()
+        .map(|&i| {
+            let info = &p.truth.index.images[i];
+            let path = p.truth.truth_path(&info.image);
+            let truth = crate::truth_set::read_scoring_columns(&path)?;
+            let rows = &p.submission.per_image[i];
+            let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
+            let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
+            let m = match_nearest(&txy, &qxy, radius_px);
+            Ok(image_stats(info.dataset, info.field, rows, &m, &truth))
+        })
+        .collect()
+}
+
+/// The dataset table the metrics need.
+pub fn dataset_meta(truth: &TruthSet) -> Vec<DatasetMeta> {
+    truth
+        .datasets
+        .datasets
+        .iter()
+        .map(|d| DatasetMeta {
+            dataset: d.dataset.clone(),
+            psf_id: d.psf_id,
+            psf: d.psf.clone(),
+            g1: d.g1,
+            g2: d.g2,
+        })
+        .collect()
+}
+
+/// Stage 3: the metrics, the bootstrap and the report.
+pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> Report {
+    let meta = dataset_meta(&p.truth);
+    let area = p.truth.index.image_area_arcmin2();
+    let scores = score_tables(&meta, stats, area);
+    let mut summary = scores.summary;
+    if opts.bootstrap_resamples > 0 {
+        summary.bootstrap = Some(bootstrap(
+            &meta,
+            stats,
+            area,
+            opts.bootstrap_resamples,
+            opts.bootstrap_seed,
+        ));
+    }
+    let mut warnings = p.warnings.clone();
+    let zero_w = stats.iter().filter(|s| s.sw <= 0.0).count();
+    if zero_w > 0 {
+        warnings.push(format!(
+            "{zero_w} images have zero total weight and do not enter the shear means"
+        ));
+    }
+    let name = opts.name.clone().unwrap_or_else(|| {
+        opts.submission
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| opts.submission.display().to_string())
+    });
+    Report {
+        submission: name,
+        match_radius_arcsec: opts.match_radius_arcsec,
+        datasets: scores.datasets,
+        psfs: scores.psfs,
+        summary,
+        by_magnitude: binned_residuals(&meta, stats, "mag", &MAG_EDGES, |s| &s.by_mag),
+        by_disk_size: binned_residuals(&meta, stats, "disk_h_arcsec", &DISK_EDGES_ARCSEC, |s| {
+            &s.by_disk
+        }),
+        warnings,
+    }
+}
+
+/// All three stages.
+pub fn score(opts: &ScoreOptions) -> Result<Report, HarnessError> {
+    let p = prepare(opts)?;
+    let stats = match_images(&p, opts.match_radius_arcsec)?;
+    Ok(build_report(&p, &stats, opts))
+}
+
+/// File name of the JSON report.
+pub const REPORT_JSON: &str = "report.json";
+/// File name of the Markdown report.
+pub const REPORT_MD: &str = "report.md";
+
+/// Writes `DIR/report.json`, `DIR/report.md` and the plots, each atomically
+/// (the JSON last). Refuses when `DIR/report.json` exists unless `force`.
+/// Returns the paths written.
+pub fn write_outputs(
+    dir: &Path,
+    report: &Report,
+    force: bool,
+) -> Result<Vec<PathBuf>, HarnessError> {
+    let json_path = dir.join(REPORT_JSON);
+    if json_path.exists() && !force {
+        return Err(HarnessError::ReportExists { path: json_path });
+    }
+    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    for (name, fig) in crate::plots::report_figures(report) {
+        files.push((dir.join(format!("{name}.svg")), fig.to_svg().into_bytes()));
+        files.push((dir.join(format!("{name}.png")), fig.to_png()));
+    }
+    files.push((
+        dir.join(REPORT_MD),
+        crate::markdown::report_markdown(report).into_bytes(),
+    ));
+    let mut json = serde_json::to_string_pretty(report).unwrap_or_default();
+    json.push('\n');
+    files.push((json_path, json.into_bytes()));
+    let mut written = Vec::new();
+    for (path, bytes) in files {
+        stepsim_sim::io::write_bytes_atomically(&path, &bytes)?;
+        written.push(path);
+    }
+    Ok(written)
+}

@@ -1,0 +1,680 @@
+//! Plots like the paper's Figures 2–5, written by our own small plotter as
+//! SVG (with titles, axis labels and tick labels) and PNG (the same drawing
+//! rasterised **without text**, so that no font is needed anywhere; the SVG
+//! is the labelled version). The PNG encoder ([`crate::png`]) is ours too;
+//! CI installs nothing.
+
+use crate::report::Report;
+use std::fmt::Write as _;
+
+/// Palette: white, black, light grey, blue, red, green, orange, mid grey.
+pub const PALETTE: [[u8; 3]; 8] = [
+    [255, 255, 255],
+    [0, 0, 0],
+    [225, 225, 225],
+    [31, 119, 180],
+    [214, 39, 40],
+    [44, 160, 44],
+    [255, 127, 14],
+    [150, 150, 150],
+];
+
+/// Palette index of a colour.
+pub type Colour = u8;
+/// Black.
+pub const BLACK: Colour = 1;
+/// Light grey (bands).
+pub const LIGHT: Colour = 2;
+/// Blue.
+pub const BLUE: Colour = 3;
+/// Red.
+pub const RED: Colour = 4;
+/// Grey (reference lines).
+pub const GREY: Colour = 7;
+
+/// One thing drawn in a chart, in data coordinates.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Item {
+    /// Markers with optional vertical error bars.
+    Points {
+        /// (x, y, σ_y).
+        pts: Vec<(f64, f64, Option<f64>)>,
+        /// Colour.
+        colour: Colour,
+    },
+    /// A polyline.
+    Line {
+        /// Vertices.
+        pts: Vec<(f64, f64)>,
+        /// Colour.
+        colour: Colour,
+        /// Dashed?
+        dashed: bool,
+    },
+    /// A filled rectangle (x0, x1, y0, y1), clipped to the axes.
+    Band {
+        /// Corners.
+        rect: [f64; 4],
+        /// Colour.
+        colour: Colour,
+    },
+}
+
+/// One panel with axes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Chart {
+    /// Title (SVG only).
+    pub title: String,
+    /// x-axis label (SVG only).
+    pub x_label: String,
+    /// y-axis label (SVG only).
+    pub y_label: String,
+    /// What is drawn, in order.
+    pub items: Vec<Item>,
+}
+
+/// A grid of charts.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Figure {
+    /// Panel columns.
+    pub cols: usize,
+    /// Panel size in pixels.
+    pub panel_px: (usize, usize),
+    /// The panels.
+    pub charts: Vec<Chart>,
+}
+
+const MARGIN: (f64, f64, f64, f64) = (70.0, 15.0, 28.0, 45.0); // left, right, top, bottom
+
+/// "Nice" tick values covering [lo, hi] (about five).
+pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return vec![lo];
+    }
+    let raw = (hi - lo) / 5.0;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|f| f * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let first = (lo / step).ceil() as i64;
+    let last = (hi / step).floor() as i64;
+    (first..=last).map(|k| k as f64 * step).collect()
+}
+
+impl Chart {
+    /// Data range over every item, padded by 8 % (never empty).
+    pub fn range(&self) -> ([f64; 2], [f64; 2]) {
+        let (mut x, mut y) = ([f64::MAX, f64::MIN], [f64::MAX, f64::MIN]);
+        let mut add = |px: f64, py: f64| {
+            if px.is_finite() && py.is_finite() {
+                x = [x[0].min(px), x[1].max(px)];
+                y = [y[0].min(py), y[1].max(py)];
+            }
+        };
+        for it in &self.items {
+            match it {
+                Item::Points { pts, .. } => {
+                    for &(px, py, e) in pts {
+                        let e = e.unwrap_or(0.0);
+                        add(px, py - e);
+                        add(px, py + e);
+                    }
+                }
+                Item::Line { pts, .. } => pts.iter().for_each(|&(px, py)| add(px, py)),
+                Item::Band { .. } => {}
+            }
+        }
+        let pad = |r: [f64; 2]| {
+            if r[0] > r[1] {
+                [-1.0, 1.0]
+            } else {
+                let w = (r[1] - r[0])
+                    .max(1e-6 * r[0].abs().max(r[1].abs()))
+                    .max(1e-9);
+                [r[0] - 0.08 * w, r[1] + 0.08 * w]
+            }
+        };
+        (pad(x), pad(y))
+    }
+}
+
+/// Maps data to pixel coordinates of one panel.
+struct Frame {
+    ox: f64,
+    oy: f64,
+    w: f64,
+    h: f64,
+    xr: [f64; 2],
+    yr: [f64; 2],
+}
+
+impl Frame {
+    fn px(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            self.ox + (x - self.xr[0]) / (self.xr[1] - self.xr[0]) * self.w,
+            self.oy + self.h - (y - self.yr[0]) / (self.yr[1] - self.yr[0]) * self.h,
+        )
+    }
+    fn clip(&self, x: f64, y: f64) -> (f64, f64) {
+        (
+            x.clamp(self.xr[0], self.xr[1]),
+            y.clamp(self.yr[0], self.yr[1]),
+        )
+    }
+}
+
+impl Figure {
+    /// Image size in pixels.
+    pub fn size(&self) -> (usize, usize) {
+        let cols = self.cols.max(1);
+        let rows = self.charts.len().div_ceil(cols).max(1);
+        (cols * self.panel_px.0, rows * self.panel_px.1)
+    }
+
+    fn frames(&self) -> Vec<Frame> {
+        let cols = self.cols.max(1);
+        self.charts
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                let (xr, yr) = c.range();
+                let (pw, ph) = (self.panel_px.0 as f64, self.panel_px.1 as f64);
+                Frame {
+                    ox: (i % cols) as f64 * pw + MARGIN.0,
+                    oy: (i / cols) as f64 * ph + MARGIN.2,
+                    w: pw - MARGIN.0 - MARGIN.1,
+                    h: ph - MARGIN.2 - MARGIN.3,
+                    xr,
+                    yr,
+                }
+            })
+            .collect()
+    }
+
+    /// The figure as SVG text.
+    pub fn to_svg(&self) -> String {
+        let (w, h) = self.size();
+        let col = |c: Colour| {
+            let [r, g, b] = PALETTE[usize::from(c) % PALETTE.len()];
+            format!("#{r:02x}{g:02x}{b:02x}")
+        };
+        let mut s = format!(
+            "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" \
+             viewBox=\"0 0 {w} {h}\" font-family=\"sans-serif\" font-size=\"11\">\n\
+             <rect width=\"{w}\" height=\"{h}\" fill=\"#ffffff\"/>\n"
+        );
+        for (c, f) in self.charts.iter().zip(self.frames()) {
+            for it in &c.items {
+                match it {
+                    Item::Band { rect, colour } => {
+                        let (x0, y0) = f.px(f.clip(rect[0], rect[3]).0, f.clip(rect[0], rect[3]).1);
+                        let (x1, y1) = f.px(f.clip(rect[1], rect[2]).0, f.clip(rect[1], rect[2]).1);
+                        let _ = writeln!(
+                            s,
+                            "<rect x=\"{x0:.1}\" y=\"{y0:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"{}\"/>",
+                            (x1 - x0).max(0.0),
+                            (y1 - y0).max(0.0),
+                            col(*colour)
+                        );
+                    }
+                    Item::Line {
+                        pts,
+                        colour,
+                        dashed,
+                    } => {
+                        let p: Vec<String> = pts
+                            .iter()
+                            .map(|&(x, y)| {
+                                let (a, b) = f.px(x, y);
+                                format!("{a:.1},{b:.1}")
+                            })
+                            .collect();
+                        let dash = if *dashed {
+                            " stroke-dasharray=\"6,4\""
+                        } else {
+                            ""
+                        };
+                        let _ = writeln!(
+                            s,
+                            "<polyline points=\"{}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1.5\"{dash}/>",
+                            p.join(" "),
+                            col(*colour)
+                        );
+                    }
+                    Item::Points { pts, colour } => {
+                        for &(x, y, e) in pts {
+                            let (a, b) = f.px(x, y);
+                            if let Some(e) = e {
+                                let (_, b0) = f.px(x, y - e);
+                                let (_, b1) = f.px(x, y + e);
+                                let _ = writeln!(
+                                    s,
+                                    "<line x1=\"{a:.1}\" y1=\"{b0:.1}\" x2=\"{a:.1}\" y2=\"{b1:.1}\" stroke=\"{}\"/>",
+                                    col(*colour)
+                                );
+                            }
+                            let _ = writeln!(
+                                s,
+                                "<circle cx=\"{a:.1}\" cy=\"{b:.1}\" r=\"3.5\" fill=\"{}\"/>",
+                                col(*colour)
+                            );
+                        }
+                    }
+                }
+            }
+            // Axes box, ticks and labels.
+            let _ = writeln!(
+                s,
+                "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#000000\"/>",
+                f.ox, f.oy, f.w, f.h
+            );
+            for t in ticks(f.xr[0], f.xr[1]) {
+                let (a, _) = f.px(t, f.yr[0]);
+                let b = f.oy + f.h;
+                let _ = writeln!(
+                    s,
+                    "<line x1=\"{a:.1}\" y1=\"{b:.1}\" x2=\"{a:.1}\" y2=\"{:.1}\" stroke=\"#000000\"/>\
+                     <text x=\"{a:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
+                    b - 5.0,
+                    b + 14.0,
+                    fmt_tick(t)
+                );
+            }
+            for t in ticks(f.yr[0], f.yr[1]) {
+                let (_, b) = f.px(f.xr[0], t);
+                let _ = writeln!(
+                    s,
+                    "<line x1=\"{:.1}\" y1=\"{b:.1}\" x2=\"{:.1}\" y2=\"{b:.1}\" stroke=\"#000000\"/>\
+                     <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>",
+                    f.ox,
+                    f.ox + 5.0,
+                    f.ox - 4.0,
+                    b + 4.0,
+                    fmt_tick(t)
+                );
+            }
+            let _ = writeln!(
+                s,
+                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\">{}</text>\n\
+                 <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n\
+                 <text transform=\"translate({:.1},{:.1}) rotate(-90)\" text-anchor=\"middle\">{}</text>",
+                f.ox + f.w / 2.0,
+                f.oy - 9.0,
+                xml(&c.title),
+                f.ox + f.w / 2.0,
+                f.oy + f.h + 32.0,
+                xml(&c.x_label),
+                f.ox - 52.0,
+                f.oy + f.h / 2.0,
+                xml(&c.y_label)
+            );
+        }
+        s.push_str("</svg>\n");
+        s
+    }
+
+    /// The figure rasterised (no text) and encoded as PNG.
+    pub fn to_png(&self) -> Vec<u8> {
+        let (w, h) = self.size();
+        let mut r = Raster::new(w, h);
+        for (c, f) in self.charts.iter().zip(self.frames()) {
+            for it in &c.items {
+                match it {
+                    Item::Band { rect, colour } => {
+                        let (x0, y0) = f.px(f.clip(rect[0], rect[3]).0, f.clip(rect[0], rect[3]).1);
+                        let (x1, y1) = f.px(f.clip(rect[1], rect[2]).0, f.clip(rect[1], rect[2]).1);
+                        r.fill_rect(x0, y0, x1, y1, *colour);
+                    }
+                    Item::Line {
+                        pts,
+                        colour,
+                        dashed,
+                    } => {
+                        let mut phase = 0.0;
+                        for seg in pts.windows(2) {
+                            let a = f.px(seg[0].0, seg[0].1);
+                            let b = f.px(seg[1].0, seg[1].1);
+                            phase = r.line_from(a, b, *colour, dashed.then_some(phase));
+                        }
+                    }
+                    Item::Points { pts, colour } => {
+                        for &(x, y, e) in pts {
+                            let (a, b) = f.px(x, y);
+                            if let Some(e) = e {
+                                let (_, b0) = f.px(x, y - e);
+                                let (_, b1) = f.px(x, y + e);
+                                r.line((a, b0), (a, b1), *colour, false);
+                                r.line((a - 3.0, b0), (a + 3.0, b0), *colour, false);
+                                r.line((a - 3.0, b1), (a + 3.0, b1), *colour, false);
+                            }
+                            r.disk(a, b, 3.5, *colour);
+                        }
+                    }
+                }
+            }
+            let (x0, y0, x1, y1) = (f.ox, f.oy, f.ox + f.w, f.oy + f.h);
+            r.line((x0, y0), (x1, y0), BLACK, false);
+            r.line((x0, y1), (x1, y1), BLACK, false);
+            r.line((x0, y0), (x0, y1), BLACK, false);
+            r.line((x1, y0), (x1, y1), BLACK, false);
+            for t in ticks(f.xr[0], f.xr[1]) {
+                let (a, _) = f.px(t, f.yr[0]);
+                r.line((a, y1), (a, y1 - 5.0), BLACK, false);
+            }
+            for t in ticks(f.yr[0], f.yr[1]) {
+                let (_, b) = f.px(f.xr[0], t);
+                r.line((x0, b), (x0 + 5.0, b), BLACK, false);
+            }
+        }
+        crate::png::encode_indexed(w, h, &PALETTE, &r.pix)
+    }
+}
+
+fn fmt_tick(t: f64) -> String {
+    if t == 0.0 {
+        "0".into()
+    } else if t.abs() < 1e-3 || t.abs() >= 1e4 {
+        format!("{t:.1e}")
+    } else {
+        let s = format!("{t:.6}");
+        s.trim_end_matches('0').trim_end_matches('.').to_owned()
+    }
+}
+
+fn xml(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// An indexed-colour raster.
+pub struct Raster {
+    w: usize,
+    h: usize,
+    /// Palette indices, row-major from the top.
+    pub pix: Vec<u8>,
+}
+
+impl Raster {
+    /// A white raster.
+    pub fn new(w: usize, h: usize) -> Self {
+        Self {
+            w,
+            h,
+            pix: vec![0; w * h],
+        }
+    }
+    fn set(&mut self, x: f64, y: f64, c: Colour) {
+        if x >= 0.0 && y >= 0.0 && (x as usize) < self.w && (y as usize) < self.h {
+            self.pix[y as usize * self.w + x as usize] = c;
+        }
+    }
+    /// A line of width ~1.5 px; dashes 6 px on, 4 off.
+    pub fn line(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dashed: bool) {
+        self.line_from(a, b, c, dashed.then_some(0.0));
+    }
+
+    /// A line; with `Some(phase)` dashed (6 px on, 4 off) starting `phase`
+    /// px into the pattern. Returns the phase at the end, so that the dashes
+    /// of a polyline run on across its vertices.
+    pub fn line_from(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dash: Option<f64>) -> f64 {
+        let phase = dash.unwrap_or(0.0);
+        let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
+        if !(len.is_finite() && a.0.is_finite() && a.1.is_finite()) {
+            return phase;
+        }
+        let n = (len.ceil() as usize).clamp(1, 100_000);
+        for i in 0..=n {
+            let t = i as f64 / n as f64;
+            if dash.is_some() && (phase + t * len) % 10.0 >= 6.0 {
+                continue;
+            }
+            let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
+            self.set(x, y, c);
+            self.set(x + 0.5, y + 0.5, c);
+        }
+        (phase + len) % 10.0
+    }
+    /// A filled disk.
+    pub fn disk(&mut self, cx: f64, cy: f64, r: f64, c: Colour) {
+        let ri = r.ceil() as i64;
+        for dy in -ri..=ri {
+            for dx in -ri..=ri {
+                if ((dx * dx + dy * dy) as f64) <= r * r {
+                    self.set(cx + dx as f64, cy + dy as f64, c);
+                }
+            }
+        }
+    }
+    /// A filled rectangle between two corners.
+    pub fn fill_rect(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: Colour) {
+        if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
+            return;
+        }
+        let (xa, xb) = (x0.min(x1).max(0.0) as usize, x0.max(x1).max(0.0) as usize);
+        let (ya, yb) = (y0.min(y1).max(0.0) as usize, y0.max(y1).max(0.0) as usize);
+        for y in ya..yb.min(self.h) {
+            for x in xa..xb.min(self.w) {
+                self.pix[y * self.w + x] = c;
+            }
+        }
+    }
+}
+
+/// The report's figures, by file stem: Fig. 2 (shear response per PSF),
+/// Fig. 3 (⟨m⟩ against σ_c), Fig. 4 (m_selc against m_uncontaminated),
+/// Fig. 5 (residual against magnitude).
+pub fn report_figures(r: &Report) -> Vec<(&'static str, Figure)> {
+    vec![
+        ("fig2_shear_response", fig2(r)),
+        ("fig3_m_sigma_c", fig3(&[r])),
+        ("fig4_mselc_muncontaminated", fig4(r)),
+        ("fig5_residual_magnitude", fig5(r)),
+    ]
+}
+
+/// Fig. 2: γ1 − γ1_true against γ1_true per PSF, with the fit (dashed) and
+/// the ideal zero line (grey).
+pub fn fig2(r: &Report) -> Figure {
+    let charts = r
+        .psfs
+        .iter()
+        .map(|p| {
+            let pts: Vec<(f64, f64, Option<f64>)> = r
+                .datasets
+                .iter()
+                .filter(|d| d.psf == p.psf)
+                .filter_map(|d| Some((d.g1_true, d.g1? - d.g1_true, d.g1_err)))
+                .collect();
+            let xmax = pts.iter().map(|p| p.0).fold(0.0, f64::max);
+            let xmin = pts.iter().map(|p| p.0).fold(0.0, f64::min);
+            let mut items = vec![Item::Line {
+                pts: vec![(xmin, 0.0), (xmax, 0.0)],
+                colour: GREY,
+                dashed: false,
+            }];
+            if let (Some(m), Some(c)) = (p.m, p.c1) {
+                let q = p.q.unwrap_or(0.0);
+                let line = (0..=40)
+                    .map(|k| {
+                        let x = xmin + (xmax - xmin) * k as f64 / 40.0;
+                        (x, q * x * x + m * x + c)
+                    })
+                    .collect();
+                items.push(Item::Line {
+                    pts: line,
+                    colour: RED,
+                    dashed: true,
+                });
+            }
+            items.push(Item::Points { pts, colour: BLUE });
+            Chart {
+                title: format!("{}: {} (PSF {})", r.submission, "γ1 − γ1 true", p.psf),
+                x_label: "γ1 true".into(),
+                y_label: "γ1 − γ1 true".into(),
+                items,
+            }
+        })
+        .collect();
+    Figure {
+        cols: 3,
+        panel_px: (420, 320),
+        charts,
+    }
+}
+
+/// Fig. 3: ⟨m⟩ against σ_c for one or more reports; the shaded band is
+/// |⟨m⟩| < 7 % (the paper's "less than 7 % calibration bias").
+pub fn fig3(reports: &[&Report]) -> Figure {
+    let pts: Vec<(f64, f64, Option<f64>)> = reports
+        .iter()
+        .filter_map(|r| Some((r.summary.sigma_c?, r.summary.m_mean?, None)))
+        .collect();
+    let xmax = pts.iter().map(|p| p.0).fold(1e-4, f64::max);
+    let items = vec![
+        Item::Band {
+            rect: [0.0, f64::MAX, -0.07, 0.07],
+            colour: LIGHT,
+        },
+        Item::Line {
+            pts: vec![(0.0, 0.0), (xmax, 0.0)],
+            colour: GREY,
+            dashed: false,
+        },
+        Item::Points { pts, colour: BLUE },
+    ];
+    Figure {
+        cols: 1,
+        panel_px: (520, 400),
+        charts: vec![Chart {
+            title: "calibration bias ⟨m⟩ against PSF residual σc".into(),
+            x_label: "σc".into(),
+            y_label: "⟨m⟩".into(),
+            items,
+        }],
+    }
+}
+
+/// Fig. 4: m_selc against m_uncontaminated per PSF (blue) and their means
+/// (red), with the 1:1 line.
+pub fn fig4(r: &Report) -> Figure {
+    let pts: Vec<(f64, f64, Option<f64>)> = r
+        .psfs
+        .iter()
+        .filter_map(|p| Some((p.m_uncontaminated?, p.m_selc?, p.m_selc_err)))
+        .collect();
+    let mean: Vec<(f64, f64, Option<f64>)> =
+        [(r.summary.m_uncontaminated_mean, r.summary.m_selc_mean)]
+            .iter()
+            .filter_map(|&(a, b)| Some((a?, b?, None)))
+            .collect();
+    let lo = pts.iter().flat_map(|p| [p.0, p.1]).fold(-0.01, f64::min);
+    let hi = pts.iter().flat_map(|p| [p.0, p.1]).fold(0.01, f64::max);
+    Figure {
+        cols: 1,
+        panel_px: (520, 400),
+        charts: vec![Chart {
+            title: format!("{}: selection bias against uncontaminated m", r.submission),
+            x_label: "m uncontaminated".into(),
+            y_label: "m selc".into(),
+            items: vec![
+                Item::Line {
+                    pts: vec![(lo, lo), (hi, hi)],
+                    colour: GREY,
+                    dashed: false,
+                },
+                Item::Points { pts, colour: BLUE },
+                Item::Points {
+                    pts: mean,
+                    colour: RED,
+                },
+            ],
+        }],
+    }
+}
+
+/// Fig. 5: γ1 − γ1_true against true magnitude (bin centres; open bins
+/// drawn half a bin beyond their edge), with the all-galaxy mean dashed.
+pub fn fig5(r: &Report) -> Figure {
+    let b = &r.by_magnitude;
+    let pts: Vec<(f64, f64, Option<f64>)> = b
+        .bins
+        .iter()
+        .filter_map(|bin| {
+            let x = match (bin.lo, bin.hi) {
+                (Some(l), Some(h)) => 0.5 * (l + h),
+                (None, Some(h)) => h - 0.5,
+                (Some(l), None) => l + 0.5,
+                (None, None) => 0.0,
+            };
+            Some((x, bin.g1_residual?, bin.g1_residual_err))
+        })
+        .collect();
+    let (x0, x1) = (
+        pts.iter().map(|p| p.0).fold(f64::MAX, f64::min),
+        pts.iter().map(|p| p.0).fold(f64::MIN, f64::max),
+    );
+    let mut items = Vec::new();
+    if let (Some(all), true) = (b.all.g1_residual, x0 <= x1) {
+        items.push(Item::Line {
+            pts: vec![(x0, all), (x1, all)],
+            colour: RED,
+            dashed: true,
+        });
+    }
+    items.push(Item::Points { pts, colour: BLUE });
+    Figure {
+        cols: 1,
+        panel_px: (520, 400),
+        charts: vec![Chart {
+            title: format!("{}: shear residual against magnitude", r.submission),
+            x_label: "I magnitude (true)".into(),
+            y_label: "γ1 − γ1 true".into(),
+            items,
+        }],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::png::decode_indexed;
+
+    #[test]
+    fn ticks_are_round_and_cover_the_range() {
+        assert_eq!(
+            ticks(0.0, 1.0),
+            vec![0.0, 0.2, 0.4, 0.6000000000000001, 0.8, 1.0]
+        );
+        let t = ticks(-0.013, 0.021);
+        assert!(t.len() >= 3 && t[0] >= -0.013 && *t.last().unwrap() <= 0.021);
+    }
+
+    #[test]
+    fn a_chart_draws_points_where_the_data_are() {
+        let fig = Figure {
+            cols: 1,
+            panel_px: (200, 200),
+            charts: vec![Chart {
+                title: "t<1>".into(),
+                x_label: "x".into(),
+                y_label: "y".into(),
+                items: vec![Item::Points {
+                    pts: vec![(0.0, 0.0, None), (1.0, 1.0, Some(0.1))],
+                    colour: RED,
+                }],
+            }],
+        };
+        let svg = fig.to_svg();
+        assert_eq!(svg.matches("<circle").count(), 2);
+        assert!(svg.contains("t&lt;1&gt;"));
+        let (w, _, pix) = decode_indexed(&fig.to_png()).unwrap();
+        // The first point sits at the lower-left of the padded range.
+        let f = &fig.frames()[0];
+        let (px, py) = f.px(0.0, 0.0);
+        assert_eq!(pix[py as usize * w + px as usize], RED);
+        assert_eq!(pix[5 * w + 5], 0, "background stays white");
+    }
+}

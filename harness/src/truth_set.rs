@@ -1,0 +1,301 @@
+//! The organiser's side of a run: `RUN/private/datasets.json` and the truth
+//! tables `RUN/private/truth/<image-id>.fits` (see `docs/run-layout.md`).
+
+use crate::error::HarnessError;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use stepsim_sim::run_layout::{DATASETS_FORMAT, Datasets};
+use stepsim_sim::truth::TruthRow;
+
+/// One image of the run, flattened out of the datasets (dataset order, then
+/// the order of `images` in `datasets.json`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageInfo {
+    /// Opaque image id.
+    pub image: String,
+    /// Index of its dataset in [`Datasets::datasets`].
+    pub dataset: usize,
+    /// Base field.
+    pub field: u32,
+}
+
+/// The image ids and geometry a submission is checked against.
+#[derive(Debug, Clone)]
+pub struct ImageIndex {
+    /// Every image, in run order.
+    pub images: Vec<ImageInfo>,
+    /// Image id -> index into `images`.
+    pub by_id: HashMap<String, usize>,
+    /// NAXIS1.
+    pub width_px: u32,
+    /// NAXIS2.
+    pub height_px: u32,
+    /// Pixel scale.
+    pub pixel_scale_arcsec: f64,
+}
+
+impl ImageIndex {
+    /// Builds the index of a run's images. Refuses an image id that appears
+    /// twice (a corrupt `datasets.json`); `path` names the file in the error.
+    pub fn new(datasets: &Datasets, path: &Path) -> Result<Self, HarnessError> {
+        let mut images = Vec::new();
+        let mut by_id = HashMap::new();
+        for (d, entry) in datasets.datasets.iter().enumerate() {
+            for im in &entry.images {
+                if by_id.insert(im.image.clone(), images.len()).is_some() {
+                    return Err(HarnessError::truth(
+                        path,
+                        format!("image id `{}` appears twice", im.image),
+                    ));
+                }
+                images.push(ImageInfo {
+                    image: im.image.clone(),
+                    dataset: d,
+                    field: im.field,
+                });
+            }
+        }
+        Ok(Self {
+            images,
+            by_id,
+            width_px: datasets.width_px,
+            height_px: datasets.height_px,
+            pixel_scale_arcsec: datasets.pixel_scale_arcsec,
+        })
+    }
+
+    /// Area of one image in arcmin².
+    pub fn image_area_arcmin2(&self) -> f64 {
+        let s = self.pixel_scale_arcsec / 60.0;
+        f64::from(self.width_px) * f64::from(self.height_px) * s * s
+    }
+
+    /// True when (x, y) lies on the image, the half-pixel border included:
+    /// 0.5 ≤ x ≤ width + 0.5 and 0.5 ≤ y ≤ height + 0.5 (FITS pixels).
+    pub fn on_image(&self, x: f64, y: f64) -> bool {
+        (0.5..=f64::from(self.width_px) + 0.5).contains(&x)
+            && (0.5..=f64::from(self.height_px) + 0.5).contains(&y)
+    }
+}
+
+/// The private half of a run as the harness needs it.
+#[derive(Debug, Clone)]
+pub struct TruthSet {
+    /// `datasets.json`.
+    pub datasets: Datasets,
+    /// Its images.
+    pub index: ImageIndex,
+    /// The private directory.
+    pub dir: PathBuf,
+}
+
+/// Reads `DIR/datasets.json` (DIR = `RUN/private`).
+pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
+    let path = dir.join("datasets.json");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| HarnessError::truth(&path, format!("cannot read: {e}")))?;
+    let datasets: Datasets = serde_json::from_str(&text)
+        .map_err(|e| HarnessError::truth(&path, format!("not a datasets.json: {e}")))?;
+    if datasets.format != DATASETS_FORMAT {
+        return Err(HarnessError::truth(
+            &path,
+            format!("format `{}` is not `{DATASETS_FORMAT}`", datasets.format),
+        ));
+    }
+    if !(datasets.pixel_scale_arcsec > 0.0 && datasets.pixel_scale_arcsec.is_finite()) {
+        return Err(HarnessError::truth(
+            &path,
+            format!(
+                "pixel_scale_arcsec {} is not positive",
+                datasets.pixel_scale_arcsec
+            ),
+        ));
+    }
+    let index = ImageIndex::new(&datasets, &path)?;
+    Ok(TruthSet {
+        datasets,
+        index,
+        dir: dir.to_path_buf(),
+    })
+}
+
+/// Truth columns the metrics use ([`crate::metrics::image_stats`]).
+pub const SCORING_COLUMNS: [&str; 8] = [
+    "kind",
+    "x",
+    "y",
+    "mag",
+    "disk_h_arcsec",
+    "e1",
+    "e1_int",
+    "e2_int",
+];
+
+/// Reads only the [`SCORING_COLUMNS`] of a truth table (the other fields of
+/// each row stay at their default). About 3.5 × faster than
+/// `stepsim_sim::io::truth::read_truth_fits` on a 32-column table, whose
+/// complete rows the scoring does not need. Errors name the file and column.
+pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> {
+    use stepsim_sim::io::IoError;
+    use stepsim_sim::io::truth::TRUTH_EXTNAME;
+    let fe = |e: fitsio::errors::Error| HarnessError::from(IoError::fits(path, e));
+    let mut f = fitsio::FitsFile::open(path).map_err(fe)?;
+    let hdu = f.hdu(TRUTH_EXTNAME).map_err(fe)?;
+    let col = |f: &mut fitsio::FitsFile, name: &str| -> Result<Vec<f64>, HarnessError> {
+        hdu.read_col(f, name)
+            .map_err(|e| IoError::format(path, format!("column `{name}`: {e}")).into())
+    };
+    let kind: Vec<i32> = hdu
+        .read_col(&mut f, "kind")
+        .map_err(|e| HarnessError::from(IoError::format(path, format!("column `kind`: {e}"))))?;
+    let mut rows = vec![TruthRow::default(); kind.len()];
+    for (r, k) in rows.iter_mut().zip(kind) {
+        r.kind = k;
+    }
+    for name in &SCORING_COLUMNS[1..] {
+        let v = col(&mut f, name)?;
+        if v.len() != rows.len() {
+            return Err(
+                IoError::format(path, format!("column `{name}` has {} rows", v.len())).into(),
+            );
+        }
+        for (r, x) in rows.iter_mut().zip(v) {
+            match *name {
+                "x" => r.x = x,
+                "y" => r.y = x,
+                "mag" => r.mag = x,
+                "disk_h_arcsec" => r.disk_h_arcsec = x,
+                "e1" => r.e1 = x,
+                "e1_int" => r.e1_int = x,
+                _ => r.e2_int = x,
+            }
+        }
+    }
+    Ok(rows)
+}
+
+impl TruthSet {
+    /// Path of the truth table of an image.
+    pub fn truth_path(&self, image: &str) -> PathBuf {
+        self.dir.join("truth").join(format!("{image}.fits"))
+    }
+
+    /// Reads the truth tables (scoring columns only) of the images `which`
+    /// (indices into `index.images`), in parallel, in the order of `which`. Each
+    /// thread opens its own file; the result does not depend on the thread
+    /// count.
+    pub fn load_tables(&self, which: &[usize]) -> Result<Vec<Vec<TruthRow>>, HarnessError> {
+        which
+            .par_iter()
+            .map(|&i| {
+                let path = self.truth_path(&self.index.images[i].image);
+                read_scoring_columns(&path)
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scoring_columns_read_back_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.fits");
+        let rows: Vec<TruthRow> = (0..20)
+            .map(|i| TruthRow {
+                id: i,
+                kind: (i % 2) as i32,
+                x: 1.5 * i as f64,
+                y: 2.5 * i as f64,
+                mag: 20.0 + 0.1 * i as f64,
+                disk_h_arcsec: 0.01 * i as f64,
+                e1: 0.02 * i as f64,
+                e1_int: -0.01 * i as f64,
+                e2_int: 0.03 * i as f64,
+                e2: 9.0,
+                ..Default::default()
+            })
+            .collect();
+        stepsim_sim::io::truth::write_truth_fits(&p, &rows, &[]).unwrap();
+        let got = read_scoring_columns(&p).unwrap();
+        for (a, b) in got.iter().zip(&rows) {
+            assert_eq!(
+                (
+                    a.kind,
+                    a.x,
+                    a.y,
+                    a.mag,
+                    a.disk_h_arcsec,
+                    a.e1,
+                    a.e1_int,
+                    a.e2_int
+                ),
+                (
+                    b.kind,
+                    b.x,
+                    b.y,
+                    b.mag,
+                    b.disk_h_arcsec,
+                    b.e1,
+                    b.e1_int,
+                    b.e2_int
+                )
+            );
+            assert_eq!(a.e2, 0.0, "columns not needed are not read");
+        }
+        let e = read_scoring_columns(&dir.path().join("none.fits")).unwrap_err();
+        assert!(e.to_string().contains("none.fits"));
+    }
+
+    #[test]
+    fn bad_datasets_json_is_refused_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = load_truth_set(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("datasets.json") && e.contains("cannot read"),
+            "{e}"
+        );
+        let p = dir.path().join("datasets.json");
+        let entry = |id: &str| {
+            format!(
+                "{{\"dataset\": \"d{id}\", \"psf_id\": 0, \"psf\": \"none\", \"g1\": 0.0, \"g2\": 0.0, \
+                 \"images\": [{{\"image\": \"i1\", \"field\": 0}}]}}"
+            )
+        };
+        let doc = |fmt: &str, scale: f64, ds: &str| {
+            format!(
+                "{{\"format\": \"{fmt}\", \"width_px\": 10, \"height_px\": 10, \
+                 \"pixel_scale_arcsec\": {scale}, \"datasets\": [{ds}]}}"
+            )
+        };
+        let cases = [
+            (doc("other-1", 0.2, &entry("a")), "format `other-1`"),
+            (
+                doc(DATASETS_FORMAT, 0.0, &entry("a")),
+                "pixel_scale_arcsec 0",
+            ),
+            (
+                doc(
+                    DATASETS_FORMAT,
+                    0.2,
+                    &format!("{},{}", entry("a"), entry("b")),
+                ),
+                "image id `i1` appears twice",
+            ),
+            ("{\"format\": 1}".to_owned(), "not a datasets.json"),
+        ];
+        for (text, want) in cases {
+            std::fs::write(&p, &text).unwrap();
+            let e = load_truth_set(dir.path()).unwrap_err().to_string();
+            assert!(e.contains("datasets.json") && e.contains(want), "{e}");
+        }
+        std::fs::write(&p, doc(DATASETS_FORMAT, 0.2, &entry("a"))).unwrap();
+        let t = load_truth_set(dir.path()).unwrap();
+        assert_eq!(t.index.images.len(), 1);
+        assert!((t.index.image_area_arcmin2() - (2.0f64 / 60.0).powi(2)).abs() < 1e-15);
+        assert!(t.index.on_image(0.5, 10.5) && !t.index.on_image(0.49, 1.0));
+    }
+}

@@ -1,0 +1,55 @@
+//! `stepsim leaderboard`: rank several score reports in one table.
+
+use std::path::PathBuf;
+use stepsim_harness::leaderboard::{leaderboard_markdown, rank, read_report};
+
+/// Arguments of `stepsim leaderboard`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// report.json files written by `stepsim score`.
+    #[arg(required = true, value_name = "REPORT.json")]
+    reports: Vec<PathBuf>,
+    /// Write leaderboard.md, leaderboard.json and the ⟨m⟩–σ_c plot here
+    /// (default: print the Markdown table).
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+}
+
+/// Ranks the reports (by Q_c, larger first).
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let reports = args
+        .reports
+        .iter()
+        .map(|p| Ok((p.clone(), read_report(p)?)))
+        .collect::<Result<Vec<_>, stepsim_harness::HarnessError>>()?;
+    let board = rank(&reports);
+    let md = leaderboard_markdown(&reports, &board);
+    match &args.out {
+        None => print!("{md}"),
+        Some(dir) => {
+            let mut json = serde_json::to_string_pretty(&board)?;
+            json.push('\n');
+            let refs: Vec<&stepsim_harness::Report> = reports.iter().map(|r| &r.1).collect();
+            let fig = stepsim_harness::plots::fig3(&refs);
+            stepsim_sim::io::write_bytes_atomically(
+                &dir.join("fig3_m_sigma_c.svg"),
+                fig.to_svg().as_bytes(),
+            )?;
+            stepsim_sim::io::write_bytes_atomically(
+                &dir.join("fig3_m_sigma_c.png"),
+                &fig.to_png(),
+            )?;
+            stepsim_sim::io::write_bytes_atomically(&dir.join("leaderboard.md"), md.as_bytes())?;
+            stepsim_sim::io::write_bytes_atomically(
+                &dir.join("leaderboard.json"),
+                json.as_bytes(),
+            )?;
+            eprintln!(
+                "stepsim: leaderboard of {} reports in {}",
+                reports.len(),
+                dir.display()
+            );
+        }
+    }
+    Ok(())
+}

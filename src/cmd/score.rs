@@ -1,0 +1,61 @@
+//! `stepsim score`: score a submission against a run's truth (SPEC §6, §7).
+
+use std::path::PathBuf;
+use stepsim_harness::pipeline::{DEFAULT_MATCH_RADIUS_ARCSEC, ScoreOptions};
+
+/// Arguments of `stepsim score`.
+#[derive(Debug, clap::Args)]
+#[command(after_long_help = stepsim_harness::SUBMISSION_FORMAT_MD)]
+pub struct Args {
+    /// The private half of the run (`RUN/private`: datasets.json, truth/).
+    #[arg(long, value_name = "DIR")]
+    truth: PathBuf,
+    /// The submission: a table (whitespace with `#` header, CSV, FITS) or a
+    /// directory of per-image tables `<image-id>.<ext>`.
+    #[arg(long, value_name = "PATH")]
+    submission: PathBuf,
+    /// Where to write report.json, report.md and the plots.
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Name of the submission in the report (default: its file name).
+    #[arg(long)]
+    name: Option<String>,
+    /// Match radius between submitted and true positions.
+    #[arg(long, value_name = "ARCSEC", default_value_t = DEFAULT_MATCH_RADIUS_ARCSEC)]
+    match_radius_arcsec: f64,
+    /// Score a submission that lacks some images (they are left out).
+    #[arg(long)]
+    allow_missing_images: bool,
+    /// Overwrite an existing report in --out.
+    #[arg(long)]
+    force: bool,
+}
+
+/// Scores and writes the report.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let json = args.out.join(stepsim_harness::pipeline::REPORT_JSON);
+    if json.exists() && !args.force {
+        return Err(stepsim_harness::HarnessError::ReportExists { path: json }.into());
+    }
+    let mut opts = ScoreOptions::new(&args.truth, &args.submission);
+    opts.name = args.name.clone();
+    opts.match_radius_arcsec = args.match_radius_arcsec;
+    opts.allow_missing_images = args.allow_missing_images;
+    let report = stepsim_harness::score(&opts)?;
+    stepsim_harness::write_outputs(&args.out, &report, args.force)?;
+    for w in &report.warnings {
+        eprintln!("stepsim: warning: {w}");
+    }
+    let s = &report.summary;
+    let f = |v: Option<f64>| v.map_or("—".to_owned(), |x| format!("{x:.4}"));
+    eprintln!(
+        "stepsim: {}: <m> = {}, sigma_c = {}, <q> = {}, Q_c = {}; report in {}",
+        report.submission,
+        f(s.m_mean),
+        f(s.sigma_c),
+        f(s.q_mean),
+        f(s.q_c),
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,377 @@
+//! End-to-end checks of `stepsim score` and `stepsim leaderboard`: the report
+//! has the SPEC §7 keys and the known answer, bad input exits 1 naming file,
+//! line and column with nothing written, reports are never overwritten
+//! without --force.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_sim::truth::TruthRow;
+
+fn stepsim(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
+    for a in args {
+        c.arg(a);
+    }
+    c.output().unwrap()
+}
+
+struct Fixture {
+    dir: tempfile::TempDir,
+    run: SynthRun,
+}
+
+impl Fixture {
+    fn new() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let mut spec = SynthSpec::small(2);
+        spec.psfs.truncate(2);
+        spec.shears.truncate(4);
+        let run = make_run(&spec);
+        run.write(&dir.path().join("private")).unwrap();
+        Self { dir, run }
+    }
+    fn path(&self, p: &str) -> PathBuf {
+        self.dir.path().join(p)
+    }
+    /// A text submission with multiplicative bias m0, stars and no false
+    /// detections.
+    fn submission(&self, name: &str, m0: f64) -> PathBuf {
+        let rows = self.run.submission(&|t: &TruthRow, _| {
+            Some(if t.is_star() {
+                (0.0, 0.0, 1.0)
+            } else {
+                ((1.0 + m0) * t.e1, (1.0 + m0) * t.e2, 1.0)
+            })
+        });
+        let p = self.path(name);
+        std::fs::write(&p, submission_text(&self.run.index(), &rows)).unwrap();
+        p
+    }
+    fn score(&self, sub: &Path, out: &str, extra: &[&str]) -> Output {
+        self.score_threads(sub, out, extra, None)
+    }
+    fn score_threads(
+        &self,
+        sub: &Path,
+        out: &str,
+        extra: &[&str],
+        threads: Option<&str>,
+    ) -> Output {
+        let truth = self.path("private");
+        let out = self.path(out);
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![
+            &"score",
+            &"--truth",
+            &truth,
+            &"--submission",
+            &sub,
+            &"--out",
+            &out,
+        ];
+        for e in extra {
+            args.push(e);
+        }
+        let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
+        for a in args {
+            c.arg(a);
+        }
+        if let Some(t) = threads {
+            c.env("RAYON_NUM_THREADS", t);
+        }
+        c.output().unwrap()
+    }
+}
+
+fn keys(v: &serde_json::Value) -> Vec<String> {
+    let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
+    k.sort();
+    k
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
+    let fx = Fixture::new();
+    let sub = fx.submission("team.txt", 0.01);
+    let before = std::fs::read(&sub).unwrap();
+    let o = fx.score(&sub, "out", &["--name", "Team A"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(&sub).unwrap(),
+        before,
+        "the submission is untouched"
+    );
+    let text = std::fs::read_to_string(fx.path("out/report.json")).unwrap();
+    let r: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(
+        keys(&r),
+        [
+            "by_disk_size",
+            "by_magnitude",
+            "datasets",
+            "match_radius_arcsec",
+            "psfs",
+            "submission",
+            "summary",
+            "warnings"
+        ]
+    );
+    assert_eq!(r["submission"], "Team A");
+    assert_eq!(r["match_radius_arcsec"], 1.0);
+    let d = &r["datasets"][0];
+    for k in [
+        "dataset",
+        "psf",
+        "g1_true",
+        "g2_true",
+        "n_images",
+        "n_objects",
+        "g1",
+        "g1_err",
+        "g2",
+        "g2_err",
+        "ngal_per_arcmin2",
+        "pct_stars",
+        "pct_false",
+        "pct_stars_weighted",
+        "pct_false_weighted",
+        "snr",
+        "sn_shot",
+        "sn_shot_weighted",
+    ] {
+        assert!(d.get(k).is_some(), "datasets[].{k}");
+    }
+    assert_eq!(r["datasets"].as_array().unwrap().len(), 8);
+    assert_eq!(d["n_images"], 2);
+    assert_eq!(d["pct_false"], 0.0);
+    assert!(d["pct_stars"].as_f64().unwrap() > 1.0);
+    let p = &r["psfs"][0];
+    for k in [
+        "psf",
+        "m",
+        "m_err",
+        "q",
+        "q_err",
+        "c1",
+        "c1_err",
+        "c2",
+        "c2_err",
+        "linear",
+        "m_uncontaminated",
+        "m_selc",
+        "c1_selc",
+        "c2_selc",
+        "m_weight",
+        "c1_weight",
+    ] {
+        assert!(p.get(k).is_some(), "psfs[].{k}");
+    }
+    // Stars were submitted with zero shear: they dilute m; galaxies alone
+    // give the injected m0 = 0.01 exactly (ring-symmetric shapes).
+    let m_unc = p["m_uncontaminated"].as_f64().unwrap();
+    assert!((m_unc - 0.01).abs() < 1e-6, "{m_unc}");
+    assert!(p["m"].as_f64().unwrap() < 0.0);
+    for k in [
+        "m_mean",
+        "q_mean",
+        "sigma_c",
+        "m_uncontaminated_mean",
+        "m_selc_mean",
+        "sigma_c_selc",
+        "m_weight_mean",
+        "q_c",
+        "bootstrap",
+    ] {
+        assert!(r["summary"].get(k).is_some(), "summary.{k}");
+    }
+    assert_eq!(r["by_magnitude"]["variable"], "mag");
+    assert_eq!(r["by_disk_size"]["variable"], "disk_h_arcsec");
+    let md = std::fs::read_to_string(fx.path("out/report.md")).unwrap();
+    assert!(md.contains("Table 5") && md.contains("Table 4") && md.contains("| Team A |"));
+    for f in [
+        "fig2_shear_response",
+        "fig3_m_sigma_c",
+        "fig4_mselc_muncontaminated",
+        "fig5_residual_magnitude",
+    ] {
+        let png = std::fs::read(fx.path(&format!("out/{f}.png"))).unwrap();
+        assert!(
+            stepsim_harness::png::decode_indexed(&png).is_some(),
+            "{f}.png"
+        );
+        let svg = std::fs::read_to_string(fx.path(&format!("out/{f}.svg"))).unwrap();
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    }
+    // Same input, same bytes (bootstrap included), whatever the thread count.
+    for (out, threads) in [("out1", "1"), ("out3", "3")] {
+        let o = fx.score_threads(&sub, out, &["--name", "Team A"], Some(threads));
+        assert!(o.status.success());
+        let again = std::fs::read_to_string(fx.path(&format!("{out}/report.json"))).unwrap();
+        assert_eq!(again, text, "{threads} threads");
+        let md = std::fs::read(fx.path(&format!("{out}/report.md"))).unwrap();
+        assert_eq!(md, std::fs::read(fx.path("out/report.md")).unwrap());
+    }
+    // No overwrite without --force.
+    let o = fx.score(&sub, "out", &["--name", "other"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("already exists"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read_to_string(fx.path("out/report.json")).unwrap(),
+        text
+    );
+    let o = fx.score(&sub, "out", &["--name", "other", "--force"]);
+    assert!(o.status.success());
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fx.path("out/report.json")).unwrap())
+            .unwrap();
+    assert_eq!(r["submission"], "other");
+}
+
+#[test]
+fn bad_submissions_exit_1_naming_file_line_and_column_and_write_nothing() {
+    let fx = Fixture::new();
+    let good = std::fs::read_to_string(fx.submission("good.txt", 0.0)).unwrap();
+    let lines: Vec<&str> = good.lines().collect();
+    let first_id = lines[1].split_whitespace().next().unwrap();
+    let with_line3 = |l: &str| {
+        let mut v = lines.clone();
+        v[2] = l;
+        v.join("\n") + "\n"
+    };
+    let dup = lines[1].to_owned();
+    let cases: Vec<(String, String, &str)> = vec![
+        (
+            with_line3("nosuchimage 10 10 0 0 1"),
+            "line 3, column `image`".into(),
+            "unknown image",
+        ),
+        (
+            good.replacen(" e2 ", " flux ", 1),
+            "line 1, column `e2`".into(),
+            "required column missing",
+        ),
+        (
+            with_line3(&format!("{first_id} 10 10 NaN 0 1")),
+            "line 3, column `e1`".into(),
+            "not finite",
+        ),
+        (
+            with_line3(&format!("{first_id} 10 301 0 0 1")),
+            "line 3, column `y`".into(),
+            "off the image",
+        ),
+        (
+            with_line3(&format!("{first_id} 10 ten 0 0 1")),
+            "line 3, column `y`".into(),
+            "cannot read `ten`",
+        ),
+        (
+            with_line3(&dup),
+            "line 3, column `x`".into(),
+            "duplicate row",
+        ),
+        (String::new(), "bad.txt: empty file".into(), "empty"),
+    ];
+    for (text, place, what) in cases {
+        let sub = fx.path("bad.txt");
+        std::fs::write(&sub, &text).unwrap();
+        let o = fx.score(&sub, "badout", &[]);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{what}: {e}");
+        assert!(
+            e.contains("bad.txt") && e.contains(&place) && e.contains(what),
+            "{what}: {e}"
+        );
+        assert!(!fx.path("badout").exists(), "{what}: nothing written");
+    }
+    // Missing images: refused, then scored with the flag (and a warning).
+    let sub = fx.path("partial.txt");
+    let partial: Vec<&str> = lines
+        .iter()
+        .copied()
+        .filter(|l| !l.starts_with(first_id))
+        .collect();
+    std::fs::write(&sub, partial.join("\n") + "\n").unwrap();
+    let o = fx.score(&sub, "partial", &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("--allow-missing-images"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!fx.path("partial").exists());
+    let o = fx.score(&sub, "partial", &["--allow-missing-images"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fx.path("partial/report.json")).unwrap())
+            .unwrap();
+    assert!(
+        r["warnings"][0]
+            .as_str()
+            .unwrap()
+            .contains("1 of 16 images")
+    );
+    // Usage errors exit 2; a bad radius exits 1.
+    let o = stepsim(&[&"score", &"--submission", &sub]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = fx.score(&sub, "r", &["--match-radius-arcsec=-1"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--match-radius-arcsec"));
+}
+
+#[test]
+fn directory_submissions_and_the_leaderboard() {
+    let fx = Fixture::new();
+    // A directory of per-image CSV files without the image column, with an
+    // extra column that is ignored with a warning.
+    let rows = fx
+        .run
+        .submission(&|t: &TruthRow, _| (!t.is_star()).then_some((t.e1, t.e2, 1.0)));
+    let dir = fx.path("perimage");
+    std::fs::create_dir(&dir).unwrap();
+    for (info, rows) in fx.run.index().images.iter().zip(&rows) {
+        let mut s = String::from("x,y,e1,e2,flags\n");
+        for r in rows {
+            s.push_str(&format!("{:?},{:?},{:?},{:?},0\n", r.x, r.y, r.e1, r.e2));
+        }
+        std::fs::write(dir.join(format!("{}.csv", info.image)), s).unwrap();
+    }
+    let o = fx.score(&dir, "best", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fx.path("best/report.json")).unwrap())
+            .unwrap();
+    assert_eq!(r["submission"], "perimage");
+    assert!(r["summary"]["m_mean"].as_f64().unwrap().abs() < 1e-6);
+    assert!(r["warnings"][0].as_str().unwrap().contains("flags"));
+    let sub = fx.submission("worse.txt", 0.05);
+    assert!(fx.score(&sub, "worse", &[]).status.success());
+    let a = fx.path("worse/report.json");
+    let b = fx.path("best/report.json");
+    let lb = fx.path("lb");
+    let o = stepsim(&[&"leaderboard", &a, &b, &"--out", &lb]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(lb.join("leaderboard.json")).unwrap())
+            .unwrap();
+    assert_eq!(j["entries"][0]["submission"], "perimage");
+    assert_eq!(j["entries"][0]["rank"], 1);
+    assert_eq!(j["entries"][1]["submission"], "worse.txt");
+    let png = std::fs::read(lb.join("fig3_m_sigma_c.png")).unwrap();
+    assert!(stepsim_harness::png::decode_indexed(&png).is_some());
+    let svg = std::fs::read_to_string(lb.join("fig3_m_sigma_c.svg")).unwrap();
+    assert_eq!(
+        svg.matches("<circle").count(),
+        2,
+        "one point per submission"
+    );
+    let md = std::fs::read_to_string(lb.join("leaderboard.md")).unwrap();
+    assert!(md.find("perimage").unwrap() < md.find("worse.txt").unwrap());
+    let o = stepsim(&[&"leaderboard", &a, &fx.path("best/report.md")]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("report.md"));
+}
