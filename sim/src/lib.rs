@@ -24,7 +24,9 @@
 pub mod config;
 pub mod io;
 pub mod psf;
+pub mod population;
 pub mod run_layout;
 pub mod seed;
+pub mod shear;
 pub mod truth;
 pub mod wcs;

@@ -5,6 +5,7 @@
 //! temporary name in the same directory and renamed into place only when
 //! complete, so a killed run never leaves a truncated file under a final name.
 
+pub mod skymaker;
 pub mod truth;
 
 use std::path::{Path, PathBuf};
