@@ -23,8 +23,8 @@
 
 pub mod config;
 pub mod io;
-pub mod psf;
 pub mod population;
+pub mod psf;
 pub mod run_layout;
 pub mod seed;
 pub mod shear;

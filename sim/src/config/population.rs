@@ -91,6 +91,11 @@ pub struct RawGalaxies {
     /// The Hubble types E, S0, Sab, Sbc, Scd, Irr (exactly six, in this
     /// order): luminosity functions, B/T and colours.
     pub types: Vec<GalaxyType>,
+    /// Every type's φ* is multiplied by this: the calibration of the model's
+    /// I-band counts to the CFDF/Hawaii deep-field counts (see
+    /// `docs/population.md`; Stuff's own defaults give ≈ 0.6× the observed
+    /// counts at I ≈ 20 with this project's K-corrections).
+    pub phi_star_scale: f64,
     /// Luminosity–size relations.
     pub sizes: Sizes,
     /// Bounds of every luminosity function, absolute B_J magnitude − 5 log10 h
@@ -128,6 +133,9 @@ pub struct GalaxyType {
     pub b_minus_i: f64,
     /// Slope s of the SED f_ν ∝ λ^s blueward of 4000 Å (the break).
     pub uv_slope: f64,
+    /// Internal extinction of the disk, de Vaucouleurs' α: A_B(i) =
+    /// α log10(sec i) (Stuff `DISK_EXTINCT`).
+    pub disk_extinction: f64,
 }
 
 impl GalaxyType {
@@ -143,6 +151,7 @@ impl GalaxyType {
         m_star_evol: f64,
         b_minus_i: f64,
         uv_slope: f64,
+        disk_extinction: f64,
     ) -> Self {
         Self {
             name: name.into(),
@@ -155,6 +164,7 @@ impl GalaxyType {
             m_star_evol,
             b_minus_i,
             uv_slope,
+            disk_extinction,
         }
     }
 
@@ -162,12 +172,24 @@ impl GalaxyType {
     /// evolution) and this project's colours (see `docs/population.md`).
     pub fn stuff_defaults() -> Vec<Self> {
         vec![
-            Self::new("E", -6.0, 1.0, 4.95e-3, -19.58, -0.54, -1.7, -1.0, 2.27, 4.0),
-            Self::new("S0", -2.0, 0.57, 4.95e-3, -19.58, -0.54, -1.7, -1.0, 2.15, 3.5),
-            Self::new("Sab", 2.0, 0.32, 7.2e-3, -19.53, -0.99, -1.2, -1.0, 2.0, 2.5),
-            Self::new("Sbc", 4.0, 0.16, 5.0e-3, -19.17, -1.24, -1.2, -1.0, 1.75, 1.5),
-            Self::new("Scd", 6.0, 0.049, 1.2e-3, -19.15, -1.50, -1.2, -1.0, 1.45, 1.0),
-            Self::new("Irr", 10.0, 0.0, 1.2e-3, -19.15, -1.50, 1.9, -1.5, 1.05, 0.5),
+            Self::new(
+                "E", -6.0, 1.0, 4.95e-3, -19.58, -0.54, -1.7, -1.0, 2.27, 4.0, 0.0,
+            ),
+            Self::new(
+                "S0", -2.0, 0.57, 4.95e-3, -19.58, -0.54, -1.7, -1.0, 2.15, 3.5, 0.75,
+            ),
+            Self::new(
+                "Sab", 2.0, 0.32, 7.2e-3, -19.53, -0.99, -1.2, -1.0, 2.0, 2.5, 1.23,
+            ),
+            Self::new(
+                "Sbc", 4.0, 0.16, 5.0e-3, -19.17, -1.24, -1.2, -1.0, 1.75, 1.5, 1.47,
+            ),
+            Self::new(
+                "Scd", 6.0, 0.049, 1.2e-3, -19.15, -1.50, -1.2, -1.0, 1.45, 2.0, 1.47,
+            ),
+            Self::new(
+                "Irr", 10.0, 0.0, 1.2e-3, -19.15, -1.50, 1.9, -1.5, 1.05, 2.5, 1.23,
+            ),
         ]
     }
 }
@@ -216,6 +238,7 @@ impl Default for RawGalaxies {
             inclination: InclinationLaw::Flat,
             max_inclination_deg: 85.0,
             types: GalaxyType::stuff_defaults(),
+            phi_star_scale: 1.5,
             sizes: Sizes::default(),
             abs_mag_limits: [-27.0, -13.0],
             z_max: 5.0,
@@ -310,6 +333,12 @@ impl RawPopulation {
             40.0,
         )?;
         check_range("population.galaxies.z_max", g.z_max, 0.01, 5.5)?;
+        check_range(
+            "population.galaxies.phi_star_scale",
+            g.phi_star_scale,
+            0.0,
+            100.0,
+        )?;
         let [lo, hi] = g.abs_mag_limits;
         check_range("population.galaxies.abs_mag_limits.0", lo, -40.0, 0.0)?;
         check_range("population.galaxies.abs_mag_limits.1", hi, lo, 0.0)?;
@@ -333,6 +362,7 @@ impl RawPopulation {
             check_range(&k("b_minus_i"), t.b_minus_i, -2.0, 6.0)?;
             check_range(&k("uv_slope"), t.uv_slope, -5.0, 10.0)?;
             check_range(&k("t_type"), t.t_type, -10.0, 20.0)?;
+            check_range(&k("disk_extinction"), t.disk_extinction, 0.0, 5.0)?;
         }
         let z = &g.sizes;
         let k = |f: &str| format!("population.galaxies.sizes.{f}");

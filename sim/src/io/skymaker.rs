@@ -211,7 +211,10 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             _ => {
                 return Err(err(
                     "code",
-                    format!("`{}` is not an object code (100 star, 200 galaxy)", words[0]),
+                    format!(
+                        "`{}` is not an object code (100 star, 200 galaxy)",
+                        words[0]
+                    ),
                 ));
             }
         }
@@ -288,7 +291,10 @@ mod tests {
         );
         match v[2] {
             ListObject::Galaxy {
-                z, t_type, disk_pa_deg, ..
+                z,
+                t_type,
+                disk_pa_deg,
+                ..
             } => {
                 assert_eq!((z, t_type, disk_pa_deg), (Some(1.2), Some(4.0), 210.0));
             }
@@ -305,12 +311,20 @@ mod tests {
             ("100 1 2 x", "line 2", "mag"),
             ("300 1 2 3", "line 2", "code"),
             ("200 1 2 22 1.5 0.4 0.8 30 0.5 0.6 30", "line 2", "`bt`"),
-            ("200 1 2 22 0.5 -0.4 0.8 30 0.5 0.6 30", "line 2", "bulge_re"),
+            (
+                "200 1 2 22 0.5 -0.4 0.8 30 0.5 0.6 30",
+                "line 2",
+                "bulge_re",
+            ),
             ("200 1 2 22 0.5 0.4 0 30 0.5 0.6 30", "line 2", "bulge_q"),
             ("200 1 2 22 0.5 0.4 0.8 30 0.5 1.2 30", "line 2", "disk_q"),
             ("200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 70", "line 2", "disk_pa"),
             ("200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 30 -1", "line 2", "`z`"),
-            ("200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 30 1 4 9", "line 2", "code"),
+            (
+                "200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 30 1 4 9",
+                "line 2",
+                "code",
+            ),
             ("200 1 2 22 0.5 0.4 0.8 30 0.5", "line 2", "code"),
             ("200 1 2 nan 0.5 0.4 0.8 30 0.5 0.6 30", "line 2", "mag"),
             ("200 1 2 22 0.5 0 0.8 30 0.5 0.6 30", "line 2", "bulge_re"),
@@ -318,7 +332,9 @@ mod tests {
         ];
         for (bad, line, field) in cases {
             let text = format!("{good}\n{bad}\n{good}\n");
-            let err = parse_list(&text, Path::new("f.list")).unwrap_err().to_string();
+            let err = parse_list(&text, Path::new("f.list"))
+                .unwrap_err()
+                .to_string();
             assert!(err.contains("f.list"), "{bad}: {err}");
             assert!(err.contains(line), "{bad}: {err}");
             assert!(err.contains(field), "{bad}: expected {field} in {err}");
@@ -331,7 +347,9 @@ mod tests {
 
     #[test]
     fn missing_file_names_the_path() {
-        let err = read_list(Path::new("/nonexistent/f.list")).unwrap_err().to_string();
+        let err = read_list(Path::new("/nonexistent/f.list"))
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("/nonexistent/f.list"), "{err}");
     }
 }

@@ -79,7 +79,11 @@ impl Lcdm {
 
     /// Transverse comoving distance D_M (Mpc).
     pub fn transverse_distance_mpc(&self, z: f64) -> f64 {
-        let dc = self.comoving_distance_mpc(z);
+        self.transverse_from_comoving(self.comoving_distance_mpc(z))
+    }
+
+    /// D_M from D_C (the curvature transform).
+    pub fn transverse_from_comoving(&self, dc: f64) -> f64 {
         let ok = self.omega_k();
         let dh = self.hubble_distance_mpc();
         if ok.abs() < 1e-12 {
@@ -112,6 +116,71 @@ impl Lcdm {
     pub fn dv_dz_dsr_mpc3(&self, z: f64) -> f64 {
         let dm = self.transverse_distance_mpc(z);
         self.hubble_distance_mpc() * dm * dm / self.e(z)
+    }
+}
+
+/// Comoving distances tabulated on a uniform z grid and interpolated by
+/// cubic Hermite polynomials using the exact slope dD_C/dz = D_H/E(z) (the
+/// fast twin of [`Lcdm::comoving_distance_mpc`]; relative
+/// error < 1e-9 for z ≥ 0.01 with the default 4096 cells, tested).
+#[derive(Debug, Clone)]
+pub struct DistanceTable {
+    cosmo: Lcdm,
+    dz: f64,
+    dc: Vec<f64>,
+}
+
+impl DistanceTable {
+    /// Tabulates D_C on [0, `z_max`] with `cells` cells.
+    pub fn new(cosmo: Lcdm, z_max: f64, cells: usize) -> Self {
+        let dz = z_max / cells as f64;
+        let dc = (0..=cells)
+            .map(|i| cosmo.comoving_distance_mpc(i as f64 * dz))
+            .collect();
+        Self { cosmo, dz, dc }
+    }
+
+    /// The cosmology.
+    pub fn cosmology(&self) -> &Lcdm {
+        &self.cosmo
+    }
+
+    /// Interpolated D_C (Mpc); beyond the table, the direct integral.
+    pub fn comoving_distance_mpc(&self, z: f64) -> f64 {
+        let t = z / self.dz;
+        let i = t.floor();
+        if !(0.0..(self.dc.len() - 1) as f64).contains(&i) {
+            return self.cosmo.comoving_distance_mpc(z);
+        }
+        let k = i as usize;
+        let f = t - i;
+        let dh = self.cosmo.hubble_distance_mpc();
+        let (z0, z1) = (k as f64 * self.dz, (k + 1) as f64 * self.dz);
+        let (m0, m1) = (
+            dh / self.cosmo.e(z0) * self.dz,
+            dh / self.cosmo.e(z1) * self.dz,
+        );
+        let (f2, f3) = (f * f, f * f * f);
+        self.dc[k] * (2.0 * f3 - 3.0 * f2 + 1.0)
+            + m0 * (f3 - 2.0 * f2 + f)
+            + self.dc[k + 1] * (-2.0 * f3 + 3.0 * f2)
+            + m1 * (f3 - f2)
+    }
+
+    /// Transverse comoving distance D_M (Mpc).
+    pub fn transverse_distance_mpc(&self, z: f64) -> f64 {
+        self.cosmo
+            .transverse_from_comoving(self.comoving_distance_mpc(z))
+    }
+
+    /// Angular-diameter distance (Mpc).
+    pub fn angular_distance_mpc(&self, z: f64) -> f64 {
+        self.transverse_distance_mpc(z) / (1.0 + z)
+    }
+
+    /// Distance modulus.
+    pub fn distance_modulus(&self, z: f64) -> f64 {
+        5.0 * (self.transverse_distance_mpc(z) * (1.0 + z) * 1e5).log10()
     }
 }
 
@@ -167,6 +236,22 @@ mod tests {
         let v = 4.0 * std::f64::consts::PI * s * h / 3.0;
         let want = 4.0 / 3.0 * std::f64::consts::PI * c.transverse_distance_mpc(z).powi(3);
         assert!((v / want - 1.0).abs() < 1e-8, "{v} vs {want}");
+    }
+
+    #[test]
+    fn distance_table_matches_the_integral() {
+        let c = flat();
+        let t = DistanceTable::new(c, 5.0, 4096);
+        let mut worst = 0.0f64;
+        for i in 1..=500 {
+            let z = 0.01 * i as f64;
+            let r = t.angular_distance_mpc(z) / c.angular_distance_mpc(z) - 1.0;
+            worst = worst.max(r.abs());
+            assert!((t.distance_modulus(z) - c.distance_modulus(z)).abs() < 1e-8);
+        }
+        assert!(worst < 1e-9, "{worst:e}");
+        // Beyond the table it falls back to the integral.
+        assert_eq!(t.comoving_distance_mpc(6.0), c.comoving_distance_mpc(6.0));
     }
 
     #[test]

@@ -35,7 +35,7 @@ use stuff::StuffModel;
 
 /// Most objects one base field may hold (a guard against configs that
 /// would exhaust memory, e.g. `mag_faint` = 40).
-pub const MAX_OBJECTS_PER_FIELD: f64 = 5e6;
+pub const MAX_OBJECTS_PER_FIELD: f64 = 2e6;
 
 /// An error while making a base field.
 #[derive(Debug, thiserror::Error)]
@@ -44,7 +44,9 @@ pub enum PopulationError {
     #[error(transparent)]
     List(#[from] ListError),
     /// The config asks for more objects than a field may hold.
-    #[error("{what}: {expected:.0} objects expected in one field (limit {MAX_OBJECTS_PER_FIELD:e}); lower `{key}`")]
+    #[error(
+        "{what}: {expected:.0} objects expected in one field (limit {MAX_OBJECTS_PER_FIELD:e}); lower `{key}`"
+    )]
     TooMany {
         /// Galaxies or stars.
         what: &'static str,
@@ -105,10 +107,7 @@ pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationEr
 pub fn list_path(plan: &Plan, pattern: &str, field: u32) -> PathBuf {
     let p = PathBuf::from(pattern.replace("{field}", &field.to_string()));
     if p.is_relative() {
-        plan.source
-            .parent()
-            .map(|d| d.join(&p))
-            .unwrap_or(p)
+        plan.source.parent().map(|d| d.join(&p)).unwrap_or(p)
     } else {
         p
     }
@@ -134,13 +133,17 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
     let sz = &g.sizes;
     let h = model.cosmo.h();
     let mut rows = Vec::with_capacity(n);
-    for k in 0..n {
+    for _ in 0..n {
         let x = xr.0 + (xr.1 - xr.0) * rng.random::<f64>();
         let y = yr.0 + (yr.1 - yr.0) * rng.random::<f64>();
         let lum = model.draw(&mut rng);
         let shape = law.draw(&mut rng);
         let n_disk: f64 = rng.sample(StandardNormal);
         let t = &model.types[lum.code as usize];
+        let (mag, bt) = t.observe(lum.mag, shape.incl, lum.z);
+        if !(g.mag_bright..=g.mag_faint).contains(&mag) {
+            continue;
+        }
         let dm = t.dm_star(lum.z);
         let zf = 1.0 + lum.z;
         let bulge_re = if t.bt > 0.0 {
@@ -169,17 +172,17 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
         };
         let (ra, dec) = wcs.pixel_to_sky(x, y);
         let mut r = TruthRow {
-            id: k as i64 + 1,
+            id: rows.len() as i64 + 1,
             kind: KIND_GALAXY,
             hubble_type: lum.code,
             x,
             y,
             ra_deg: ra,
             dec_deg: dec,
-            mag: lum.mag,
-            flux_e: ins.mag_to_electrons(lum.mag),
+            mag,
+            flux_e: ins.mag_to_electrons(mag),
             z: lum.z,
-            bt: t.bt,
+            bt,
             bulge_re_arcsec: bulge_re,
             bulge_flat_q: shape.q,
             incl_deg: shape.incl.to_degrees(),

@@ -141,7 +141,12 @@ pub fn flattening_from_axis_ratio(bulge_ba: f64, incl: f64) -> Option<f64> {
     if s < 1e-6 {
         return None;
     }
-    Some(((bulge_ba * bulge_ba - c * c) / (s * s)).max(0.0).sqrt().min(1.0))
+    Some(
+        ((bulge_ba * bulge_ba - c * c) / (s * s))
+            .max(0.0)
+            .sqrt()
+            .min(1.0),
+    )
 }
 
 #[cfg(test)]

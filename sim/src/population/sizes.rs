@@ -110,7 +110,8 @@ pub fn bulge_re_kpc(m_abs: f64, m_knee: f64, re_knee_kpc: f64) -> f64 {
 /// deviate, h* = `re_star_kpc` / 1.67835.
 pub fn disk_h_kpc(dm_star: f64, re_star_kpc: f64, beta: f64, sigma_ln: f64, n: f64) -> f64 {
     // (L/L*)^(−β) = 10^(0.4 β (M − M*)).
-    re_star_kpc / EXP_HALF_LIGHT_OVER_H * (0.4 * std::f64::consts::LN_10 * beta * dm_star + sigma_ln * n).exp()
+    re_star_kpc / EXP_HALF_LIGHT_OVER_H
+        * (0.4 * std::f64::consts::LN_10 * beta * dm_star + sigma_ln * n).exp()
 }
 
 /// Angular size in arcsec of a physical size in kpc at angular-diameter

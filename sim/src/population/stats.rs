@@ -140,10 +140,7 @@ mod tests {
         let xs: Vec<f64> = (0..20_000).map(|_| rng.random::<f64>()).collect();
         let p = ks_p_value(ks_statistic(&xs, |x| x.clamp(0.0, 1.0)), xs.len());
         assert!(p > 0.01, "p = {p}");
-        let p = ks_p_value(
-            ks_statistic(&xs, |x| x.clamp(0.0, 1.0).powf(1.2)),
-            xs.len(),
-        );
+        let p = ks_p_value(ks_statistic(&xs, |x| x.clamp(0.0, 1.0).powf(1.2)), xs.len());
         assert!(p < 1e-6, "p = {p}");
     }
 }

@@ -15,20 +15,32 @@
 //! Absolute magnitudes of the config are M − 5 log10 h and densities
 //! h³ Mpc⁻³ (Stuff's conventions); they are converted with the config's h.
 //!
+//! Internal extinction of disks (Stuff's approach, simplified): the disk
+//! of a type with de Vaucouleurs coefficient α is dimmed by
+//! A(i, λ) = α log10(sec i) · (λ_B/λ) at rest wavelength λ (a λ⁻¹ law, an
+//! analytic stand-in for an LMC-like extinction curve). The luminosity
+//! functions describe galaxies at the average inclination, so each type's
+//! M* is brightened to face-on by Δ = −2.5 log10(B/T + (1 − B/T)
+//! ⟨10^(−0.4 A(i, λ_B))⟩), the average taken over the inclination law.
+//! Extinction only dims, so the table is built for face-on magnitudes in
+//! [mag_bright − A_max, mag_faint]; each drawn galaxy gets its inclination,
+//! is dimmed, and is kept only if it lands in [mag_bright, mag_faint]
+//! (thinning a Poisson process keeps it Poisson).
+//!
 //! Drawing: the expected counts are tabulated on a fine z grid
 //! (dz ≤ 0.005) per type; a galaxy picks (type, z-cell) from the cumulative
 //! table, z uniform in the cell, then M from φ_t restricted to the M range
 //! that gives mag_bright ≤ I ≤ mag_faint at that z, by rejection under the
 //! exact maximum of φ_t on the range.
 
-use super::cosmology::Lcdm;
-use crate::config::{GalaxyType, RawGalaxies};
+use super::cosmology::{DistanceTable, Lcdm};
+use crate::config::{GalaxyType, InclinationLaw, RawGalaxies};
 use crate::seed::SimRng;
 use rand::RngExt;
 
 /// One arcmin² in steradians.
-pub const ARCMIN2_SR: f64 = (std::f64::consts::PI / (180.0 * 60.0))
-    * (std::f64::consts::PI / (180.0 * 60.0));
+pub const ARCMIN2_SR: f64 =
+    (std::f64::consts::PI / (180.0 * 60.0)) * (std::f64::consts::PI / (180.0 * 60.0));
 
 /// Effective wavelength of B (µm).
 pub const LAMBDA_B_UM: f64 = 0.44;
@@ -102,10 +114,14 @@ pub struct TypeModel {
     pub m_evol: f64,
     /// SED for the K-correction.
     pub sed: Sed,
+    /// Disk extinction coefficient α (A_B = α log10 sec i).
+    pub extinction: f64,
+    /// Face-on brightening Δ applied to M* (magnitudes, ≥ 0).
+    pub face_on_shift: f64,
 }
 
 impl TypeModel {
-    /// From the config entry, with h = H0/100.
+    /// From the config entry, with h = H0/100, without extinction.
     pub fn new(code: i32, t: &GalaxyType, h: f64) -> Self {
         Self {
             code,
@@ -116,7 +132,49 @@ impl TypeModel {
             phi_evol: t.phi_star_evol,
             m_evol: t.m_star_evol,
             sed: Sed::new(t.b_minus_i, t.uv_slope),
+            extinction: 0.0,
+            face_on_shift: 0.0,
         }
+    }
+
+    /// From the config entry with disk extinction: M* brightened to
+    /// face-on by the mean over the inclination law.
+    pub fn with_extinction(
+        code: i32,
+        t: &GalaxyType,
+        h: f64,
+        law: InclinationLaw,
+        max_incl: f64,
+    ) -> Self {
+        let mut m = Self::new(code, t, h);
+        m.extinction = t.disk_extinction;
+        let mean = mean_over_inclination(law, max_incl, |i| {
+            10f64.powf(-0.4 * m.disk_extinction(i, LAMBDA_B_UM))
+        });
+        m.face_on_shift = -2.5 * (t.bt + (1.0 - t.bt) * mean).log10();
+        m.m_star -= m.face_on_shift;
+        m
+    }
+
+    /// Disk extinction (mag) at inclination `incl` (radians) and rest
+    /// wavelength `lambda_um`: α log10(sec i) λ_B/λ, with i capped at 89°.
+    pub fn disk_extinction(&self, incl: f64, lambda_um: f64) -> f64 {
+        let c = incl.cos().max(89f64.to_radians().cos());
+        self.extinction * (-c.log10()) * LAMBDA_B_UM / lambda_um
+    }
+
+    /// Observed I magnitude and B/T of a galaxy whose face-on total I
+    /// magnitude is `mag_face_on`, at inclination `incl` and redshift `z`:
+    /// only the disk is dimmed.
+    pub fn observe(&self, mag_face_on: f64, incl: f64, z: f64) -> (f64, f64) {
+        let a = self.disk_extinction(incl, LAMBDA_I_UM / (1.0 + z));
+        let fb = self.bt;
+        let fd = (1.0 - self.bt) * 10f64.powf(-0.4 * a);
+        let tot = fb + fd;
+        (
+            mag_face_on - 2.5 * tot.log10(),
+            if tot > 0.0 { fb / tot } else { 0.0 },
+        )
     }
 
     /// Luminosity evolution of M* at z (magnitudes).
@@ -165,10 +223,14 @@ pub struct StuffModel {
     pub types: Vec<TypeModel>,
     /// Cosmology.
     pub cosmo: Lcdm,
+    /// Tabulated distances for the draws.
+    pub distances: DistanceTable,
     /// Absolute-magnitude bounds of the LFs (real units).
     pub abs_limits: (f64, f64),
-    /// Apparent I range.
+    /// Face-on apparent I range of the table.
     pub mag_range: (f64, f64),
+    /// Observed apparent I range.
+    pub observed_range: (f64, f64),
     /// Redshift cell width.
     pub dz: f64,
     /// Number of z cells.
@@ -186,22 +248,32 @@ pub struct Luminous {
     pub z: f64,
     /// Absolute B_J magnitude (Vega, real units).
     pub m_abs: f64,
-    /// Apparent I (Vega).
+    /// Face-on apparent I (Vega).
     pub mag: f64,
     /// Angular-diameter distance (Mpc).
     pub d_a_mpc: f64,
 }
 
 impl StuffModel {
-    /// Tabulates the model for apparent I in [`mag_bright`, `mag_faint`].
+    /// Tabulates the model for observed I in [`mag_bright`, `mag_faint`]:
+    /// face-on magnitudes in [`mag_bright` − A_max, `mag_faint`].
     pub fn new(g: &RawGalaxies, cosmo: Lcdm, mag_bright: f64, mag_faint: f64) -> Self {
         let h = cosmo.h();
+        let max_incl = g.max_inclination_deg.to_radians();
         let types: Vec<TypeModel> = g
             .types
             .iter()
             .enumerate()
-            .map(|(i, t)| TypeModel::new(i as i32, t, h))
+            .map(|(i, t)| {
+                let mut m = TypeModel::with_extinction(i as i32, t, h, g.inclination, max_incl);
+                m.phi_star *= g.phi_star_scale;
+                m
+            })
             .collect();
+        let a_max = types
+            .iter()
+            .map(|t| t.disk_extinction(max_incl, LAMBDA_I_UM / (1.0 + g.z_max)))
+            .fold(0.0, f64::max);
         let dh = 5.0 * h.log10();
         let abs_limits = (g.abs_mag_limits[0] + dh, g.abs_mag_limits[1] + dh);
         let nz = (g.z_max / 0.005).ceil().max(1.0) as usize;
@@ -209,8 +281,10 @@ impl StuffModel {
         let mut m = Self {
             types,
             cosmo,
+            distances: DistanceTable::new(cosmo, g.z_max, 4096),
             abs_limits,
-            mag_range: (mag_bright, mag_faint),
+            mag_range: (mag_bright - a_max, mag_faint),
+            observed_range: (mag_bright, mag_faint),
             dz,
             nz,
             cumulative: Vec::new(),
@@ -244,7 +318,8 @@ impl StuffModel {
         (m1, m2)
     }
 
-    /// Expected galaxies per arcmin² in the apparent range.
+    /// Expected galaxies per arcmin² in the face-on range of the table
+    /// (an upper bound of the observed density; drawn galaxies are thinned).
     pub fn density_per_arcmin2(&self) -> f64 {
         self.cumulative.last().copied().unwrap_or(0.0)
     }
@@ -272,7 +347,7 @@ impl StuffModel {
         let t = &self.types[ti];
         let z = (zi as f64 + rng.random::<f64>()) * self.dz;
         let z = z.max(1e-6);
-        let dmod = self.cosmo.distance_modulus(z);
+        let dmod = self.distances.distance_modulus(z);
         let (m1, m2) = self.abs_range(t, z, dmod);
         let m_abs = if m2 > m1 {
             let fmax = self.phi_max(t, m1, m2, z);
@@ -293,13 +368,31 @@ impl StuffModel {
             z,
             m_abs,
             mag,
-            d_a_mpc: self.cosmo.angular_distance_mpc(z),
+            d_a_mpc: self.distances.angular_distance_mpc(z),
         }
     }
 
     fn phi_max(&self, t: &TypeModel, m1: f64, m2: f64, z: f64) -> f64 {
         t.phi_max(m1, m2, z)
     }
+}
+
+/// Average of `f(i)` over the inclination law on [0, `max_incl`]
+/// (midpoint rule, 2000 cells).
+pub fn mean_over_inclination(law: InclinationLaw, max_incl: f64, f: impl Fn(f64) -> f64) -> f64 {
+    let n = 2000;
+    let h = max_incl / n as f64;
+    let (mut s, mut w) = (0.0, 0.0);
+    for k in 0..n {
+        let i = (k as f64 + 0.5) * h;
+        let wt = match law {
+            InclinationLaw::Flat => 1.0,
+            InclinationLaw::Isotropic => i.sin(),
+        };
+        s += wt * f(i);
+        w += wt;
+    }
+    if w > 0.0 { s / w } else { f(0.0) }
 }
 
 #[cfg(test)]
@@ -331,7 +424,10 @@ mod tests {
             let mut t = TypeModel::new(0, &g.types[0], 1.0);
             t.alpha = alpha;
             let i = t.phi_integral(t.m_star - 8.0, t.m_star + 40.0, 0.0);
-            assert!((i / (t.phi_star * gamma) - 1.0).abs() < 1e-4, "{alpha}: {i}");
+            assert!(
+                (i / (t.phi_star * gamma) - 1.0).abs() < 1e-4,
+                "{alpha}: {i}"
+            );
         }
     }
 
@@ -342,7 +438,9 @@ mod tests {
         let mut rng = crate::seed::SeedKey::base(5, 0, crate::seed::Stream::Test).rng();
         for _ in 0..2000 {
             let l = m.draw(&mut rng);
-            assert!((20.0..=24.0).contains(&l.mag) && l.z > 0.0 && l.z <= g.z_max);
+            let (lo, hi) = m.mag_range;
+            assert!(hi == 24.0 && lo < 20.0);
+            assert!((lo..=hi).contains(&l.mag) && l.z > 0.0 && l.z <= g.z_max);
         }
         for t in &m.types {
             for z in [0.1, 1.0, 3.0] {
