@@ -20,12 +20,15 @@ struct Cli {
 enum Command {
     /// Validate a config and print it fully resolved (defaults, overrides).
     Config(cmd::config::Args),
+    /// Write the base fields (truth tables and SkyMaker lists), no images.
+    Catalog(cmd::catalog::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
+        Command::Catalog(args) => cmd::catalog::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

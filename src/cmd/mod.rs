@@ -1,5 +1,6 @@
 //! One module per subcommand; each has `Args` (clap) and `run`.
 
+pub mod catalog;
 pub mod config;
 
 use std::path::PathBuf;

@@ -103,6 +103,51 @@ pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationEr
     Ok(rows)
 }
 
+/// Checks, without drawing anything, that [`base_field`] will succeed for
+/// every field of the plan: the expected object counts are within
+/// [`MAX_OBJECTS_PER_FIELD`], and with a SkyMaker source every list file
+/// exists and parses. Commands call this before writing anything.
+pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
+    match &plan.raw.population.source {
+        Source::Stuff => {
+            let (area, _, _) = placement_area(plan);
+            let expected = model(plan).density_per_arcmin2() * area;
+            if expected > MAX_OBJECTS_PER_FIELD {
+                return Err(PopulationError::TooMany {
+                    what: "galaxies",
+                    expected,
+                    key: "population.galaxies.mag_faint",
+                });
+            }
+            let expected = plan.raw.population.stars.density_per_arcmin2 * area;
+            if expected > MAX_OBJECTS_PER_FIELD {
+                return Err(PopulationError::TooMany {
+                    what: "stars",
+                    expected,
+                    key: "population.stars.density_per_arcmin2",
+                });
+            }
+        }
+        Source::SkymakerList { path } => {
+            for field in 0..plan.n_fields() {
+                read_list(&list_path(plan, path, field))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// de Vaucouleurs T of each Hubble type code (for SkyMaker lists).
+pub fn t_types(plan: &Plan) -> Vec<f64> {
+    plan.raw
+        .population
+        .galaxies
+        .types
+        .iter()
+        .map(|t| t.t_type)
+        .collect()
+}
+
 /// The list file of field `field` for the path pattern `pattern`.
 pub fn list_path(plan: &Plan, pattern: &str, field: u32) -> PathBuf {
     let p = PathBuf::from(pattern.replace("{field}", &field.to_string()));
