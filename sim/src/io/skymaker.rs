@@ -125,8 +125,9 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             }
             vals.push(v);
         }
-        match vals[0] {
-            c if c == 100.0 => {
+        let code = vals[0];
+        match () {
+            () if code == 100.0 => {
                 if vals.len() != 4 {
                     return Err(err(
                         "code",
@@ -142,7 +143,7 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
                     mag: vals[3],
                 });
             }
-            c if c == 200.0 => {
+            () if code == 200.0 => {
                 if !(11..=13).contains(&vals.len()) {
                     return Err(err(
                         "code",
@@ -208,7 +209,7 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
                     t_type: vals.get(12).copied(),
                 });
             }
-            _ => {
+            () => {
                 return Err(err(
                     "code",
                     format!(
