@@ -408,3 +408,41 @@ impl RawPopulation {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_bad_values_name_their_key() {
+        assert!(RawPopulation::default().validate().is_ok());
+        let mut p = RawPopulation::default();
+        p.galaxies.flattening = Flattening {
+            mean: 5.0,
+            sigma: 0.1,
+            min: 0.3,
+            max: 1.0,
+        };
+        let (k, m) = p.validate().unwrap_err();
+        assert_eq!(k, "population.galaxies.flattening");
+        assert!(m.contains("fraction"), "{m}");
+        let mut p = RawPopulation::default();
+        p.galaxies.types[3].bt = 1.5;
+        assert_eq!(
+            p.validate().unwrap_err().0,
+            "population.galaxies.types.3.bt"
+        );
+        let mut p = RawPopulation::default();
+        p.galaxies.types.pop();
+        assert_eq!(p.validate().unwrap_err().0, "population.galaxies.types");
+        let mut p = RawPopulation::default();
+        p.galaxies.sizes.disk_re_star_kpc_h = -1.0;
+        assert_eq!(
+            p.validate().unwrap_err().0,
+            "population.galaxies.sizes.disk_re_star_kpc_h"
+        );
+        let mut p = RawPopulation::default();
+        p.galaxies.z_max = 8.0;
+        assert_eq!(p.validate().unwrap_err().0, "population.galaxies.z_max");
+    }
+}

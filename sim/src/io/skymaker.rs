@@ -126,98 +126,94 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             vals.push(v);
         }
         let code = vals[0];
-        match () {
-            () if code == 100.0 => {
-                if vals.len() != 4 {
-                    return Err(err(
-                        "code",
-                        format!(
-                            "a star line has 4 fields (100 x y mag), found {}",
-                            vals.len()
-                        ),
-                    ));
-                }
-                out.push(ListObject::Star {
-                    x: vals[1],
-                    y: vals[2],
-                    mag: vals[3],
-                });
-            }
-            () if code == 200.0 => {
-                if !(11..=13).contains(&vals.len()) {
-                    return Err(err(
-                        "code",
-                        format!(
-                            "a galaxy line has 11 to 13 fields (200 x y mag B/T bulge_re \
-                             bulge_q bulge_pa disk_h disk_q disk_pa [z] [type]), found {}",
-                            vals.len()
-                        ),
-                    ));
-                }
-                let check = |j: usize, lo: f64, hi: f64, lo_open: bool| {
-                    let v = vals[j];
-                    let ok = if lo_open { v > lo } else { v >= lo } && v <= hi;
-                    if ok {
-                        Ok(v)
-                    } else {
-                        let open = if lo_open { "(" } else { "[" };
-                        Err(err(
-                            GALAXY_FIELDS[j],
-                            format!("{} is outside {open}{lo}, {hi}]", words[j]),
-                        ))
-                    }
-                };
-                let bt = check(4, 0.0, 1.0, false)?;
-                let bulge_re = check(5, 0.0, 3600.0, false)?;
-                let bulge_q = check(6, 0.0, 1.0, true)?;
-                let disk_h = check(8, 0.0, 3600.0, false)?;
-                let disk_q = check(9, 0.0, 1.0, true)?;
-                let z = if vals.len() > 11 {
-                    Some(check(11, 0.0, 100.0, false)?)
-                } else {
-                    None
-                };
-                if bt > 0.0 && bulge_re == 0.0 {
-                    return Err(err("bulge_re", "B/T > 0 needs bulge_re > 0".into()));
-                }
-                if bt < 1.0 && disk_h == 0.0 {
-                    return Err(err("disk_h", "B/T < 1 needs disk_h > 0".into()));
-                }
-                let (bpa, dpa) = (vals[7], vals[10]);
-                let diff = (bpa - dpa).rem_euclid(180.0);
-                let diff = diff.min(180.0 - diff);
-                if bt > 0.0 && bt < 1.0 && bulge_q < 1.0 && disk_q < 1.0 && diff > 1e-3 {
-                    return Err(err(
-                        "disk_pa",
-                        format!(
-                            "bulge_pa {bpa} and disk_pa {dpa} differ: stepsim galaxies are co-axial"
-                        ),
-                    ));
-                }
-                out.push(ListObject::Galaxy {
-                    x: vals[1],
-                    y: vals[2],
-                    mag: vals[3],
-                    bt,
-                    bulge_re_arcsec: bulge_re,
-                    bulge_ba: bulge_q,
-                    bulge_pa_deg: bpa,
-                    disk_h_arcsec: disk_h,
-                    disk_ba: disk_q,
-                    disk_pa_deg: dpa,
-                    z,
-                    t_type: vals.get(12).copied(),
-                });
-            }
-            () => {
+        if code == 100.0 {
+            if vals.len() != 4 {
                 return Err(err(
                     "code",
                     format!(
-                        "`{}` is not an object code (100 star, 200 galaxy)",
-                        words[0]
+                        "a star line has 4 fields (100 x y mag), found {}",
+                        vals.len()
                     ),
                 ));
             }
+            out.push(ListObject::Star {
+                x: vals[1],
+                y: vals[2],
+                mag: vals[3],
+            });
+        } else if code == 200.0 {
+            if !(11..=13).contains(&vals.len()) {
+                return Err(err(
+                    "code",
+                    format!(
+                        "a galaxy line has 11 to 13 fields (200 x y mag B/T bulge_re \
+                             bulge_q bulge_pa disk_h disk_q disk_pa [z] [type]), found {}",
+                        vals.len()
+                    ),
+                ));
+            }
+            let check = |j: usize, lo: f64, hi: f64, lo_open: bool| {
+                let v = vals[j];
+                let ok = if lo_open { v > lo } else { v >= lo } && v <= hi;
+                if ok {
+                    Ok(v)
+                } else {
+                    let open = if lo_open { "(" } else { "[" };
+                    Err(err(
+                        GALAXY_FIELDS[j],
+                        format!("{} is outside {open}{lo}, {hi}]", words[j]),
+                    ))
+                }
+            };
+            let bt = check(4, 0.0, 1.0, false)?;
+            let bulge_re = check(5, 0.0, 3600.0, false)?;
+            let bulge_q = check(6, 0.0, 1.0, true)?;
+            let disk_h = check(8, 0.0, 3600.0, false)?;
+            let disk_q = check(9, 0.0, 1.0, true)?;
+            let z = if vals.len() > 11 {
+                Some(check(11, 0.0, 100.0, false)?)
+            } else {
+                None
+            };
+            if bt > 0.0 && bulge_re == 0.0 {
+                return Err(err("bulge_re", "B/T > 0 needs bulge_re > 0".into()));
+            }
+            if bt < 1.0 && disk_h == 0.0 {
+                return Err(err("disk_h", "B/T < 1 needs disk_h > 0".into()));
+            }
+            let (bpa, dpa) = (vals[7], vals[10]);
+            let diff = (bpa - dpa).rem_euclid(180.0);
+            let diff = diff.min(180.0 - diff);
+            if bt > 0.0 && bt < 1.0 && bulge_q < 1.0 && disk_q < 1.0 && diff > 1e-3 {
+                return Err(err(
+                    "disk_pa",
+                    format!(
+                        "bulge_pa {bpa} and disk_pa {dpa} differ: stepsim galaxies are co-axial"
+                    ),
+                ));
+            }
+            out.push(ListObject::Galaxy {
+                x: vals[1],
+                y: vals[2],
+                mag: vals[3],
+                bt,
+                bulge_re_arcsec: bulge_re,
+                bulge_ba: bulge_q,
+                bulge_pa_deg: bpa,
+                disk_h_arcsec: disk_h,
+                disk_ba: disk_q,
+                disk_pa_deg: dpa,
+                z,
+                t_type: vals.get(12).copied(),
+            });
+        } else {
+            return Err(err(
+                "code",
+                format!(
+                    "`{}` is not an object code (100 star, 200 galaxy)",
+                    words[0]
+                ),
+            ));
         }
     }
     Ok(out)

@@ -436,6 +436,14 @@ pub fn fill_ellipticities(r: &mut TruthRow) {
 /// of each component by eq. 8 and of the whole galaxy from its sheared
 /// moment tensor; `g1`, `g2` set. Positions, fluxes, sizes and `pa_deg`
 /// (intrinsic) are unchanged (κ = 0); stars change only in g1, g2.
+///
+/// Whole galaxy: Q = B/T·Q_b + (1 − B/T)·Q_d with Q_c = R(θ) diag(σ_c²,
+/// β_c² σ_c²) R(θ)ᵀ and the exact moments of the untruncated profiles along
+/// the major axis: de Vaucouleurs σ_b² = ⟨r²⟩/2 = Γ(16)/(2 Γ(8) b₄⁸) r_e²
+/// = 10.840 r_e² (b₄ = 7.669249, the root of γ(8, b) = Γ(8)/2), exponential
+/// σ_d² = Γ(4)/(2 Γ(2)) h² = 3 h² (Sérsic moments, Graham & Driver 2005,
+/// PASA 22, 118). The sheared tensor is Q' = A⁻¹ Q A⁻ᵀ; e1, e2 are the
+/// eq.-1 ellipticity of Q' and obey eq. 8 exactly.
 pub fn sheared(rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
     rows.iter()
         .map(|r| {
