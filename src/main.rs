@@ -30,6 +30,8 @@ enum Command {
     Score(cmd::score::Args),
     /// Rank several score reports in one table.
     Leaderboard(cmd::leaderboard::Args),
+    /// Write the base fields (truth tables and SkyMaker lists), no images.
+    Catalog(cmd::catalog::Args),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +43,7 @@ fn main() -> ExitCode {
         Command::Measure(args) => cmd::measure::run(&args),
         Command::Score(args) => cmd::score::run(&args),
         Command::Leaderboard(args) => cmd::leaderboard::run(&args),
+        Command::Catalog(args) => cmd::catalog::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

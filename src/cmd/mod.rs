@@ -1,6 +1,7 @@
 //! One module per subcommand; each has `Args` (clap) and `run`.
 
 pub mod bench;
+pub mod catalog;
 pub mod config;
 pub mod generate;
 pub mod measure;

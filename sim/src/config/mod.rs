@@ -19,7 +19,8 @@ mod render;
 
 pub use image::{RawImage, RawInstrument, RawTelescope};
 pub use population::{
-    Cosmology, Flattening, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Source,
+    Cosmology, Flattening, GalaxyType, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Sizes,
+    Source,
 };
 pub use psf::{Aberration, RawPsf, RawPsfModel};
 pub use render::{Compression, RawOutput, RawRender, SampleFormat};

@@ -1,0 +1,95 @@
+//! Stars (SPEC §2; paper section "STEP Simulation Data"): point sources
+//! whose differential counts obey d log10 N / dm = s (0.3) between a bright
+//! and a faint limit (17, 25), normalised to a density per arcmin² over that
+//! range (10).
+//!
+//! With N(<m) ∝ 10^(s m), the magnitude of a star is drawn by inverting the
+//! cumulative counts: m = log10(10^(s m_b) + u (10^(s m_f) − 10^(s m_b))) / s
+//! (uniform in m when s = 0).
+
+use crate::config::RawStars;
+use crate::seed::SimRng;
+use rand::RngExt;
+
+/// Draws one star magnitude.
+pub fn draw_mag(stars: &RawStars, rng: &mut SimRng) -> f64 {
+    let u: f64 = rng.random();
+    mag_quantile(stars, u)
+}
+
+/// The magnitude with a fraction `u` of the stars brighter than it.
+pub fn mag_quantile(stars: &RawStars, u: f64) -> f64 {
+    let (mb, mf, s) = (stars.mag_bright, stars.mag_faint, stars.slope);
+    if s.abs() < 1e-12 || mf <= mb {
+        return mb + u * (mf - mb);
+    }
+    // Work relative to the bright limit to avoid overflow: 10^(s (m − m_b)).
+    let span = 10f64.powf(s * (mf - mb)) - 1.0;
+    let m = mb + (1.0 + u * span).log10() / s;
+    m.clamp(mb, mf)
+}
+
+/// Fraction of the stars brighter than `m` (the CDF of [`draw_mag`]).
+pub fn mag_cdf(stars: &RawStars, m: f64) -> f64 {
+    let (mb, mf, s) = (stars.mag_bright, stars.mag_faint, stars.slope);
+    let m = m.clamp(mb, mf);
+    if s.abs() < 1e-12 || mf <= mb {
+        return if mf > mb { (m - mb) / (mf - mb) } else { 1.0 };
+    }
+    (10f64.powf(s * (m - mb)) - 1.0) / (10f64.powf(s * (mf - mb)) - 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::population::stats::{ks_p_value, ks_statistic};
+    use crate::seed::{SeedKey, Stream};
+
+    /// Least-squares slope of log10 of the counts in 0.5-mag bins.
+    pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
+        let nb = ((hi - lo) / 0.5).round() as usize;
+        let mut counts = vec![0usize; nb];
+        for &m in mags {
+            if m >= lo && m < hi {
+                counts[((m - lo) / 0.5) as usize] += 1;
+            }
+        }
+        let pts: Vec<(f64, f64)> = counts
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| (lo + (i as f64 + 0.5) * 0.5, (c.max(1) as f64).log10()))
+            .collect();
+        let n = pts.len() as f64;
+        let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
+        let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        sxy / sxx
+    }
+
+    #[test]
+    fn star_counts_have_slope_0_3() {
+        let stars = RawStars::default();
+        let mut rng = SeedKey::base(21, 0, Stream::Test).rng();
+        let mags: Vec<f64> = (0..100_000).map(|_| draw_mag(&stars, &mut rng)).collect();
+        assert!(mags.iter().all(|&m| (17.0..=25.0).contains(&m)));
+        let slope = count_slope(&mags, 17.0, 25.0);
+        assert!((slope - 0.3).abs() < 0.02, "slope {slope}");
+        let d = ks_statistic(&mags, |m| mag_cdf(&stars, m));
+        assert!(ks_p_value(d, mags.len()) > 1e-3, "D = {d}");
+        // Quantile and CDF are inverse.
+        for u in [0.0, 0.1, 0.5, 0.93, 1.0] {
+            assert!((mag_cdf(&stars, mag_quantile(&stars, u)) - u).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn flat_counts_when_slope_is_zero() {
+        let stars = RawStars {
+            slope: 0.0,
+            ..RawStars::default()
+        };
+        assert!((mag_quantile(&stars, 0.5) - 21.0).abs() < 1e-12);
+        assert!((mag_cdf(&stars, 19.0) - 0.25).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,146 @@
+//! Small statistics used to draw and to validate the population: the normal
+//! CDF and the one-sample Kolmogorov–Smirnov test.
+
+/// Complementary error function, fractional error < 1.2e-7 everywhere
+/// (the Chebyshev fit of Press et al., *Numerical Recipes*, 2nd ed., §6.2).
+pub fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let poly = -z * z - 1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    let r = t * poly.exp();
+    if x >= 0.0 { r } else { 2.0 - r }
+}
+
+/// Standard normal CDF Φ(x) = erfc(−x/√2)/2.
+pub fn normal_cdf(x: f64) -> f64 {
+    0.5 * erfc(-x / std::f64::consts::SQRT_2)
+}
+
+/// Slow reference for [`normal_cdf`]: composite Simpson integration of the
+/// density from −10 to `x` with 20 000 intervals.
+pub fn normal_cdf_by_integration(x: f64) -> f64 {
+    let lo = -10.0f64;
+    if x <= lo {
+        return 0.0;
+    }
+    let n = 20_000;
+    let h = (x - lo) / n as f64;
+    let pdf = |t: f64| (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let mut s = pdf(lo) + pdf(x);
+    for i in 1..n {
+        let w = if i % 2 == 1 { 4.0 } else { 2.0 };
+        s += w * pdf(lo + i as f64 * h);
+    }
+    s * h / 3.0
+}
+
+/// One-sample Kolmogorov–Smirnov statistic D = sup |F_n(x) − F(x)| of
+/// `samples` (any order; sorted internally) against the CDF `cdf`.
+pub fn ks_statistic(samples: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
+    let mut xs = samples.to_vec();
+    xs.sort_by(f64::total_cmp);
+    let n = xs.len() as f64;
+    let mut d = 0.0f64;
+    for (i, &x) in xs.iter().enumerate() {
+        let f = cdf(x);
+        d = d.max(f - i as f64 / n).max((i + 1) as f64 / n - f);
+    }
+    d
+}
+
+/// Slow reference for [`ks_statistic`]: at every sample point counts the
+/// samples ≤ x and < x directly (O(n²)).
+pub fn ks_statistic_brute_force(samples: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
+    let n = samples.len() as f64;
+    samples
+        .iter()
+        .map(|&x| {
+            let le = samples.iter().filter(|&&y| y <= x).count() as f64 / n;
+            let lt = samples.iter().filter(|&&y| y < x).count() as f64 / n;
+            (le - cdf(x)).abs().max((cdf(x) - lt).abs())
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Asymptotic p-value of a KS statistic `d` from `n` samples:
+/// Q_KS(λ) = 2 Σ_{k≥1} (−1)^{k−1} exp(−2k²λ²) with
+/// λ = (√n + 0.12 + 0.11/√n) d (Stephens 1970; *Numerical Recipes* §14.3).
+pub fn ks_p_value(d: f64, n: usize) -> f64 {
+    let sn = (n as f64).sqrt();
+    let lambda = (sn + 0.12 + 0.11 / sn) * d;
+    kolmogorov_q(lambda)
+}
+
+/// The Kolmogorov survival function Q_KS(λ).
+pub fn kolmogorov_q(lambda: f64) -> f64 {
+    if lambda < 0.2 {
+        return 1.0;
+    }
+    let mut sum = 0.0;
+    let mut sign = 1.0;
+    for k in 1..=100 {
+        let term = (-2.0 * (k * k) as f64 * lambda * lambda).exp();
+        sum += sign * term;
+        if term < 1e-16 {
+            break;
+        }
+        sign = -sign;
+    }
+    (2.0 * sum).clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::seed::{SeedKey, Stream};
+    use rand::RngExt;
+
+    #[test]
+    fn normal_cdf_matches_integration_and_known_values() {
+        for i in -60..=60 {
+            let x = i as f64 * 0.1;
+            let (fast, slow) = (normal_cdf(x), normal_cdf_by_integration(x));
+            assert!((fast - slow).abs() < 2e-7, "x={x}: {fast} vs {slow}");
+        }
+        assert!((normal_cdf(1.959_963_985) - 0.975).abs() < 1e-7);
+        assert!((normal_cdf(0.0) - 0.5).abs() < 1e-7);
+    }
+
+    #[test]
+    fn ks_statistic_matches_brute_force() {
+        let mut rng = SeedKey::base(3, 0, Stream::Test).rng();
+        let xs: Vec<f64> = (0..500).map(|_| rng.random::<f64>().powi(2)).collect();
+        let cdf = |x: f64| x.clamp(0.0, 1.0);
+        let (a, b) = (ks_statistic(&xs, cdf), ks_statistic_brute_force(&xs, cdf));
+        assert!((a - b).abs() < 1e-15, "{a} {b}");
+        // x² of a uniform is far from uniform: D is large.
+        assert!(a > 0.2);
+    }
+
+    #[test]
+    fn kolmogorov_critical_values() {
+        // Classical asymptotic critical values of λ: 1.224 (10 %),
+        // 1.358 (5 %), 1.628 (1 %).
+        assert!((kolmogorov_q(1.224) - 0.10).abs() < 1e-3);
+        assert!((kolmogorov_q(1.358) - 0.05).abs() < 1e-3);
+        assert!((kolmogorov_q(1.628) - 0.01).abs() < 1e-3);
+        assert_eq!(kolmogorov_q(0.0), 1.0);
+    }
+
+    #[test]
+    fn ks_accepts_the_true_law_and_rejects_a_wrong_one() {
+        let mut rng = SeedKey::base(4, 0, Stream::Test).rng();
+        let xs: Vec<f64> = (0..20_000).map(|_| rng.random::<f64>()).collect();
+        let p = ks_p_value(ks_statistic(&xs, |x| x.clamp(0.0, 1.0)), xs.len());
+        assert!(p > 0.01, "p = {p}");
+        let p = ks_p_value(ks_statistic(&xs, |x| x.clamp(0.0, 1.0).powf(1.2)), xs.len());
+        assert!(p < 1e-6, "p = {p}");
+    }
+}

@@ -1,0 +1,441 @@
+//! Validation of the population against the STEP1/SPEC §2 claims.
+
+use super::*;
+use crate::config::RawConfig;
+use crate::population::stars::mag_cdf;
+use crate::population::stats::{ks_p_value, ks_statistic};
+use std::path::Path;
+
+fn plan_with(overrides: &[&str]) -> Plan {
+    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
+    Plan::new(raw, Path::new("t.json")).unwrap()
+}
+
+/// A wide field (8192² pixels of 0.206″ plus margin, ≈ 800 arcmin²) down to
+/// I = 24.5: about 30 000 galaxies, the sample for the statistical tests.
+fn wide_plan() -> Plan {
+    plan_with(&[
+        "image.width_px=8192",
+        "image.height_px=8192",
+        "population.galaxies.mag_faint=24.5",
+    ])
+}
+
+fn galaxies_of(rows: &[TruthRow]) -> Vec<TruthRow> {
+    rows.iter().filter(|r| !r.is_star()).copied().collect()
+}
+
+/// Least-squares slope of log10 counts in 0.5-mag bins over [lo, hi).
+fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
+    let nb = ((hi - lo) / 0.5).round() as usize;
+    let mut counts = vec![0usize; nb];
+    for &m in mags {
+        if m >= lo && m < hi {
+            counts[((m - lo) / 0.5) as usize] += 1;
+        }
+    }
+    let pts: Vec<(f64, f64)> = counts
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| (lo + (i as f64 + 0.5) * 0.5, (c.max(1) as f64).log10()))
+        .collect();
+    let n = pts.len() as f64;
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    sxy / sxx
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+#[test]
+fn galaxy_counts_match_the_deep_field_counts() {
+    let plan = wide_plan();
+    let (area, _, _) = placement_area(&plan);
+    let gals = galaxies_of(&base_field(&plan, 0).unwrap());
+    let mags: Vec<f64> = gals.iter().map(|r| r.mag).collect();
+    let slope = count_slope(&mags, 20.0, 24.0);
+    assert!((0.30..=0.36).contains(&slope), "slope {slope}");
+    let n = mags.iter().filter(|&&m| m < 23.55).count() as f64 / area;
+    assert!(
+        (20.0..=40.0).contains(&n),
+        "{n} galaxies/arcmin² with I < 23.55"
+    );
+    assert!(mags.iter().all(|&m| (17.0..=24.5).contains(&m)));
+    // Every type is present and late types dominate the faint counts.
+    for t in 0..6 {
+        assert!(gals.iter().any(|r| r.hubble_type == t), "type {t}");
+    }
+    let faint_irr = gals
+        .iter()
+        .filter(|r| r.mag > 23.5 && r.hubble_type == 5)
+        .count();
+    let faint = gals.iter().filter(|r| r.mag > 23.5).count();
+    assert!(faint_irr * 3 > faint, "{faint_irr} of {faint}");
+}
+
+#[test]
+fn sizes_decrease_with_magnitude() {
+    let gals = galaxies_of(&base_field(&wide_plan(), 1).unwrap());
+    let mut last = (f64::INFINITY, f64::INFINITY);
+    for lo in [19.0, 20.0, 21.0, 22.0, 23.0, 24.0] {
+        let bin: Vec<&TruthRow> = gals
+            .iter()
+            .filter(|r| r.mag >= lo && r.mag < lo + 0.5)
+            .collect();
+        let disk = median(
+            bin.iter()
+                .filter(|r| r.bt < 1.0)
+                .map(|r| r.disk_h_arcsec)
+                .collect(),
+        );
+        let bulge = median(
+            bin.iter()
+                .filter(|r| r.bt > 0.0)
+                .map(|r| r.bulge_re_arcsec)
+                .collect(),
+        );
+        assert!(disk < last.0 && bulge < last.1, "I = {lo}: {disk} {bulge}");
+        last = (disk, bulge);
+    }
+    // Median disk scale length near I ≈ 24 is of order 0.2″.
+    assert!(
+        (0.15..=0.3).contains(&last.0),
+        "median h at I≈24: {}",
+        last.0
+    );
+}
+
+#[test]
+fn star_counts_have_the_configured_slope_and_density() {
+    let plan = plan_with(&["population.stars.density_per_arcmin2=400"]);
+    let (area, _, _) = placement_area(&plan);
+    let rows = base_field(&plan, 0).unwrap();
+    let stars: Vec<f64> = rows.iter().filter(|r| r.is_star()).map(|r| r.mag).collect();
+    // Poisson mean 400 × area ≈ 80 000: within 5σ.
+    let want = 400.0 * area;
+    assert!((stars.len() as f64 - want).abs() < 5.0 * want.sqrt());
+    let slope = count_slope(&stars, 17.0, 25.0);
+    assert!((slope - 0.30).abs() < 0.02, "{slope}");
+    let s = &plan.raw.population.stars;
+    let d = ks_statistic(&stars, |m| mag_cdf(s, m));
+    assert!(ks_p_value(d, stars.len()) > 1e-3, "D = {d}");
+}
+
+#[test]
+fn base_field_rows_are_consistent() {
+    let plan = plan_with(&["image.width_px=2048", "image.height_px=2048"]);
+    let rows = base_field(&plan, 3).unwrap();
+    assert!(rows.len() > 1000);
+    let (_, xr, yr) = placement_area(&plan);
+    let wcs = TanWcs::for_field(&plan.raw.image, 3);
+    let ins = &plan.raw.instrument;
+    for (i, r) in rows.iter().enumerate() {
+        assert_eq!(r.id, i as i64 + 1);
+        assert!(r.x >= xr.0 && r.x <= xr.1 && r.y >= yr.0 && r.y <= yr.1);
+        let (ra, dec) = wcs.pixel_to_sky(r.x, r.y);
+        assert_eq!((r.ra_deg, r.dec_deg), (ra, dec));
+        assert!((r.flux_e / ins.mag_to_electrons(r.mag) - 1.0).abs() < 1e-12);
+        assert_eq!((r.g1, r.g2), (0.0, 0.0));
+        if r.is_star() {
+            assert_eq!(r.hubble_type, -1);
+            let zero = TruthRow {
+                id: r.id,
+                kind: r.kind,
+                hubble_type: -1,
+                x: r.x,
+                y: r.y,
+                ra_deg: r.ra_deg,
+                dec_deg: r.dec_deg,
+                mag: r.mag,
+                flux_e: r.flux_e,
+                ..TruthRow::default()
+            };
+            assert_eq!(*r, zero);
+            continue;
+        }
+        assert!((0..6).contains(&r.hubble_type));
+        assert!((0.0..=1.0).contains(&r.bt) && r.z > 0.0);
+        assert_eq!(r.bulge_re_arcsec > 0.0, r.hubble_type != 5);
+        assert_eq!(r.disk_h_arcsec > 0.0, r.hubble_type != 0);
+        // Axis-ratio formulas hold exactly per object.
+        let (si, ci) = r.incl_deg.to_radians().sin_cos();
+        assert!((r.disk_ba - ci).abs() < 1e-12);
+        let b = (r.bulge_flat_q.powi(2) * si * si + ci * ci).sqrt();
+        assert!((r.bulge_ba - b).abs() < 1e-12);
+        assert!((0.3..=1.0).contains(&r.bulge_flat_q) && r.incl_deg <= 85.0);
+        assert!((0.0..180.0).contains(&r.pa_deg));
+        // Unsheared: sheared columns equal the intrinsic ones.
+        assert_eq!((r.e1, r.e2), (r.e1_int, r.e2_int));
+        assert_eq!((r.bulge_e1, r.bulge_e2), (r.bulge_e1_int, r.bulge_e2_int));
+        assert_eq!((r.disk_e1, r.disk_e2), (r.disk_e1_int, r.disk_e2_int));
+        let ed = shear::ellipticity(r.disk_ba, r.pa_deg.to_radians());
+        assert!((ed.re - r.disk_e1_int).abs() < 1e-15 && (ed.im - r.disk_e2_int).abs() < 1e-15);
+        // The whole-galaxy ellipticity lies between those of its parts
+        // (all share one angle, so e is real after rotating by −2θ).
+        let rot = Complex64::from_polar(1.0, -2.0 * r.pa_deg.to_radians());
+        let (eb, ed, e) = (
+            (Complex64::new(r.bulge_e1_int, r.bulge_e2_int) * rot).re,
+            (Complex64::new(r.disk_e1_int, r.disk_e2_int) * rot).re,
+            (Complex64::new(r.e1_int, r.e2_int) * rot).re,
+        );
+        assert!(
+            e >= eb.min(ed) - 1e-12 && e <= eb.max(ed) + 1e-12,
+            "{eb} {ed} {e}"
+        );
+    }
+}
+
+#[test]
+fn same_seed_same_field_other_seed_or_field_differs() {
+    let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
+    let a = base_field(&plan, 0).unwrap();
+    assert_eq!(a, base_field(&plan, 0).unwrap());
+    assert_ne!(a, base_field(&plan, 1).unwrap());
+    let other = plan_with(&["image.width_px=1024", "image.height_px=1024", "run.seed=7"]);
+    assert_ne!(a, base_field(&other, 0).unwrap());
+    // The shear, the PSFs and the noise do not enter the base field.
+    let psf = plan_with(&[
+        "image.width_px=1024",
+        "image.height_px=1024",
+        "shears.0.g1=0.03",
+        "render.folding_threshold=0.01",
+    ]);
+    assert_eq!(a, base_field(&psf, 0).unwrap());
+}
+
+#[test]
+fn sheared_view_obeys_eq8_and_recovers_the_shear() {
+    let plan = plan_with(&[
+        "image.width_px=8192",
+        "image.height_px=8192",
+        "population.galaxies.mag_faint=23.5",
+    ]);
+    let base = base_field(&plan, 2).unwrap();
+    let (g1, g2) = (0.05, -0.02);
+    let g = Complex64::new(g1, g2);
+    let view = sheared(&base, g1, g2);
+    assert_eq!(view.len(), base.len());
+    let mut sum = (Complex64::default(), Complex64::default());
+    let mut var = 0.0;
+    let mut n = 0.0;
+    for (b, s) in base.iter().zip(&view) {
+        assert_eq!((s.g1, s.g2), (g1, g2));
+        assert_eq!(
+            (s.x, s.y, s.flux_e, s.mag, s.pa_deg),
+            (b.x, b.y, b.flux_e, b.mag, b.pa_deg)
+        );
+        if b.is_star() {
+            assert_eq!(
+                TruthRow {
+                    g1: 0.0,
+                    g2: 0.0,
+                    ..*s
+                },
+                *b
+            );
+            continue;
+        }
+        assert_eq!((s.e1_int, s.e2_int), (b.e1_int, b.e2_int));
+        let e_int = Complex64::new(b.e1_int, b.e2_int);
+        let e = Complex64::new(s.e1, s.e2);
+        assert!((e - shear::apply_shear(e_int, g)).norm() < 1e-12);
+        for (ei, es) in [
+            ((b.bulge_e1_int, b.bulge_e2_int), (s.bulge_e1, s.bulge_e2)),
+            ((b.disk_e1_int, b.disk_e2_int), (s.disk_e1, s.disk_e2)),
+        ] {
+            let want = shear::apply_shear(Complex64::new(ei.0, ei.1), g);
+            assert!((Complex64::new(es.0, es.1) - want).norm() < 1e-14);
+        }
+        sum.0 += e_int;
+        sum.1 += e;
+        var += e_int.norm_sqr() / 2.0;
+        n += 1.0;
+    }
+    // ⟨e⟩ = g for an isotropic population (Seitz & Schneider 1997), and the
+    // intrinsic mean is zero, each within 4σ of shape noise.
+    let sigma = (var / n).sqrt() / n.sqrt();
+    let (m_int, m) = (sum.0 / n, sum.1 / n);
+    assert!(
+        m_int.re.abs() < 4.0 * sigma && m_int.im.abs() < 4.0 * sigma,
+        "{m_int} σ={sigma}"
+    );
+    assert!(
+        (m - g).re.abs() < 4.0 * sigma && (m - g).im.abs() < 4.0 * sigma,
+        "{m} σ={sigma}"
+    );
+}
+
+#[test]
+fn rotated_twin_cancels_intrinsic_shapes() {
+    let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
+    let base = base_field(&plan, 0).unwrap();
+    let rot = rotated(&base);
+    let g = Complex64::new(0.1, 0.0);
+    let (sa, sb) = (sheared(&base, 0.1, 0.0), sheared(&rot, 0.1, 0.0));
+    for ((b, r), (x, y)) in base.iter().zip(&rot).zip(sa.iter().zip(&sb)) {
+        assert_eq!((b.id, b.x, b.y, b.flux_e), (r.id, r.x, r.y, r.flux_e));
+        if b.is_star() {
+            assert_eq!(b, r);
+            continue;
+        }
+        let d = (r.pa_deg - b.pa_deg).rem_euclid(180.0);
+        assert!((d - 90.0).abs() < 1e-9);
+        for (u, v) in [
+            ((b.e1_int, b.e2_int), (r.e1_int, r.e2_int)),
+            (
+                (b.bulge_e1_int, b.bulge_e2_int),
+                (r.bulge_e1_int, r.bulge_e2_int),
+            ),
+            (
+                (b.disk_e1_int, b.disk_e2_int),
+                (r.disk_e1_int, r.disk_e2_int),
+            ),
+        ] {
+            assert!((u.0 + v.0).abs() < 1e-12 && (u.1 + v.1).abs() < 1e-12);
+        }
+        // Sheared twins: each obeys eq. 8 from its own intrinsic shape.
+        let want = shear::apply_shear(Complex64::new(r.e1_int, r.e2_int), g);
+        assert!((Complex64::new(y.e1, y.e2) - want).norm() < 1e-12);
+        assert_eq!((x.g1, y.g1), (0.1, 0.1));
+    }
+    // Rotating twice is the identity (up to rounding of the angle).
+    let back = rotated(&rot);
+    for (a, b) in base.iter().zip(&back) {
+        assert!((a.pa_deg - b.pa_deg).abs() < 1e-9 && (a.e1 - b.e1).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn whole_galaxy_moments_are_flux_weighted_sums() {
+    // A pure disk of h = 1″ at β = 0.5, θ = 0: σ² = 3, Q = diag(3, 0.75).
+    let r = TruthRow {
+        kind: KIND_GALAXY,
+        bt: 0.0,
+        disk_h_arcsec: 1.0,
+        disk_ba: 0.5,
+        bulge_ba: 0.9,
+        bulge_re_arcsec: 0.0,
+        ..TruthRow::default()
+    };
+    let q = galaxy_moments(&r);
+    assert!((q.xx - 3.0).abs() < 1e-12 && (q.yy - 0.75).abs() < 1e-12 && q.xy.abs() < 1e-15);
+    // Half bulge (r_e = 1, round), half disk: 0.5·10.8397·I + 0.5·Q_disk.
+    let r = TruthRow {
+        bt: 0.5,
+        bulge_re_arcsec: 1.0,
+        bulge_ba: 1.0,
+        ..r
+    };
+    let q = galaxy_moments(&r);
+    let sb = 0.5 * sizes::devaucouleurs_r2_over_re2();
+    assert!((q.xx - (0.5 * sb + 1.5)).abs() < 1e-12);
+    assert!((q.yy - (0.5 * sb + 0.375)).abs() < 1e-12);
+    let mut row = r;
+    fill_ellipticities(&mut row);
+    let want = (q.xx.sqrt() - q.yy.sqrt()) / (q.xx.sqrt() + q.yy.sqrt());
+    assert!((row.e1_int - want).abs() < 1e-12 && row.e2_int.abs() < 1e-15);
+}
+
+#[test]
+fn skymaker_round_trip_through_the_config_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
+    let t_types: Vec<f64> = plan
+        .raw
+        .population
+        .galaxies
+        .types
+        .iter()
+        .map(|t| t.t_type)
+        .collect();
+    let mut fields = Vec::new();
+    for f in 0..2 {
+        let rows = base_field(&plan, f).unwrap();
+        crate::io::skymaker::write_list(&dir.path().join(format!("f{f}.list")), &rows, &t_types)
+            .unwrap();
+        fields.push(rows);
+    }
+    let pattern = dir.path().join("f{field}.list");
+    let src = format!(
+        "population.source={{\"skymaker_list\": {{\"path\": {:?}}}}}",
+        pattern.to_str().unwrap()
+    );
+    let list_plan = plan_with(&["image.width_px=1024", "image.height_px=1024", &src]);
+    for (f, want) in fields.iter().enumerate() {
+        let got = base_field(&list_plan, f as u32).unwrap();
+        assert_eq!(got.len(), want.len());
+        for (a, b) in got.iter().zip(want) {
+            assert_eq!((a.id, a.kind, a.hubble_type), (b.id, b.kind, b.hubble_type));
+            assert_eq!(
+                (a.x, a.y, a.mag, a.flux_e, a.z, a.bt),
+                (b.x, b.y, b.mag, b.flux_e, b.z, b.bt)
+            );
+            assert_eq!(
+                (a.bulge_re_arcsec, a.disk_h_arcsec),
+                (b.bulge_re_arcsec, b.disk_h_arcsec)
+            );
+            assert_eq!(
+                (a.bulge_ba, a.disk_ba, a.pa_deg),
+                (b.bulge_ba, b.disk_ba, b.pa_deg)
+            );
+            assert!(
+                (a.incl_deg - b.incl_deg).abs() < 1e-6,
+                "{} {}",
+                a.incl_deg,
+                b.incl_deg
+            );
+            if !a.is_star() && b.incl_deg > 5.0 {
+                assert!((a.bulge_flat_q - b.bulge_flat_q).abs() < 1e-6);
+            }
+            assert!((a.e1 - b.e1).abs() < 1e-12 && (a.e2 - b.e2).abs() < 1e-12);
+        }
+    }
+    // A missing list is an error naming the file.
+    let err = base_field(&list_plan, 5).unwrap_err().to_string();
+    assert!(err.contains("f5.list"), "{err}");
+}
+
+#[test]
+fn absurd_depth_is_refused_not_attempted() {
+    // 65536² pixels: ≈ 9e6 galaxies expected, over the 2e6 limit.
+    let plan = plan_with(&["image.width_px=65536", "image.height_px=65536"]);
+    let err = base_field(&plan, 0).unwrap_err().to_string();
+    assert!(err.contains("population.galaxies.mag_faint"), "{err}");
+}
+
+#[test]
+fn inclinations_follow_the_law_unless_extinction_selects_face_on_disks() {
+    let flat = |i: f64| (i / 85.0).clamp(0.0, 1.0);
+    // Without disk extinction the magnitude window does not depend on i:
+    // the field's inclinations follow the drawn law.
+    let mut o = vec![
+        "image.width_px=4096",
+        "image.height_px=4096",
+        "population.galaxies.mag_faint=24.5",
+    ];
+    let keys: Vec<String> = (0..6)
+        .map(|t| format!("population.galaxies.types.{t}.disk_extinction=0"))
+        .collect();
+    o.extend(keys.iter().map(String::as_str));
+    let gals = galaxies_of(&base_field(&plan_with(&o), 0).unwrap());
+    let i: Vec<f64> = gals.iter().map(|r| r.incl_deg).collect();
+    let d = ks_statistic(&i, flat);
+    assert!(ks_p_value(d, i.len()) > 1e-3, "D = {d} (n = {})", i.len());
+    // With it (the default), inclined disks are dimmer and fewer of them
+    // pass the window: the selected disks lean face-on (mean ≈ 37° instead
+    // of 42.5°), as in any magnitude-limited sample of dusty disks.
+    let gals = galaxies_of(&base_field(&plan_with(&o[..3]), 0).unwrap());
+    let i: Vec<f64> = gals
+        .iter()
+        .filter(|r| r.hubble_type >= 2)
+        .map(|r| r.incl_deg)
+        .collect();
+    let mean = i.iter().sum::<f64>() / i.len() as f64;
+    assert!((34.0..40.0).contains(&mean), "mean inclination {mean}");
+}
