@@ -230,7 +230,10 @@ fn resume_rewrites_only_missing_or_damaged_images() {
         "{err}"
     );
     // The dead writer's temporary (pid 4194305, above pid_max) is removed, never taken as finished.
-    assert!(err.contains("removed") && err.contains(".4194305.tmp"), "{err}");
+    assert!(
+        err.contains("removed") && err.contains(".4194305.tmp"),
+        "{err}"
+    );
     assert!(!tmp.exists());
     assert_eq!(mtime(&untouched), untouched_time);
     assert!(release(&d.join("run")) == before);

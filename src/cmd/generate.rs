@@ -47,7 +47,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let options = Options {
         shard: args.shard.unwrap_or_default(),
-        submission_format: None,
+        submission_format: Some(stepsim_harness::SUBMISSION_FORMAT_MD.to_string()),
     };
     let summary = pool
         .install(|| generate::generate(&plan, &args.out, &options, &progress))

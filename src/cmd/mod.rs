@@ -4,8 +4,8 @@ pub mod bench;
 pub mod catalog;
 pub mod config;
 pub mod generate;
-pub mod measure;
 pub mod leaderboard;
+pub mod measure;
 pub mod score;
 
 use std::path::PathBuf;

@@ -20,132 +20,31 @@
 use crate::config::{Plan, RawPsf, RawRender, RawTelescope};
 use crate::io::IoError;
 use crate::psf::{GaussianPsf, Psf};
-use crate::seed::{SeedKey, Stream};
 use crate::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
-use crate::wcs::TanWcs;
-use rand::RngExt;
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 
-/// Error of the population module (stand-in: never produced).
-#[derive(Debug, thiserror::Error)]
-#[error("population: {0}")]
-pub struct PopulationError(pub String);
+pub use crate::population::PopulationError;
 
 /// Error of the PSF module (stand-in: never produced).
 #[derive(Debug, thiserror::Error)]
 #[error("psf: {0}")]
 pub struct PsfError(pub String);
 
-/// The unsheared base field `field`, shared by every dataset
-/// (`population::base_field`).
+/// The unsheared base field `field`, shared by every dataset.
 pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
-    let img = &plan.raw.image;
-    let ins = &plan.raw.instrument;
-    let wcs = TanWcs::for_field(img, field);
-    let margin_px = img.margin_arcsec / img.pixel_scale_arcsec;
-    let (w, h) = (f64::from(img.width_px), f64::from(img.height_px));
-    let area_arcmin2 =
-        (w + 2.0 * margin_px) * (h + 2.0 * margin_px) * img.pixel_scale_arcsec.powi(2) / 3600.0;
-    let mut rows = Vec::new();
-    for (stream, density, kind) in [
-        (Stream::Galaxies, 30.0, KIND_GALAXY),
-        (Stream::Stars, 5.0, KIND_STAR),
-    ] {
-        let mut rng = SeedKey::base(plan.seed(), field, stream).rng();
-        let n = (area_arcmin2 * density).round().max(1.0) as usize;
-        for _ in 0..n {
-            let x = rng.random_range(0.5 - margin_px..w + 0.5 + margin_px);
-            let y = rng.random_range(0.5 - margin_px..h + 0.5 + margin_px);
-            let mag = rng.random_range(19.0..25.0);
-            let (ra_deg, dec_deg) = wcs.pixel_to_sky(x, y);
-            let mut r = TruthRow {
-                id: rows.len() as i64 + 1,
-                kind,
-                hubble_type: -1,
-                x,
-                y,
-                ra_deg,
-                dec_deg,
-                mag,
-                flux_e: ins.mag_to_electrons(mag),
-                ..Default::default()
-            };
-            if kind == KIND_GALAXY {
-                let pa: f64 = rng.random_range(0.0..std::f64::consts::PI);
-                let ba: f64 = rng.random_range(0.3..1.0);
-                let e = (1.0 - ba) / (1.0 + ba);
-                r.hubble_type = 3;
-                r.z = rng.random_range(0.1..1.5);
-                r.disk_h_arcsec = rng.random_range(0.1..0.6);
-                r.disk_ba = ba;
-                r.bulge_ba = 1.0;
-                r.bulge_flat_q = 1.0;
-                r.pa_deg = pa.to_degrees();
-                r.disk_e1_int = e * (2.0 * pa).cos();
-                r.disk_e2_int = e * (2.0 * pa).sin();
-                r.e1_int = r.disk_e1_int;
-                r.e2_int = r.disk_e2_int;
-                r.disk_e1 = r.disk_e1_int;
-                r.disk_e2 = r.disk_e2_int;
-                r.e1 = r.e1_int;
-                r.e2 = r.e2_int;
-            }
-            rows.push(r);
-        }
-    }
-    Ok(rows)
+    crate::population::base_field(plan, field)
 }
 
-/// The truth rows of a dataset with reduced shear (g1, g2)
-/// (`population::sheared`). Stand-in: sets g1, g2 and applies eq. 8 to the
-/// whole-galaxy ellipticity only.
+/// The truth rows of a dataset with reduced shear (g1, g2).
 pub fn sheared(rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
-    rows.iter()
-        .map(|r| {
-            let mut s = *r;
-            s.g1 = g1;
-            s.g2 = g2;
-            if r.kind == KIND_GALAXY {
-                // e = (e_s + g) / (1 + g* e_s) in complex numbers.
-                let (a, b) = (r.e1_int + g1, r.e2_int + g2);
-                let (c, d) = (
-                    1.0 + g1 * r.e1_int + g2 * r.e2_int,
-                    g1 * r.e2_int - g2 * r.e1_int,
-                );
-                let den = c * c + d * d;
-                s.e1 = (a * c + b * d) / den;
-                s.e2 = (b * c - a * d) / den;
-            }
-            s
-        })
-        .collect()
+    crate::population::sheared(rows, g1, g2)
 }
 
-/// The 90°-rotated twin of a base field (`population::rotated`).
+/// The 90°-rotated twin of a base field.
 pub fn rotated(rows: &[TruthRow]) -> Vec<TruthRow> {
-    rows.iter()
-        .map(|r| {
-            let mut s = *r;
-            if r.kind == KIND_GALAXY {
-                s.pa_deg = (r.pa_deg + 90.0).rem_euclid(180.0);
-                for v in [
-                    &mut s.disk_e1_int,
-                    &mut s.disk_e2_int,
-                    &mut s.e1_int,
-                    &mut s.e2_int,
-                    &mut s.disk_e1,
-                    &mut s.disk_e2,
-                    &mut s.e1,
-                    &mut s.e2,
-                ] {
-                    *v = -*v;
-                }
-            }
-            s
-        })
-        .collect()
+    crate::population::rotated(rows)
 }
 
 /// A calibrated PSF (`psf::build`). Stand-in: a round Gaussian of the

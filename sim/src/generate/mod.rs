@@ -54,6 +54,9 @@ pub enum GenerateError {
     /// Reading or writing a file failed.
     #[error(transparent)]
     Io(#[from] IoError),
+    /// The population cannot be made (checked before anything is written).
+    #[error("population: {0}")]
+    Preflight(deps::PopulationError),
     /// The population of a base field could not be made.
     #[error("base field {field}: {source}")]
     Population {
@@ -279,6 +282,8 @@ pub fn generate(
     {
         return Err(GenerateError::DifferentRun { path: config_path });
     }
+    // Everything that could fail before drawing is checked before writing.
+    crate::population::preflight(plan).map_err(GenerateError::Preflight)?;
     // Temporaries left by a killed run are junk (never finished files): remove
     // them so that they can't reach a release; a live shard's stay.
     let removed_tmp = crate::io::remove_stale_temporaries(out);
