@@ -20,12 +20,15 @@ struct Cli {
 enum Command {
     /// Validate a config and print it fully resolved (defaults, overrides).
     Config(cmd::config::Args),
+    /// Build the config's PSFs: FITS images, psf_report.json, a picture.
+    Psf(cmd::psf::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
+        Command::Psf(args) => cmd::psf::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

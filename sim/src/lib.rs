@@ -23,6 +23,7 @@
 
 pub mod config;
 pub mod io;
+pub mod moments;
 pub mod psf;
 pub mod run_layout;
 pub mod seed;

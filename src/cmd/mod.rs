@@ -1,6 +1,7 @@
 //! One module per subcommand; each has `Args` (clap) and `run`.
 
 pub mod config;
+pub mod psf;
 
 use std::path::PathBuf;
 
