@@ -284,11 +284,15 @@ impl OpticalPsf {
     pub fn new(mut band: BandTransfer, calibration: Calibration) -> Self {
         let nc = band.nc;
         let s = 1.0 / (nc as f64 * band.du);
+        let mut total = (0.0, 0.0);
         for _ in 0..3 {
             let img = band.image(nc, None);
             let (cx, cy) = SampledPsf::grid_centroid(&img, nc, s);
             band.shift(cx, cy);
+            total = (total.0 + cx, total.1 + cy);
         }
+        let mut calibration = calibration;
+        calibration.centroid_shift_arcsec = total;
         let img = band.image(nc, None);
         let sampled = SampledPsf::new(img, nc, s, (0.0, 0.0)).expect("optical PSF has flux");
         Self {

@@ -314,7 +314,7 @@ mod tests {
             }
             s *= (p / m as f64).powi(2) / (2.0 * std::f64::consts::PI * sig * sig);
             assert!(
-                (img[j * n + i] - s).abs() < 1e-5,
+                (img[j * n + i] - s).abs() < 1e-6,
                 "({i},{j}) {} vs {s}",
                 img[j * n + i]
             );

@@ -29,6 +29,9 @@ pub mod pupil;
 pub mod sampled;
 pub mod zernike;
 
+#[cfg(test)]
+mod tests;
+
 pub use calibrate::OpticalPsf;
 pub use gaussian::GaussianPsf;
 pub use measure::{PsfReport, image, report};
@@ -126,6 +129,9 @@ pub struct Calibration {
     pub fwhm_arcsec: f64,
     /// |χ| measured during calibration.
     pub chi_abs: f64,
+    /// How far the light centroid sat from the origin before recentring
+    /// (arcsec); coma moves the light.
+    pub centroid_shift_arcsec: (f64, f64),
 }
 
 /// Accuracy settings of the PSF models (one place, documented defaults).
@@ -351,6 +357,7 @@ pub fn build_optical(
         },
         fwhm_arcsec: eval.fwhm_arcsec,
         chi_abs: eval.chi.0.hypot(eval.chi.1),
+        centroid_shift_arcsec: (0.0, 0.0),
     };
     let band = if accuracy.pupil_grid == accuracy.calibration_grid {
         eval.band
