@@ -28,28 +28,31 @@ pub struct Args {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Side of the PSF image at the pixel scale, in pixels (even).
-    #[arg(long, default_value_t = 128, value_name = "PX")]
-    size_px: usize,
-    /// Samples per pixel of the oversampled image.
-    #[arg(long, default_value_t = 4, value_name = "N")]
-    oversample: usize,
+    /// Side of the PSF image at the pixel scale, in pixels (even, 16 to 4096).
+    #[arg(long, default_value_t = 128, value_name = "PX",
+          value_parser = even_size)]
+    size_px: u32,
+    /// Samples per pixel of the oversampled image (1 to 16).
+    #[arg(long, default_value_t = 4, value_name = "N",
+          value_parser = clap::value_parser!(u32).range(1..=16))]
+    oversample: u32,
+}
+
+/// Parses `--size-px`: an even number in [16, 4096].
+fn even_size(s: &str) -> Result<u32, String> {
+    let n: u32 = s.parse().map_err(|e| format!("{e}"))?;
+    if (16..=4096).contains(&n) && n % 2 == 0 {
+        Ok(n)
+    } else {
+        Err(format!("must be even and in [16, 4096], got {n}"))
+    }
 }
 
 /// Builds, measures and writes every PSF of the config.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    if args.size_px < 16 || args.size_px % 2 != 0 || args.size_px > 4096 {
-        anyhow::bail!(
-            "--size-px must be even and in [16, 4096], got {}",
-            args.size_px
-        );
-    }
-    if args.oversample == 0 || args.oversample > 16 {
-        anyhow::bail!("--oversample must be in [1, 16], got {}", args.oversample);
-    }
     let plan = args.config.plan()?;
     let p = plan.raw.image.pixel_scale_arcsec;
-    let (n, os) = (args.size_px, args.oversample);
+    let (n, os) = (args.size_px as usize, args.oversample as usize);
     let mut reports = Vec::new();
     let (mut cores, mut wings) = (Vec::new(), Vec::new());
     for raw in &plan.raw.psfs {

@@ -87,6 +87,14 @@ pub fn write_psf_fits(
 
 /// Reads the primary image of a FITS file: (values row-major, nx, ny).
 pub fn read_psf_fits(path: &Path) -> Result<(Vec<f64>, usize, usize), IoError> {
+    read_image_hdu(path, None)
+}
+
+/// Reads a 2-D image HDU (`None`: the primary, else by EXTNAME).
+pub fn read_image_hdu(
+    path: &Path,
+    extname: Option<&str>,
+) -> Result<(Vec<f64>, usize, usize), IoError> {
     let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
     if !path.exists() {
         return Err(IoError::os(
@@ -95,7 +103,10 @@ pub fn read_psf_fits(path: &Path) -> Result<(Vec<f64>, usize, usize), IoError> {
         ));
     }
     let mut f = FitsFile::open(path).map_err(fe)?;
-    let hdu = f.primary_hdu().map_err(fe)?;
+    let hdu = match extname {
+        None => f.primary_hdu().map_err(fe)?,
+        Some(name) => f.hdu(name).map_err(fe)?,
+    };
     let (ny, nx) = match &hdu.info {
         HduInfo::ImageInfo { shape, .. } if shape.len() == 2 => (shape[0], shape[1]),
         HduInfo::ImageInfo { shape, .. } => {
@@ -143,6 +154,8 @@ mod tests {
         let (v, nx, ny) = read_psf_fits(&path).unwrap();
         assert_eq!((nx, ny), (4, 4));
         assert_eq!(v, a);
+        let (w, nx, _) = read_image_hdu(&path, Some("OVERSAMPLED")).unwrap();
+        assert_eq!((nx, w), (8, b.clone()));
         let err = read_psf_fits(&dir.path().join("nope.fits")).unwrap_err();
         assert!(err.to_string().contains("nope.fits"), "{err}");
         // Nothing else left in the directory.

@@ -288,7 +288,10 @@ fn step1_psf4_astigmatism_is_plus_shaped() {
 fn step1_psf5_trefoil_is_three_fold() {
     let r = checked_report("trefoil");
     assert!(r.chi_abs < 0.01, "{}", r.chi_abs);
-    let (h, o) = (contour_harmonics("trefoil", 0.25), contour_harmonics("none", 0.25));
+    let (h, o) = (
+        contour_harmonics("trefoil", 0.25),
+        contour_harmonics("none", 0.25),
+    );
     eprintln!("trefoil harmonics {h:?}, none {o:?}");
     // The three-fold harmonic dominates the contour's shape (the m = 2 one
     // is the small |χ| the spiders and the square pixel leave).
