@@ -64,9 +64,9 @@ fn obstructed_airy_dark_ring_and_encircled_energy_within_1_percent() {
     // Numerical: I(x, 0) from the OTF, column sums then a 1-D sum.
     let n = otf.n;
     let mut col = vec![Complex64::new(0.0, 0.0); n];
-    for l in 0..n {
-        for m in 0..n {
-            col[m] += otf.data[l * n + m];
+    for row in otf.data.chunks_exact(n) {
+        for (c, v) in col.iter_mut().zip(row) {
+            *c += v;
         }
     }
     let profile = |x: f64| -> f64 {
