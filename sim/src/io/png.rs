@@ -1,5 +1,5 @@
-//! A minimal PNG writer (8-bit greyscale or RGB, no compression: "stored"
-//! deflate blocks), enough for diagnostic pictures without a dependency.
+//! A minimal PNG writer (8-bit greyscale or RGB, "Up" row filter, zlib
+//! stream from `miniz_oxide`), enough for diagnostic pictures.
 
 use super::{IoError, write_bytes_atomically};
 use std::path::Path;
@@ -19,6 +19,7 @@ fn crc32(bytes: &[u8]) -> u32 {
     !c
 }
 
+#[cfg(test)]
 fn adler32(bytes: &[u8]) -> u32 {
     let (mut a, mut b) = (1u32, 0u32);
     for &x in bytes {
@@ -42,21 +43,15 @@ fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
 pub fn encode(width: usize, height: usize, channels: usize, pixels: &[u8]) -> Vec<u8> {
     assert!(channels == 1 || channels == 3);
     assert_eq!(pixels.len(), width * height * channels);
-    let mut raw = Vec::with_capacity((width * channels + 1) * height);
-    for row in pixels.chunks_exact(width * channels) {
-        raw.push(0); // filter: none
-        raw.extend_from_slice(row);
+    let stride = width * channels;
+    let mut raw = Vec::with_capacity((stride + 1) * height);
+    let mut prev = vec![0u8; stride];
+    for row in pixels.chunks_exact(stride) {
+        raw.push(2); // filter: Up (difference from the row above)
+        raw.extend(row.iter().zip(&prev).map(|(a, b)| a.wrapping_sub(*b)));
+        prev.copy_from_slice(row);
     }
-    let mut z = vec![0x78, 0x01];
-    let blocks: Vec<&[u8]> = raw.chunks(65535).collect();
-    for (i, b) in blocks.iter().enumerate() {
-        z.push(u8::from(i + 1 == blocks.len()));
-        let len = b.len() as u16;
-        z.extend_from_slice(&len.to_le_bytes());
-        z.extend_from_slice(&(!len).to_le_bytes());
-        z.extend_from_slice(b);
-    }
-    z.extend_from_slice(&adler32(&raw).to_be_bytes());
+    let z = miniz_oxide::deflate::compress_to_vec_zlib(&raw, 8);
     let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
     let mut ihdr = Vec::new();
     ihdr.extend_from_slice(&(width as u32).to_be_bytes());
@@ -95,5 +90,14 @@ mod tests {
             &png[png.len() - 12..],
             &[0, 0, 0, 0, b'I', b'E', b'N', b'D', 0xae, 0x42, 0x60, 0x82]
         );
+        // The zlib stream decodes to the filtered rows and ends with their
+        // Adler-32; two rows show the Up filter.
+        let png = encode(2, 2, 1, &[0, 255, 10, 5]);
+        let idat_len = u32::from_be_bytes(png[33..37].try_into().unwrap()) as usize;
+        assert_eq!(&png[37..41], b"IDAT");
+        let z = &png[41..41 + idat_len];
+        let raw = miniz_oxide::inflate::decompress_to_vec_zlib(z).unwrap();
+        assert_eq!(raw, vec![2, 0, 255, 2, 10, 6]);
+        assert_eq!(&z[z.len() - 4..], &adler32(&raw).to_be_bytes());
     }
 }
