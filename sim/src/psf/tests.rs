@@ -97,6 +97,7 @@ fn obstructed_airy_dark_ring_and_encircled_energy_within_1_percent() {
         }
     }
     let v_num = PI * 0.5 * (lo + hi) / lam_d;
+    eprintln!("dark ring: v = {v_num:.5} (analytic {v_dark:.5})");
     assert!(
         (v_num / v_dark - 1.0).abs() < 0.01,
         "dark ring at v = {v_num}, analytic {v_dark}"
@@ -137,11 +138,51 @@ fn obstructed_airy_dark_ring_and_encircled_energy_within_1_percent() {
     };
     for r in [1.0, 2.0, 3.0] {
         let (num, exact) = (ee_num(r * lam_d), ee_exact(r * lam_d));
+        eprintln!("EE({r} λ/D) = {num:.5} (analytic {exact:.5})");
         assert!(
             (num / exact - 1.0).abs() < 0.01,
             "EE({r} λ/D) = {num}, analytic {exact}"
         );
     }
+}
+
+#[test]
+fn otf_vanishes_beyond_the_diffraction_cutoff_so_nothing_aliases() {
+    // The alias check of docs/psf.md: the sampled OTF (autocorrelation of
+    // the sampled pupil) is zero beyond D/λ + one cell diagonal, so the
+    // circular autocorrelation computed by the FFT equals the linear one;
+    // and the cut-off lies inside the grid.
+    let pupil = SampledPupil::new(
+        Pupil::from_telescope(&RawTelescope::default()),
+        0.8e-6,
+        512,
+        4,
+    );
+    let otf = pupil.otf(&Wavefront {
+        noll: 8,
+        amplitude_waves: 0.3,
+        angle_rad: 0.0,
+    });
+    let n = otf.n;
+    assert!(otf.cutoff < (n / 2) as f64 * otf.du);
+    let mut beyond: f64 = 0.0;
+    let mut inside: f64 = 0.0;
+    for l in 0..n {
+        for m in 0..n {
+            let u = fft2::signed(m, n) as f64 * otf.du;
+            let v = fft2::signed(l, n) as f64 * otf.du;
+            let f = u.hypot(v);
+            let a = otf.data[l * n + m].norm();
+            if f > otf.cutoff + 1.5 * otf.du {
+                beyond = beyond.max(a);
+            } else if f < 0.9 * otf.cutoff {
+                inside = inside.max(a);
+            }
+        }
+    }
+    eprintln!("max |OTF| beyond the cut-off: {beyond:.1e}");
+    assert!(beyond < 1e-12, "{beyond}");
+    assert!(inside > 0.99);
 }
 
 #[test]
@@ -162,6 +203,10 @@ fn kolmogorov_fwhm_is_0976_lambda_over_r0_within_1_percent() {
         let band = BandTransfer::new(&otf, Some(&atm), None, 1e-12);
         let img = band.image(n, None);
         let fwhm = fwhm_from_area(&img, n) / (n as f64 * du);
+        eprintln!(
+            "Kolmogorov λ/r0 = {lam_r0}: FWHM = {:.5} λ/r0",
+            fwhm / lam_r0
+        );
         assert!(
             (fwhm / (0.976 * lam_r0) - 1.0).abs() < 0.01,
             "FWHM {fwhm} for λ/r0 {lam_r0}"
