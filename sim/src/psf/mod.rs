@@ -138,9 +138,9 @@ pub struct Calibration {
 #[derive(Debug, Clone, PartialEq)]
 pub struct PsfAccuracy {
     /// Side of the pupil / OTF grid of the final PSF. The PSF is
-    /// represented with period λ/dx: 46.6″ at 2048 for the default
+    /// represented with period λ/dx: 46.8″ at 2048 for the default
     /// telescope, enough for the diffraction spikes to fall below 1e-5 of
-    /// the peak (at 14″) inside the box (see docs/psf.md).
+    /// the peak (at 14″) inside the 23.4″ half-box (see docs/psf.md).
     pub pupil_grid: usize,
     /// Side of the pupil grid used while solving seeing and amplitude
     /// (period 23.3″ at 1024: the core, FWHM and χ agree with the final grid
