@@ -17,7 +17,7 @@ use super::ConfigArgs;
 use anyhow::Context;
 use std::path::PathBuf;
 use stepsim_sim::io::png::write_png;
-use stepsim_sim::io::psf_fits::{PsfImage, write_psf_fits};
+use stepsim_sim::io::psf_fits::write_psf;
 use stepsim_sim::psf::{self, panel};
 
 /// Arguments of `stepsim psf`.
@@ -68,50 +68,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             report.chi2,
             start.elapsed().as_secs_f64()
         );
-        let at_pixel = psf::image(built.as_ref(), n, p, 1);
-        let fine = psf::image(built.as_ref(), n * os, p, os);
-        let mut keys = vec![
-            (
-                "FWHM".to_string(),
-                report.fwhm_arcsec,
-                "arcsec, area above half max".to_string(),
-            ),
-            (
-                "CHI1".to_string(),
-                report.chi1,
-                "adaptive-moment distortion".to_string(),
-            ),
-            (
-                "CHI2".to_string(),
-                report.chi2,
-                "adaptive-moment distortion".to_string(),
-            ),
-        ];
-        if let (Some(s), Some(a)) = (report.seeing_fwhm_arcsec, report.amplitude) {
-            keys.push(("SEEING".into(), s, "arcsec, atmosphere alone".into()));
-            keys.push((
-                "AMPLITUD".into(),
-                a,
-                report.amplitude_unit.clone().unwrap_or_default(),
-            ));
-        }
         let path = args.out.join(format!("{}.fits", raw.name));
-        write_psf_fits(
-            &path,
-            &raw.name,
-            PsfImage {
-                data: &at_pixel,
-                n,
-                scale_arcsec: p,
-            },
-            PsfImage {
-                data: &fine,
-                n: n * os,
-                scale_arcsec: p / os as f64,
-            },
-            os,
-            &keys,
-        )?;
+        write_psf(&path, &raw.name, built.as_ref(), p, n, os, Some(&report))?;
         // Pictures: cores at p/8, wings at p/2.
         cores.push(psf::image(built.as_ref(), 256, p, 8));
         wings.push(psf::image(built.as_ref(), 512, p, 2));

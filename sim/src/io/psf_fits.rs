@@ -85,6 +85,58 @@ pub fn write_psf_fits(
     })
 }
 
+/// Renders `psf` and writes `RUN/private/psf/<name>.fits` (or any path):
+/// the pixel-convolved PSF at `pixel_scale_arcsec` on an `n × n` grid and
+/// `oversample` times finer on `(n·oversample)²`, with `report`'s FWHM, χ
+/// and calibration in the headers when given. This is what `stepsim psf`
+/// and the generate step write.
+pub fn write_psf(
+    path: &Path,
+    name: &str,
+    psf: &dyn crate::psf::Psf,
+    pixel_scale_arcsec: f64,
+    n: usize,
+    oversample: usize,
+    report: Option<&crate::psf::PsfReport>,
+) -> Result<(), IoError> {
+    let at_pixel = crate::psf::image(psf, n, pixel_scale_arcsec, 1);
+    let fine = crate::psf::image(psf, n * oversample, pixel_scale_arcsec, oversample);
+    let mut keys: Vec<Keyword> = Vec::new();
+    if let Some(r) = report {
+        keys.push((
+            "FWHM".into(),
+            r.fwhm_arcsec,
+            "arcsec, area above half max".into(),
+        ));
+        keys.push(("CHI1".into(), r.chi1, "adaptive-moment distortion".into()));
+        keys.push(("CHI2".into(), r.chi2, "adaptive-moment distortion".into()));
+        if let (Some(s), Some(a)) = (r.seeing_fwhm_arcsec, r.amplitude) {
+            keys.push(("SEEING".into(), s, "arcsec, atmosphere alone".into()));
+            keys.push((
+                "AMPLITUD".into(),
+                a,
+                r.amplitude_unit.clone().unwrap_or_default(),
+            ));
+        }
+    }
+    write_psf_fits(
+        path,
+        name,
+        PsfImage {
+            data: &at_pixel,
+            n,
+            scale_arcsec: pixel_scale_arcsec,
+        },
+        PsfImage {
+            data: &fine,
+            n: n * oversample,
+            scale_arcsec: pixel_scale_arcsec / oversample as f64,
+        },
+        oversample,
+        &keys,
+    )
+}
+
 /// Reads the primary image of a FITS file: (values row-major, nx, ny).
 pub fn read_psf_fits(path: &Path) -> Result<(Vec<f64>, usize, usize), IoError> {
     read_image_hdu(path, None)

@@ -464,3 +464,36 @@ fn unreachable_targets_are_errors_not_panics() {
     .unwrap_err();
     assert!(err.to_string().contains("target_chi"), "{err}");
 }
+
+#[test]
+fn builds_are_bit_reproducible() {
+    // No randomness and no order dependence: two uncached builds give the
+    // same bits (small grids to keep the test quick).
+    let acc = PsfAccuracy {
+        pupil_grid: 512,
+        calibration_grid: 512,
+        ..PsfAccuracy::default()
+    };
+    let t = RawTelescope::default();
+    let make = || {
+        build_optical(
+            "c",
+            0.9,
+            Aberration::Coma,
+            Some(0.3),
+            None,
+            0.2,
+            &t,
+            0.206,
+            &acc,
+        )
+        .unwrap()
+        .transfer(StampGrid::new(32, 0.206))
+    };
+    let (a, b) = (make(), make());
+    assert!(
+        a.iter()
+            .zip(b.iter())
+            .all(|(x, y)| x.re.to_bits() == y.re.to_bits() && x.im.to_bits() == y.im.to_bits())
+    );
+}
