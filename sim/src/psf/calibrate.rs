@@ -86,6 +86,16 @@ impl Setup<'_> {
             let f = self.fine_fwhm(&band);
             (atm, band, f)
         };
+        let period = 1.0 / otf.du;
+        if target > period / 8.0 {
+            return Err(PsfError::Unreachable {
+                name: self.name.into(),
+                message: format!(
+                    "fwhm_arcsec {target}″ is too wide for the optical grid (period {period:.1}″; at most {:.1}″)",
+                    period / 8.0
+                ),
+            });
+        }
         let no_atm = BandTransfer::new(otf, None, jitter, floor);
         let f0 = self.fine_fwhm(&no_atm);
         if f0 >= target {
@@ -100,7 +110,15 @@ impl Setup<'_> {
         let mut hi = target / super::atmosphere::FWHM_OVER_LAMBDA_R0;
         let mut best = eval(hi);
         let mut fhi = best.2 - target;
+        let mut widen = 0;
         while fhi <= 0.0 {
+            widen += 1;
+            if widen > 20 {
+                return Err(PsfError::NoConvergence {
+                    name: self.name.into(),
+                    what: "seeing for the target FWHM (no seeing is wide enough)".into(),
+                });
+            }
             hi *= 1.5;
             best = eval(hi);
             fhi = best.2 - target;

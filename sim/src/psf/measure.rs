@@ -76,6 +76,9 @@ pub fn fwhm_from_area(img: &[f64], n: usize) -> f64 {
 
 /// Area (in cells) where the image exceeds `level` × its maximum.
 pub fn area_above(img: &[f64], n: usize, level: f64) -> f64 {
+    if n < 3 || img.len() != n * n {
+        return 0.0;
+    }
     let peak = img.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let cut = level * peak;
     let mut area = 0.0;

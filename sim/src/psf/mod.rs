@@ -324,6 +324,12 @@ pub fn build_optical(
         accuracy,
         name,
     };
+    if target_chi.is_some() && amplitude.is_none() && aberration == Aberration::None {
+        return Err(PsfError::Unreachable {
+            name: name.into(),
+            message: "target_chi needs an aberration to solve for (aberration is none)".into(),
+        });
+    }
     let flat = pupil.otf(&optical::Wavefront::NONE);
     let (amp, eval) = match (amplitude, target_chi) {
         (Some(a), _) => (

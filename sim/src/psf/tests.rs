@@ -463,6 +463,23 @@ fn unreachable_targets_are_errors_not_panics() {
     )
     .unwrap_err();
     assert!(err.to_string().contains("target_chi"), "{err}");
+    // Wider than the optical grid can hold (period 11.6″ at 512): refused.
+    let err =
+        build_optical("w", 3.0, Aberration::None, None, None, 0.0, &t, 0.206, &acc).unwrap_err();
+    assert!(err.to_string().contains("too wide"), "{err}");
+    let err = build_optical(
+        "n",
+        0.9,
+        Aberration::None,
+        None,
+        Some(0.05),
+        0.0,
+        &t,
+        0.206,
+        &acc,
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("target_chi"), "{err}");
 }
 
 #[test]
