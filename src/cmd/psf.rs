@@ -53,9 +53,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     let p = plan.raw.image.pixel_scale_arcsec;
     let (n, os) = (args.size_px as usize, args.oversample as usize);
-    let mut reports = Vec::new();
-    let (mut cores, mut wings) = (Vec::new(), Vec::new());
-    for raw in &plan.raw.psfs {
+    // One PSF per work item, at most two at a time (each holds ~200 MB of
+    // 2048² grids); results are gathered in config order, so the output does
+    // not depend on scheduling.
+    struct Done {
+        report: psf::PsfReport,
+        core: Vec<f64>,
+        wing: Vec<f64>,
+    }
+    let psfs = &plan.raw.psfs;
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |k| k.get())
+        .min(2)
+        .min(psfs.len());
+    let one = |raw: &stepsim_sim::config::RawPsf| -> anyhow::Result<Done> {
         let start = std::time::Instant::now();
         let built = psf::build(raw, &plan.raw.telescope, p)?;
         let report = psf::report(&raw.name, built.as_ref(), p)?;
@@ -71,9 +83,41 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let path = args.out.join(format!("{}.fits", raw.name));
         write_psf(&path, &raw.name, built.as_ref(), p, n, os, Some(&report))?;
         // Pictures: cores at p/8, wings at p/2.
-        cores.push(psf::image(built.as_ref(), 256, p, 8));
-        wings.push(psf::image(built.as_ref(), 512, p, 2));
-        reports.push(report);
+        Ok(Done {
+            core: psf::image(built.as_ref(), 256, p, 8),
+            wing: psf::image(built.as_ref(), 512, p, 2),
+            report,
+        })
+    };
+    let mut results: Vec<Option<anyhow::Result<Done>>> = (0..psfs.len()).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..workers)
+            .map(|_| {
+                scope.spawn(|| {
+                    let mut mine = Vec::new();
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if i >= psfs.len() {
+                            return mine;
+                        }
+                        mine.push((i, one(&psfs[i])));
+                    }
+                })
+            })
+            .collect();
+        for h in handles {
+            for (i, r) in h.join().expect("psf worker panicked") {
+                results[i] = Some(r);
+            }
+        }
+    });
+    let mut reports = Vec::new();
+    let (mut cores, mut wings) = (Vec::new(), Vec::new());
+    for r in results {
+        let done = r.expect("every PSF was processed")?;
+        reports.push(done.report);
+        cores.push(done.core);
+        wings.push(done.wing);
     }
     let json = serde_json::json!({
         "config": args.config.config.display().to_string(),

@@ -94,7 +94,54 @@ pub fn row(
             }
         }
     }
+    label_tiles(&mut rgb, width, images.len(), side, gap);
     Picture { width, height, rgb }
+}
+
+/// 3 × 5 bitmaps of the digits 0–9 (rows top to bottom, 3 bits each).
+const DIGITS: [[u8; 5]; 10] = [
+    [7, 5, 5, 5, 7],
+    [2, 6, 2, 2, 7],
+    [7, 1, 7, 4, 7],
+    [7, 1, 7, 1, 7],
+    [5, 5, 7, 1, 1],
+    [7, 4, 7, 1, 7],
+    [7, 4, 7, 5, 7],
+    [7, 1, 1, 1, 1],
+    [7, 5, 7, 5, 7],
+    [7, 5, 7, 1, 7],
+];
+
+/// Writes each tile's index (0, 1, ...) in white in its top-left corner,
+/// when tiles are at least 64 pixels wide.
+fn label_tiles(rgb: &mut [u8], width: usize, tiles: usize, side: usize, gap: usize) {
+    if side < 64 {
+        return;
+    }
+    let s = (side / 64).max(1);
+    for t in 0..tiles {
+        let digits: Vec<usize> = t
+            .to_string()
+            .bytes()
+            .map(|b| usize::from(b - b'0'))
+            .collect();
+        for (k, &d) in digits.iter().enumerate() {
+            let x0 = gap + t * (side + gap) + 2 * s + k * 4 * s;
+            let y0 = gap + 2 * s;
+            for (r, bits) in DIGITS[d].iter().enumerate() {
+                for c in 0..3 {
+                    if bits >> (2 - c) & 1 == 1 {
+                        for dy in 0..s {
+                            for dx in 0..s {
+                                let o = ((y0 + r * s + dy) * width + x0 + c * s + dx) * 3;
+                                rgb[o..o + 3].copy_from_slice(&[255, 255, 255]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// How each image differs from a reference image (both scaled to unit
@@ -143,6 +190,7 @@ pub fn difference_row(
             }
         }
     }
+    label_tiles(&mut rgb, width, images.len(), side, gap);
     Picture { width, height, rgb }
 }
 
@@ -183,6 +231,13 @@ mod tests {
         let o = ((6 + 3) * p.width + 6 + 4) * 3;
         assert_eq!(p.rgb[o], 128);
         let s = stack(&[p.clone(), p]);
+        // Tiles of 64 pixels or more carry their index: "1" on the second.
+        let big = vec![0.0; 64 * 64];
+        let q = row(&[&big, &big], 64, 32, 1, Stretch::Linear, &[]);
+        let white = |x: usize, y: usize| q.rgb[(y * q.width + x) * 3] == 255;
+        // Digit 1, top row: only the middle column lit (x0 = 6 + 70 + 2).
+        assert!(white(78 + 1, 8) && !white(78, 8) && !white(78 + 2, 8));
+        assert!(!white(78 + 1, 40));
         assert_eq!(s.height, 40);
         assert_eq!(s.rgb.len(), s.width * s.height * 3);
     }
