@@ -32,6 +32,8 @@ enum Command {
     Leaderboard(cmd::leaderboard::Args),
     /// Write the base fields (truth tables and SkyMaker lists), no images.
     Catalog(cmd::catalog::Args),
+    /// Build the config's PSFs: FITS images, psf_report.json, a picture.
+    Psf(cmd::psf::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         Command::Score(args) => cmd::score::run(&args),
         Command::Leaderboard(args) => cmd::leaderboard::run(&args),
         Command::Catalog(args) => cmd::catalog::run(&args),
+        Command::Psf(args) => cmd::psf::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,6 +7,7 @@ pub mod generate;
 pub mod leaderboard;
 pub mod measure;
 pub mod score;
+pub mod psf;
 
 use std::path::PathBuf;
 

@@ -31,15 +31,19 @@ pub enum RawPsfModel {
     Optical {
         /// The aberration.
         aberration: Aberration,
-        /// Aberration amplitude in waves (rms-normalised Zernike), or the
-        /// tracking-error length in arcsec for `jitter`. When absent and
-        /// `target_chi` is given, it is solved for.
+        /// Aberration amplitude in waves (rms over the unobstructed pupil,
+        /// Noll-normalised Zernike), or for `jitter` the σ in arcsec of the
+        /// 1-D Gaussian smear. When absent and `target_chi` is given, it is
+        /// solved for; when both are absent a documented default is used
+        /// (`psf::calibrate::default_amplitude`, docs/psf.md).
         #[serde(default)]
         amplitude: Option<f64>,
         /// Target adaptive-moment distortion |χ| of the pixel-convolved PSF.
         #[serde(default)]
         target_chi: Option<f64>,
-        /// Orientation of the aberration (degrees from +x).
+        /// Orientation of the aberration: the Zernike pattern is rotated
+        /// counter-clockwise by this angle, or the jitter smear runs at it
+        /// (degrees from +x).
         #[serde(default)]
         angle_deg: f64,
     },

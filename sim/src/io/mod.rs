@@ -6,6 +6,8 @@
 //! complete, so a killed run never leaves a truncated file under a final name.
 
 pub mod image_fits;
+pub mod png;
+pub mod psf_fits;
 pub mod skymaker;
 pub mod truth;
 

@@ -1,0 +1,219 @@
+//! PSF images on disk (`RUN/private/psf/<name>.fits`, `stepsim psf`).
+//!
+//! Primary HDU: the pixel-convolved PSF at the image pixel scale; extension
+//! `OVERSAMPLED`: the same PSF (still convolved with the image pixel)
+//! sampled `OVERSAMP` times finer. Both are BITPIX −64, centred on pixel
+//! (n/2 + 1, n/2 + 1) (FITS), normalised to unit sum. Header keywords:
+//! `PIXSCALE` (arcsec of this HDU's samples), `OVERSAMP`, `PSFNAME`, plus
+//! the caller's measurements (FWHM, χ, seeing, amplitude).
+
+use super::{IoError, write_atomically};
+use fitsio::FitsFile;
+use fitsio::hdu::HduInfo;
+use fitsio::images::{ImageDescription, ImageType};
+use std::path::Path;
+
+/// A square PSF image.
+#[derive(Debug, Clone, Copy)]
+pub struct PsfImage<'a> {
+    /// Row-major values.
+    pub data: &'a [f64],
+    /// Side.
+    pub n: usize,
+    /// Sample spacing (arcsec).
+    pub scale_arcsec: f64,
+}
+
+/// A numeric header keyword: (name ≤ 8 chars, value, comment).
+pub type Keyword = (String, f64, String);
+
+/// Writes the two PSF images atomically.
+pub fn write_psf_fits(
+    path: &Path,
+    name: &str,
+    at_pixel: PsfImage<'_>,
+    oversampled: PsfImage<'_>,
+    oversample: usize,
+    keywords: &[Keyword],
+) -> Result<(), IoError> {
+    for img in [&at_pixel, &oversampled] {
+        if img.data.len() != img.n * img.n {
+            return Err(IoError::format(
+                path,
+                format!(
+                    "PSF image has {} values, expected {}²",
+                    img.data.len(),
+                    img.n
+                ),
+            ));
+        }
+    }
+    write_atomically(path, |tmp| {
+        let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+        let desc = ImageDescription {
+            data_type: ImageType::Double,
+            dimensions: &[at_pixel.n, at_pixel.n],
+        };
+        let mut f = FitsFile::create(tmp)
+            .with_custom_primary(&desc)
+            .open()
+            .map_err(fe)?;
+        let hdu = f.primary_hdu().map_err(fe)?;
+        hdu.write_image(&mut f, at_pixel.data).map_err(fe)?;
+        let common = |f: &mut FitsFile, hdu: &fitsio::hdu::FitsHdu, scale: f64| {
+            hdu.write_key(f, "PSFNAME", (name, "PSF name from the config"))?;
+            hdu.write_key(f, "PIXSCALE", (scale, "arcsec per sample"))?;
+            hdu.write_key(
+                f,
+                "OVERSAMP",
+                (oversample as i64, "samples per image pixel (ext 1)"),
+            )?;
+            for (k, v, c) in keywords {
+                hdu.write_key(f, k, (*v, c.as_str()))?;
+            }
+            Ok::<(), fitsio::errors::Error>(())
+        };
+        common(&mut f, &hdu, at_pixel.scale_arcsec).map_err(fe)?;
+        let desc = ImageDescription {
+            data_type: ImageType::Double,
+            dimensions: &[oversampled.n, oversampled.n],
+        };
+        let ext = f.create_image("OVERSAMPLED", &desc).map_err(fe)?;
+        ext.write_image(&mut f, oversampled.data).map_err(fe)?;
+        common(&mut f, &ext, oversampled.scale_arcsec).map_err(fe)?;
+        Ok(())
+    })
+}
+
+/// Renders `psf` and writes `RUN/private/psf/<name>.fits` (or any path):
+/// the pixel-convolved PSF at `pixel_scale_arcsec` on an `n × n` grid and
+/// `oversample` times finer on `(n·oversample)²`, with `report`'s FWHM, χ
+/// and calibration in the headers when given. This is what `stepsim psf`
+/// and the generate step write.
+pub fn write_psf(
+    path: &Path,
+    name: &str,
+    psf: &dyn crate::psf::Psf,
+    pixel_scale_arcsec: f64,
+    n: usize,
+    oversample: usize,
+    report: Option<&crate::psf::PsfReport>,
+) -> Result<(), IoError> {
+    let at_pixel = crate::psf::image(psf, n, pixel_scale_arcsec, 1);
+    let fine = crate::psf::image(psf, n * oversample, pixel_scale_arcsec, oversample);
+    let mut keys: Vec<Keyword> = Vec::new();
+    if let Some(r) = report {
+        keys.push((
+            "FWHM".into(),
+            r.fwhm_arcsec,
+            "arcsec, area above half max".into(),
+        ));
+        keys.push(("CHI1".into(), r.chi1, "adaptive-moment distortion".into()));
+        keys.push(("CHI2".into(), r.chi2, "adaptive-moment distortion".into()));
+        if let (Some(s), Some(a)) = (r.seeing_fwhm_arcsec, r.amplitude) {
+            keys.push(("SEEING".into(), s, "arcsec, atmosphere alone".into()));
+            keys.push((
+                "AMPLITUD".into(),
+                a,
+                r.amplitude_unit.clone().unwrap_or_default(),
+            ));
+        }
+    }
+    write_psf_fits(
+        path,
+        name,
+        PsfImage {
+            data: &at_pixel,
+            n,
+            scale_arcsec: pixel_scale_arcsec,
+        },
+        PsfImage {
+            data: &fine,
+            n: n * oversample,
+            scale_arcsec: pixel_scale_arcsec / oversample as f64,
+        },
+        oversample,
+        &keys,
+    )
+}
+
+/// Reads the primary image of a FITS file: (values row-major, nx, ny).
+pub fn read_psf_fits(path: &Path) -> Result<(Vec<f64>, usize, usize), IoError> {
+    read_image_hdu(path, None)
+}
+
+/// Reads a 2-D image HDU (`None`: the primary, else by EXTNAME).
+pub fn read_image_hdu(
+    path: &Path,
+    extname: Option<&str>,
+) -> Result<(Vec<f64>, usize, usize), IoError> {
+    let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+    if !path.exists() {
+        return Err(IoError::os(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
+    let mut f = FitsFile::open(path).map_err(fe)?;
+    let hdu = match extname {
+        None => f.primary_hdu().map_err(fe)?,
+        Some(name) => f.hdu(name).map_err(fe)?,
+    };
+    let (ny, nx) = match &hdu.info {
+        HduInfo::ImageInfo { shape, .. } if shape.len() == 2 => (shape[0], shape[1]),
+        HduInfo::ImageInfo { shape, .. } => {
+            return Err(IoError::format(
+                path,
+                format!(
+                    "primary HDU is {}-dimensional, expected a 2-D image",
+                    shape.len()
+                ),
+            ));
+        }
+        _ => return Err(IoError::format(path, "primary HDU is not an image")),
+    };
+    let data: Vec<f64> = hdu.read_image(&mut f).map_err(fe)?;
+    Ok((data, nx, ny))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_missing_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("psf/p.fits");
+        let a: Vec<f64> = (0..16).map(f64::from).collect();
+        let b: Vec<f64> = (0..64).map(|i| f64::from(i) * 0.5).collect();
+        write_psf_fits(
+            &path,
+            "p",
+            PsfImage {
+                data: &a,
+                n: 4,
+                scale_arcsec: 0.2,
+            },
+            PsfImage {
+                data: &b,
+                n: 8,
+                scale_arcsec: 0.1,
+            },
+            2,
+            &[("FWHM".into(), 0.9, "arcsec".into())],
+        )
+        .unwrap();
+        let (v, nx, ny) = read_psf_fits(&path).unwrap();
+        assert_eq!((nx, ny), (4, 4));
+        assert_eq!(v, a);
+        let (w, nx, _) = read_image_hdu(&path, Some("OVERSAMPLED")).unwrap();
+        assert_eq!((nx, w), (8, b.clone()));
+        let err = read_psf_fits(&dir.path().join("nope.fits")).unwrap_err();
+        assert!(err.to_string().contains("nope.fits"), "{err}");
+        // Nothing else left in the directory.
+        assert_eq!(
+            std::fs::read_dir(dir.path().join("psf")).unwrap().count(),
+            1
+        );
+    }
+}
