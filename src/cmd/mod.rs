@@ -6,8 +6,8 @@ pub mod config;
 pub mod generate;
 pub mod leaderboard;
 pub mod measure;
-pub mod score;
 pub mod psf;
+pub mod score;
 
 use std::path::PathBuf;
 

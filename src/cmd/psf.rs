@@ -17,7 +17,7 @@ use super::ConfigArgs;
 use anyhow::Context;
 use std::path::PathBuf;
 use stepsim_sim::io::png::write_png;
-use stepsim_sim::io::psf_fits::write_psf;
+use stepsim_sim::io::psf_fits::{self, write_psf};
 use stepsim_sim::psf::{self, panel};
 
 /// Arguments of `stepsim psf`.
@@ -29,11 +29,11 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
     /// Side of the PSF image at the pixel scale, in pixels (even, 16 to 4096).
-    #[arg(long, default_value_t = 128, value_name = "PX",
+    #[arg(long, default_value_t = psf_fits::DEFAULT_SIZE_PX as u32, value_name = "PX",
           value_parser = even_size)]
     size_px: u32,
     /// Samples per pixel of the oversampled image (1 to 16).
-    #[arg(long, default_value_t = 4, value_name = "N",
+    #[arg(long, default_value_t = psf_fits::DEFAULT_OVERSAMPLE as u32, value_name = "N",
           value_parser = clap::value_parser!(u32).range(1..=16))]
     oversample: u32,
 }

@@ -19,18 +19,15 @@
 
 use crate::config::{Plan, RawPsf, RawRender, RawTelescope};
 use crate::io::IoError;
-use crate::psf::{GaussianPsf, Psf};
-use crate::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
+use crate::psf::Psf;
+use crate::truth::{KIND_GALAXY, TruthRow};
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 
 pub use crate::population::PopulationError;
 
-/// Error of the PSF module (stand-in: never produced).
-#[derive(Debug, thiserror::Error)]
-#[error("psf: {0}")]
-pub struct PsfError(pub String);
+pub use crate::psf::PsfError;
 
 /// The unsheared base field `field`, shared by every dataset.
 pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
@@ -47,14 +44,13 @@ pub fn rotated(rows: &[TruthRow]) -> Vec<TruthRow> {
     crate::population::rotated(rows)
 }
 
-/// A calibrated PSF (`psf::build`). Stand-in: a round Gaussian of the
-/// configured FWHM whatever the model.
+/// The calibrated PSF of one config entry (built once per process).
 pub fn build_psf(
     psf: &RawPsf,
-    _telescope: &RawTelescope,
-    _pixel_scale_arcsec: f64,
+    telescope: &RawTelescope,
+    pixel_scale_arcsec: f64,
 ) -> Result<Arc<dyn Psf>, PsfError> {
-    Ok(Arc::new(GaussianPsf::round(psf.fwhm_arcsec)))
+    crate::psf::build(psf, telescope, pixel_scale_arcsec)
 }
 
 /// Renderer accuracy (`render::Accuracy`). Stand-in: unused.
@@ -151,39 +147,27 @@ pub fn draw_image(renderer: &Renderer, rows: &[TruthRow], width: u32, height: u3
     img
 }
 
-/// Writes the PSF image file `private/psf/<name>.fits`
-/// (`io::psf_fits::write_psf_fits`). Stand-in: one primary HDU holding a
-/// unit-flux star drawn at image sampling on a 64² grid, centred on pixel
-/// (33, 33).
+/// Writes the PSF image file `private/psf/<name>.fits`: the pixel-scale
+/// image and the oversampled one, with the measured report in the header
+/// (the same file `stepsim psf` writes).
 pub fn write_psf_fits(
     path: &Path,
     psf: &Arc<dyn Psf>,
-    _raw: &RawPsf,
+    raw: &RawPsf,
     pixel_scale_arcsec: f64,
 ) -> Result<(), IoError> {
-    let r = Renderer::new(psf.clone(), pixel_scale_arcsec, Accuracy, 1.0);
-    let star = TruthRow {
-        kind: KIND_STAR,
-        x: 33.0,
-        y: 33.0,
-        flux_e: 1.0,
-        ..Default::default()
-    };
-    let px = draw_image(&r, &[star], 64, 64);
-    crate::io::write_atomically(path, |tmp| {
-        let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-        let desc = fitsio::images::ImageDescription {
-            data_type: fitsio::images::ImageType::Float,
-            dimensions: &[64, 64],
-        };
-        let mut f = fitsio::FitsFile::create(tmp)
-            .with_custom_primary(&desc)
-            .open()
-            .map_err(fe)?;
-        let hdu = f.primary_hdu().map_err(fe)?;
-        hdu.write_image(&mut f, &px).map_err(fe)?;
-        Ok(())
-    })
+    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX, write_psf};
+    let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
+        .map_err(|e| IoError::format(path, e.to_string()))?;
+    write_psf(
+        path,
+        &raw.name,
+        psf.as_ref(),
+        pixel_scale_arcsec,
+        DEFAULT_SIZE_PX,
+        DEFAULT_OVERSAMPLE,
+        Some(&report),
+    )
 }
 
 #[cfg(test)]

@@ -85,6 +85,12 @@ pub fn write_psf_fits(
     })
 }
 
+/// Side in pixels of the pixel-scale PSF image written by default
+/// (`stepsim psf --size-px`, and the run's `private/psf/` files).
+pub const DEFAULT_SIZE_PX: usize = 128;
+/// Samples per pixel of the oversampled PSF image written by default.
+pub const DEFAULT_OVERSAMPLE: usize = 4;
+
 /// Renders `psf` and writes `RUN/private/psf/<name>.fits` (or any path):
 /// the pixel-convolved PSF at `pixel_scale_arcsec` on an `n × n` grid and
 /// `oversample` times finer on `(n·oversample)²`, with `report`'s FWHM, χ
