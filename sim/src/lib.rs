@@ -23,7 +23,9 @@
 
 pub mod config;
 pub mod io;
+pub mod profile;
 pub mod psf;
+pub mod render;
 pub mod run_layout;
 pub mod seed;
 pub mod truth;
