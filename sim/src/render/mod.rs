@@ -50,10 +50,11 @@ pub struct Accuracy {
     /// (default 5e-3). Outside flux is folded back into the periodic stamp,
     /// not lost: the stamp always holds the whole flux.
     pub folding_threshold: f64,
-    /// k-space cut (default 1e-3): where the PSF ⊗ pixel transfer |T S| is
-    /// below this, the galaxy transform is not evaluated and the product is
-    /// set to zero (stars are never cut). The real-space error this causes
-    /// is below ≈ threshold × 0.1 × peak (measured: docs/rendering.md).
+    /// k-space cut (default 1e-4, config `render.maxk_threshold`): where the
+    /// PSF ⊗ pixel transfer |T S| is below this, the galaxy transform is not
+    /// evaluated and the product is set to zero (stars are never cut).
+    /// Measured against the real-space twin: ≤ 1.3e-4 of the peak at 1e-4,
+    /// ≤ 8e-4 at 1e-3 (docs/rendering.md).
     pub kvalue_threshold: f64,
     /// No stamp edge brighter than this many sky σ (default 0.1).
     pub edge_sky_sigma: f64,
@@ -226,10 +227,20 @@ impl Renderer {
         }
         if !row.is_star() {
             let g = Galaxy::from_row(row)?;
+            let n_comp = g.components.len() as f64;
             for c in &g.components {
-                let unit = match c.kind {
-                    ProfileKind::DeVaucouleurs => self.unit_fold_radius[0],
-                    ProfileKind::Exponential => self.unit_fold_radius[1],
+                // Share the galaxy's half of the folding budget equally
+                // between components: component c may leave out a fraction
+                // f / (2 n w_c) of its own flux (w_c its share of the total).
+                let share = c.flux_e / flux;
+                let allowed = (acc.folding_threshold / (2.0 * n_comp * share)).min(0.5);
+                let unit = if g.components.len() > 1 {
+                    unit_radius_outside(c.kind, allowed)
+                } else {
+                    match c.kind {
+                        ProfileKind::DeVaucouleurs => self.unit_fold_radius[0],
+                        ProfileKind::Exponential => self.unit_fold_radius[1],
+                    }
                 };
                 let r_fold = unit * c.map.max_stretch();
                 radius = radius.max(r_fold + self.psf_fold_radius);
@@ -350,6 +361,27 @@ impl Renderer {
             times,
         ))
     }
+}
+
+/// Unit-profile radius outside which a fraction `outside` of the flux lies
+/// (bisection to 1e-6 relative; the closed-form enclosed flux of each law).
+fn unit_radius_outside(kind: ProfileKind, outside: f64) -> f64 {
+    let p = kind.profile();
+    let target = 1.0 - outside;
+    let (mut lo, mut hi) = (0.0, 1.0);
+    while p.enclosed(hi) < target && hi < 1e9 {
+        lo = hi;
+        hi *= 2.0;
+    }
+    while hi - lo > 1e-6 * hi {
+        let mid = 0.5 * (lo + hi);
+        if p.enclosed(mid) >= target {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
 }
 
 #[cfg(test)]
