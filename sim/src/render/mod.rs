@@ -14,7 +14,7 @@
 //! electrons. A star is the same with the galaxy factor replaced by its flux.
 //!
 //! Accuracy is governed by one struct, [`Accuracy`]; the slow real-space
-//! twin is [`reference`]; [`image::draw_image`] adds stamps into a full image
+//! twin is [`mod@reference`]; [`image::draw_image`] adds stamps into a full image
 //! reproducibly. Measured accuracy and speed: `docs/rendering.md`,
 //! `BENCHMARKS.md`.
 //!
