@@ -14,8 +14,8 @@ pub struct RawRender {
     /// k-space cut (default 1e-4): where the PSF ⊗ pixel transfer function is
     /// below this amplitude (relative to k = 0), galaxy transforms are not
     /// evaluated (GalSim's maxk_threshold in spirit). 1e-4 keeps rendering
-    /// errors below ~1.3e-4 of the peak; 1e-3 is ~1.5× faster with errors up
-    /// to ~8e-4 of the peak (docs/rendering.md).
+    /// errors below ~1.3e-4 of the peak; 1e-3 is ~15% faster with errors up
+    /// to ~5e-4 of the peak (docs/rendering.md).
     pub maxk_threshold: f64,
     /// No stamp edge may be brighter than this fraction of the sky noise σ.
     pub edge_sky_sigma: f64,

@@ -54,7 +54,7 @@ pub struct Accuracy {
     /// PSF ⊗ pixel transfer |T S| is below this, the galaxy transform is not
     /// evaluated and the product is set to zero (stars are never cut).
     /// Measured against the real-space twin: ≤ 1.3e-4 of the peak at 1e-4,
-    /// ≤ 8e-4 at 1e-3 (docs/rendering.md).
+    /// ≤ 5e-4 at 1e-3 (docs/rendering.md).
     pub kvalue_threshold: f64,
     /// No stamp edge brighter than this many sky σ (default 0.1).
     pub edge_sky_sigma: f64,
