@@ -441,3 +441,90 @@ fn an_object_is_placed_at_its_fits_position() {
     }
     assert!((sx / st - 20.3).abs() < 1e-3 && (sy / st - 14.8).abs() < 1e-3);
 }
+
+/// A Gaussian PSF displaced by (dx, dy) arcsec: a complex transfer function
+/// T(k) e^{−2πi k·d}, to check the sign conventions of asymmetric PSFs.
+#[derive(Debug)]
+struct ShiftedPsf {
+    inner: GaussianPsf,
+    dx: f64,
+    dy: f64,
+}
+
+impl Psf for ShiftedPsf {
+    fn transfer(&self, grid: StampGrid) -> Arc<Vec<num_complex::Complex32>> {
+        let t = self.inner.transfer(grid);
+        let mut out = Vec::with_capacity(t.len());
+        for row in 0..grid.n {
+            for col in 0..grid.n_cols() {
+                let (u, v) = grid.frequency(row, col);
+                let a = -2.0 * std::f64::consts::PI * (u * self.dx + v * self.dy);
+                let c = num_complex::Complex32::new(a.cos() as f32, a.sin() as f32);
+                out.push(t[row * grid.n_cols() + col] * c);
+            }
+        }
+        Arc::new(out)
+    }
+    fn radius_enclosing(&self, fraction: f64) -> f64 {
+        self.inner.radius_enclosing(fraction) + self.dx.hypot(self.dy)
+    }
+    fn radius_below(&self, level: f64) -> f64 {
+        self.inner.radius_below(level) + self.dx.hypot(self.dy)
+    }
+}
+
+#[test]
+fn a_displaced_psf_moves_the_light_the_right_way() {
+    // T e^{−2πi k·d} is the PSF moved by +d: a star's centroid must move by
+    // +d / p pixels (to 1e-4 pixel), which fixes the sign conventions of the
+    // transfer function, the phase of the position and the FFT.
+    let psf = Arc::new(ShiftedPsf {
+        inner: GaussianPsf::round(0.9),
+        dx: 0.3,
+        dy: -0.1,
+    });
+    let r = Renderer::new(psf, P, Accuracy::default(), SKY_SIGMA);
+    let s = r.draw_with_side(&star(40.2, 30.7, 1.0e4), 64).unwrap();
+    let (mut sx, mut sy, mut st) = (0.0, 0.0, 0.0);
+    for j in 0..s.ny {
+        for i in 0..s.nx {
+            let v = f64::from(s.data[j * s.nx + i]);
+            sx += v * (s.x0 + 1 + i as i64) as f64;
+            sy += v * (s.y0 + 1 + j as i64) as f64;
+            st += v;
+        }
+    }
+    assert!((sx / st - (40.2 + 0.3 / P)).abs() < 1e-4, "{}", sx / st);
+    assert!((sy / st - (30.7 - 0.1 / P)).abs() < 1e-4, "{}", sy / st);
+}
+
+#[test]
+fn an_elliptical_psf_gives_a_star_its_moments() {
+    // Star moments = σ² A⁻² + p²/12 for the elliptical Gaussian
+    // exp(−|A x|²/2σ²), within 1e-5 of the trace.
+    let (e1, e2) = (0.06, -0.04);
+    let g = GaussianPsf::elliptical(0.9, e1, e2);
+    let sigma = g.sigma_arcsec();
+    let r = Renderer::new(Arc::new(g), P, Accuracy::default(), SKY_SIGMA);
+    let (_, _, data) = r.draw_f64_with_side(&star(50.4, 50.1, 1.0), 96).unwrap();
+    let q = pixel_moments(&data, 96);
+    let a = crate::profile::shear_matrix(e1, e2).inverse();
+    let c = a.then_after(a).m;
+    let want = [
+        sigma * sigma * c[0][0] + P * P / 12.0,
+        sigma * sigma * c[0][1],
+        sigma * sigma * c[1][1] + P * P / 12.0,
+    ];
+    let tr = want[0] + want[2];
+    for k in 0..3 {
+        assert!(
+            (q[k] - want[k]).abs() < 1e-5 * tr,
+            "{k}: {} vs {}",
+            q[k],
+            want[k]
+        );
+    }
+    // Its ellipticity is the PSF's e.
+    let e = ellipticity_of_moments([q[0] - P * P / 12.0, q[1], q[2] - P * P / 12.0]);
+    assert!((e.0 - e1).abs() < 1e-5 && (e.1 - e2).abs() < 1e-5, "{e:?}");
+}
