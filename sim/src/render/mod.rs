@@ -190,8 +190,11 @@ impl Renderer {
 
     fn measure_psf_peak_fraction(&self) -> f64 {
         let r = self.psf.radius_enclosing(0.999);
-        let n = stamp::fft_friendly((2.0 * r / self.pixel_scale_arcsec).ceil() as usize + 8)
-            .clamp(32, self.accuracy.max_stamp_px.max(32));
+        let want = (2.0 * r / self.pixel_scale_arcsec).ceil();
+        let cap = self.accuracy.max_stamp_px.max(32);
+        // `as usize` saturates (NaN → 0), so a degenerate PSF cannot overflow.
+        let want = if want.is_finite() { want as usize } else { cap };
+        let n = stamp::fft_friendly(want.min(cap) + 8).clamp(32, stamp::fft_friendly(cap));
         let row = TruthRow {
             kind: crate::truth::KIND_STAR,
             flux_e: 1.0,
