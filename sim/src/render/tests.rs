@@ -528,3 +528,29 @@ fn an_elliptical_psf_gives_a_star_its_moments() {
     let e = ellipticity_of_moments([q[0] - P * P / 12.0, q[1], q[2] - P * P / 12.0]);
     assert!((e.0 - e1).abs() < 1e-5 && (e.1 - e2).abs() < 1e-5, "{e:?}");
 }
+
+#[test]
+fn accuracy_comes_from_the_render_section_and_timing_does_not_change_pixels() {
+    let raw = RawRender {
+        folding_threshold: 1e-3,
+        maxk_threshold: 2e-3,
+        edge_sky_sigma: 0.5,
+        max_stamp_px: 256,
+    };
+    let acc = Accuracy::from_config(&raw);
+    assert_eq!(acc.folding_threshold, 1e-3);
+    assert_eq!(acc.kvalue_threshold, 2e-3);
+    assert_eq!(acc.edge_sky_sigma, 0.5);
+    assert_eq!(acc.max_stamp_px, 256);
+    assert_eq!(Accuracy::default().kvalue_threshold, 1e-4);
+    // A tighter folding threshold gives a larger stamp; the cap holds.
+    let loose = renderer(Accuracy::default());
+    let tight = renderer(acc);
+    let row = galaxy(20.0, 20.0, 1.0e4, 0.5, 0.3, 0.7, 0.4, 0.5, 0.0, (0.0, 0.0));
+    assert!(tight.stamp_side(&row).unwrap() > loose.stamp_side(&row).unwrap());
+    let huge = galaxy(20.0, 20.0, 1.0e4, 1.0, 50.0, 0.7, 0.0, 1.0, 0.0, (0.0, 0.0));
+    assert_eq!(tight.stamp_side(&huge).unwrap(), 256);
+    let (s, t) = loose.draw_timed(&row).unwrap();
+    assert_eq!(s, loose.draw(&row));
+    assert!(t.kspace_ns > 0 && t.fft_ns > 0);
+}
