@@ -36,13 +36,22 @@ fn generate_measure_score_recovers_the_shear() {
     stepsim(&["generate", "--config", config, "--out", "run"], d);
     stepsim(&["measure", "--run", "run/public", "--out", "sub.txt"], d);
     stepsim(
-        &["score", "--truth", "run/private", "--submission", "sub.txt", "--out", "score"],
+        &[
+            "score",
+            "--truth",
+            "run/private",
+            "--submission",
+            "sub.txt",
+            "--out",
+            "score",
+        ],
         d,
     );
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.join("score/report.json")).unwrap()).unwrap();
     let num = |v: &serde_json::Value, k: &str| {
-        v[k].as_f64().unwrap_or_else(|| panic!("{k} missing or null in {v}"))
+        v[k].as_f64()
+            .unwrap_or_else(|| panic!("{k} missing or null in {v}"))
     };
     let psfs = report["psfs"].as_array().unwrap();
     assert_eq!(psfs.len(), 2);
@@ -55,7 +64,11 @@ fn generate_measure_score_recovers_the_shear() {
             num(p, "m_selc")
         );
         assert!(m.abs() < 0.1, "psf {}: m = {m}", p["psf"]);
-        assert!(c1.abs() < 0.005 && c2.abs() < 0.005, "psf {}: c = ({c1}, {c2})", p["psf"]);
+        assert!(
+            c1.abs() < 0.005 && c2.abs() < 0.005,
+            "psf {}: c = ({c1}, {c2})",
+            p["psf"]
+        );
         // Selection bias of a sane pipeline is small.
         assert!(num(p, "m_selc").abs() < 0.1, "{p}");
     }

@@ -3,10 +3,11 @@
 //! drawn separately so that their costs can be told apart; the sum of the two
 //! drawings is the model that the noise stage uses.
 
-use super::{GenerateError, deps};
+use super::GenerateError;
 use crate::config::Plan;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
 use crate::noise::{self, Detector};
+use crate::render::{Accuracy, Renderer, try_draw_image};
 use crate::seed::{SeedKey, Stream};
 use std::path::Path;
 use std::time::Instant;
@@ -60,9 +61,9 @@ pub fn run_once(
     let mut t = StageTimes::default();
 
     let clock = Instant::now();
-    let base = deps::base_field(plan, field)
+    let base = crate::population::base_field(plan, field)
         .map_err(|source| GenerateError::Population { field, source })?;
-    let rows = deps::sheared(&base, shear.g1, shear.g2);
+    let rows = crate::population::sheared(&base, shear.g1, shear.g2);
     let (galaxies, stars): (Vec<_>, Vec<_>) = rows.into_iter().partition(|r| !r.is_star());
     t.population_s = clock.elapsed().as_secs_f64();
     t.n_galaxies = galaxies.len();
@@ -71,22 +72,29 @@ pub fn run_once(
     let clock = Instant::now();
     let det = Detector::new(&raw.instrument, pixel_scale);
     let psf_raw = &raw.psfs[psf_index];
-    let psf = deps::build_psf(psf_raw, &raw.telescope, pixel_scale).map_err(|source| {
+    let psf = crate::psf::build(psf_raw, &raw.telescope, pixel_scale).map_err(|source| {
         GenerateError::Psf {
             index: psf_index,
             name: psf_raw.name.clone(),
             source,
         }
     })?;
-    let renderer = deps::renderer(psf, pixel_scale, &raw.render, det.sky_sigma_e());
+    let renderer = Renderer::new(
+        psf,
+        pixel_scale,
+        Accuracy::from_config(&raw.render),
+        det.sky_sigma_e(),
+    );
     t.psf_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let mut model = deps::draw_image(&renderer, &galaxies, w, h);
+    let mut model = try_draw_image(&renderer, &galaxies, w, h)
+        .map_err(|source| GenerateError::Render { field, source })?;
     t.galaxies_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let star_img = deps::draw_image(&renderer, &stars, w, h);
+    let star_img = try_draw_image(&renderer, &stars, w, h)
+        .map_err(|source| GenerateError::Render { field, source })?;
     for (m, s) in model.iter_mut().zip(&star_img) {
         *m += s;
     }

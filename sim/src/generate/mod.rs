@@ -19,12 +19,8 @@
 //! (resume), and `--shard K/N` makes only image j with j mod N = K − 1. The
 //! manifest is (re)written by whichever process finds every sidecar present,
 //! so after the last shard has run it is complete.
-//!
-//! All calls into the population, PSF and rendering modules go through
-//! [`deps`].
 
 pub mod bench;
-pub mod deps;
 mod readme;
 mod shard;
 
@@ -36,6 +32,7 @@ use crate::config::{Plan, SampleFormat};
 use crate::io::image_fits::{ImageHeader, write_image_fits};
 use crate::io::{IoError, truth::write_truth_fits, write_bytes_atomically};
 use crate::noise::{self, Detector};
+use crate::render::{Accuracy, Renderer, try_draw_image};
 use crate::run_layout::{
     DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
     Manifest, ManifestImage,
@@ -54,16 +51,24 @@ pub enum GenerateError {
     /// Reading or writing a file failed.
     #[error(transparent)]
     Io(#[from] IoError),
+    /// A truth row cannot be drawn (names the object, column and value).
+    #[error("base field {field}: {source}")]
+    Render {
+        /// The base field.
+        field: u32,
+        /// The renderer's error.
+        source: crate::render::RenderError,
+    },
     /// The population cannot be made (checked before anything is written).
     #[error("population: {0}")]
-    Preflight(deps::PopulationError),
+    Preflight(crate::population::PopulationError),
     /// The population of a base field could not be made.
     #[error("base field {field}: {source}")]
     Population {
         /// The base field.
         field: u32,
         /// The population's error.
-        source: deps::PopulationError,
+        source: crate::population::PopulationError,
     },
     /// A PSF could not be built.
     #[error("psfs.{index} ({name}): {source}")]
@@ -73,7 +78,7 @@ pub enum GenerateError {
         /// Its name.
         name: String,
         /// The PSF module's error.
-        source: deps::PsfError,
+        source: crate::psf::PsfError,
     },
     /// The output directory holds a run made from another config.
     #[error("{path} holds a run made from a different config; use another --out (or delete it)")]
@@ -317,11 +322,11 @@ pub fn generate(
     psf_needed.dedup();
     let pixel_scale = plan.raw.image.pixel_scale_arcsec;
     let det = Detector::new(&plan.raw.instrument, pixel_scale);
-    let mut renderers: BTreeMap<usize, deps::Renderer> = BTreeMap::new();
+    let mut renderers: BTreeMap<usize, Renderer> = BTreeMap::new();
     let mut built = Vec::new();
     for &p in &psf_needed {
         let raw = &plan.raw.psfs[p];
-        let psf = deps::build_psf(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
+        let psf = crate::psf::build(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
             GenerateError::Psf {
                 index: p,
                 name: raw.name.clone(),
@@ -330,10 +335,10 @@ pub fn generate(
         })?;
         renderers.insert(
             p,
-            deps::renderer(
+            Renderer::new(
                 psf.clone(),
                 pixel_scale,
-                &plan.raw.render,
+                Accuracy::from_config(&plan.raw.render),
                 det.sky_sigma_e(),
             ),
         );
@@ -352,14 +357,14 @@ pub fn generate(
     }
     let mut shared_written = false;
     for (&field, field_jobs) in &by_field {
-        let base = deps::base_field(plan, field)
+        let base = crate::population::base_field(plan, field)
             .map_err(|source| GenerateError::Population { field, source })?;
         if !shared_written {
             write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
             shared_written = true;
         }
         let twin = if field_jobs.iter().any(|j| j.rotated) {
-            Some(deps::rotated(&base))
+            Some(crate::population::rotated(&base))
         } else {
             None
         };
@@ -429,14 +434,17 @@ fn make_image(
     paths: &RunPaths,
     job: &Job,
     base: &[TruthRow],
-    renderer: &deps::Renderer,
+    renderer: &Renderer,
     det: &Detector,
 ) -> Result<(), GenerateError> {
     let raw = &plan.raw;
     let d = &plan.datasets[job.dataset as usize];
     let (w, h) = (raw.image.width_px, raw.image.height_px);
-    let rows = deps::sheared(base, d.g1, d.g2);
-    let model = deps::draw_image(renderer, &rows, w, h);
+    let rows = crate::population::sheared(base, d.g1, d.g2);
+    let model = try_draw_image(renderer, &rows, w, h).map_err(|source| GenerateError::Render {
+        field: job.field,
+        source,
+    })?;
     let noise_key = raw.output.noise.then(|| job.noise_key(plan.seed()));
     let pixels = noise::realise(&model, w as usize, det, noise_key);
     let header = ImageHeader::new(&raw.image, &raw.instrument, job.field);
@@ -536,7 +544,7 @@ fn write_shared(
     if plan.raw.output.write_psf {
         for (p, psf) in psfs {
             let raw = &plan.raw.psfs[*p];
-            deps::write_psf_fits(
+            write_psf_file(
                 &paths.psf(&raw.name),
                 psf,
                 raw,
@@ -545,6 +553,29 @@ fn write_shared(
         }
     }
     Ok(())
+}
+
+/// Writes `private/psf/<name>.fits`: the pixel-scale image and the
+/// oversampled one, with the measured report in the header (the same file
+/// `stepsim psf` writes, at its default sizes).
+fn write_psf_file(
+    path: &Path,
+    psf: &Arc<dyn crate::psf::Psf>,
+    raw: &crate::config::RawPsf,
+    pixel_scale_arcsec: f64,
+) -> Result<(), IoError> {
+    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX, write_psf};
+    let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
+        .map_err(|e| IoError::format(path, e.to_string()))?;
+    write_psf(
+        path,
+        &raw.name,
+        psf.as_ref(),
+        pixel_scale_arcsec,
+        DEFAULT_SIZE_PX,
+        DEFAULT_OVERSAMPLE,
+        Some(&report),
+    )
 }
 
 /// `private/datasets.json` of a run.
@@ -777,18 +808,23 @@ mod tests {
             .unwrap();
         let d = &p.datasets[3];
         assert_eq!((d.psf, d.g1, d.g2), (1, 0.04, -0.02));
-        let rows = deps::sheared(
-            &deps::rotated(&deps::base_field(&p, 1).unwrap()),
+        let rows = crate::population::sheared(
+            &crate::population::rotated(&crate::population::base_field(&p, 1).unwrap()),
             d.g1,
             d.g2,
         );
         let raw = &p.raw;
         let scale = raw.image.pixel_scale_arcsec;
         let det = Detector::new(&raw.instrument, scale);
-        let psf = deps::build_psf(&raw.psfs[1], &raw.telescope, scale).unwrap();
-        let r = deps::renderer(psf, scale, &raw.render, det.sky_sigma_e());
+        let psf = crate::psf::build(&raw.psfs[1], &raw.telescope, scale).unwrap();
+        let r = Renderer::new(
+            psf,
+            scale,
+            Accuracy::from_config(&raw.render),
+            det.sky_sigma_e(),
+        );
         let (w, h) = (raw.image.width_px, raw.image.height_px);
-        let model = deps::draw_image(&r, &rows, w, h);
+        let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
         let pixels = noise::realise_reference(&model, w as usize, &det, Some(noise_key));
         let by_hand = dir.path().join("by_hand.fits");
