@@ -21,9 +21,8 @@ pub struct LinearMap {
 
 /// The shear matrix A(g) of SPEC §1 (det A = 1).
 pub fn shear_matrix(g1: f64, g2: f64) -> LinearMap {
-    let n = (1.0 - g1 * g1 - g2 * g2).sqrt();
     LinearMap {
-        m: [[(1.0 - g1) / n, -g2 / n], [-g2 / n, (1.0 + g1) / n]],
+        m: crate::shear::shear_matrix(g1, g2),
     }
 }
 
@@ -114,22 +113,20 @@ impl LinearMap {
 /// The eq. 1 ellipticity e = χ / (1 + sqrt(1 − |χ|²)) of a second-moment
 /// tensor (xx, xy, yy), with χ = (Qxx − Qyy, 2Qxy) / (Qxx + Qyy).
 pub fn ellipticity_of_moments(q: [f64; 3]) -> (f64, f64) {
-    let tr = q[0] + q[2];
-    let (c1, c2) = ((q[0] - q[2]) / tr, 2.0 * q[1] / tr);
-    let d = 1.0 + (1.0 - c1 * c1 - c2 * c2).max(0.0).sqrt();
-    (c1 / d, c2 / d)
+    let e = crate::shear::Moments {
+        xx: q[0],
+        xy: q[1],
+        yy: q[2],
+    }
+    .ellipticity();
+    (e.re, e.im)
 }
 
 /// Paper eq. 8: e = (e_s + g) / (1 + g* e_s) in complex numbers.
 pub fn shear_ellipticity(e: (f64, f64), g: (f64, f64)) -> (f64, f64) {
-    let num = (e.0 + g.0, e.1 + g.1);
-    // g* e_s = (g1 − i g2)(e1 + i e2)
-    let den = (1.0 + g.0 * e.0 + g.1 * e.1, g.0 * e.1 - g.1 * e.0);
-    let dd = den.0 * den.0 + den.1 * den.1;
-    (
-        (num.0 * den.0 + num.1 * den.1) / dd,
-        (num.1 * den.0 - num.0 * den.1) / dd,
-    )
+    use num_complex::Complex64;
+    let out = crate::shear::apply_shear(Complex64::new(e.0, e.1), Complex64::new(g.0, g.1));
+    (out.re, out.im)
 }
 
 #[cfg(test)]

@@ -28,9 +28,9 @@ impl GaussianPsf {
     /// An elliptical Gaussian: geometric-mean FWHM and eq. 1 ellipticity (e1, e2).
     pub fn elliptical(fwhm_arcsec: f64, e1: f64, e2: f64) -> Self {
         let sigma_arcsec = fwhm_arcsec / (2.0 * (2.0 * std::f64::consts::LN_2).sqrt());
-        // A maps the elliptical image onto a circle: A = (1−|e|²)^(−1/2) [[1−e1, −e2], [−e2, 1+e1]].
-        let n = (1.0 - e1 * e1 - e2 * e2).sqrt();
-        let a = [[(1.0 - e1) / n, -e2 / n], [-e2 / n, (1.0 + e1) / n]];
+        // A maps the elliptical image onto a circle: the shear matrix of g = e
+        // (a circle sheared by g has ellipticity g, SPEC §1).
+        let a = crate::shear::shear_matrix(e1, e2);
         // det A = 1, A symmetric: A⁻ᵀ = A⁻¹ = [[a11, −a01], [−a10, a00]].
         let ainv_t = [[a[1][1], -a[0][1]], [-a[1][0], a[0][0]]];
         Self {
