@@ -32,5 +32,6 @@ pub mod psf;
 pub mod run_layout;
 pub mod seed;
 pub mod shear;
+pub mod stats;
 pub mod truth;
 pub mod wcs;

@@ -42,8 +42,8 @@ pub fn mag_cdf(stars: &RawStars, m: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::stats::{ks_p_value, ks_statistic};
     use crate::seed::{SeedKey, Stream};
+    use crate::stats::{ks_p_value, ks_statistic};
 
     /// Least-squares slope of log10 of the counts in 0.5-mag bins.
     pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
