@@ -26,8 +26,9 @@ fn galaxies_of(rows: &[TruthRow]) -> Vec<TruthRow> {
     rows.iter().filter(|r| !r.is_star()).copied().collect()
 }
 
-/// Least-squares slope of log10 counts in 0.5-mag bins over [lo, hi).
-fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
+/// Least-squares slope of log10 counts in 0.5-mag bins over [lo, hi)
+/// (galaxy counts here, star counts in `stars.rs`).
+pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
     let nb = ((hi - lo) / 0.5).round() as usize;
     let mut counts = vec![0usize; nb];
     for &m in mags {
