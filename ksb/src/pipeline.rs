@@ -402,27 +402,6 @@ mod tests {
     };
     use stepsim_sim::seed::{SeedKey, Stream};
 
-    /// A 1024² STEP-like scene: 0.9″ PSF at 0.206″/px (σ 1.856 px), sky
-    /// 80 000 e⁻, galaxies I ≈ 20–24.5, stars I ≈ 17–25.
-    pub(crate) fn step_like(shear: [f64; 2], psf_e: [f64; 2], seed: u64) -> SceneSpec {
-        SceneSpec {
-            width: 1024,
-            height: 1024,
-            n_galaxy_pairs: 250,
-            n_stars: 150,
-            psf: covariance(4.37 / 2.3548, psf_e),
-            psf_halo: None,
-            shear,
-            galaxy_sigma_px: (1.0, 4.0),
-            galaxy_flux_e: (1.5e4, 1e6),
-            star_flux_e: (1.4e4, 1.4e7),
-            sigma_e: 0.25,
-            sky_e: 80_000.0,
-            read_noise_e: 5.0,
-            seed,
-        }
-    }
-
     const SAT_E: f64 = 65535.0 * 4.0;
 
     fn info() -> ImageInfo {
@@ -471,7 +450,7 @@ mod tests {
         // (Galaxies of σ 1.5–5 px: with σ down to 1 px their convolved
         // sizes pile up just above the PSF and, with no bright star at all,
         // that pile is taken for the locus — see docs/ksb.md.)
-        let mut spec = step_like([0.0, 0.0], [0.05, -0.03], 3);
+        let mut spec = SceneSpec::step_like([0.0, 0.0], [0.05, -0.03], 3);
         spec.star_flux_e = (4e4, 8e4);
         spec.galaxy_sigma_px = (1.5, 5.0);
         let m = measured(&spec);
@@ -610,7 +589,7 @@ mod tests {
         // −0.0019). Bounds: |m| < 0.03 (Gaussian), < 0.1 (halo); |c| < 0.005.
         let g = 0.05;
         for (halo, m_bound) in [(0.0, 0.03), (0.2, 0.1)] {
-            let mut spec = step_like([g, 0.0], [0.05, -0.03], 0);
+            let mut spec = SceneSpec::step_like([g, 0.0], [0.05, -0.03], 0);
             spec.sky_e = 100.0;
             if halo > 0.0 {
                 spec.psf_halo = Some((halo, covariance(4.0, [0.05, -0.03])));
