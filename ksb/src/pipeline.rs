@@ -2,7 +2,7 @@
 //! sizes, star selection, PSF model, KSB+ shear estimates, cuts and weights.
 
 use crate::background::Background;
-use crate::centroid::{WindowSettings, windowed};
+use crate::centroid::windowed;
 use crate::error::KsbError;
 use crate::filter::{noise_factor, smooth};
 use crate::flags;
@@ -116,13 +116,7 @@ pub fn measure_image(
         background_var: bg.rms * bg.rms,
         poisson: params.poisson_variance,
     };
-    let settings = WindowSettings {
-        radius_rg: params.window_radius_rg,
-        rg_min: params.rg_min_px,
-        rg_max: params.rg_max_px,
-        tol: params.centroid_tol_px,
-        max_iter: params.centroid_max_iter,
-    };
+    let settings = params.window_settings();
     let cands: Vec<Candidate> = dets
         .par_iter()
         .map(|d| {
@@ -521,13 +515,7 @@ mod tests {
         let sigma_f = bg.rms * noise_factor(params.detect_filter_sigma_px);
         let dets = detect(&filtered, sigma_f, &img, None, &params);
         assert_eq!(dets.len(), 49, "{dets:?}");
-        let settings = WindowSettings {
-            radius_rg: params.window_radius_rg,
-            rg_min: params.rg_min_px,
-            rg_max: params.rg_max_px,
-            tol: params.centroid_tol_px,
-            max_iter: params.centroid_max_iter,
-        };
+        let settings = params.window_settings();
         let mut sum2 = 0.0;
         for &(x, y) in &truth {
             let d = dets
