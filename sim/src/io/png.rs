@@ -186,8 +186,8 @@ pub fn decode(png: &[u8]) -> Option<Decoded> {
         _ => return None,
     };
     let raw = miniz_oxide::inflate::decompress_to_vec_zlib(&idat).ok()?;
-    let stride = width * channels;
-    if raw.len() != (stride + 1) * height {
+    let stride = width.checked_mul(channels)?;
+    if Some(raw.len()) != (stride + 1).checked_mul(height) {
         return None;
     }
     let mut pixels = vec![0u8; stride * height];
@@ -372,5 +372,14 @@ mod tests {
         let mut bad = png.clone();
         bad[40] ^= 1;
         assert!(decode_indexed(&bad).is_none(), "a flipped bit is caught");
+        // Absurd dimensions (with a valid CRC) are refused, not a panic.
+        let mut huge = png.clone();
+        huge[16..24].copy_from_slice(&[0xff; 8]);
+        huge[25] = RGB; // 3 bytes per pixel: the row count × stride overflows
+
+        let crc = crc32(&huge[12..29]);
+        huge[29..33].copy_from_slice(&crc.to_be_bytes());
+        assert!(decode(&huge).is_none());
+        assert!(decode(&png[..png.len() / 2]).is_none(), "truncated");
     }
 }
