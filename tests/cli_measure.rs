@@ -3,7 +3,7 @@
 
 use std::path::Path;
 use std::process::Command;
-use stepsim_ksb::draw::{SceneSpec, covariance, synthetic_scene};
+use stepsim_ksb::draw::{SceneSpec, synthetic_scene};
 use stepsim_ksb::io::write_fits_image;
 use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
 
@@ -20,16 +20,8 @@ fn public_run(dir: &Path) {
             height: 512,
             n_galaxy_pairs: 60,
             n_stars: 80,
-            psf: covariance(4.37 / 2.3548, [0.04, 0.01]),
-            psf_halo: None,
-            shear: [0.05, 0.0],
-            galaxy_sigma_px: (1.0, 4.0),
-            galaxy_flux_e: (1.5e4, 1e6),
             star_flux_e: (1e5, 3e6),
-            sigma_e: 0.25,
-            sky_e: 80_000.0,
-            read_noise_e: 5.0,
-            seed: 100 + k as u64,
+            ..SceneSpec::step_like([0.05, 0.0], [0.04, 0.01], 100 + k as u64)
         };
         let (_, img) = synthetic_scene(&spec);
         let adu = img.scaled(0.25);

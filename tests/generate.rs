@@ -289,70 +289,34 @@ fn refused_input_exits_1_and_writes_nothing() {
     let dir = setup();
     let d = dir.path();
     std::fs::write(d.join("bad.json"), r#"{"image": {"widht_px": 64}}"#).unwrap();
-    let cases: [(&[&str], &str); 4] = [
+    // Each command line is split at spaces (no argument holds one).
+    let cases = [
+        ("generate --config bad.json --out x", "image.widht_px"),
         (
-            &["generate", "--config", "bad.json", "--out", "x"],
-            "image.widht_px",
-        ),
-        (
-            &[
-                "generate",
-                "--config",
-                "c.json",
-                "--out",
-                "x",
-                "--set",
-                "image.width_px=0",
-            ],
+            "generate --config c.json --out x --set image.width_px=0",
             "image.width_px",
         ),
         (
-            &[
-                "generate",
-                "--config",
-                "c.json",
-                "--out",
-                "x",
-                "--set",
-                "output.compression=rice",
-            ],
+            "generate --config c.json --out x --set output.compression=rice",
             "output.compression",
         ),
-        (
-            &["generate", "--config", "missing.json", "--out", "x"],
-            "missing.json",
-        ),
+        ("generate --config missing.json --out x", "missing.json"),
     ];
-    for (args, needle) in cases {
-        let o = stepsim(args, d);
-        assert_eq!(o.status.code(), Some(1), "{args:?}");
-        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
-        assert!(!d.join("x").exists(), "{args:?} wrote something");
+    let run = |line: &str| stepsim(&line.split(' ').collect::<Vec<_>>(), d);
+    for (line, needle) in cases {
+        let o = run(line);
+        assert_eq!(o.status.code(), Some(1), "{line}");
+        assert!(stderr(&o).contains(needle), "{line}: {}", stderr(&o));
+        assert!(!d.join("x").exists(), "{line} wrote something");
     }
     // Usage errors exit 2.
-    let o = stepsim(
-        &[
-            "generate", "--config", "c.json", "--out", "x", "--shard", "4/3",
-        ],
-        d,
-    );
+    let o = run("generate --config c.json --out x --shard 4/3");
     assert_eq!(o.status.code(), Some(2));
     assert!(!d.join("x").exists());
     // A run directory made from another config is refused, untouched.
     generate(d, "y", &[]);
     let before = files(&d.join("y"));
-    let o = stepsim(
-        &[
-            "generate",
-            "--config",
-            "c.json",
-            "--out",
-            "y",
-            "--set",
-            "run.seed=1",
-        ],
-        d,
-    );
+    let o = run("generate --config c.json --out y --set run.seed=1");
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("different config"), "{}", stderr(&o));
     assert!(files(&d.join("y")) == before);

@@ -3,15 +3,43 @@
 //! `stepsim_sim::psf::tests`; here a small config keeps the run short.)
 
 use std::path::Path;
-use std::process::Command;
+use std::process::{Command, Output};
 use stepsim_sim::io::psf_fits::{read_image_hdu, read_psf_fits};
 
 fn stepsim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stepsim"))
 }
 
-fn run(args: &[&str]) -> std::process::Output {
+fn run(args: &[&str]) -> Output {
     stepsim().args(args).output().unwrap()
+}
+
+/// Writes `config` to `dir/c.json` and runs `stepsim psf` on it into
+/// `dir/out`, with `extra` arguments.
+fn run_psf(dir: &Path, config: &str, extra: &[&str]) -> Output {
+    let cfg = dir.join("c.json");
+    std::fs::write(&cfg, config).unwrap();
+    let out_dir = dir.join("out");
+    let mut args = vec![
+        "psf",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--out",
+        out_dir.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
+/// `psf_report.json` of a run of [`run_psf`] in `dir`, which must have
+/// succeeded.
+fn report_of(dir: &Path, out: &Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&std::fs::read(dir.join("out/psf_report.json")).unwrap()).unwrap()
 }
 
 const CONFIG: &str = r#"{
@@ -25,27 +53,13 @@ const CONFIG: &str = r#"{
 #[test]
 fn writes_images_report_and_picture() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("c.json");
-    std::fs::write(&cfg, CONFIG).unwrap();
     let out_dir = dir.path().join("out");
-    let out = run(&[
-        "psf",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-        "--size-px",
-        "64",
-        "--oversample",
-        "3",
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = run_psf(
+        dir.path(),
+        CONFIG,
+        &["--size-px", "64", "--oversample", "3"],
     );
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out_dir.join("psf_report.json")).unwrap()).unwrap();
+    let report = report_of(dir.path(), &out);
     assert_eq!(report["pixel_scale_arcsec"], 0.206);
     let psfs = report["psfs"].as_array().unwrap();
     assert_eq!(psfs.len(), 3);
@@ -131,27 +145,11 @@ fn a_fits_psf_round_trips_through_the_config() {
         &[],
     )
     .unwrap();
-    let cfg = dir.path().join("c.json");
     let text = format!(
         r#"{{"psfs": [{{"name": "f", "model": "fits", "path": {:?}, "pixel_scale_arcsec": 0.05}}]}}"#,
         psf_path.to_str().unwrap()
     );
-    std::fs::write(&cfg, text).unwrap();
-    let out_dir = dir.path().join("out");
-    let out = run(&[
-        "psf",
-        "--config",
-        cfg.to_str().unwrap(),
-        "--out",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out_dir.join("psf_report.json")).unwrap()).unwrap();
+    let report = report_of(dir.path(), &run_psf(dir.path(), &text, &[]));
     // σ = 0.2″ → FWHM 0.471″ before the 0.206″ pixel; with it, wider.
     let f = report["psfs"][0]["fwhm_arcsec"].as_f64().unwrap();
     assert!(f > 0.471 && f < 0.55, "{f}");
@@ -161,41 +159,35 @@ fn a_fits_psf_round_trips_through_the_config() {
 #[test]
 fn refusals_exit_1_and_usage_errors_exit_2() {
     let dir = tempfile::tempdir().unwrap();
-    let out_dir = dir.path().join("out");
-    let o = out_dir.to_str().unwrap();
     // A missing PSF file is named.
-    let cfg = dir.path().join("c.json");
-    std::fs::write(
-        &cfg,
+    let out = run_psf(
+        dir.path(),
         r#"{"psfs": [{"name": "f", "model": "fits", "path": "/nonexistent/p.fits", "pixel_scale_arcsec": 0.1}]}"#,
-    )
-    .unwrap();
-    let out = run(&["psf", "--config", cfg.to_str().unwrap(), "--out", o]);
+        &[],
+    );
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("/nonexistent/p.fits"), "{err}");
     // An unreachable calibration is refused with the PSF's name.
-    std::fs::write(
-        &cfg,
-        r#"{"psfs": [{"name": "blurry", "model": "optical", "aberration": "defocus", "amplitude": 3.0}]}"#,
-    )
-    .unwrap();
-    let out = run(&["psf", "--config", cfg.to_str().unwrap(), "--out", o]);
+    let blurry = r#"{"psfs": [{"name": "blurry", "model": "optical", "aberration": "defocus", "amplitude": 3.0}]}"#;
+    let out = run_psf(dir.path(), blurry, &[]);
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains("psf blurry") && err.contains("fwhm_arcsec"),
         "{err}"
     );
-    assert!(!Path::new(o).join("psf_report.json").exists());
+    assert!(!dir.path().join("out/psf_report.json").exists());
     // Usage errors.
     for bad in [
         &["--size-px", "15"][..],
         &["--oversample", "0"],
         &["--size-px", "abc"],
     ] {
-        let mut args = vec!["psf", "--config", cfg.to_str().unwrap(), "--out", o];
-        args.extend_from_slice(bad);
-        assert_eq!(run(&args).status.code(), Some(2), "{bad:?}");
+        assert_eq!(
+            run_psf(dir.path(), blurry, bad).status.code(),
+            Some(2),
+            "{bad:?}"
+        );
     }
 }

@@ -29,7 +29,6 @@ pub mod matching;
 pub mod metrics;
 pub mod pipeline;
 pub mod plots;
-pub mod png;
 pub mod report;
 pub mod submission;
 pub mod synthetic;

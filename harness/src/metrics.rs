@@ -8,8 +8,10 @@
 //! `docs/scoring.md`.
 
 use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
+use crate::matching::match_nearest;
 use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
 use crate::submission::SubRow;
+use stepsim_sim::run_layout::Datasets;
 use stepsim_sim::truth::TruthRow;
 
 /// Edges of the true-magnitude bins (I, Vega); the outer bins are open.
@@ -161,6 +163,22 @@ pub fn image_stats(
     s
 }
 
+/// Matches one image's submitted `rows` to its `truth` table (nearest
+/// truth object within `radius_px`, [`match_nearest`]) and reduces them
+/// ([`image_stats`]).
+pub fn match_image(
+    dataset: usize,
+    field: u32,
+    rows: &[SubRow],
+    truth: &[TruthRow],
+    radius_px: f64,
+) -> ImageStats {
+    let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
+    let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
+    let m = match_nearest(&txy, &qxy, radius_px);
+    image_stats(dataset, field, rows, &m, truth)
+}
+
 /// A dataset as the metrics need it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DatasetMeta {
@@ -174,6 +192,24 @@ pub struct DatasetMeta {
     pub g1: f64,
     /// Applied g2.
     pub g2: f64,
+}
+
+impl DatasetMeta {
+    /// The metrics' table of every dataset of a run (`datasets.json`), in
+    /// dataset order.
+    pub fn of_run(datasets: &Datasets) -> Vec<Self> {
+        datasets
+            .datasets
+            .iter()
+            .map(|d| Self {
+                dataset: d.dataset.clone(),
+                psf_id: d.psf_id,
+                psf: d.psf.clone(),
+                g1: d.g1,
+                g2: d.g2,
+            })
+            .collect()
+    }
 }
 
 /// Per-dataset values that feed the fits.

@@ -4,9 +4,8 @@
 
 use crate::bootstrap::{DEFAULT_RESAMPLES, DEFAULT_SEED, bootstrap};
 use crate::error::HarnessError;
-use crate::matching::match_nearest;
 use crate::metrics::{
-    DISK_EDGES_ARCSEC, DatasetMeta, ImageStats, MAG_EDGES, binned_residuals, image_stats,
+    DISK_EDGES_ARCSEC, DatasetMeta, ImageStats, MAG_EDGES, binned_residuals, match_image,
     score_tables,
 };
 use crate::report::Report;
@@ -118,33 +117,20 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
             let path = p.truth.truth_path(&info.image);
             let truth = crate::truth_set::read_scoring_columns(&path)?;
             let rows = &p.submission.per_image[i];
-            let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
-            let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
-            let m = match_nearest(&txy, &qxy, radius_px);
-            Ok(image_stats(info.dataset, info.field, rows, &m, &truth))
-        })
-        .collect()
-}
-
-/// The dataset table the metrics need.
-pub fn dataset_meta(truth: &TruthSet) -> Vec<DatasetMeta> {
-    truth
-        .datasets
-        .datasets
-        .iter()
-        .map(|d| DatasetMeta {
-            dataset: d.dataset.clone(),
-            psf_id: d.psf_id,
-            psf: d.psf.clone(),
-            g1: d.g1,
-            g2: d.g2,
+            Ok(match_image(
+                info.dataset,
+                info.field,
+                rows,
+                &truth,
+                radius_px,
+            ))
         })
         .collect()
 }
 
 /// Stage 3: the metrics, the bootstrap and the report.
 pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> Report {
-    let meta = dataset_meta(&p.truth);
+    let meta = DatasetMeta::of_run(&p.truth.datasets);
     let area = p.truth.index.image_area_arcmin2();
     let scores = score_tables(&meta, stats, area);
     let mut summary = scores.summary;

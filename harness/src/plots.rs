@@ -1,8 +1,8 @@
 //! Plots like the paper's Figures 2–5, written by our own small plotter as
 //! SVG (with titles, axis labels and tick labels) and PNG (the same drawing
 //! rasterised **without text**, so that no font is needed anywhere; the SVG
-//! is the labelled version). The PNG encoder ([`crate::png`]) is ours too;
-//! CI installs nothing.
+//! is the labelled version). The PNG encoder ([`stepsim_sim::io::png`],
+//! shared with the PSF panel) is ours too; CI installs nothing.
 
 use crate::report::Report;
 use std::fmt::Write as _;
@@ -368,7 +368,7 @@ impl Figure {
                 r.line((x0, b), (x0 + 5.0, b), BLACK, false);
             }
         }
-        crate::png::encode_indexed(w, h, &PALETTE, &r.pix)
+        stepsim_sim::io::png::encode_indexed(w, h, &PALETTE, &r.pix)
     }
 }
 
@@ -640,7 +640,7 @@ pub fn fig5(r: &Report) -> Figure {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::png::decode_indexed;
+    use stepsim_sim::io::png::decode_indexed;
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {

@@ -9,8 +9,7 @@
 //! With `shape_noise` the shapes are drawn independently instead.
 
 use crate::error::HarnessError;
-use crate::matching::match_nearest;
-use crate::metrics::{ImageStats, image_stats};
+use crate::metrics::{DatasetMeta, ImageStats, match_image};
 use crate::submission::SubRow;
 use crate::truth_set::ImageIndex;
 use rand::{RngExt, SeedableRng};
@@ -300,28 +299,13 @@ impl SynthRun {
             .iter()
             .enumerate()
             .filter(|(i, _)| !rows[*i].is_empty())
-            .map(|(i, info)| {
-                let t: Vec<(f64, f64)> = self.truth[i].iter().map(|t| (t.x, t.y)).collect();
-                let q: Vec<(f64, f64)> = rows[i].iter().map(|r| (r.x, r.y)).collect();
-                let m = match_nearest(&t, &q, r);
-                image_stats(info.dataset, info.field, &rows[i], &m, &self.truth[i])
-            })
+            .map(|(i, info)| match_image(info.dataset, info.field, &rows[i], &self.truth[i], r))
             .collect()
     }
 
     /// The dataset table of the metrics.
-    pub fn meta(&self) -> Vec<crate::metrics::DatasetMeta> {
-        self.datasets
-            .datasets
-            .iter()
-            .map(|d| crate::metrics::DatasetMeta {
-                dataset: d.dataset.clone(),
-                psf_id: d.psf_id,
-                psf: d.psf.clone(),
-                g1: d.g1,
-                g2: d.g2,
-            })
-            .collect()
+    pub fn meta(&self) -> Vec<DatasetMeta> {
+        DatasetMeta::of_run(&self.datasets)
     }
 }
 

@@ -11,7 +11,7 @@
 
 use std::time::Instant;
 use stepsim_ksb::KsbParams;
-use stepsim_ksb::draw::{SceneSpec, covariance, synthetic_scene};
+use stepsim_ksb::draw::{SceneSpec, synthetic_scene};
 use stepsim_ksb::pipeline::{ImageInfo, measure_image};
 
 fn peak_rss_mib() -> Option<f64> {
@@ -41,16 +41,7 @@ fn main() {
         height: 4096,
         n_galaxy_pairs: 5000,
         n_stars: 2000,
-        psf: covariance(4.37 / 2.3548, [0.04, 0.02]),
-        psf_halo: None,
-        shear: [0.05, 0.0],
-        galaxy_sigma_px: (1.0, 4.0),
-        galaxy_flux_e: (1.5e4, 1e6),
-        star_flux_e: (1.4e4, 1.4e7),
-        sigma_e: 0.25,
-        sky_e: 80_000.0,
-        read_noise_e: 5.0,
-        seed: 2006,
+        ..SceneSpec::step_like([0.05, 0.0], [0.04, 0.02], 2006)
     };
     let t = Instant::now();
     let (_objects, mut img) = synthetic_scene(&spec);

@@ -10,6 +10,7 @@
 
 use crate::image::Image;
 use rayon::prelude::*;
+use stepsim_sim::stats::median;
 
 /// The background of an image.
 #[derive(Debug, Clone, PartialEq)]
@@ -144,20 +145,6 @@ impl Background {
             });
         out
     }
-}
-
-/// Median of a sample (reorders it).
-pub fn median(v: &mut [f64]) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
 }
 
 #[cfg(test)]

@@ -203,6 +203,31 @@ pub struct SceneSpec {
     pub seed: u64,
 }
 
+impl SceneSpec {
+    /// A 1024² STEP-like scene: 0.9″ PSF at 0.206″/px (σ 1.856 px) with
+    /// ellipticity `psf_e`, sky 80 000 e⁻, read noise 5 e⁻, 250 galaxy
+    /// pairs I ≈ 20–24.5 (σ 1–4 px, σ_e 0.25) and 150 stars I ≈ 17–25.
+    /// Tests and benchmarks change size and counts with struct update syntax.
+    pub fn step_like(shear: [f64; 2], psf_e: [f64; 2], seed: u64) -> Self {
+        Self {
+            width: 1024,
+            height: 1024,
+            n_galaxy_pairs: 250,
+            n_stars: 150,
+            psf: covariance(4.37 / 2.3548, psf_e),
+            psf_halo: None,
+            shear,
+            galaxy_sigma_px: (1.0, 4.0),
+            galaxy_flux_e: (1.5e4, 1e6),
+            star_flux_e: (1.4e4, 1.4e7),
+            sigma_e: 0.25,
+            sky_e: 80_000.0,
+            read_noise_e: 5.0,
+            seed,
+        }
+    }
+}
+
 /// One object of a synthetic scene (array coordinates).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneObject {

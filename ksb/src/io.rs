@@ -4,9 +4,9 @@ use crate::error::KsbError;
 use crate::image::Image;
 use crate::pipeline::MeasuredObject;
 use fitsio::FitsFile;
-use fitsio::hdu::HduInfo;
 use std::fmt::Write as _;
 use std::path::Path;
+use stepsim_sim::io::image_fits::read_image_fits;
 use stepsim_sim::io::{IoError, write_atomically};
 use stepsim_sim::run_layout::{MANIFEST_FORMAT, Manifest};
 
@@ -37,33 +37,20 @@ pub fn read_manifest(path: &Path) -> Result<Manifest, KsbError> {
 }
 
 /// Reads the first HDU with 2-D image data (a primary image, or an image
-/// extension such as a tile-compressed one) as f32, in the file's units.
+/// extension such as a tile-compressed one) as f32, in the file's units
+/// (the simulator's reader, [`read_image_fits`], as an [`Image`]).
 pub fn read_fits_image(path: &Path) -> Result<Image, KsbError> {
-    let fe = |e: fitsio::errors::Error| KsbError::Io(IoError::fits(path, e));
     if !path.is_file() {
         return Err(KsbError::Io(IoError::os(
             path,
             std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         )));
     }
-    let mut f = FitsFile::open(path).map_err(fe)?;
-    let n = f.num_hdus().map_err(fe)?;
-    for k in 0..n {
-        let hdu = f.hdu(k).map_err(fe)?;
-        if let HduInfo::ImageInfo { shape, .. } = &hdu.info {
-            if shape.len() == 2 && shape[0] > 0 && shape[1] > 0 {
-                let (h, w) = (shape[0], shape[1]);
-                let data: Vec<f32> = hdu.read_image(&mut f).map_err(fe)?;
-                return Image::from_vec(w, h, data).ok_or_else(|| KsbError::Image {
-                    path: path.into(),
-                    message: format!("HDU {k}: pixel count does not match {w} × {h}"),
-                });
-            }
-        }
-    }
-    Err(KsbError::Image {
+    let f = read_image_fits(path)?;
+    let (w, h) = (f.width as usize, f.height as usize);
+    Image::from_vec(w, h, f.pixels).ok_or_else(|| KsbError::Image {
         path: path.into(),
-        message: "no HDU with 2-D image data".into(),
+        message: format!("pixel count does not match {w} × {h}"),
     })
 }
 

@@ -150,6 +150,17 @@ impl Default for KsbParams {
 }
 
 impl KsbParams {
+    /// The windowed-centroid settings these parameters define.
+    pub fn window_settings(&self) -> crate::centroid::WindowSettings {
+        crate::centroid::WindowSettings {
+            radius_rg: self.window_radius_rg,
+            rg_min: self.rg_min_px,
+            rg_max: self.rg_max_px,
+            tol: self.centroid_tol_px,
+            max_iter: self.centroid_max_iter,
+        }
+    }
+
     /// Checks every range; the first offending parameter is named.
     pub fn validate(&self) -> Result<(), KsbError> {
         let pos = |name: &'static str, v: f64| {

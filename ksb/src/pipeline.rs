@@ -2,7 +2,7 @@
 //! sizes, star selection, PSF model, KSB+ shear estimates, cuts and weights.
 
 use crate::background::Background;
-use crate::centroid::{WindowSettings, windowed};
+use crate::centroid::windowed;
 use crate::error::KsbError;
 use crate::filter::{noise_factor, smooth};
 use crate::flags;
@@ -116,13 +116,7 @@ pub fn measure_image(
         background_var: bg.rms * bg.rms,
         poisson: params.poisson_variance,
     };
-    let settings = WindowSettings {
-        radius_rg: params.window_radius_rg,
-        rg_min: params.rg_min_px,
-        rg_max: params.rg_max_px,
-        tol: params.centroid_tol_px,
-        max_iter: params.centroid_max_iter,
-    };
+    let settings = params.window_settings();
     let cands: Vec<Candidate> = dets
         .par_iter()
         .map(|d| {
@@ -402,27 +396,6 @@ mod tests {
     };
     use stepsim_sim::seed::{SeedKey, Stream};
 
-    /// A 1024² STEP-like scene: 0.9″ PSF at 0.206″/px (σ 1.856 px), sky
-    /// 80 000 e⁻, galaxies I ≈ 20–24.5, stars I ≈ 17–25.
-    pub(crate) fn step_like(shear: [f64; 2], psf_e: [f64; 2], seed: u64) -> SceneSpec {
-        SceneSpec {
-            width: 1024,
-            height: 1024,
-            n_galaxy_pairs: 250,
-            n_stars: 150,
-            psf: covariance(4.37 / 2.3548, psf_e),
-            psf_halo: None,
-            shear,
-            galaxy_sigma_px: (1.0, 4.0),
-            galaxy_flux_e: (1.5e4, 1e6),
-            star_flux_e: (1.4e4, 1.4e7),
-            sigma_e: 0.25,
-            sky_e: 80_000.0,
-            read_noise_e: 5.0,
-            seed,
-        }
-    }
-
     const SAT_E: f64 = 65535.0 * 4.0;
 
     fn info() -> ImageInfo {
@@ -471,7 +444,7 @@ mod tests {
         // (Galaxies of σ 1.5–5 px: with σ down to 1 px their convolved
         // sizes pile up just above the PSF and, with no bright star at all,
         // that pile is taken for the locus — see docs/ksb.md.)
-        let mut spec = step_like([0.0, 0.0], [0.05, -0.03], 3);
+        let mut spec = SceneSpec::step_like([0.0, 0.0], [0.05, -0.03], 3);
         spec.star_flux_e = (4e4, 8e4);
         spec.galaxy_sigma_px = (1.5, 5.0);
         let m = measured(&spec);
@@ -542,13 +515,7 @@ mod tests {
         let sigma_f = bg.rms * noise_factor(params.detect_filter_sigma_px);
         let dets = detect(&filtered, sigma_f, &img, None, &params);
         assert_eq!(dets.len(), 49, "{dets:?}");
-        let settings = WindowSettings {
-            radius_rg: params.window_radius_rg,
-            rg_min: params.rg_min_px,
-            rg_max: params.rg_max_px,
-            tol: params.centroid_tol_px,
-            max_iter: params.centroid_max_iter,
-        };
+        let settings = params.window_settings();
         let mut sum2 = 0.0;
         for &(x, y) in &truth {
             let d = dets
@@ -610,7 +577,7 @@ mod tests {
         // −0.0019). Bounds: |m| < 0.03 (Gaussian), < 0.1 (halo); |c| < 0.005.
         let g = 0.05;
         for (halo, m_bound) in [(0.0, 0.03), (0.2, 0.1)] {
-            let mut spec = step_like([g, 0.0], [0.05, -0.03], 0);
+            let mut spec = SceneSpec::step_like([g, 0.0], [0.05, -0.03], 0);
             spec.sky_e = 100.0;
             if halo > 0.0 {
                 spec.psf_halo = Some((halo, covariance(4.0, [0.05, -0.03])));

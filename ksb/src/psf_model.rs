@@ -74,11 +74,9 @@ pub fn star_at_scale(
     params: &KsbParams,
 ) -> Option<StarAtScale> {
     let s = WindowSettings {
-        radius_rg: params.window_radius_rg,
         rg_min: rg,
         rg_max: rg,
-        tol: params.centroid_tol_px,
-        max_iter: params.centroid_max_iter,
+        ..params.window_settings()
     };
     let c = windowed(img, x, y, rg, false, &s)?;
     if !c.converged || (c.x - x).hypot(c.y - y) > params.centroid_max_shift_px {

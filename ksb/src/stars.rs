@@ -119,9 +119,9 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
         .copied()
         .filter(|v| (v - mode).abs() <= 2.0 * h)
         .collect();
-    let centre = crate::background::median(&mut near)?;
+    let centre = stepsim_sim::stats::median(&mut near)?;
     let mut dev: Vec<f64> = near.iter().map(|v| (v - centre).abs()).collect();
-    let mad = crate::background::median(&mut dev)?;
+    let mad = stepsim_sim::stats::median(&mut dev)?;
     // Stars scatter in size only by measurement noise: most candidates
     // within ±6h of a stellar peak lie within ±2h (a flat distribution
     // puts a third there). A broad "locus" is a clump of galaxies.

@@ -34,5 +34,6 @@ pub mod render;
 pub mod run_layout;
 pub mod seed;
 pub mod shear;
+pub mod stats;
 pub mod truth;
 pub mod wcs;

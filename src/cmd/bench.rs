@@ -4,7 +4,8 @@
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
 use stepsim_sim::config::{Plan, RawConfig};
-use stepsim_sim::generate::bench::{StageTimes, median, peak_memory_bytes, run_once};
+use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
+use stepsim_sim::stats::median;
 
 /// Arguments of `stepsim bench`.
 #[derive(Debug, clap::Args)]
@@ -81,10 +82,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     type Stage = fn(&StageTimes) -> f64;
     let stage = |f: Stage| -> (f64, f64, f64) {
-        let v: Vec<f64> = runs.iter().map(f).collect();
+        let mut v: Vec<f64> = runs.iter().map(f).collect();
         let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        (median(&v), lo, hi)
+        (median(&mut v).unwrap_or(f64::NAN), lo, hi)
     };
     let img = &plan.raw.image;
     println!(

@@ -243,8 +243,8 @@ fn delete_key(f: &mut FitsFile, key: &str) -> Result<(), String> {
     }
 }
 
-/// Reads the first 2-D image of a file (primary HDU, or HDU 1 of a
-/// tile-compressed file) as ADU.
+/// Reads the first non-empty 2-D image of a file (primary HDU, or HDU 1 of
+/// a tile-compressed file) as ADU.
 pub fn read_image_fits(path: &Path) -> Result<FitsImage, IoError> {
     let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
     let mut f = FitsFile::open(path).map_err(fe)?;
@@ -253,6 +253,8 @@ pub fn read_image_fits(path: &Path) -> Result<FitsImage, IoError> {
         let hdu = f.hdu(i).map_err(fe)?;
         if let HduInfo::ImageInfo { shape, .. } = &hdu.info
             && shape.len() == 2
+            && shape[0] > 0
+            && shape[1] > 0
         {
             let (height, width) = (shape[0] as u32, shape[1] as u32);
             let pixels: Vec<f32> = hdu.read_image(&mut f).map_err(fe)?;
@@ -333,6 +335,40 @@ mod tests {
         for banned in ["DATE", "EXTNAME", "CHECKSUM"] {
             assert!(!head.contains(banned), "{banned} in header");
         }
+    }
+
+    #[test]
+    fn empty_2d_images_are_skipped() {
+        use fitsio::images::{ImageDescription, ImageType};
+        let dir = tempfile::tempdir().unwrap();
+        // A 0 × 5 primary image, then (in the second file) a 3 × 2 extension.
+        let write = |name: &str, with_sci: bool| {
+            let path = dir.path().join(name);
+            let mut f = FitsFile::create(&path)
+                .with_custom_primary(&ImageDescription {
+                    data_type: ImageType::Float,
+                    dimensions: &[0, 5],
+                })
+                .open()
+                .unwrap();
+            if with_sci {
+                let desc = ImageDescription {
+                    data_type: ImageType::Float,
+                    dimensions: &[2, 3],
+                };
+                let hdu = f.create_image("SCI", &desc).unwrap();
+                hdu.write_image(&mut f, &[1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0])
+                    .unwrap();
+            }
+            path
+        };
+        let e = read_image_fits(&write("e.fits", false))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("e.fits") && e.contains("no 2-D image"), "{e}");
+        let img = read_image_fits(&write("s.fits", true)).unwrap();
+        assert_eq!((img.width, img.height), (3, 2));
+        assert_eq!(img.pixels, [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
     }
 
     #[test]

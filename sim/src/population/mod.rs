@@ -17,8 +17,10 @@ pub mod cosmology;
 pub mod shapes;
 pub mod sizes;
 pub mod stars;
-pub mod stats;
 pub mod stuff;
+
+/// The statistics this module used to hold now live in [`crate::stats`].
+pub use crate::stats;
 
 use crate::config::{Plan, Source};
 use crate::io::skymaker::{ListError, ListObject, read_list};

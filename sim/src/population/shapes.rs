@@ -9,9 +9,9 @@
 //!   spheroid seen at inclination i), thin disk β = cos i.
 //! * One position angle θ uniform in [0, π), shared by bulge and disk.
 
-use super::stats::normal_cdf;
 use crate::config::{Flattening, InclinationLaw};
 use crate::seed::SimRng;
+use crate::stats::normal_cdf;
 use rand::RngExt;
 use rand_distr::StandardNormal;
 use std::f64::consts::PI;
@@ -152,8 +152,8 @@ pub fn flattening_from_axis_ratio(bulge_ba: f64, incl: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::stats::{ks_p_value, ks_statistic};
     use crate::seed::{SeedKey, Stream};
+    use crate::stats::{ks_p_value, ks_statistic};
 
     fn law(incl: InclinationLaw) -> ShapeLaw {
         ShapeLaw::new(&Flattening::default(), incl, 85.0)

@@ -42,30 +42,9 @@ pub fn mag_cdf(stars: &RawStars, m: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::stats::{ks_p_value, ks_statistic};
+    use crate::population::tests::count_slope;
     use crate::seed::{SeedKey, Stream};
-
-    /// Least-squares slope of log10 of the counts in 0.5-mag bins.
-    pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
-        let nb = ((hi - lo) / 0.5).round() as usize;
-        let mut counts = vec![0usize; nb];
-        for &m in mags {
-            if m >= lo && m < hi {
-                counts[((m - lo) / 0.5) as usize] += 1;
-            }
-        }
-        let pts: Vec<(f64, f64)> = counts
-            .iter()
-            .enumerate()
-            .map(|(i, &c)| (lo + (i as f64 + 0.5) * 0.5, (c.max(1) as f64).log10()))
-            .collect();
-        let n = pts.len() as f64;
-        let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
-        let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
-        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
-        sxy / sxx
-    }
+    use crate::stats::{ks_p_value, ks_statistic};
 
     #[test]
     fn star_counts_have_slope_0_3() {

@@ -493,8 +493,8 @@ mod tests {
         assert!((fast / slow - 1.0).abs() < 2e-3, "{fast} vs {slow}");
         let mut rng = crate::seed::SeedKey::base(6, 0, crate::seed::Stream::Test).rng();
         let zs: Vec<f64> = (0..20_000).map(|_| m.draw(&mut rng).z).collect();
-        let d = crate::population::stats::ks_statistic(&zs, |z| m.z_cdf(z));
-        let p = crate::population::stats::ks_p_value(d, zs.len());
+        let d = crate::stats::ks_statistic(&zs, |z| m.z_cdf(z));
+        let p = crate::stats::ks_p_value(d, zs.len());
         assert!(p > 1e-3, "D = {d}, p = {p}");
         assert!((m.z_cdf(0.0)).abs() < 1e-15 && (m.z_cdf(g.z_max) - 1.0).abs() < 1e-12);
     }

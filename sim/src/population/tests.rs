@@ -3,7 +3,7 @@
 use super::*;
 use crate::config::RawConfig;
 use crate::population::stars::mag_cdf;
-use crate::population::stats::{ks_p_value, ks_statistic};
+use crate::stats::{ks_p_value, ks_statistic, median};
 use std::path::Path;
 
 fn plan_with(overrides: &[&str]) -> Plan {
@@ -26,8 +26,9 @@ fn galaxies_of(rows: &[TruthRow]) -> Vec<TruthRow> {
     rows.iter().filter(|r| !r.is_star()).copied().collect()
 }
 
-/// Least-squares slope of log10 counts in 0.5-mag bins over [lo, hi).
-fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
+/// Least-squares slope of log10 counts in 0.5-mag bins over [lo, hi)
+/// (galaxy counts here, star counts in `stars.rs`).
+pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
     let nb = ((hi - lo) / 0.5).round() as usize;
     let mut counts = vec![0usize; nb];
     for &m in mags {
@@ -46,11 +47,6 @@ fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
     let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
     let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
     sxy / sxx
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 #[test]
@@ -88,18 +84,17 @@ fn sizes_decrease_with_magnitude() {
             .iter()
             .filter(|r| r.mag >= lo && r.mag < lo + 0.5)
             .collect();
-        let disk = median(
-            bin.iter()
-                .filter(|r| r.bt < 1.0)
-                .map(|r| r.disk_h_arcsec)
-                .collect(),
-        );
-        let bulge = median(
-            bin.iter()
-                .filter(|r| r.bt > 0.0)
-                .map(|r| r.bulge_re_arcsec)
-                .collect(),
-        );
+        let mut disks: Vec<f64> = bin
+            .iter()
+            .filter(|r| r.bt < 1.0)
+            .map(|r| r.disk_h_arcsec)
+            .collect();
+        let mut bulges: Vec<f64> = bin
+            .iter()
+            .filter(|r| r.bt > 0.0)
+            .map(|r| r.bulge_re_arcsec)
+            .collect();
+        let (disk, bulge) = (median(&mut disks).unwrap(), median(&mut bulges).unwrap());
         assert!(disk < last.0 && bulge < last.1, "I = {lo}: {disk} {bulge}");
         last = (disk, bulge);
     }

@@ -35,53 +35,26 @@ pub struct Picture {
     pub rgb: Vec<u8>,
 }
 
-/// Lays out square images (`n × n`, row-major, centre at n/2) in one row.
-/// Each tile shows the central `2 half` samples enlarged `zoom` times.
-pub fn row(
-    images: &[&[f64]],
-    n: usize,
+/// One row of `count` square tiles of `2 half` samples each, every sample
+/// enlarged to a `zoom × zoom` block, on a dark background with a 6-pixel
+/// gap; `colour_of(t, i, j)` colours sample (i, j) of tile t, j counting
+/// up (the picture is flipped so +y is up).
+fn tile_row(
+    count: usize,
     half: usize,
     zoom: usize,
-    stretch: Stretch,
-    contours: &[f64],
+    colour_of: impl Fn(usize, usize, usize) -> [u8; 3],
 ) -> Picture {
-    let half = half.min(n / 2);
     let side = 2 * half * zoom;
     let gap = 6;
-    let width = images.len() * side + (images.len() + 1) * gap;
+    let width = count * side + (count + 1) * gap;
     let height = side + 2 * gap;
     let mut rgb = vec![30u8; width * height * 3];
-    for (t, img) in images.iter().enumerate() {
-        let peak = img.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let c = n / 2;
-        let at = |i: usize, j: usize| img[(c - half + j) * n + (c - half + i)] / peak;
+    for t in 0..count {
         let x0 = gap + t * (side + gap);
         for j in 0..2 * half {
             for i in 0..2 * half {
-                let v = at(i, j);
-                let g = match stretch {
-                    Stretch::Linear => v.clamp(0.0, 1.0),
-                    Stretch::Log { floor } => ((v.max(floor * 1e-3).log10() - floor.log10())
-                        / -floor.log10())
-                    .clamp(0.0, 1.0),
-                };
-                let mut colour = [(g * 255.0).round() as u8; 3];
-                for (k, &lev) in contours.iter().enumerate() {
-                    let crosses = v >= lev
-                        && [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)]
-                            .iter()
-                            .any(|&(di, dj)| {
-                                let (ii, jj) = (i as i64 + di, j as i64 + dj);
-                                ii >= 0
-                                    && jj >= 0
-                                    && (ii as usize) < 2 * half
-                                    && (jj as usize) < 2 * half
-                                    && at(ii as usize, jj as usize) < lev
-                            });
-                    if crosses {
-                        colour = COLOURS[k % COLOURS.len()];
-                    }
-                }
+                let colour = colour_of(t, i, j);
                 for a in 0..zoom {
                     for b in 0..zoom {
                         let px = x0 + i * zoom + a;
@@ -94,8 +67,57 @@ pub fn row(
             }
         }
     }
-    label_tiles(&mut rgb, width, images.len(), side, gap);
+    label_tiles(&mut rgb, width, count, side, gap);
     Picture { width, height, rgb }
+}
+
+/// Largest value of an image.
+fn peak_of(img: &[f64]) -> f64 {
+    img.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// Lays out square images (`n × n`, row-major, centre at n/2) in one row.
+/// Each tile shows the central `2 half` samples enlarged `zoom` times.
+pub fn row(
+    images: &[&[f64]],
+    n: usize,
+    half: usize,
+    zoom: usize,
+    stretch: Stretch,
+    contours: &[f64],
+) -> Picture {
+    let half = half.min(n / 2);
+    let peaks: Vec<f64> = images.iter().map(|img| peak_of(img)).collect();
+    let c = n / 2;
+    let at =
+        |t: usize, i: usize, j: usize| images[t][(c - half + j) * n + (c - half + i)] / peaks[t];
+    tile_row(images.len(), half, zoom, |t, i, j| {
+        let v = at(t, i, j);
+        let g = match stretch {
+            Stretch::Linear => v.clamp(0.0, 1.0),
+            Stretch::Log { floor } => {
+                ((v.max(floor * 1e-3).log10() - floor.log10()) / -floor.log10()).clamp(0.0, 1.0)
+            }
+        };
+        let mut colour = [(g * 255.0).round() as u8; 3];
+        for (k, &lev) in contours.iter().enumerate() {
+            let crosses = v >= lev
+                && [(1i64, 0i64), (-1, 0), (0, 1), (0, -1)]
+                    .iter()
+                    .any(|&(di, dj)| {
+                        let (ii, jj) = (i as i64 + di, j as i64 + dj);
+                        ii >= 0
+                            && jj >= 0
+                            && (ii as usize) < 2 * half
+                            && (jj as usize) < 2 * half
+                            && at(t, ii as usize, jj as usize) < lev
+                    });
+            if crosses {
+                colour = COLOURS[k % COLOURS.len()];
+            }
+        }
+        colour
+    })
 }
 
 /// 3 × 5 bitmaps of the digits 0–9 (rows top to bottom, 3 bits each).
@@ -159,39 +181,18 @@ pub fn difference_row(
     scale: f64,
 ) -> Picture {
     let half = half.min(n / 2);
-    let side = 2 * half * zoom;
-    let gap = 6;
-    let width = images.len() * side + (images.len() + 1) * gap;
-    let height = side + 2 * gap;
-    let mut rgb = vec![30u8; width * height * 3];
-    let peak_of = |img: &[f64]| img.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let p0 = peak_of(reference);
-    for (t, img) in images.iter().enumerate() {
-        let peak = peak_of(img);
-        let x0 = gap + t * (side + gap);
-        for j in 0..2 * half {
-            for i in 0..2 * half {
-                let k = (n / 2 - half + j) * n + (n / 2 - half + i);
-                let r = (img[k] / peak - reference[k] / p0) / scale;
-                let a = (r.abs().min(1.0) * 255.0).round() as u8;
-                let colour = if r >= 0.0 {
-                    [a, a / 4, 0]
-                } else {
-                    [0, a / 2, a]
-                };
-                for da in 0..zoom {
-                    for db in 0..zoom {
-                        let px = x0 + i * zoom + da;
-                        let py = gap + side - 1 - (j * zoom + db);
-                        let o = (py * width + px) * 3;
-                        rgb[o..o + 3].copy_from_slice(&colour);
-                    }
-                }
-            }
+    let peaks: Vec<f64> = images.iter().map(|img| peak_of(img)).collect();
+    tile_row(images.len(), half, zoom, |t, i, j| {
+        let k = (n / 2 - half + j) * n + (n / 2 - half + i);
+        let r = (images[t][k] / peaks[t] - reference[k] / p0) / scale;
+        let a = (r.abs().min(1.0) * 255.0).round() as u8;
+        if r >= 0.0 {
+            [a, a / 4, 0]
+        } else {
+            [0, a / 2, a]
         }
-    }
-    label_tiles(&mut rgb, width, images.len(), side, gap);
-    Picture { width, height, rgb }
+    })
 }
 
 /// Stacks pictures of equal width vertically.

@@ -454,50 +454,20 @@ fn unreachable_targets_are_errors_not_panics() {
         calibration_grid: 512,
         ..PsfAccuracy::default()
     };
-    let err = build_optical(
-        "d",
-        0.9,
-        Aberration::Defocus,
-        Some(2.0),
-        None,
-        0.0,
-        &t,
-        0.206,
-        &acc,
-    )
-    .unwrap_err();
+    // Builds PSF `name` (no rotation, 0.206″ pixels) and returns its error.
+    let refuse = |name: &str, fwhm: f64, ab: Aberration, amplitude, target_chi| {
+        build_optical(name, fwhm, ab, amplitude, target_chi, 0.0, &t, 0.206, &acc).unwrap_err()
+    };
+    let err = refuse("d", 0.9, Aberration::Defocus, Some(2.0), None);
     assert!(matches!(err, PsfError::Unreachable { .. }), "{err}");
     assert!(err.to_string().contains("psf d"), "{err}");
     // Astigmatism at best focus is round: no amplitude gives |χ| = 0.05.
-    let err = build_optical(
-        "a",
-        0.9,
-        Aberration::Astigmatism,
-        None,
-        Some(0.05),
-        0.0,
-        &t,
-        0.206,
-        &acc,
-    )
-    .unwrap_err();
+    let err = refuse("a", 0.9, Aberration::Astigmatism, None, Some(0.05));
     assert!(err.to_string().contains("target_chi"), "{err}");
     // Wider than the optical grid can hold (period 11.6″ at 512): refused.
-    let err =
-        build_optical("w", 3.0, Aberration::None, None, None, 0.0, &t, 0.206, &acc).unwrap_err();
+    let err = refuse("w", 3.0, Aberration::None, None, None);
     assert!(err.to_string().contains("too wide"), "{err}");
-    let err = build_optical(
-        "n",
-        0.9,
-        Aberration::None,
-        None,
-        Some(0.05),
-        0.0,
-        &t,
-        0.206,
-        &acc,
-    )
-    .unwrap_err();
+    let err = refuse("n", 0.9, Aberration::None, None, Some(0.05));
     assert!(err.to_string().contains("target_chi"), "{err}");
 }
 

@@ -1,5 +1,22 @@
-//! Small statistics used to draw and to validate the population: the normal
-//! CDF and the one-sample Kolmogorov–Smirnov test.
+//! Small statistics shared by every crate of the workspace: the median, the
+//! normal CDF (used to draw the population) and the one-sample
+//! Kolmogorov–Smirnov test (used to validate it).
+
+/// Median of a sample, reordering it (sorted); the mean of the two middle
+/// values for an even count; `None` when empty. NaNs sort after +∞
+/// ([`f64::total_cmp`]).
+pub fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
 
 /// Complementary error function, fractional error < 1.2e-7 everywhere
 /// (the Chebyshev fit of Press et al., *Numerical Recipes*, 2nd ed., §6.2).
@@ -101,6 +118,17 @@ mod tests {
     use super::*;
     use crate::seed::{SeedKey, Stream};
     use rand::RngExt;
+
+    #[test]
+    fn median_of_odd_even_and_empty_samples() {
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        assert_eq!(median(&mut [-1.5]), Some(-1.5));
+        assert_eq!(median(&mut []), None);
+        let mut v = [5.0, f64::INFINITY, -2.0];
+        assert_eq!(median(&mut v), Some(5.0));
+        assert_eq!(v, [-2.0, 5.0, f64::INFINITY], "left sorted");
+    }
 
     #[test]
     fn normal_cdf_matches_integration_and_known_values() {
