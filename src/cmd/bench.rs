@@ -115,7 +115,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let (gal, _, _) = stage(|t| t.galaxies_s);
     println!(
-        "µs per galaxy: {:.1}",
+        "µs wall per galaxy (galaxy stage wall time / galaxies): {:.1}",
         gal * 1e6 / runs[0].n_galaxies.max(1) as f64
     );
     match peak_memory_bytes() {
