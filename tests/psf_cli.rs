@@ -61,6 +61,11 @@ fn writes_images_report_and_picture() {
     );
     let report = report_of(dir.path(), &out);
     assert_eq!(report["pixel_scale_arcsec"], 0.206);
+    // The resolved config is written beside the outputs (and reads back).
+    let resolved = std::fs::read_to_string(out_dir.join("config.json")).unwrap();
+    let raw =
+        stepsim_sim::config::RawConfig::parse(&resolved, Path::new("config.json"), &[]).unwrap();
+    assert_eq!(raw.psfs.len(), 3);
     let psfs = report["psfs"].as_array().unwrap();
     assert_eq!(psfs.len(), 3);
     for key in [
