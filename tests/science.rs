@@ -9,6 +9,17 @@
 //!
 //! Bounds (issue #6): |m| < 0.1 and |c| < 0.005 per PSF; the report's
 //! contamination and selection numbers present and in range.
+//!
+//! Statistical power. The harness's errors (`m_err`, `c1_err`) come from the
+//! scatter of the per-image mean shears, so they know nothing of the rotated
+//! twins or of the base fields shared between shears: they fall only as
+//! 1/√(area). With two base fields (16 images of 2048², about 35 s here)
+//! σ_m ≈ 0.11 and σ_c ≈ 0.004, the size of the bounds: the default run
+//! checks that the chain works and lands near the truth, not that the bias
+//! is below the bounds. `STEPSIM_SLOW=1` runs the same config with 20 base
+//! fields (160 images, several minutes) and then also asserts
+//! `m_err < 0.04` and `c1_err`, `c2_err < 0.002`, so that the bounds
+//! discriminate. Measured numbers: docs/baseline.md.
 
 use std::path::Path;
 use std::process::Command;
@@ -33,7 +44,12 @@ fn generate_measure_score_recovers_the_shear() {
     let d = dir.path();
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/e2e-small.json");
     let config = config.to_str().unwrap();
-    stepsim(&["generate", "--config", config, "--out", "run"], d);
+    let slow = std::env::var_os("STEPSIM_SLOW").is_some_and(|v| v == "1");
+    let mut generate = vec!["generate", "--config", config, "--out", "run"];
+    if slow {
+        generate.extend(["--set", "image.n_images=20"]);
+    }
+    stepsim(&generate, d);
     stepsim(&["measure", "--run", "run/public", "--out", "sub.txt"], d);
     stepsim(
         &[
@@ -57,12 +73,26 @@ fn generate_measure_score_recovers_the_shear() {
     assert_eq!(psfs.len(), 2);
     for p in psfs {
         let (m, c1, c2) = (num(p, "m"), num(p, "c1"), num(p, "c2"));
+        let (m_err, c1_err, c2_err) = (num(p, "m_err"), num(p, "c1_err"), num(p, "c2_err"));
         eprintln!(
-            "psf {}: m = {m:+.4} ± {:.4}, c1 = {c1:+.5}, c2 = {c2:+.5}, m_selc = {:+.4}",
+            "psf {}: m = {m:+.4} ± {m_err:.4}, c1 = {c1:+.5} ± {c1_err:.5}, \
+             c2 = {c2:+.5} ± {c2_err:.5}, m_selc = {:+.4}, m_weight = {:+.4}",
             p["psf"],
-            num(p, "m_err"),
-            num(p, "m_selc")
+            num(p, "m_selc"),
+            num(p, "m_weight")
         );
+        if slow {
+            // The bounds mean something only if the errors are well inside them.
+            assert!(m_err < 0.04, "psf {}: m_err = {m_err}", p["psf"]);
+            assert!(
+                c1_err < 0.002 && c2_err < 0.002,
+                "psf {}: c errors ({c1_err}, {c2_err})",
+                p["psf"]
+            );
+        } else {
+            // Two base fields: errors of the size of the bounds (see above).
+            assert!(m_err < 0.2 && c1_err < 0.01, "{p}");
+        }
         assert!(m.abs() < 0.1, "psf {}: m = {m}", p["psf"]);
         assert!(
             c1.abs() < 0.005 && c2.abs() < 0.005,
@@ -88,6 +118,6 @@ fn generate_measure_score_recovers_the_shear() {
         assert!(num(ds, "ngal_per_arcmin2") > 5.0, "{ds}");
     }
     for k in ["m_mean", "sigma_c", "m_selc_mean", "m_weight_mean"] {
-        num(&report["summary"], k);
+        eprintln!("{k} = {:+.5}", num(&report["summary"], k));
     }
 }

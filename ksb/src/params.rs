@@ -190,7 +190,10 @@ impl KsbParams {
         pos("locus_bandwidth", self.locus_bandwidth)?;
         pos("locus_nsigma", self.locus_nsigma)?;
         pos("locus_width_floor", self.locus_width_floor)?;
-        pos("locus_max_width", self.locus_max_width - self.locus_width_floor)?;
+        pos(
+            "locus_max_width",
+            self.locus_max_width - self.locus_width_floor,
+        )?;
         pos("psf_clip_sigma", self.psf_clip_sigma)?;
         pos("psf_stars_per_term", self.psf_stars_per_term)?;
         pos("scale_step", self.scale_step - 1.0)?;

@@ -263,13 +263,16 @@ mod tests {
         let params = KsbParams::default();
         for (n_gal, seed) in [(100, 1), (700, 2), (1500, 3)] {
             let objs = deep_field(n_gal, seed);
-            let locus = find_locus(&objs, &params)
-                .unwrap_or_else(|| panic!("{n_gal} galaxies: no locus"));
+            let locus =
+                find_locus(&objs, &params).unwrap_or_else(|| panic!("{n_gal} galaxies: no locus"));
             assert!((locus.rg_star / 1.93 - 1.0).abs() < 0.005, "{locus:?}");
             let stars = objs[..80].iter().filter(|o| locus.is_psf_star(o, &params));
             let gals = objs[80..].iter().filter(|o| locus.is_psf_star(o, &params));
             let (ns, ng) = (stars.count(), gals.count());
-            assert!(ns >= 75 && ng < 10, "{n_gal} galaxies: {ns} stars, {ng} galaxies");
+            assert!(
+                ns >= 75 && ng < 10,
+                "{n_gal} galaxies: {ns} stars, {ng} galaxies"
+            );
         }
     }
 
