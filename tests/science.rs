@@ -106,14 +106,22 @@ fn generate_measure_score_recovers_the_shear() {
     assert_eq!(datasets.len(), 4);
     for ds in datasets {
         let (stars, false_) = (num(ds, "pct_stars"), num(ds, "pct_false"));
+        let (stars_w, false_w) = (num(ds, "pct_stars_weighted"), num(ds, "pct_false_weighted"));
         eprintln!(
-            "dataset psf {} g1 {}: n/arcmin² {:.1}, stars {stars:.2}%, false {false_:.2}%",
+            "dataset psf {} g1 {}: n/arcmin² {:.1}, stars {stars:.2}% ({stars_w:.2}% of the \
+             weight), false {false_:.2}% ({false_w:.2}% of the weight)",
             ds["psf"],
             num(ds, "g1_true"),
             num(ds, "ngal_per_arcmin2")
         );
-        // Contamination is reported and a sane pipeline keeps it small.
-        assert!((0.0..5.0).contains(&stars), "{ds}");
+        // Contamination is reported and a sane pipeline keeps it small
+        // where it matters, in the weight. The pipeline also writes every
+        // object it rejects, with weight 0 and a flag: about 10 % of those
+        // rows are faint stars (I ≈ 22–24, ν < 20, too noisy to be told from
+        // galaxies by size), which is why the unweighted share is larger.
+        assert!((0.0..2.0).contains(&stars_w), "{ds}");
+        assert!((0.0..1.0).contains(&false_w), "{ds}");
+        assert!((0.0..15.0).contains(&stars), "{ds}");
         assert!((0.0..5.0).contains(&false_), "{ds}");
         assert!(num(ds, "ngal_per_arcmin2") > 5.0, "{ds}");
     }
