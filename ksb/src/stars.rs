@@ -133,10 +133,55 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
     })
 }
 
+/// A stellar locus together with the S/N limit of the stars that model the
+/// PSF on it (`star_min_sn`, or `star_class_min_sn` when the locus was only
+/// found among the fainter stars).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StarSelection {
+    /// The locus.
+    pub locus: Locus,
+    /// Least S/N of a PSF star.
+    pub psf_star_min_sn: f64,
+}
+
+impl StarSelection {
+    /// Whether `o` is a star (on the locus and bright enough to tell).
+    pub fn is_star(&self, o: &SizeMag, params: &KsbParams) -> bool {
+        self.locus.is_star(o, params)
+    }
+
+    /// Whether `o` is a star good enough for the PSF model.
+    pub fn is_psf_star(&self, o: &SizeMag, params: &KsbParams) -> bool {
+        o.clean && o.sn >= self.psf_star_min_sn && self.locus.is_star(o, params)
+    }
+}
+
+/// [`find_locus`] among the candidates with S/N ≥ `star_min_sn`; if there
+/// is none, again among those with S/N ≥ `star_class_min_sn` (few bright
+/// stars: small images, or a field poor in stars).
+pub fn select_stars(objects: &[SizeMag], params: &KsbParams) -> Option<StarSelection> {
+    if let Some(locus) = find_locus(objects, params) {
+        return Some(StarSelection {
+            locus,
+            psf_star_min_sn: params.star_min_sn,
+        });
+    }
+    let fainter = params.star_class_min_sn.min(params.star_min_sn);
+    let relaxed = KsbParams {
+        star_min_sn: fainter,
+        ..params.clone()
+    };
+    find_locus(objects, &relaxed).map(|locus| StarSelection {
+        locus,
+        psf_star_min_sn: fainter,
+    })
+}
+
 /// Refines a density peak of ln r_g to the centre and robust width of the
 /// objects that make it: starting from (`mode`, `locus_bandwidth`),
 /// repeatedly centre ← median and w ← max(1.4826 MAD, `locus_width_floor`)
-/// of the values within ±3 w of the centre. A narrow peak keeps its own
+/// of the values within ±3 w of the centre, until both change by less than
+/// 5 % of w. A narrow peak keeps its own
 /// width (a Gaussian of σ gives back ≈ σ even on a smooth background of
 /// galaxies); a flat stretch of objects gives back 2.2 × the width each
 /// time (MAD of a uniform over ±3w is 1.5w) and a step edge walks up into
@@ -147,6 +192,7 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
 /// Returns (centre, width) in ln r_g, or `None` for no narrow peak.
 pub fn refine_locus(ln: &[f64], mode: f64, params: &KsbParams) -> Option<(f64, f64)> {
     let (mut centre, mut width) = (mode, params.locus_bandwidth);
+    let mut last_step = f64::INFINITY;
     for _ in 0..100 {
         let mut near: Vec<f64> = ln
             .iter()
@@ -162,15 +208,20 @@ pub fn refine_locus(ln: &[f64], mode: f64, params: &KsbParams) -> Option<(f64, f
         if w > params.locus_max_width {
             return None;
         }
-        let done = (c - centre).abs() <= 1e-3 * w && (w - width).abs() <= 1e-3 * w;
+        // A width only sets a window, so 5 % of it is precision enough;
+        // a tighter tolerance let a window edge flip one object in and out
+        // for ever on a pooled set of 170 stars.
+        let done = (c - centre).abs() <= 0.05 * w && (w - width).abs() <= 0.05 * w;
+        let step = (c - centre).abs();
         (centre, width) = (c, w);
         if done {
             return Some((centre, width));
         }
+        last_step = step;
     }
-    // No fixed point (an oscillation between two sets of objects): not a
-    // clean locus.
-    None
+    // No fixed point: an oscillation between two sets of objects of one
+    // narrow peak is still a locus; a wandering window is not.
+    (last_step <= 0.5 * width).then_some((centre, width))
 }
 
 #[cfg(test)]
@@ -301,6 +352,31 @@ mod tests {
             let objs = deep_field(n_gal, seed);
             assert_eq!(find_locus(&objs[80..], &params), None, "{n_gal}");
         }
+    }
+
+    #[test]
+    fn a_locus_whose_window_edge_flips_one_star_still_converges() {
+        // Real candidates (ν ≥ 50) pooled over the 16 images of one
+        // step1-mini dataset: 156 stars at r_g* ≈ 1.95 px among ~800
+        // galaxies. With a 1e-3 convergence tolerance the refinement
+        // oscillated for ever between two sets of stars and the dataset
+        // got no locus. Expected: r_g* within 1 % of 1.949 px, ≥ 150 stars.
+        let objs: Vec<SizeMag> = include_str!("../testdata/pooled_jitter_candidates.txt")
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(|l| {
+                let mut f = l.split_whitespace().map(|v| v.parse::<f64>().unwrap());
+                SizeMag {
+                    rg: f.next().unwrap(),
+                    sn: f.next().unwrap(),
+                    clean: true,
+                }
+            })
+            .collect();
+        assert_eq!(objs.len(), 950);
+        let locus = find_locus(&objs, &KsbParams::default()).expect("a locus");
+        assert!((locus.rg_star / 1.949 - 1.0).abs() < 0.01, "{locus:?}");
+        assert!(locus.n_stars >= 150, "{locus:?}");
     }
 
     #[test]
