@@ -13,7 +13,7 @@
 //! Statistical power. The harness's errors (`m_err`, `c1_err`) come from the
 //! scatter of the per-image mean shears, so they know nothing of the rotated
 //! twins or of the base fields shared between shears: they fall only as
-//! 1/√(area). With two base fields (16 images of 2048², about 35 s here)
+//! 1/√(area). With two base fields (16 images of 2048², about 20–30 s here)
 //! σ_m ≈ 0.11 and σ_c ≈ 0.004, the size of the bounds: the default run
 //! checks that the chain works and lands near the truth, not that the bias
 //! is below the bounds. `STEPSIM_SLOW=1` runs the same config with 20 base
