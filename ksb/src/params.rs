@@ -65,10 +65,15 @@ pub struct KsbParams {
     pub locus_bandwidth: f64,
     /// Half-width of the locus in robust σ of ln r_g (3).
     pub locus_nsigma: f64,
-    /// Least fraction of the candidates within ±6 bandwidths of the locus
-    /// peak that must lie within ±2 bandwidths (0.5; a flat distribution
-    /// gives 1/3, stars with noise-limited sizes nearly 1).
-    pub locus_min_concentration: f64,
+    /// Largest robust width (1.4826 MAD, in ln r_g) of a stellar locus
+    /// (0.04). Stars scatter in size by noise only: ≈ 0.01 at ν ≈ 100,
+    /// ≈ 0.02 at ν ≈ 20 on the STEP images; a flat clump of galaxies or the
+    /// lower edge of their size distribution widens past it when the
+    /// locus is refined ([`crate::stars::refine_locus`]).
+    pub locus_max_width: f64,
+    /// Smallest robust width of the locus used while refining it (0.002;
+    /// keeps noise-free stars of identical sizes from collapsing the window).
+    pub locus_width_floor: f64,
     /// Smallest half-width of the locus in ln r_g (0.03, i.e. ±3 %).
     pub locus_min_halfwidth: f64,
     /// Polynomial order of the PSF model across the field (2, like MB, CH, HH, LV).
@@ -131,7 +136,8 @@ impl Default for KsbParams {
             locus_bandwidth: 0.03,
             locus_nsigma: 3.0,
             locus_min_halfwidth: 0.03,
-            locus_min_concentration: 0.5,
+            locus_max_width: 0.04,
+            locus_width_floor: 0.002,
             psf_order: 2,
             psf_clip_sigma: 3.0,
             psf_stars_per_term: 3.0,
@@ -194,7 +200,11 @@ impl KsbParams {
         pos("star_min_sn", self.star_min_sn)?;
         pos("locus_bandwidth", self.locus_bandwidth)?;
         pos("locus_nsigma", self.locus_nsigma)?;
-        pos("locus_min_concentration", self.locus_min_concentration)?;
+        pos("locus_width_floor", self.locus_width_floor)?;
+        pos(
+            "locus_max_width",
+            self.locus_max_width - self.locus_width_floor,
+        )?;
         pos("psf_clip_sigma", self.psf_clip_sigma)?;
         pos("psf_stars_per_term", self.psf_stars_per_term)?;
         pos("scale_step", self.scale_step - 1.0)?;

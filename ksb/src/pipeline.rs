@@ -12,7 +12,7 @@ use crate::params::{KsbParams, PgammaMode};
 use crate::psf_model::PsfModel;
 use crate::segment::detect;
 use crate::shear::{PgammaFit, ShearEstimate, estimate, estimate_with, weight};
-use crate::stars::{Locus, SizeMag, find_locus};
+use crate::stars::{Locus, SizeMag, StarSelection, select_stars};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -59,8 +59,12 @@ pub struct ImageMeasurement {
     pub n_detections: usize,
     /// Stars on the locus / used for the PSF model.
     pub n_stars: usize,
-    /// Stellar locus, if found.
+    /// Stellar locus, if found (or given).
     pub locus: Option<Locus>,
+    /// Size, S/N and cleanliness of every detection, in detection order:
+    /// the input of the star selection, for pooling the star candidates of
+    /// several images ([`crate::run::measure_run`]).
+    pub star_candidates: Vec<SizeMag>,
     /// PSF model polynomial order, if a model was built.
     pub psf_order: Option<usize>,
     /// Background noise σ (electrons).
@@ -78,11 +82,24 @@ struct Candidate {
     shape: Option<KsbShape>,
 }
 
-/// Measures one image (electrons, sky included).
+/// Measures one image (electrons, sky included), finding its stellar locus
+/// among its own objects.
 pub fn measure_image(
     img: &Image,
     info: &ImageInfo,
     params: &KsbParams,
+) -> Result<ImageMeasurement, KsbError> {
+    measure_image_with(img, info, params, None)
+}
+
+/// Measures one image with the star selection `stars` when given (e.g.
+/// found on the pooled candidates of all images that share the PSF), or,
+/// with `None`, the image's own ([`select_stars`]).
+pub fn measure_image_with(
+    img: &Image,
+    info: &ImageInfo,
+    params: &KsbParams,
+    stars: Option<StarSelection>,
 ) -> Result<ImageMeasurement, KsbError> {
     params.validate()?;
     let mut timings = Vec::new();
@@ -183,24 +200,16 @@ pub fn measure_image(
             clean: c.flags & flags::NOT_FOR_PSF == 0 && c.shape.is_some(),
         })
         .collect();
-    // Too few bright stars (a small image): retry with the fainter stars
-    // down to the classification limit `star_class_min_sn`.
-    let relaxed = KsbParams {
-        star_min_sn: params.star_class_min_sn.min(params.star_min_sn),
-        ..params.clone()
-    };
-    let (locus, star_params) = match find_locus(&sizemag, params) {
-        Some(l) => (Some(l), params),
-        None => (find_locus(&sizemag, &relaxed), &relaxed),
-    };
+    let selection = stars.or_else(|| select_stars(&sizemag, params));
+    let locus = selection.map(|s| s.locus);
     let star: Vec<bool> = sizemag
         .iter()
-        .map(|o| locus.is_some_and(|l| l.is_star(o, star_params)))
+        .map(|o| selection.is_some_and(|s| s.is_star(o, params)))
         .collect();
     let psf_stars: Vec<(f64, f64)> = cands
         .iter()
         .zip(&sizemag)
-        .filter(|(_, o)| locus.is_some_and(|l| l.is_psf_star(o, star_params)))
+        .filter(|(_, o)| selection.is_some_and(|s| s.is_psf_star(o, params)))
         .map(|(c, _)| (c.x, c.y))
         .collect();
     lap("stars", &mut t0);
@@ -318,6 +327,7 @@ pub fn measure_image(
         n_detections: cands.len(),
         n_stars: psf_stars.len(),
         locus,
+        star_candidates: sizemag,
         psf_order: model.as_ref().map(PsfModel::order),
         background_rms_e: bg.rms,
         timings,
