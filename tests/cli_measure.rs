@@ -3,9 +3,7 @@
 
 use std::path::Path;
 use std::process::Command;
-use stepsim_ksb::draw::{SceneSpec, synthetic_scene};
-use stepsim_ksb::io::write_fits_image;
-use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
+use stepsim_ksb::draw::{SceneSpec, synthetic_scene, write_public_run};
 
 fn stepsim() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stepsim"))
@@ -13,46 +11,23 @@ fn stepsim() -> Command {
 
 /// Writes a public half with two 512² synthetic images (ADU, gain 4).
 fn public_run(dir: &Path) {
-    let mut images = Vec::new();
-    for (k, id) in ["ib2", "ia1"].iter().enumerate() {
-        let spec = SceneSpec {
-            width: 512,
-            height: 512,
-            n_galaxy_pairs: 60,
-            n_stars: 80,
-            star_flux_e: (1e5, 3e6),
-            ..SceneSpec::step_like([0.05, 0.0], [0.04, 0.01], 100 + k as u64)
-        };
-        let (_, img) = synthetic_scene(&spec);
-        let adu = img.scaled(0.25);
-        let file = format!("d0/{id}.fits");
-        write_fits_image(&dir.join(&file), &adu).unwrap();
-        images.push(ManifestImage {
-            image: id.to_string(),
-            dataset: "d0".into(),
-            file,
-            sha256: String::new(),
-        });
-    }
-    let manifest = Manifest {
-        format: MANIFEST_FORMAT.into(),
-        instrument: InstrumentFacts {
-            width_px: 512,
-            height_px: 512,
-            pixel_scale_arcsec: 0.206,
-            gain_e_per_adu: 4.0,
-            read_noise_e: 5.0,
-            saturation_adu: 65535.0,
-            exposure_s: 3600.0,
-            zeropoint_mag: 26.0,
-        },
-        images,
-    };
-    std::fs::write(
-        dir.join("manifest.json"),
-        serde_json::to_string_pretty(&manifest).unwrap(),
-    )
-    .unwrap();
+    let scenes: Vec<_> = ["ib2", "ia1"]
+        .iter()
+        .enumerate()
+        .map(|(k, id)| {
+            let spec = SceneSpec {
+                width: 512,
+                height: 512,
+                n_galaxy_pairs: 60,
+                n_stars: 80,
+                star_flux_e: (1e5, 3e6),
+                ..SceneSpec::step_like([0.05, 0.0], [0.04, 0.01], 100 + k as u64)
+            };
+            (*id, synthetic_scene(&spec).1)
+        })
+        .collect();
+    let refs: Vec<_> = scenes.iter().map(|(id, img)| ("d0", *id, img)).collect();
+    write_public_run(dir, &refs).unwrap();
 }
 
 fn measure(run: &Path, out: &Path, threads: &str) -> std::process::Output {

@@ -328,3 +328,50 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
     );
     (objects, img)
 }
+
+/// Writes a public half for tests and benchmarks: `dir/manifest.json` and one
+/// FITS image per `(dataset id, image id, image in electrons)`, stored in ADU
+/// at gain 4 under `<dataset>/<image>.fits`, with the STEP1 instrument facts
+/// (0.206″ pixels, read noise 5 e⁻, saturation 65535 ADU, 3600 s, zeropoint
+/// 26) and the size of the first image. Checksums are left empty.
+pub fn write_public_run(
+    dir: &std::path::Path,
+    images: &[(&str, &str, &Image)],
+) -> Result<(), crate::KsbError> {
+    use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
+    let gain: f64 = 4.0;
+    let mut entries = Vec::new();
+    for (dataset, id, img) in images {
+        let file = format!("{dataset}/{id}.fits");
+        crate::io::write_fits_image(
+            &dir.join(&file),
+            &(*img).clone().scaled((1.0 / gain) as f32),
+        )?;
+        entries.push(ManifestImage {
+            image: (*id).into(),
+            dataset: (*dataset).into(),
+            file,
+            sha256: String::new(),
+        });
+    }
+    let (width, height) = images
+        .first()
+        .map_or((0, 0), |(_, _, i)| (i.width, i.height));
+    let manifest = Manifest {
+        format: MANIFEST_FORMAT.into(),
+        instrument: InstrumentFacts {
+            width_px: width as u32,
+            height_px: height as u32,
+            pixel_scale_arcsec: 0.206,
+            gain_e_per_adu: gain,
+            read_noise_e: 5.0,
+            saturation_adu: 65535.0,
+            exposure_s: 3600.0,
+            zeropoint_mag: 26.0,
+        },
+        images: entries,
+    };
+    let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
+    stepsim_sim::io::write_bytes_atomically(&dir.join("manifest.json"), text.as_bytes())?;
+    Ok(())
+}

@@ -143,10 +143,9 @@ pub fn measure_run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{SceneSpec, covariance, synthetic_scene};
-    use crate::io::write_fits_image;
+    use crate::draw::{SceneSpec, covariance, synthetic_scene, write_public_run};
+    use crate::image::Image;
     use crate::pipeline::measure_image;
-    use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
 
     fn spec(n_stars: usize, seed: u64) -> SceneSpec {
         SceneSpec {
@@ -179,7 +178,7 @@ mod tests {
             zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
             saturation_e: Some(65534.5 * 4.0),
         };
-        let mut images = Vec::new();
+        let mut scenes = Vec::new();
         for (id, dataset, n_stars, seed) in
             [("ia", "d0", 80, 1), ("ib", "d0", 2, 2), ("ic", "d1", 2, 3)]
         {
@@ -188,34 +187,11 @@ mod tests {
                 let alone = measure_image(&img, &info, &KsbParams::default()).unwrap();
                 assert_eq!(alone.locus, None);
             }
-            let file = format!("{dataset}/{id}.fits");
-            write_fits_image(&dir.path().join(&file), &img.scaled(0.25)).unwrap();
-            images.push(ManifestImage {
-                image: id.into(),
-                dataset: dataset.into(),
-                file,
-                sha256: String::new(),
-            });
+            scenes.push((dataset, id, img));
         }
-        let manifest = Manifest {
-            format: MANIFEST_FORMAT.into(),
-            instrument: InstrumentFacts {
-                width_px: 512,
-                height_px: 512,
-                pixel_scale_arcsec: 0.206,
-                gain_e_per_adu: 4.0,
-                read_noise_e: 5.0,
-                saturation_adu: 65535.0,
-                exposure_s: 3600.0,
-                zeropoint_mag: 26.0,
-            },
-            images,
-        };
-        std::fs::write(
-            dir.path().join("manifest.json"),
-            serde_json::to_string(&manifest).unwrap(),
-        )
-        .unwrap();
+        let refs: Vec<(&str, &str, &Image)> =
+            scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
+        write_public_run(dir.path(), &refs).unwrap();
         let out = dir.path().join("sub.txt");
         let s = measure_run(dir.path(), &out, 1, &KsbParams::default()).unwrap();
         let rg = |id: &str| s.iter().find(|x| x.image == id).unwrap().rg_star_px;
