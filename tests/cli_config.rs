@@ -73,6 +73,18 @@ fn bad_configs_exit_1_naming_the_problem() {
 }
 
 #[test]
+fn a_missing_file_is_named_once_with_the_os_reason_once() {
+    let out = stepsim()
+        .args(["config", "--config", "/nonexistent/stepsim.json"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("/nonexistent/stepsim.json"), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+}
+
+#[test]
 fn usage_errors_exit_2() {
     let out = stepsim()
         .args(["config", "--no-such-flag"])

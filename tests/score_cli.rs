@@ -315,12 +315,19 @@ fn bad_submissions_exit_1_naming_file_line_and_column_and_write_nothing() {
             .unwrap()
             .contains("1 of 16 images")
     );
-    // Usage errors exit 2; a bad radius exits 1.
+    // Usage errors exit 2, a bad option value included (SPEC: 2 = usage).
     let o = stepsim(&[&"score", &"--submission", &sub]);
     assert_eq!(o.status.code(), Some(2));
-    let o = fx.score(&sub, "r", &["--match-radius-arcsec=-1"]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("--match-radius-arcsec"));
+    for bad in [
+        "--match-radius-arcsec=-1",
+        "--match-radius-arcsec=0",
+        "--match-radius-arcsec=x",
+    ] {
+        let o = fx.score(&sub, "r", &[bad]);
+        assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));
+        assert!(stderr(&o).contains("--match-radius-arcsec"), "{bad}");
+        assert!(!fx.path("r").exists(), "{bad}");
+    }
 }
 
 #[test]

@@ -92,18 +92,77 @@ truth_row! {
     }
 }
 
+/// The columns of a truth table in file order: exactly the order of SPEC §5.
+pub const COLUMN_ORDER: &[&str] = &[
+    "id",
+    "kind",
+    "x",
+    "y",
+    "ra_deg",
+    "dec_deg",
+    "mag",
+    "flux_e",
+    "z",
+    "hubble_type",
+    "bt",
+    "bulge_re_arcsec",
+    "bulge_flat_q",
+    "incl_deg",
+    "bulge_ba",
+    "disk_h_arcsec",
+    "disk_ba",
+    "pa_deg",
+    "bulge_e1_int",
+    "bulge_e2_int",
+    "disk_e1_int",
+    "disk_e2_int",
+    "bulge_e1",
+    "bulge_e2",
+    "disk_e1",
+    "disk_e2",
+    "e1_int",
+    "e2_int",
+    "e1",
+    "e2",
+    "g1",
+    "g2",
+];
+
+/// One cell of a truth row, typed as in the file.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Column {
+    /// 64-bit integer (`id`).
+    Long(i64),
+    /// 32-bit integer (`kind`, `hubble_type`).
+    Int(i32),
+    /// Double.
+    Float(f64),
+}
+
 impl TruthRow {
     /// True for a star.
     pub fn is_star(&self) -> bool {
         self.kind == KIND_STAR
     }
 
-    /// All column names in file order.
+    /// All column names in file order ([`COLUMN_ORDER`]).
     pub fn column_names() -> Vec<&'static str> {
-        std::iter::once("id")
-            .chain(INT_COLUMNS.iter().copied())
-            .chain(FLOAT_COLUMNS.iter().copied())
-            .collect()
+        COLUMN_ORDER.to_vec()
+    }
+
+    /// The value of column `name`, typed as in the file, or `None` for an
+    /// unknown name.
+    pub fn value(&self, name: &str) -> Option<Column> {
+        if name == "id" {
+            return Some(Column::Long(self.id));
+        }
+        if let Some(j) = INT_COLUMNS.iter().position(|c| *c == name) {
+            return Some(Column::Int(self.ints()[j]));
+        }
+        FLOAT_COLUMNS
+            .iter()
+            .position(|c| *c == name)
+            .map(|j| Column::Float(self.floats()[j]))
     }
 }
 
@@ -113,15 +172,17 @@ mod tests {
 
     #[test]
     fn columns_are_the_spec_columns_in_order() {
+        // SPEC §5, in its order (not sorted: the order is part of the file).
         let spec = "id kind x y ra_deg dec_deg mag flux_e z hubble_type bt bulge_re_arcsec bulge_flat_q \
                     incl_deg bulge_ba disk_h_arcsec disk_ba pa_deg bulge_e1_int bulge_e2_int disk_e1_int \
                     disk_e2_int bulge_e1 bulge_e2 disk_e1 disk_e2 e1_int e2_int e1 e2 g1 g2";
-        let mut want: Vec<&str> = spec.split_whitespace().collect();
-        let mut got = TruthRow::column_names();
-        assert_eq!(got.len(), want.len());
-        want.sort_unstable();
-        got.sort_unstable();
-        assert_eq!(got, want);
+        let want: Vec<&str> = spec.split_whitespace().collect();
+        assert_eq!(TruthRow::column_names(), want);
+        // Every column has exactly one typed accessor.
+        assert_eq!(want.len(), 1 + INT_COLUMNS.len() + FLOAT_COLUMNS.len());
+        let r = TruthRow::default();
+        assert!(want.iter().all(|c| r.value(c).is_some()));
+        assert_eq!(r.value("nope"), None);
     }
 
     #[test]

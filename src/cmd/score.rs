@@ -21,7 +21,8 @@ pub struct Args {
     #[arg(long)]
     name: Option<String>,
     /// Match radius between submitted and true positions.
-    #[arg(long, value_name = "ARCSEC", default_value_t = DEFAULT_MATCH_RADIUS_ARCSEC)]
+    #[arg(long, value_name = "ARCSEC", default_value_t = DEFAULT_MATCH_RADIUS_ARCSEC,
+          value_parser = positive_arcsec)]
     match_radius_arcsec: f64,
     /// Score a submission that lacks some images (they are left out).
     #[arg(long)]
@@ -58,4 +59,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// A usage check (exit 2): the match radius must be a finite number > 0.
+fn positive_arcsec(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("must be a positive number of arcsec, got {v}")),
+        Err(e) => Err(e.to_string()),
+    }
 }

@@ -32,12 +32,12 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
+    #[error("cannot read config {path}: {error}")]
     Read {
         /// The file.
         path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The I/O error (not a `source`: the message shows it once).
+        error: std::io::Error,
     },
     /// The file is not valid JSON.
     #[error("{path}: line {line}, column {column}: malformed JSON: {message}")]
@@ -170,9 +170,9 @@ impl RawShear {
 impl RawConfig {
     /// Reads, overrides and parses a config file.
     pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.into(),
-            source,
+            error,
         })?;
         Self::parse(&text, path, overrides)
     }

@@ -8,6 +8,8 @@ use std::fmt::Write as _;
 /// The submission format of SPEC §6, as told to participants. The scoring
 /// harness owns the canonical text; this paragraph says the same in short.
 pub const SUBMISSION_FORMAT: &str = "\
+## Submission format
+
 A submission is one table with one row per object you measured, either a
 whitespace-separated ASCII file whose first line is a `#` header naming the
 columns, a CSV file with a header line, or a FITS binary table. Columns:
@@ -86,8 +88,6 @@ back a catalogue.
   your estimate γ̂ of the shear (not its ellipticity): averaged over many
   galaxies it should give the dataset's shear.
 - Position angles are counter-clockwise from the +x axis.
-
-## Submission format
 
 {submission_format}",
         n_datasets = plan.datasets.len(),

@@ -17,12 +17,14 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     /// Operating-system error.
-    #[error("{path}: {source}")]
+    // Named `error`, not `source`: the message already shows it, and a
+    // `source` would make the CLI's error chain print it twice.
+    #[error("{path}: {error}")]
     Os {
         /// The file.
         path: PathBuf,
         /// The error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// cfitsio error.
     #[error("{path}: FITS error: {message}")]
@@ -47,7 +49,7 @@ impl IoError {
     pub fn os(path: &Path, source: std::io::Error) -> Self {
         Self::Os {
             path: path.into(),
-            source,
+            error: source,
         }
     }
     /// Wraps a cfitsio error.

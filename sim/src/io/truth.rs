@@ -2,7 +2,7 @@
 //! twin for people who want to look at one.
 
 use super::{IoError, write_atomically};
-use crate::truth::{FLOAT_COLUMNS, INT_COLUMNS, TruthRow};
+use crate::truth::{COLUMN_ORDER, Column, FLOAT_COLUMNS, INT_COLUMNS, TruthRow};
 use fitsio::FitsFile;
 use fitsio::tables::{ColumnDataType, ColumnDescription};
 use std::path::Path;
@@ -23,24 +23,17 @@ pub fn write_truth_fits(
     write_atomically(path, |tmp| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
         let mut f = FitsFile::create(tmp).open().map_err(fe)?;
-        let mut cols = vec![
-            ColumnDescription::new("id")
-                .with_type(ColumnDataType::LongLong)
-                .create()
-                .map_err(fe)?,
-        ];
-        for name in INT_COLUMNS {
+        // Columns in SPEC §5 order; values are written by name below.
+        let mut cols = Vec::with_capacity(COLUMN_ORDER.len());
+        for name in COLUMN_ORDER {
+            let typ = match TruthRow::default().value(name) {
+                Some(Column::Long(_)) => ColumnDataType::LongLong,
+                Some(Column::Int(_)) => ColumnDataType::Int,
+                _ => ColumnDataType::Double,
+            };
             cols.push(
                 ColumnDescription::new(*name)
-                    .with_type(ColumnDataType::Int)
-                    .create()
-                    .map_err(fe)?,
-            );
-        }
-        for name in FLOAT_COLUMNS {
-            cols.push(
-                ColumnDescription::new(*name)
-                    .with_type(ColumnDataType::Double)
+                    .with_type(typ)
                     .create()
                     .map_err(fe)?,
             );
@@ -99,12 +92,13 @@ pub fn write_truth_csv(path: &Path, rows: &[TruthRow]) -> Result<(), IoError> {
     let mut s = TruthRow::column_names().join(",");
     s.push('\n');
     for r in rows {
-        let _ = write!(s, "{}", r.id);
-        for v in r.ints() {
-            let _ = write!(s, ",{v}");
-        }
-        for v in r.floats() {
-            let _ = write!(s, ",{v:?}");
+        for (k, name) in COLUMN_ORDER.iter().enumerate() {
+            let sep = if k == 0 { "" } else { "," };
+            let _ = match r.value(name).expect("every column has a value") {
+                Column::Long(v) => write!(s, "{sep}{v}"),
+                Column::Int(v) => write!(s, "{sep}{v}"),
+                Column::Float(v) => write!(s, "{sep}{v:?}"),
+            };
         }
         s.push('\n');
     }
@@ -139,6 +133,17 @@ mod tests {
         let rows = sample(50);
         write_truth_fits(&path, &rows, &[("PIXSCALE".into(), 0.206, "arcsec".into())]).unwrap();
         assert_eq!(read_truth_fits(&path).unwrap(), rows);
+        // The file's columns are in SPEC §5 order.
+        let mut f = FitsFile::open(&path).unwrap();
+        let hdu = f.hdu(TRUTH_EXTNAME).unwrap();
+        let names: Vec<String> = match &hdu.info {
+            fitsio::hdu::HduInfo::TableInfo {
+                column_descriptions,
+                ..
+            } => column_descriptions.iter().map(|c| c.name.clone()).collect(),
+            _ => panic!("not a table"),
+        };
+        assert_eq!(names, TruthRow::column_names());
         // Empty tables are fine too.
         write_truth_fits(&dir.path().join("e.fits"), &[], &[]).unwrap();
         assert!(
@@ -157,10 +162,12 @@ mod tests {
         let text = std::fs::read_to_string(&path).unwrap();
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(lines.len(), 4);
-        assert!(lines[0].starts_with("id,kind,hubble_type,x,y,"));
+        assert_eq!(lines[0], TruthRow::column_names().join(","));
+        assert!(lines[0].starts_with("id,kind,x,y,ra_deg,dec_deg,mag,flux_e,z,hubble_type,bt,"));
         let fields: Vec<&str> = lines[2].split(',').collect();
         assert_eq!(fields.len(), TruthRow::column_names().len());
-        assert_eq!(fields[3].parse::<f64>().unwrap(), rows[1].x);
+        assert_eq!(fields[2].parse::<f64>().unwrap(), rows[1].x);
+        assert_eq!(fields[9].parse::<i32>().unwrap(), rows[1].hubble_type);
     }
 
     #[test]

@@ -390,7 +390,7 @@ fn nearest(values: impl Iterator<Item = f64>, target: f64) -> i32 {
 
 /// Major-axis second moments (arcsec²) of the bulge and the disk of a row:
 /// σ² = ⟨r²⟩/2 of the untruncated circular profile of the component's
-/// major-axis size (de Vaucouleurs: ⟨r²⟩ = 21.6703 r_e²; exponential:
+/// major-axis size (de Vaucouleurs: ⟨r²⟩ = 21.6793 r_e²; exponential:
 /// ⟨r²⟩ = 6 h²; see [`sizes`]).
 pub fn component_sigma2(row: &TruthRow) -> (f64, f64) {
     (
