@@ -143,7 +143,7 @@ pub fn measure_run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{SceneSpec, covariance, synthetic_scene, write_public_run};
+    use crate::draw::{SceneSpec, synthetic_scene, write_public_run};
     use crate::image::Image;
     use crate::pipeline::measure_image;
 
@@ -153,16 +153,8 @@ mod tests {
             height: 512,
             n_galaxy_pairs: 60,
             n_stars,
-            psf: covariance(4.37 / 2.3548, [0.04, 0.01]),
-            psf_halo: None,
-            shear: [0.0, 0.0],
-            galaxy_sigma_px: (1.0, 4.0),
-            galaxy_flux_e: (1.5e4, 1e6),
             star_flux_e: (1e5, 3e6),
-            sigma_e: 0.25,
-            sky_e: 80_000.0,
-            read_noise_e: 5.0,
-            seed,
+            ..SceneSpec::step_like([0.0, 0.0], [0.04, 0.01], seed)
         }
     }
 
