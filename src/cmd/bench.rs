@@ -100,11 +100,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     println!("| stage | median s | min s | max s |");
     println!("|---|---|---|---|");
-    let rows: [(&str, Stage); 7] = [
+    let rows: [(&str, Stage); 8] = [
         ("population", |t| t.population_s),
         ("psf", |t| t.psf_s),
         ("galaxies", |t| t.galaxies_s),
         ("stars", |t| t.stars_s),
+        ("convolve (PSF wings, split method)", |t| t.convolve_s),
         ("noise", |t| t.noise_s),
         ("write", |t| t.write_s),
         ("total", |t| t.total_s()),
@@ -117,6 +118,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     println!(
         "µs wall per galaxy (galaxy stage wall time / galaxies): {:.1}",
         gal * 1e6 / runs[0].n_galaxies.max(1) as f64
+    );
+    let n_gal = runs[0].n_galaxies.max(1) as f64;
+    let (gal_cpu, _, _) = stage(|t| t.galaxies_cpu_s);
+    let (conv_cpu, _, _) = stage(|t| t.convolve_cpu_s);
+    let (total_cpu, _, _) = stage(|t| t.total_cpu_s);
+    println!(
+        "µs CPU per galaxy: galaxy stage {:.1}; with the image convolution {:.1}; whole image {:.1} (CPU {:.2} s)",
+        gal_cpu * 1e6 / n_gal,
+        (gal_cpu + conv_cpu) * 1e6 / n_gal,
+        total_cpu * 1e6 / n_gal,
+        total_cpu
     );
     match peak_memory_bytes() {
         Some(b) => println!("peak memory (VmHWM): {:.1} MiB", b as f64 / 1048576.0),

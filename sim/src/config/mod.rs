@@ -23,7 +23,7 @@ pub use population::{
     Source,
 };
 pub use psf::{Aberration, RawPsf, RawPsfModel};
-pub use render::{Compression, RawOutput, RawRender, SampleFormat};
+pub use render::{Compression, RawOutput, RawRender, RenderMethod, SampleFormat};
 
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

@@ -21,6 +21,22 @@ pub struct RawRender {
     pub edge_sky_sigma: f64,
     /// Largest stamp side in pixels (bright stars).
     pub max_stamp_px: u32,
+    /// How whole images apply the PSF: `split` (default; exact factoring,
+    /// PSF wings applied once per image) or `stamp` (each object with the
+    /// whole PSF on its own stamp). See docs/rendering.md.
+    pub method: RenderMethod,
+}
+
+/// `render.method`.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RenderMethod {
+    /// Object ⊗ a narrow Gaussian per stamp, then one convolution of the
+    /// image with the rest of the PSF.
+    #[default]
+    Split,
+    /// Object ⊗ the whole PSF per stamp.
+    Stamp,
 }
 
 impl Default for RawRender {
@@ -30,6 +46,7 @@ impl Default for RawRender {
             maxk_threshold: 1e-4,
             edge_sky_sigma: 0.1,
             max_stamp_px: 1024,
+            method: RenderMethod::Split,
         }
     }
 }

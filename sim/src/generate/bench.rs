@@ -1,13 +1,16 @@
 //! The pieces of `stepsim bench`: one image made stage by stage with each
 //! stage timed (a benchmark, never a test assertion). Galaxies and stars are
-//! drawn separately so that their costs can be told apart; the sum of the two
-//! drawings is the model that the noise stage uses.
+//! added to the image separately so that their costs can be told apart, and
+//! the image-level PSF convolution of the split method
+//! ([`crate::render::split`]) is its own stage; the result is the model that
+//! the noise stage uses. Process CPU time is read from `/proc/self/stat`
+//! (clock ticks, 10 ms) around each stage.
 
 use super::GenerateError;
 use crate::config::Plan;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
 use crate::noise::{self, Detector};
-use crate::render::{Accuracy, Renderer, try_draw_image};
+use crate::render::{Accuracy, Canvas, Renderer};
 use crate::seed::{SeedKey, Stream};
 use std::path::Path;
 use std::time::Instant;
@@ -23,6 +26,9 @@ pub struct StageTimes {
     pub galaxies_s: f64,
     /// Drawing the stars.
     pub stars_s: f64,
+    /// Convolving the image with the PSF's wings (split method; 0 for the
+    /// stamp method).
+    pub convolve_s: f64,
     /// Sky, photon and read noise.
     pub noise_s: f64,
     /// Writing the FITS file.
@@ -31,6 +37,12 @@ pub struct StageTimes {
     pub n_galaxies: usize,
     /// Stars in the base field.
     pub n_stars: usize,
+    /// Process CPU seconds (all threads) of the galaxy stage.
+    pub galaxies_cpu_s: f64,
+    /// Process CPU seconds of the convolution stage.
+    pub convolve_cpu_s: f64,
+    /// Process CPU seconds of the whole image.
+    pub total_cpu_s: f64,
 }
 
 impl StageTimes {
@@ -40,6 +52,7 @@ impl StageTimes {
             + self.psf_s
             + self.galaxies_s
             + self.stars_s
+            + self.convolve_s
             + self.noise_s
             + self.write_s
     }
@@ -59,6 +72,7 @@ pub fn run_once(
     let pixel_scale = raw.image.pixel_scale_arcsec;
     let shear = raw.shears.last().expect("validated plan has shears");
     let mut t = StageTimes::default();
+    let cpu_start = process_cpu_s();
 
     let clock = Instant::now();
     let base = crate::population::base_field(plan, field)
@@ -85,21 +99,32 @@ pub fn run_once(
         Accuracy::from_config(&raw.render),
         det.sky_sigma_e(),
     );
+    // The split method's image kernel belongs to the PSF stage too.
+    if let Some(split) = renderer.split() {
+        split.convolver(w as usize, h as usize);
+    }
     t.psf_s = clock.elapsed().as_secs_f64();
 
     let clock = Instant::now();
-    let mut model = try_draw_image(&renderer, &galaxies, w, h)
+    let cpu = process_cpu_s();
+    let mut canvas = Canvas::new(&renderer, w, h);
+    canvas
+        .try_add(&galaxies)
         .map_err(|source| GenerateError::Render { field, source })?;
     t.galaxies_s = clock.elapsed().as_secs_f64();
+    t.galaxies_cpu_s = process_cpu_s() - cpu;
 
     let clock = Instant::now();
-    let star_img = try_draw_image(&renderer, &stars, w, h)
+    canvas
+        .try_add(&stars)
         .map_err(|source| GenerateError::Render { field, source })?;
-    for (m, s) in model.iter_mut().zip(&star_img) {
-        *m += s;
-    }
-    drop(star_img);
     t.stars_s = clock.elapsed().as_secs_f64();
+
+    let clock = Instant::now();
+    let cpu = process_cpu_s();
+    let model = canvas.finish();
+    t.convolve_s = clock.elapsed().as_secs_f64();
+    t.convolve_cpu_s = process_cpu_s() - cpu;
 
     let clock = Instant::now();
     let key = SeedKey::image(plan.seed(), field, 0, Stream::Noise);
@@ -119,7 +144,28 @@ pub fn run_once(
         raw.output.compression,
     )?;
     t.write_s = clock.elapsed().as_secs_f64();
+    t.total_cpu_s = process_cpu_s() - cpu_start;
     Ok(t)
+}
+
+/// User + system CPU seconds of this process so far (all threads), from
+/// `/proc/self/stat` at 100 ticks per second (Linux's USER_HZ); 0 where the
+/// file is missing.
+pub fn process_cpu_s() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are
+    // fields 14 and 15 of the whole line.
+    let Some(rest) = stat.rfind(')').map(|i| &stat[i + 1..]) else {
+        return 0.0;
+    };
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let tick = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (tick(11), tick(12)) {
+        (Some(u), Some(s)) => (u + s) / 100.0,
+        _ => 0.0,
+    }
 }
 
 /// Peak resident memory of this process in bytes (`VmHWM` of
@@ -156,5 +202,6 @@ mod tests {
         let img = crate::io::image_fits::read_image_fits(&path).unwrap();
         assert_eq!(img.pixels.len(), 64 * 64);
         assert!(peak_memory_bytes().is_some_and(|b| b > 0));
+        assert!(t.total_cpu_s >= 0.0 && t.convolve_s > 0.0);
     }
 }

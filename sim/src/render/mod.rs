@@ -22,11 +22,14 @@
 //! `y0` are the 0-based image-array indices of its first pixel, so stamp
 //! pixel (i, j) is FITS pixel (x0 + 1 + i, y0 + 1 + j).
 
+pub mod convolve;
 pub mod image;
 pub mod reference;
+pub mod split;
 pub mod stamp;
 
-pub use image::{draw_image, try_draw_image};
+pub use crate::config::RenderMethod as Method;
+pub use image::{Canvas, draw_image, try_draw_image};
 pub use reference::ReferenceRenderer;
 
 use crate::config::RawRender;
@@ -36,7 +39,7 @@ use crate::profile::{ProfileKind, RadialProfile};
 use crate::psf::{Psf, StampGrid};
 use crate::truth::TruthRow;
 use stamp::{FftCache, Fill, StampEngine};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 /// A truth row the renderer refuses.
@@ -62,6 +65,12 @@ pub struct Accuracy {
     pub max_stamp_px: usize,
     /// Smallest stamp side in pixels (16).
     pub min_stamp_px: usize,
+    /// How whole images apply the PSF (config `render.method`): `split`
+    /// (default) draws object ⊗ a narrow Gaussian per stamp and convolves
+    /// the image once with the rest of the PSF ([`split`]); `stamp` draws
+    /// each object with the whole PSF on its own stamp. Single-object
+    /// drawing ([`Renderer::draw`]) always uses the whole PSF.
+    pub method: Method,
 }
 
 impl Default for Accuracy {
@@ -79,6 +88,7 @@ impl Accuracy {
             edge_sky_sigma: raw.edge_sky_sigma,
             max_stamp_px: raw.max_stamp_px as usize,
             min_stamp_px: 16,
+            method: raw.method,
         }
     }
 }
@@ -139,6 +149,8 @@ pub struct Renderer {
     unit_fold_radius: [f64; 2],
     engine32: StampEngine<f32>,
     engine64: StampEngine<f64>,
+    /// The factored PSF of whole images, built on first use.
+    split: OnceLock<Box<split::Split>>,
 }
 
 impl Renderer {
@@ -168,6 +180,7 @@ impl Renderer {
             ],
             engine32,
             engine64,
+            split: OnceLock::new(),
         };
         r.psf_peak_fraction = r.measure_psf_peak_fraction();
         r
@@ -181,6 +194,27 @@ impl Renderer {
     /// The pixel scale (arcsec).
     pub fn pixel_scale_arcsec(&self) -> f64 {
         self.pixel_scale_arcsec
+    }
+
+    /// The PSF.
+    pub fn psf(&self) -> &Arc<dyn Psf> {
+        &self.psf
+    }
+
+    /// The factored PSF that whole images use when the method is
+    /// [`Method::Split`] (built on first call: one transfer function on the
+    /// tile grid); `None` for [`Method::Stamp`].
+    pub fn split(&self) -> Option<&split::Split> {
+        (self.accuracy.method == Method::Split).then(|| {
+            &**self.split.get_or_init(|| {
+                Box::new(split::Split::new(
+                    &self.psf,
+                    self.pixel_scale_arcsec,
+                    self.accuracy,
+                    self.sky_sigma_e,
+                ))
+            })
+        })
     }
 
     /// Fraction of a centred star's flux in its central pixel.

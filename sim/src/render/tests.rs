@@ -536,8 +536,11 @@ fn accuracy_comes_from_the_render_section_and_timing_does_not_change_pixels() {
         maxk_threshold: 2e-3,
         edge_sky_sigma: 0.5,
         max_stamp_px: 256,
+        method: Method::Stamp,
     };
     let acc = Accuracy::from_config(&raw);
+    assert_eq!(acc.method, Method::Stamp);
+    assert_eq!(Accuracy::default().method, Method::Split);
     assert_eq!(acc.folding_threshold, 1e-3);
     assert_eq!(acc.kvalue_threshold, 2e-3);
     assert_eq!(acc.edge_sky_sigma, 0.5);
@@ -553,4 +556,221 @@ fn accuracy_comes_from_the_render_section_and_timing_does_not_change_pixels() {
     let (s, t) = loose.draw_timed(&row).unwrap();
     assert_eq!(s, loose.draw(&row));
     assert!(t.kspace_ns > 0 && t.fft_ns > 0);
+}
+
+// ---- The split method (PSF factored as L · T/L; see split.rs) ----
+
+fn with_method(psf: Arc<dyn Psf>, method: Method) -> Renderer {
+    let acc = Accuracy {
+        method,
+        ..Accuracy::default()
+    };
+    Renderer::new(psf, P, acc, SKY_SIGMA)
+}
+
+fn step1_psf(name: &str) -> Arc<dyn Psf> {
+    let raw = crate::config::RawPsf::step1_set()
+        .into_iter()
+        .find(|p| p.name == name)
+        .unwrap();
+    crate::psf::build(&raw, &crate::config::RawTelescope::default(), P).unwrap()
+}
+
+/// The rows of the split tests: shapes and sizes down to 0.1″ at sub-pixel
+/// offsets, one galaxy centred outside the image (its light must come in
+/// through the margin), and a star.
+fn split_rows(w: f64) -> Vec<TruthRow> {
+    let c = w / 2.0;
+    vec![
+        galaxy(
+            c + 0.3,
+            c - 0.2,
+            1.0e4,
+            0.0,
+            0.0,
+            1.0,
+            0.3,
+            0.5,
+            30.0,
+            (0.05, 0.02),
+        ),
+        galaxy(
+            c + 0.5,
+            c + 0.5,
+            1.0e4,
+            1.0,
+            0.1,
+            0.7,
+            0.0,
+            1.0,
+            100.0,
+            (0.1, 0.0),
+        ),
+        galaxy(
+            c + 0.1,
+            c + 0.45,
+            1.0e4,
+            0.4,
+            0.2,
+            0.8,
+            0.5,
+            0.25,
+            170.0,
+            (-0.03, 0.07),
+        ),
+        galaxy(c - 0.23, c, 1.0e4, 0.0, 0.0, 1.0, 0.1, 0.9, 0.0, (0.0, 0.0)),
+        galaxy(
+            -1.7,
+            c + 3.2,
+            1.0e4,
+            0.3,
+            0.4,
+            0.6,
+            0.8,
+            0.4,
+            60.0,
+            (0.0, 0.05),
+        ),
+        star(c + 0.25, c + 0.75, 1.0e4),
+    ]
+}
+
+/// Max |a − b| over the image, divided by the peak of `b`.
+fn max_diff_of_peak(a: &[f32], b: &[f64]) -> f64 {
+    let peak = b.iter().copied().fold(0.0, f64::max);
+    a.iter()
+        .zip(b)
+        .map(|(&x, &y)| (f64::from(x) - y).abs())
+        .fold(0.0, f64::max)
+        / peak
+}
+
+#[test]
+fn split_images_match_the_real_space_reference() {
+    // Gaussian PSF: the split method's image of each object against the slow
+    // twin integrated over the whole image; tolerance 1e-3 of the peak.
+    let r = renderer(Accuracy::default());
+    assert_eq!(r.accuracy().method, Method::Split);
+    let split = r.split().expect("the default method splits");
+    // L is the widest allowed Gaussian (a 0.9″ Gaussian PSF never limits it).
+    assert!((split.sigma_l_arcsec() - split::MAX_SIGMA_PX * P).abs() < 1e-12);
+    let reference = ReferenceRenderer {
+        pixel_scale_arcsec: P,
+        psf_sigma_arcsec: Some(psf().sigma_arcsec()),
+        supersample: 9,
+    };
+    let n = 48;
+    for row in split_rows(n as f64) {
+        let img = draw_image(&r, std::slice::from_ref(&row), n as u32, n as u32);
+        let want = reference.draw(&row, 0, 0, n, n).unwrap();
+        let d = max_diff_of_peak(&img, &want);
+        eprintln!("split vs reference, x = {:.1}: {d:.2e} of the peak", row.x);
+        assert!(d < 1e-3, "{row:?}: max diff {d} of peak");
+        let (got, exp): (f64, f64) = (img.iter().map(|&v| f64::from(v)).sum(), want.iter().sum());
+        assert!((got - exp).abs() < 1e-3 * row.flux_e, "flux {got} vs {exp}");
+    }
+}
+
+#[test]
+fn split_and_stamp_methods_agree_for_the_coma_psf() {
+    // STEP1 PSF 1 (optics with spiders, Kolmogorov seeing, coma): each
+    // object drawn by the split method against the same object drawn with
+    // the whole PSF on one 320-pixel stamp (66″: the PSF's whole support, so
+    // nothing is folded); tolerance 1e-3 of the peak, flux to 1e-3.
+    let psf = step1_psf("coma");
+    let split_r = with_method(psf.clone(), Method::Split);
+    let whole = with_method(psf, Method::Stamp);
+    let n = 64;
+    for row in split_rows(n as f64) {
+        let img = draw_image(&split_r, std::slice::from_ref(&row), n as u32, n as u32);
+        let s = whole.draw_f64_with_side(&row, 320).unwrap();
+        let mut want = vec![0.0; n * n];
+        for j in 0..320 {
+            for i in 0..320 {
+                let (x, y) = (s.0 + i as i64, s.1 + j as i64);
+                if (0..n as i64).contains(&x) && (0..n as i64).contains(&y) {
+                    want[y as usize * n + x as usize] += s.2[j * 320 + i];
+                }
+            }
+        }
+        let d = max_diff_of_peak(&img, &want);
+        eprintln!(
+            "coma split vs whole-PSF stamp, x = {:.1}: {d:.2e} of the peak",
+            row.x
+        );
+        assert!(d < 1e-3, "{row:?}: max diff {d} of peak");
+        let (got, exp): (f64, f64) = (img.iter().map(|&v| f64::from(v)).sum(), want.iter().sum());
+        assert!((got - exp).abs() < 1e-3 * row.flux_e, "flux {got} vs {exp}");
+    }
+}
+
+#[test]
+fn the_image_kernel_never_amplifies_and_reaches_the_psf_wings() {
+    // |T / L| ≤ 1 on the whole tile grid, for a physical and a Gaussian
+    // PSF; the margin covers the optical PSF's diffraction spikes (1e-5 of
+    // the peak at 13–14″, docs/psf.md).
+    for psf in [step1_psf("coma"), step1_psf("none"), psf() as Arc<dyn Psf>] {
+        let r = with_method(psf.clone(), Method::Split);
+        let s = r.split().unwrap();
+        let sig = s.sigma_l_arcsec();
+        assert!(sig > 0.5 * P, "σ_L {sig}″");
+        // The tile of a full STEP1 image and that of a small one.
+        for side in [4096, 64] {
+            let n = s.convolver(side, side).tile();
+            let grid = StampGrid::new(n, P);
+            let t = psf.transfer(grid);
+            let mut worst: f64 = 0.0;
+            for row in 0..n {
+                for col in 0..grid.n_cols() {
+                    let (u, v) = grid.frequency(row, col);
+                    let l = (-2.0 * (std::f64::consts::PI * sig).powi(2) * (u * u + v * v)).exp();
+                    worst = worst.max(f64::from(t[row * grid.n_cols() + col].norm()) / l);
+                }
+            }
+            eprintln!(
+                "σ_L {sig:.3}″, margin {} px, image {side}: tile {n}, max |T/L| {worst:.6}",
+                s.margin_px()
+            );
+            assert!(worst <= 1.0 + 1e-6, "max |T/L| {worst}");
+        }
+        if psf.calibration().is_some() {
+            assert!(s.margin_px() as f64 * P > 14.0, "margin {}", s.margin_px());
+        }
+    }
+}
+
+#[test]
+fn both_methods_draw_the_same_field() {
+    // A field of 300 objects, some off the edges, with the Gaussian PSF:
+    // the split and stamp methods agree to 1e-3 of the brightest pixel.
+    let rows = field(300, 200.0);
+    let a = draw_image(&with_method(psf(), Method::Split), &rows, 200, 180);
+    let b = draw_image(&with_method(psf(), Method::Stamp), &rows, 200, 180);
+    let b64: Vec<f64> = b.iter().map(|&v| f64::from(v)).collect();
+    let d = max_diff_of_peak(&a, &b64);
+    eprintln!("split vs stamp field: {d:.2e} of the peak");
+    assert!(d < 1e-3, "{d}");
+}
+
+#[test]
+fn a_bright_star_shows_its_diffraction_spikes_in_the_image() {
+    // STEP1 PSF 0 (spider arms at 0° and 90°): in a split-method image, a
+    // bright star's light at 10″ along x and y is several times brighter
+    // than on the diagonal at the same radius (the PSF alone: 2.0e-5 vs
+    // 7.0e-6 of the peak, docs/psf.md), so the spikes are drawn.
+    let r = with_method(step1_psf("none"), Method::Split);
+    let n = 160;
+    let c = 80.0;
+    let img = draw_image(&r, &[star(c + 1.0, c + 1.0, 1.0e9)], n, n);
+    let at = |dx: i64, dy: i64| f64::from(img[((80 + dy) * 160 + 80 + dx) as usize]);
+    let peak = at(0, 0);
+    let k = (10.0 / P).round() as i64; // 49 px
+    let kd = (10.0 / P / std::f64::consts::SQRT_2).round() as i64;
+    let axis = at(k, 0).min(at(0, k)).min(at(-k, 0)).min(at(0, -k)) / peak;
+    let diag = at(kd, kd).max(at(-kd, kd)) / peak;
+    eprintln!("star at 10″: axis {axis:.2e}, diagonal {diag:.2e} of the peak");
+    assert!(
+        axis > 2.5 * diag && axis > 5e-6,
+        "axis {axis:e}, diagonal {diag:e}"
+    );
 }
