@@ -103,6 +103,9 @@ impl Convolver {
             cw * (height + 2 * m),
             "canvas of the wrong size"
         );
+        if width == 0 || height == 0 {
+            return Vec::new();
+        }
         let b = self.block();
         let blocks: Vec<(usize, usize)> = (0..height.div_ceil(b))
             .flat_map(|by| (0..width.div_ceil(b)).map(move |bx| (bx * b, by * b)))
@@ -317,6 +320,8 @@ mod tests {
             .unwrap()
             .install(|| conv.apply(&canvas, w, h));
         assert_eq!(one, fast);
+        // An empty image is empty, not a panic.
+        assert!(conv.apply(&vec![0.0; (2 * m) * (2 * m)], 0, 0).is_empty());
     }
 
     #[test]

@@ -357,6 +357,7 @@ fn bad_rows_are_refused_not_drawn() {
     assert_eq!(r.draw(&row).nx, 0);
     assert!(try_draw_image(&r, &[row], 32, 32).is_err());
     assert!(draw_image(&r, &[row], 32, 32).iter().all(|&v| v == 0.0));
+    assert!(draw_image(&r, &[], 0, 7).is_empty());
     row.bulge_ba = 0.5;
     row.x = f64::INFINITY;
     assert_eq!(r.try_draw(&row).unwrap_err().column, "x");
