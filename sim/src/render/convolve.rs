@@ -107,24 +107,24 @@ impl Convolver {
             return Vec::new();
         }
         let b = self.block();
-        let blocks: Vec<(usize, usize)> = (0..height.div_ceil(b))
-            .flat_map(|by| (0..width.div_ceil(b)).map(move |bx| (bx * b, by * b)))
-            .collect();
-        let results: Vec<Vec<f32>> = blocks
-            .par_iter()
-            .map_init(
-                || Scratch::new(self),
-                |scratch, &(x0, y0)| self.block_at(canvas, width, height, x0, y0, scratch),
-            )
-            .collect();
-        // Copy block rows in parallel (the output's pages are first touched
-        // here).
+        // One band of output rows per row of blocks; the blocks of a band are
+        // computed in parallel, then copied in (the output's pages are first
+        // touched here, in parallel). At most one band of block results per
+        // thread is held besides the output.
         let per_row = width.div_ceil(b);
         let mut out = super::image::zeroed(width * height);
         out.par_chunks_mut(b * width)
-            .zip(results.par_chunks(per_row))
-            .for_each(|(band, row_blocks)| {
-                for (bx, data) in row_blocks.iter().enumerate() {
+            .enumerate()
+            .for_each(|(by, band)| {
+                let y0 = by * b;
+                let results: Vec<Vec<f32>> = (0..per_row)
+                    .into_par_iter()
+                    .map_init(
+                        || Scratch::new(self),
+                        |scratch, bx| self.block_at(canvas, width, height, bx * b, y0, scratch),
+                    )
+                    .collect();
+                for (bx, data) in results.iter().enumerate() {
                     let x0 = bx * b;
                     let bw = b.min(width - x0);
                     for (j, src) in data.chunks_exact(bw).enumerate() {
@@ -314,12 +314,15 @@ mod tests {
             .fold(0.0, f64::max);
         assert!(worst < 2e-6 * peak, "max diff {worst} of peak {peak}");
         // Thread count does not change a bit.
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap()
-            .install(|| conv.apply(&canvas, w, h));
-        assert_eq!(one, fast);
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| conv.apply(&canvas, w, h))
+        };
+        assert_eq!(run(1), fast);
+        assert_eq!(run(4), fast);
         // An empty image is empty, not a panic.
         assert!(conv.apply(&vec![0.0; (2 * m) * (2 * m)], 0, 0).is_empty());
     }

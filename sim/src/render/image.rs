@@ -16,7 +16,7 @@ use crate::truth::TruthRow;
 use rayon::prelude::*;
 
 /// Objects rendered per batch (bounds the memory held in stamps).
-const BATCH: usize = 2048;
+pub(crate) const BATCH: usize = 2048;
 
 /// The noise-free, sky-free electron image of `rows`, row-major
 /// (index (y − 1) · width + (x − 1) for FITS pixel (x, y)); objects partly
