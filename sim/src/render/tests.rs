@@ -395,7 +395,7 @@ fn image_is_bit_identical_at_any_thread_count_and_holds_the_flux() {
     // 5 000 objects: more than two batches of stamps (2 048 each), and a
     // 420 × 380 image is 2 × 2 convolution tiles.
     let r = renderer(Accuracy::default());
-    assert!(5000 > 2 * image::BATCH);
+    const { assert!(5000 > 2 * image::BATCH) };
     let (w, h) = (420, 380);
     let rows = field(5000, 420.0);
     let run = |threads: usize| {
