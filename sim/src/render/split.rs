@@ -54,8 +54,9 @@ pub const MARGIN_LEVEL: f64 = 1e-7;
 #[derive(Debug)]
 pub struct Split {
     psf: Arc<dyn Psf>,
+    /// L: the Gaussian of the stamps, and the divisor of the kernel.
+    l: Arc<GaussianPsf>,
     stamps: Renderer,
-    sigma_l_arcsec: f64,
     margin: usize,
     pixel_scale_arcsec: f64,
     convolvers: Mutex<HashMap<usize, Arc<Convolver>>>,
@@ -92,10 +93,10 @@ impl Split {
             })
             .fold(f64::INFINITY, f64::min);
         let sigma_px = (0.95 * bound).min(MAX_SIGMA_PX);
-        let sigma_l_arcsec = sigma_px * p;
-        let fwhm = sigma_l_arcsec * 2.0 * (2.0 * std::f64::consts::LN_2).sqrt();
+        let fwhm = sigma_px * p * 2.0 * (2.0 * std::f64::consts::LN_2).sqrt();
+        let l = Arc::new(GaussianPsf::round(fwhm));
         let stamps = Renderer::new(
-            Arc::new(GaussianPsf::round(fwhm)),
+            l.clone(),
             p,
             Accuracy {
                 method: Method::Stamp,
@@ -105,8 +106,8 @@ impl Split {
         );
         Split {
             psf: psf.clone(),
+            l,
             stamps,
-            sigma_l_arcsec,
             margin,
             pixel_scale_arcsec: p,
             convolvers: Mutex::new(HashMap::new()),
@@ -122,8 +123,7 @@ impl Split {
         map.entry(n)
             .or_insert_with(|| {
                 let grid = StampGrid::new(n, self.pixel_scale_arcsec);
-                let kernel =
-                    divide_by_gaussian(&self.psf.transfer(grid), grid, self.sigma_l_arcsec);
+                let kernel = divide_by_gaussian(&self.psf.transfer(grid), grid, &self.l);
                 Arc::new(Convolver::new(n, self.margin, &kernel))
             })
             .clone()
@@ -136,7 +136,7 @@ impl Split {
 
     /// σ of L (arcsec).
     pub fn sigma_l_arcsec(&self) -> f64 {
-        self.sigma_l_arcsec
+        self.l.sigma_arcsec()
     }
 
     /// Canvas margin in pixels.
@@ -182,18 +182,18 @@ pub fn prefilter_sigma_px(t: &[Complex32], grid: StampGrid) -> f64 {
     best.sqrt()
 }
 
-/// T / L on `grid`, zero on the Nyquist row and column.
-fn divide_by_gaussian(t: &[Complex32], grid: StampGrid, sigma_arcsec: f64) -> Vec<Complex32> {
+/// T / L on `grid`, zero on the Nyquist row and column; L is the very
+/// Gaussian the stamps are drawn with (evaluated in f64).
+fn divide_by_gaussian(t: &[Complex32], grid: StampGrid, l: &GaussianPsf) -> Vec<Complex32> {
     let (n, nc) = (grid.n, grid.n_cols());
     let mut out = vec![Complex32::new(0.0, 0.0); t.len()];
-    let s2 = 2.0 * PI * PI * sigma_arcsec * sigma_arcsec;
     for row in 0..n {
         if row == n / 2 {
             continue;
         }
         for col in 0..nc - 1 {
             let (u, v) = grid.frequency(row, col);
-            let inv_l = (s2 * (u * u + v * v)).exp();
+            let inv_l = 1.0 / l.transfer_at(u, v);
             let k = t[row * nc + col];
             out[row * nc + col] = Complex32::new(
                 (f64::from(k.re) * inv_l) as f32,
