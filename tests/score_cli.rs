@@ -199,10 +199,7 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
         "fig5_residual_magnitude",
     ] {
         let png = std::fs::read(fx.path(&format!("out/{f}.png"))).unwrap();
-        assert!(
-            stepsim_sim::io::png::decode_indexed(&png).is_some(),
-            "{f}.png"
-        );
+        assert!(stepsim_sim::io::png::decode(&png).is_some(), "{f}.png");
         let svg = std::fs::read_to_string(fx.path(&format!("out/{f}.svg"))).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
     }
@@ -369,7 +366,7 @@ fn directory_submissions_and_the_leaderboard() {
     assert_eq!(j["entries"][0]["rank"], 1);
     assert_eq!(j["entries"][1]["submission"], "worse.txt");
     let png = std::fs::read(lb.join("fig3_m_sigma_c.png")).unwrap();
-    assert!(stepsim_sim::io::png::decode_indexed(&png).is_some());
+    assert!(stepsim_sim::io::png::decode(&png).is_some());
     let svg = std::fs::read_to_string(lb.join("fig3_m_sigma_c.svg")).unwrap();
     assert_eq!(
         svg.matches("<circle").count(),

@@ -179,7 +179,7 @@ pub fn report_markdown(r: &Report) -> String {
     let _ = writeln!(
         o,
         "\nPlots: `fig2_shear_response`, `fig3_m_sigma_c`, `fig4_mselc_muncontaminated`, \
-         `fig5_residual_magnitude` (`.svg` labelled, `.png` without text)."
+         `fig5_residual_magnitude` (each as `.svg` and `.png`)."
     );
     o
 }

@@ -197,7 +197,12 @@ pub fn write_outputs(
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     for (name, fig) in crate::plots::report_figures(report) {
         files.push((dir.join(format!("{name}.svg")), fig.to_svg().into_bytes()));
-        files.push((dir.join(format!("{name}.png")), fig.to_png()));
+        let png = dir.join(format!("{name}.png"));
+        let bytes = fig.to_png().map_err(|e| HarnessError::Report {
+            path: png.clone(),
+            message: e.to_string(),
+        })?;
+        files.push((png, bytes));
     }
     files.push((
         dir.join(REPORT_MD),

@@ -1,11 +1,11 @@
 //! Plots like the paper's Figures 2–5, written by our own small plotter as
-//! SVG (with titles, axis labels and tick labels) and PNG (the same drawing
-//! rasterised **without text**, so that no font is needed anywhere; the SVG
-//! is the labelled version). The PNG encoder ([`stepsim_sim::io::png`],
-//! shared with the PSF panel) is ours too; CI installs nothing.
+//! SVG (with titles, axis labels and tick labels); the PNG is that same SVG
+//! rasterised with its text by [`stepsim_sim::io::png::svg_to_png`] (resvg
+//! and a bundled font: no system font is needed, CI installs nothing).
 
 use crate::report::Report;
 use std::fmt::Write as _;
+use stepsim_sim::picture::xml_escape;
 
 /// Palette: white, black, light grey, blue, red, green, orange, mid grey.
 pub const PALETTE: [[u8; 3]; 8] = [
@@ -84,7 +84,7 @@ pub struct Figure {
     pub charts: Vec<Chart>,
 }
 
-const MARGIN: (f64, f64, f64, f64) = (70.0, 15.0, 28.0, 45.0); // left, right, top, bottom
+const MARGIN: (f64, f64, f64, f64) = (82.0, 15.0, 28.0, 45.0); // left, right, top, bottom
 
 /// "Nice" tick values covering [lo, hi] (about five).
 pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
@@ -104,7 +104,8 @@ pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
 }
 
 impl Chart {
-    /// Data range over every item, padded by 8 % (never empty).
+    /// Data range over every item, padded by 8 % (never empty, and at least
+    /// 0.1 % of the largest value wide, so that tick labels stay short).
     pub fn range(&self) -> ([f64; 2], [f64; 2]) {
         let (mut x, mut y) = ([f64::MAX, f64::MIN], [f64::MAX, f64::MIN]);
         let mut add = |px: f64, py: f64| {
@@ -131,7 +132,7 @@ impl Chart {
                 [-1.0, 1.0]
             } else {
                 let w = (r[1] - r[0])
-                    .max(1e-6 * r[0].abs().max(r[1].abs()))
+                    .max(1e-3 * r[0].abs().max(r[1].abs()))
                     .max(1e-9);
                 [r[0] - 0.08 * w, r[1] + 0.08 * w]
             }
@@ -270,7 +271,8 @@ impl Figure {
                 "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#000000\"/>",
                 f.ox, f.oy, f.w, f.h
             );
-            for t in ticks(f.xr[0], f.xr[1]) {
+            let ts = ticks(f.xr[0], f.xr[1]);
+            for (&t, label) in ts.iter().zip(tick_labels(&ts)) {
                 let (a, _) = f.px(t, f.yr[0]);
                 let b = f.oy + f.h;
                 let _ = writeln!(
@@ -279,10 +281,11 @@ impl Figure {
                      <text x=\"{a:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
                     b - 5.0,
                     b + 14.0,
-                    fmt_tick(t)
+                    label
                 );
             }
-            for t in ticks(f.yr[0], f.yr[1]) {
+            let ts = ticks(f.yr[0], f.yr[1]);
+            for (&t, label) in ts.iter().zip(tick_labels(&ts)) {
                 let (_, b) = f.px(f.xr[0], t);
                 let _ = writeln!(
                     s,
@@ -292,7 +295,7 @@ impl Figure {
                     f.ox + 5.0,
                     f.ox - 4.0,
                     b + 4.0,
-                    fmt_tick(t)
+                    label
                 );
             }
             let _ = writeln!(
@@ -302,165 +305,63 @@ impl Figure {
                  <text transform=\"translate({:.1},{:.1}) rotate(-90)\" text-anchor=\"middle\">{}</text>",
                 f.ox + f.w / 2.0,
                 f.oy - 9.0,
-                xml(&c.title),
+                xml_escape(&c.title),
                 f.ox + f.w / 2.0,
                 f.oy + f.h + 32.0,
-                xml(&c.x_label),
-                f.ox - 52.0,
+                xml_escape(&c.x_label),
+                f.ox - 66.0,
                 f.oy + f.h / 2.0,
-                xml(&c.y_label)
+                xml_escape(&c.y_label)
             );
         }
         s.push_str("</svg>\n");
         s
     }
 
-    /// The figure rasterised (no text) and encoded as PNG.
-    pub fn to_png(&self) -> Vec<u8> {
-        let (w, h) = self.size();
-        let mut r = Raster::new(w, h);
-        for (c, f) in self.charts.iter().zip(self.frames()) {
-            for it in &c.items {
-                match it {
-                    Item::Band { rect, colour } => {
-                        let (x0, y0) = f.px(f.clip(rect[0], rect[3]).0, f.clip(rect[0], rect[3]).1);
-                        let (x1, y1) = f.px(f.clip(rect[1], rect[2]).0, f.clip(rect[1], rect[2]).1);
-                        r.fill_rect(x0, y0, x1, y1, *colour);
-                    }
-                    Item::Line {
-                        pts,
-                        colour,
-                        dashed,
-                    } => {
-                        let mut phase = 0.0;
-                        for seg in pts.windows(2) {
-                            let a = f.px(seg[0].0, seg[0].1);
-                            let b = f.px(seg[1].0, seg[1].1);
-                            phase = r.line_from(a, b, *colour, dashed.then_some(phase));
-                        }
-                    }
-                    Item::Points { pts, colour } => {
-                        for &(x, y, e) in pts {
-                            let (a, b) = f.px(x, y);
-                            if let Some(e) = e {
-                                let (_, b0) = f.px(x, y - e);
-                                let (_, b1) = f.px(x, y + e);
-                                r.line((a, b0), (a, b1), *colour, false);
-                                r.line((a - 3.0, b0), (a + 3.0, b0), *colour, false);
-                                r.line((a - 3.0, b1), (a + 3.0, b1), *colour, false);
-                            }
-                            r.disk(a, b, 3.5, *colour);
-                        }
-                    }
-                }
-            }
-            let (x0, y0, x1, y1) = (f.ox, f.oy, f.ox + f.w, f.oy + f.h);
-            r.line((x0, y0), (x1, y0), BLACK, false);
-            r.line((x0, y1), (x1, y1), BLACK, false);
-            r.line((x0, y0), (x0, y1), BLACK, false);
-            r.line((x1, y0), (x1, y1), BLACK, false);
-            for t in ticks(f.xr[0], f.xr[1]) {
-                let (a, _) = f.px(t, f.yr[0]);
-                r.line((a, y1), (a, y1 - 5.0), BLACK, false);
-            }
-            for t in ticks(f.yr[0], f.yr[1]) {
-                let (_, b) = f.px(f.xr[0], t);
-                r.line((x0, b), (x0 + 5.0, b), BLACK, false);
-            }
-        }
-        stepsim_sim::io::png::encode_indexed(w, h, &PALETTE, &r.pix)
+    /// The figure as PNG: the very SVG of [`Figure::to_svg`] rasterised,
+    /// titles, labels and tick values included (resvg with the bundled
+    /// DejaVu Sans; see [`stepsim_sim::io::png`]).
+    pub fn to_png(&self) -> Result<Vec<u8>, stepsim_sim::io::png::SvgError> {
+        stepsim_sim::io::png::svg_to_png(&self.to_svg())
     }
 }
 
-fn fmt_tick(t: f64) -> String {
-    if t == 0.0 {
-        "0".into()
-    } else if t.abs() < 1e-3 || t.abs() >= 1e4 {
-        format!("{t:.1e}")
+/// Labels of equally spaced ticks, with just the digits that tell them
+/// apart: decimals from the spacing, scientific notation for very large or
+/// very small values.
+pub fn tick_labels(ts: &[f64]) -> Vec<String> {
+    let step = if ts.len() > 1 { ts[1] - ts[0] } else { 0.0 };
+    let big = ts.iter().fold(0.0f64, |m, t| m.max(t.abs()));
+    let step_exp = if step > 0.0 && step.is_finite() {
+        step.log10().floor() as i32
+    } else if big > 0.0 && big.is_finite() {
+        big.log10().floor() as i32
     } else {
-        let s = format!("{t:.6}");
-        s.trim_end_matches('0').trim_end_matches('.').to_owned()
-    }
-}
-
-fn xml(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
-/// An indexed-colour raster.
-pub struct Raster {
-    w: usize,
-    h: usize,
-    /// Palette indices, row-major from the top.
-    pub pix: Vec<u8>,
-}
-
-impl Raster {
-    /// A white raster.
-    pub fn new(w: usize, h: usize) -> Self {
-        Self {
-            w,
-            h,
-            pix: vec![0; w * h],
-        }
-    }
-    fn set(&mut self, x: f64, y: f64, c: Colour) {
-        if x >= 0.0 && y >= 0.0 && (x as usize) < self.w && (y as usize) < self.h {
-            self.pix[y as usize * self.w + x as usize] = c;
-        }
-    }
-    /// A line of width ~1.5 px; dashes 6 px on, 4 off.
-    pub fn line(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dashed: bool) {
-        self.line_from(a, b, c, dashed.then_some(0.0));
-    }
-
-    /// A line; with `Some(phase)` dashed (6 px on, 4 off) starting `phase`
-    /// px into the pattern. Returns the phase at the end, so that the dashes
-    /// of a polyline run on across its vertices.
-    pub fn line_from(&mut self, a: (f64, f64), b: (f64, f64), c: Colour, dash: Option<f64>) -> f64 {
-        let phase = dash.unwrap_or(0.0);
-        let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
-        if !(len.is_finite() && a.0.is_finite() && a.1.is_finite()) {
-            return phase;
-        }
-        let n = (len.ceil() as usize).clamp(1, 100_000);
-        for i in 0..=n {
-            let t = i as f64 / n as f64;
-            if dash.is_some() && (phase + t * len) % 10.0 >= 6.0 {
-                continue;
+        0
+    };
+    let scientific = big >= 1e5 || (big < 1e-3 && big > 0.0);
+    ts.iter()
+        .map(|&t| {
+            if t == 0.0 {
+                return "0".to_owned();
             }
-            let (x, y) = (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1));
-            self.set(x, y, c);
-            self.set(x + 0.5, y + 0.5, c);
-        }
-        (phase + len) % 10.0
-    }
-    /// A filled disk.
-    pub fn disk(&mut self, cx: f64, cy: f64, r: f64, c: Colour) {
-        let ri = r.ceil() as i64;
-        for dy in -ri..=ri {
-            for dx in -ri..=ri {
-                if ((dx * dx + dy * dy) as f64) <= r * r {
-                    self.set(cx + dx as f64, cy + dy as f64, c);
-                }
+            let s = if scientific {
+                let digits = (big.log10().floor() as i32 - step_exp).clamp(0, 12) as usize;
+                format!("{t:.digits$e}")
+            } else {
+                let decimals = (-step_exp).clamp(0, 15) as usize;
+                format!("{t:.decimals$}")
+            };
+            if s.trim_start_matches('-')
+                .chars()
+                .all(|c| c == '0' || c == '.')
+            {
+                "0".to_owned()
+            } else {
+                s
             }
-        }
-    }
-    /// A filled rectangle between two corners.
-    pub fn fill_rect(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: Colour) {
-        if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
-            return;
-        }
-        let (xa, xb) = (x0.min(x1).max(0.0) as usize, x0.max(x1).max(0.0) as usize);
-        let (ya, yb) = (y0.min(y1).max(0.0) as usize, y0.max(y1).max(0.0) as usize);
-        for y in ya..yb.min(self.h) {
-            for x in xa..xb.min(self.w) {
-                self.pix[y * self.w + x] = c;
-            }
-        }
-    }
+        })
+        .collect()
 }
 
 /// The report's figures, by file stem: Fig. 2 (shear response per PSF),
@@ -640,7 +541,7 @@ pub fn fig5(r: &Report) -> Figure {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stepsim_sim::io::png::decode_indexed;
+    use stepsim_sim::io::png::decode;
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {
@@ -650,6 +551,34 @@ mod tests {
         );
         let t = ticks(-0.013, 0.021);
         assert!(t.len() >= 3 && t[0] >= -0.013 && *t.last().unwrap() <= 0.021);
+    }
+
+    #[test]
+    fn tick_labels_tell_every_tick_apart() {
+        let cases: [(f64, f64); 6] = [
+            (0.0, 1.0),
+            (-0.013, 0.021),
+            (0.001659_9, 0.001660_1),
+            (19.0, 26.0),
+            (2e-5, 9e-5),
+            (1e5, 9e5),
+        ];
+        for (lo, hi) in cases {
+            let ts = ticks(lo, hi);
+            let labels = tick_labels(&ts);
+            let mut unique = labels.clone();
+            unique.dedup();
+            assert_eq!(unique.len(), ts.len(), "{lo}..{hi}: {labels:?}");
+            for (t, l) in ts.iter().zip(&labels) {
+                let back: f64 = l.parse().unwrap();
+                let step = ts[1] - ts[0];
+                assert!((back - t).abs() < 0.01 * step, "{l} for {t}");
+            }
+        }
+        assert_eq!(
+            tick_labels(&ticks(0.0, 1.0)),
+            ["0", "0.2", "0.4", "0.6", "0.8", "1.0"]
+        );
     }
 
     #[test]
@@ -670,11 +599,64 @@ mod tests {
         let svg = fig.to_svg();
         assert_eq!(svg.matches("<circle").count(), 2);
         assert!(svg.contains("t&lt;1&gt;"));
-        let (w, _, pix) = decode_indexed(&fig.to_png()).unwrap();
+        let png = decode(&fig.to_png().unwrap()).unwrap();
+        assert_eq!((png.width, png.height), (200, 200));
         // The first point sits at the lower-left of the padded range.
         let f = &fig.frames()[0];
         let (px, py) = f.px(0.0, 0.0);
-        assert_eq!(pix[py as usize * w + px as usize], RED);
-        assert_eq!(pix[5 * w + 5], 0, "background stays white");
+        let [r, g, b] = PALETTE[usize::from(RED)];
+        assert_eq!(png.pixel(px as usize, py as usize), [r, g, b, 255]);
+        assert_eq!(
+            png.pixel(5, 5),
+            [255, 255, 255, 255],
+            "background stays white"
+        );
+    }
+
+    #[test]
+    fn the_png_carries_the_titles_labels_and_tick_values_of_the_svg() {
+        let fig = Figure {
+            cols: 1,
+            panel_px: (300, 240),
+            charts: vec![Chart {
+                title: "coma: shear response".into(),
+                x_label: "g1 true".into(),
+                y_label: "g1 measured".into(),
+                items: vec![Item::Points {
+                    pts: vec![(0.0, 0.0, None), (0.1, 0.1, None)],
+                    colour: BLUE,
+                }],
+            }],
+        };
+        let svg = fig.to_svg();
+        // The same drawing without any text element.
+        let mut bare = String::new();
+        let mut rest = svg.as_str();
+        while let Some(a) = rest.find("<text") {
+            bare.push_str(&rest[..a]);
+            let b = rest[a..].find("</text>").unwrap() + a + "</text>".len();
+            rest = &rest[b..];
+        }
+        bare.push_str(rest);
+        assert!(svg.matches("<text").count() >= 8, "title, labels, ticks");
+        let with = decode(&fig.to_png().unwrap()).unwrap();
+        let without = decode(&stepsim_sim::io::png::svg_to_png(&bare).unwrap()).unwrap();
+        let dark = |d: &stepsim_sim::io::png::Decoded, y0: usize, y1: usize| {
+            (y0..y1)
+                .flat_map(|y| (0..d.width).map(move |x| (x, y)))
+                .filter(|&(x, y)| d.pixel(x, y)[0] < 100)
+                .count()
+        };
+        let f = &fig.frames()[0];
+        let top = f.oy as usize;
+        // Above the frame only the title is drawn; below it tick values and
+        // the x label.
+        assert_eq!(dark(&without, 0, top - 2), 0);
+        assert!(dark(&with, 0, top - 2) > 100, "title drawn");
+        let bottom = (f.oy + f.h) as usize + 2;
+        assert!(
+            dark(&with, bottom, with.height) > dark(&without, bottom, with.height) + 100,
+            "tick values and x label drawn"
+        );
     }
 }

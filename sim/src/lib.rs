@@ -27,6 +27,7 @@ pub mod generate;
 pub mod io;
 pub mod moments;
 pub mod noise;
+pub mod picture;
 pub mod population;
 pub mod profile;
 pub mod psf;

@@ -37,7 +37,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             )?;
             stepsim_sim::io::write_bytes_atomically(
                 &dir.join("fig3_m_sigma_c.png"),
-                &fig.to_png(),
+                &fig.to_png()?,
             )?;
             stepsim_sim::io::write_bytes_atomically(&dir.join("leaderboard.md"), md.as_bytes())?;
             stepsim_sim::io::write_bytes_atomically(

@@ -17,7 +17,7 @@
 use super::ConfigArgs;
 use anyhow::Context;
 use std::path::PathBuf;
-use stepsim_sim::io::png::write_png;
+use stepsim_sim::io::png::write_picture;
 use stepsim_sim::io::psf_fits::{self, write_psf};
 use stepsim_sim::psf::{self, panel};
 
@@ -133,8 +133,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let wing_refs: Vec<&[f64]> = wings.iter().map(Vec::as_slice).collect();
     let half_core = (1.6 / (p / 8.0)).round() as usize;
     let half_wing = (15.0 / (p / 2.0)).round() as usize;
+    let names: Vec<&str> = plan.raw.psfs.iter().map(|r| r.name.as_str()).collect();
     let top = panel::row(
         &core_refs,
+        &names,
         256,
         half_core,
         2,
@@ -144,16 +146,40 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let zoom = (top.width / (core_refs.len() * 2 * half_wing.min(256))).max(1);
     let bottom = panel::row(
         &wing_refs,
+        &names,
         512,
         half_wing,
         zoom,
         panel::Stretch::Log { floor: 1e-6 },
         &[3e-5, 3e-4, 3e-3, 0.03, 0.25],
     );
-    let middle = panel::difference_row(&core_refs, core_refs[0], 256, half_core, 2, 0.05);
-    let pic = panel::stack(&[top, middle, bottom]);
+    let middle = panel::difference_row(&core_refs, &names, core_refs[0], 256, half_core, 2, 0.05);
+    let w = top.width;
+    let pic = panel::stack(&[
+        panel::caption(
+            w,
+            30,
+            "cores ±1.6″, linear; contours at 3 %, 25 %, 90 % of the peak",
+        ),
+        top,
+        panel::caption(
+            w,
+            30,
+            &format!(
+                "core minus {}'s, both at unit peak: red brighter, blue fainter (±5 %)",
+                names[0]
+            ),
+        ),
+        middle,
+        panel::caption(
+            w,
+            30,
+            "wings ±15″, log stretch to 1e-6; contours at 3e-5 … 0.25 of the peak",
+        ),
+        bottom,
+    ]);
     let png = args.out.join("psf_cores.png");
-    write_png(&png, pic.width, pic.height, 3, &pic.rgb).with_context(|| "writing the PSF panel")?;
+    write_picture(&png, &pic).with_context(|| "writing the PSF panel")?;
     eprintln!(
         "stepsim: wrote {} PSFs, psf_report.json and psf_cores.png to {}",
         reports.len(),

@@ -1,7 +1,10 @@
 //! Pictures of PSFs side by side (like paper Fig. 1): a row of tiles, each
 //! the central part of a PSF image scaled to its own peak, with contours at
 //! given fractions of the peak. Returns an RGB buffer (top row first, so
-//! +y is up as in a FITS viewer); [`crate::io::png`] writes it.
+//! +y is up as in a FITS viewer), each tile labelled with its name (drawn
+//! with a real font when [`crate::io::png`] writes the picture).
+
+pub use crate::picture::{Label, Picture};
 
 /// How pixel values map to grey.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -24,27 +27,18 @@ const COLOURS: [[u8; 3]; 5] = [
     [255, 60, 60],
 ];
 
-/// An RGB picture.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Picture {
-    /// Width in pixels.
-    pub width: usize,
-    /// Height in pixels.
-    pub height: usize,
-    /// RGB bytes, top row first.
-    pub rgb: Vec<u8>,
-}
-
 /// One row of `count` square tiles of `2 half` samples each, every sample
 /// enlarged to a `zoom × zoom` block, on a dark background with a 6-pixel
-/// gap; `colour_of(t, i, j)` colours sample (i, j) of tile t, j counting
-/// up (the picture is flipped so +y is up).
+/// gap, one tile per name, the name written in its top-left corner;
+/// `colour_of(t, i, j)` colours sample (i, j) of tile t, j counting up (the
+/// picture is flipped so +y is up).
 fn tile_row(
-    count: usize,
+    names: &[&str],
     half: usize,
     zoom: usize,
     colour_of: impl Fn(usize, usize, usize) -> [u8; 3],
 ) -> Picture {
+    let count = names.len();
     let side = 2 * half * zoom;
     let gap = 6;
     let width = count * side + (count + 1) * gap;
@@ -67,8 +61,23 @@ fn tile_row(
             }
         }
     }
-    label_tiles(&mut rgb, width, count, side, gap);
-    Picture { width, height, rgb }
+    let size = (side as f64 / 12.0).clamp(9.0, 18.0);
+    let labels = names
+        .iter()
+        .enumerate()
+        .map(|(t, name)| Label {
+            x: (gap + t * (side + gap)) as f64 + size / 3.0,
+            y: gap as f64 + size * 1.2,
+            size,
+            text: (*name).to_owned(),
+        })
+        .collect();
+    Picture {
+        width,
+        height,
+        rgb,
+        labels,
+    }
 }
 
 /// Largest value of an image.
@@ -80,6 +89,7 @@ fn peak_of(img: &[f64]) -> f64 {
 /// Each tile shows the central `2 half` samples enlarged `zoom` times.
 pub fn row(
     images: &[&[f64]],
+    names: &[&str],
     n: usize,
     half: usize,
     zoom: usize,
@@ -91,7 +101,7 @@ pub fn row(
     let c = n / 2;
     let at =
         |t: usize, i: usize, j: usize| images[t][(c - half + j) * n + (c - half + i)] / peaks[t];
-    tile_row(images.len(), half, zoom, |t, i, j| {
+    tile_row(names, half, zoom, |t, i, j| {
         let v = at(t, i, j);
         let g = match stretch {
             Stretch::Linear => v.clamp(0.0, 1.0),
@@ -120,52 +130,6 @@ pub fn row(
     })
 }
 
-/// 3 × 5 bitmaps of the digits 0–9 (rows top to bottom, 3 bits each).
-const DIGITS: [[u8; 5]; 10] = [
-    [7, 5, 5, 5, 7],
-    [2, 6, 2, 2, 7],
-    [7, 1, 7, 4, 7],
-    [7, 1, 7, 1, 7],
-    [5, 5, 7, 1, 1],
-    [7, 4, 7, 1, 7],
-    [7, 4, 7, 5, 7],
-    [7, 1, 1, 1, 1],
-    [7, 5, 7, 5, 7],
-    [7, 5, 7, 1, 7],
-];
-
-/// Writes each tile's index (0, 1, ...) in white in its top-left corner,
-/// when tiles are at least 64 pixels wide.
-fn label_tiles(rgb: &mut [u8], width: usize, tiles: usize, side: usize, gap: usize) {
-    if side < 64 {
-        return;
-    }
-    let s = (side / 64).max(1);
-    for t in 0..tiles {
-        let digits: Vec<usize> = t
-            .to_string()
-            .bytes()
-            .map(|b| usize::from(b - b'0'))
-            .collect();
-        for (k, &d) in digits.iter().enumerate() {
-            let x0 = gap + t * (side + gap) + 2 * s + k * 4 * s;
-            let y0 = gap + 2 * s;
-            for (r, bits) in DIGITS[d].iter().enumerate() {
-                for c in 0..3 {
-                    if bits >> (2 - c) & 1 == 1 {
-                        for dy in 0..s {
-                            for dx in 0..s {
-                                let o = ((y0 + r * s + dy) * width + x0 + c * s + dx) * 3;
-                                rgb[o..o + 3].copy_from_slice(&[255, 255, 255]);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
 /// How each image differs from a reference image (both scaled to unit
 /// peak): red where brighter, blue where fainter, full colour at ±`scale`.
 /// With the unaberrated PSF as reference this shows what each aberration
@@ -174,6 +138,7 @@ fn label_tiles(rgb: &mut [u8], width: usize, tiles: usize, side: usize, gap: usi
 /// hides in the direct picture.
 pub fn difference_row(
     images: &[&[f64]],
+    names: &[&str],
     reference: &[f64],
     n: usize,
     half: usize,
@@ -183,7 +148,7 @@ pub fn difference_row(
     let half = half.min(n / 2);
     let p0 = peak_of(reference);
     let peaks: Vec<f64> = images.iter().map(|img| peak_of(img)).collect();
-    tile_row(images.len(), half, zoom, |t, i, j| {
+    tile_row(names, half, zoom, |t, i, j| {
         let k = (n / 2 - half + j) * n + (n / 2 - half + i);
         let r = (images[t][k] / peaks[t] - reference[k] / p0) / scale;
         let a = (r.abs().min(1.0) * 255.0).round() as u8;
@@ -195,19 +160,47 @@ pub fn difference_row(
     })
 }
 
-/// Stacks pictures of equal width vertically.
+/// Stacks pictures vertically (narrower ones padded on the right), labels
+/// kept in place.
 pub fn stack(pictures: &[Picture]) -> Picture {
     let width = pictures.iter().map(|p| p.width).max().unwrap_or(0);
     let mut rgb = Vec::new();
+    let mut labels = Vec::new();
     let mut height = 0;
     for p in pictures {
         for row in p.rgb.chunks_exact(p.width * 3) {
             rgb.extend_from_slice(row);
             rgb.resize(rgb.len() + (width - p.width) * 3, 30);
         }
+        labels.extend(p.labels.iter().map(|l| Label {
+            y: l.y + height as f64,
+            ..l.clone()
+        }));
         height += p.height;
     }
-    Picture { width, height, rgb }
+    Picture {
+        width,
+        height,
+        rgb,
+        labels,
+    }
+}
+
+/// A strip of `height` dark pixels carrying one line of text (a caption
+/// above a row of tiles).
+pub fn caption(width: usize, height: usize, text: &str) -> Picture {
+    let size = (height as f64 * 0.6).max(8.0);
+    Picture {
+        width,
+        height,
+        rgb: vec![30; width * height * 3],
+        labels: vec![Label {
+            x: 6.0,
+            y: height as f64 * 0.75,
+            size,
+            text: text.to_owned(),
+        }],
+    }
 }
 
 #[cfg(test)]
@@ -221,7 +214,15 @@ mod tests {
         let mut img = vec![0.0; n * n];
         img[5 * n + 5] = 1.0;
         img[4 * n + 4] = 0.5;
-        let p = row(&[&img, &img], n, 4, 1, Stretch::Linear, &[0.75]);
+        let p = row(
+            &[&img, &img],
+            &["a", "b"],
+            n,
+            4,
+            1,
+            Stretch::Linear,
+            &[0.75],
+        );
         assert_eq!(p.width, 2 * 8 + 3 * 6);
         assert_eq!(p.height, 8 + 12);
         // Sample (5, 5) is the contour (≥ 0.75 with darker neighbours):
@@ -231,14 +232,14 @@ mod tests {
         // Sample (4, 4) is half grey.
         let o = ((6 + 3) * p.width + 6 + 4) * 3;
         assert_eq!(p.rgb[o], 128);
+        // Each tile carries its name, at its own top-left corner.
+        assert_eq!(p.labels.len(), 2);
+        assert_eq!(p.labels[1].text, "b");
+        assert!(p.labels[1].x > (6 + 8 + 6) as f64 && p.labels[1].x < (6 + 8 + 6 + 8) as f64);
         let s = stack(&[p.clone(), p]);
-        // Tiles of 64 pixels or more carry their index: "1" on the second.
-        let big = vec![0.0; 64 * 64];
-        let q = row(&[&big, &big], 64, 32, 1, Stretch::Linear, &[]);
-        let white = |x: usize, y: usize| q.rgb[(y * q.width + x) * 3] == 255;
-        // Digit 1, top row: only the middle column lit (x0 = 6 + 70 + 2).
-        assert!(white(78 + 1, 8) && !white(78, 8) && !white(78 + 2, 8));
-        assert!(!white(78 + 1, 40));
+        // Stacking keeps the labels on their tiles.
+        assert_eq!(s.labels.len(), 4);
+        assert_eq!(s.labels[3].y, s.labels[1].y + 20.0);
         assert_eq!(s.height, 40);
         assert_eq!(s.rgb.len(), s.width * s.height * 3);
     }
