@@ -64,10 +64,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let psfs = &plan.raw.psfs;
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let workers = std::thread::available_parallelism()
-        .map_or(1, |k| k.get())
-        .min(2)
-        .min(psfs.len());
+    let workers = super::available_cores().min(2).min(psfs.len());
+    super::check_memory(
+        "psf",
+        stepsim_sim::memory::psf_estimate(&plan, n, os, workers),
+        "lower --size-px or --oversample",
+    )?;
     let one = |raw: &stepsim_sim::config::RawPsf| -> anyhow::Result<Done> {
         let start = std::time::Instant::now();
         let built = psf::build(raw, &plan.raw.telescope, p)?;
