@@ -45,7 +45,7 @@ fn main() -> ExitCode {
         .and_then(|v| v.trim().parse::<usize>().ok())
     {
         let _ = rayon::ThreadPoolBuilder::new()
-            .num_threads(cmd::threads(n))
+            .num_threads(cmd::threads_of("RAYON_NUM_THREADS", n))
             .build_global();
     }
     let result = match cli.command {

@@ -355,9 +355,15 @@ fn extended_syntax_names_are_plain_paths_for_generate_measure_and_score() {
                 out,
             ],
             d,
-            &[],
+            // The global pool's thread count is bounded too (100000 hung).
+            &[("RAYON_NUM_THREADS", "100000")],
         );
         assert!(o.status.success(), "{sub}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains("stepsim: note: RAYON_NUM_THREADS 100000 is more than 4 per core"),
+            "{}",
+            stderr(&o)
+        );
         let report: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(d.join(out).join("report.json")).unwrap(),
         )

@@ -87,19 +87,26 @@ impl MemoryEstimate {
     }
 }
 
-impl fmt::Display for MemoryEstimate {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "about {}", human(self.total_bytes()))?;
-        let parts: Vec<String> = self
-            .parts
+impl MemoryEstimate {
+    /// The parts as `what: size; ...`.
+    pub fn parts_text(&self) -> String {
+        self.parts
             .iter()
             .filter(|p| p.bytes > 0)
             .map(|p| format!("{}: {}", p.what, human(p.bytes)))
-            .collect();
-        if !parts.is_empty() {
-            write!(f, " ({})", parts.join("; "))?;
-        }
-        Ok(())
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
+impl fmt::Display for MemoryEstimate {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "about {} ({})",
+            human(self.total_bytes()),
+            self.parts_text()
+        )
     }
 }
 
@@ -116,7 +123,9 @@ pub fn human(bytes: u64) -> String {
 /// A run that does not fit.
 #[derive(Debug, thiserror::Error)]
 #[error(
-    "{command} needs {estimate} of memory, but only {} is available ({source_of_available}); {hint}",
+    "{command} needs about {} of memory ({}), but only {} is available ({source_of_available}); {hint}",
+    human(estimate.total_bytes()),
+    estimate.parts_text(),
     human(*available_bytes)
 )]
 pub struct TooBig {

@@ -35,7 +35,7 @@ pub fn threads_arg(s: &str) -> Result<usize, String> {
 /// The thread count to use for `requested` (0: one per core) on a machine
 /// with `cores` cores, and a note when it was lowered: at most
 /// [`THREADS_PER_CORE`] × `cores`.
-pub fn effective_threads(requested: usize, cores: usize) -> (usize, Option<String>) {
+pub fn effective_threads(what: &str, requested: usize, cores: usize) -> (usize, Option<String>) {
     let cores = cores.max(1);
     let cap = THREADS_PER_CORE * cores;
     match requested {
@@ -43,7 +43,7 @@ pub fn effective_threads(requested: usize, cores: usize) -> (usize, Option<Strin
         n if n > cap => (
             cap,
             Some(format!(
-                "--threads {n} is more than {THREADS_PER_CORE} per core ({cores} cores here); using {cap} (the output does not depend on it)"
+                "{what} {n} is more than {THREADS_PER_CORE} per core ({cores} cores here); using {cap} (the output does not depend on it)"
             )),
         ),
         n => (n, None),
@@ -55,9 +55,15 @@ pub fn available_cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
-/// [`effective_threads`] for this machine, printing the note if any.
+/// [`effective_threads`] of `--threads` for this machine, printing the note
+/// if any.
 pub fn threads(requested: usize) -> usize {
-    let (n, note) = effective_threads(requested, available_cores());
+    threads_of("--threads", requested)
+}
+
+/// [`effective_threads`] of a setting named `what`, printing the note if any.
+pub fn threads_of(what: &str, requested: usize) -> usize {
+    let (n, note) = effective_threads(what, requested, available_cores());
     if let Some(note) = note {
         eprintln!("stepsim: note: {note}");
     }
@@ -124,18 +130,18 @@ mod tests {
 
     #[test]
     fn thread_counts_are_capped_per_core_with_a_note() {
-        assert_eq!(effective_threads(0, 2), (2, None));
-        assert_eq!(effective_threads(3, 2), (3, None));
-        assert_eq!(effective_threads(8, 2), (8, None));
-        let (n, note) = effective_threads(3000, 2);
+        assert_eq!(effective_threads("--threads", 0, 2), (2, None));
+        assert_eq!(effective_threads("--threads", 3, 2), (3, None));
+        assert_eq!(effective_threads("--threads", 8, 2), (8, None));
+        let (n, note) = effective_threads("--threads", 3000, 2);
         assert_eq!(n, 8);
         let note = note.unwrap();
         assert!(
             note.contains("--threads 3000") && note.contains("using 8"),
             "{note}"
         );
-        assert_eq!(effective_threads(5, 1).0, 4);
+        assert_eq!(effective_threads("--threads", 5, 1).0, 4);
         // No core count (0) is taken as one core.
-        assert_eq!(effective_threads(0, 0), (1, None));
+        assert_eq!(effective_threads("--threads", 0, 0), (1, None));
     }
 }
