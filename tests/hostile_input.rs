@@ -384,6 +384,27 @@ fn extended_syntax_names_are_plain_paths_for_generate_measure_and_score() {
     );
 }
 
+#[test]
+fn paths_that_are_not_utf8_are_refused_before_anything_is_written() {
+    use std::os::unix::ffi::OsStrExt as _;
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("c.json"), TINY).unwrap();
+    let bad = std::ffi::OsStr::from_bytes(b"r\xffn");
+    let o = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args(["generate", "--config", "c.json", "--out"])
+        .arg(bad)
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--out r\u{fffd}n: the path is not valid UTF-8"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(listing(dir.path()), ["c.json"]);
+}
+
 /// Gated: `STEPSIM_FULL_DISK_DIR` names an empty directory on a small file
 /// system (e.g. `mount -t tmpfs -o size=4m tmpfs DIR`); the test fills it to
 /// 1 MiB of free space and checks that `generate` stops with a sentence and

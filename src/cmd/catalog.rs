@@ -33,6 +33,7 @@ pub struct Args {
 /// Writes the base fields of the config.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
+    super::fits_path("--out", &args.out)?;
     population::preflight(&plan)?;
     super::check_memory(
         "catalog",

@@ -28,6 +28,7 @@ pub struct Args {
 /// Runs (or resumes) the generation.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
+    super::fits_path("--out", &args.out)?;
     let threads = super::threads(args.threads);
     super::check_memory(
         "generate",

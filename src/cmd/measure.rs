@@ -36,6 +36,7 @@ pub struct Args {
 
 /// Measures every image of the run and writes the submission.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    super::fits_path("--run", &args.run)?;
     let params = KsbParams {
         psf_order: usize::from(args.psf_order),
         pgamma_mode: match args.pgamma {

@@ -102,6 +102,18 @@ pub fn check_memory(
     Ok(())
 }
 
+/// Refuses a path that is not valid UTF-8 where FITS files are read or
+/// written below it (cfitsio's file names are text), before any work.
+pub fn fits_path(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    if path.to_str().is_none() {
+        anyhow::bail!(
+            "{flag} {}: the path is not valid UTF-8, which FITS file names must be",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Arguments shared by every command that reads a config.
 #[derive(Debug, clap::Args)]
 pub struct ConfigArgs {

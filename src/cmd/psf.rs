@@ -52,6 +52,7 @@ fn even_size(s: &str) -> Result<u32, String> {
 /// Builds, measures and writes every PSF of the config.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
+    super::fits_path("--out", &args.out)?;
     let p = plan.raw.image.pixel_scale_arcsec;
     let (n, os) = (args.size_px as usize, args.oversample as usize);
     // One PSF per work item, at most two at a time (each holds ~200 MB of

@@ -611,6 +611,26 @@ mod tests {
     }
 
     #[test]
+    fn arrays_are_never_read_by_position() {
+        // serde would map these onto the structs field by field.
+        let err = parse("[{}, {}, {}, {}]").unwrap_err();
+        assert!(
+            matches!(&err, ConfigError::NotAnObject { key, line: Some(1), found: "an array", .. } if key.is_empty()),
+            "{err}"
+        );
+        let err = parse("{\n \"instrument\": [19.2, 26, 1e300, 4, 5, 65535]\n}").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "test.json: key `instrument` (line 2): expected a JSON object {...}, found an array"
+        );
+        let err = parse("{\"shears\": [[0.1, 0.0]]}").unwrap_err();
+        assert!(err.to_string().contains("key `shears.0`"), "{err}");
+        // Arrays where the schema has arrays stay fine.
+        let raw = parse("{\"shears\": [{\"g1\": 0.1}], \"population\": {\"galaxies\": {\"abs_mag_limits\": [-25, -14]}}}").unwrap();
+        assert_eq!(raw.shears.len(), 1);
+    }
+
+    #[test]
     fn numbers_in_messages_are_short() {
         assert_eq!(short_number(0.206), "0.206");
         assert_eq!(short_number(65535.0), "65535");
