@@ -38,6 +38,16 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    // The global pool (score, leaderboard, catalog, psf) honours
+    // RAYON_NUM_THREADS; bound it as `--threads` is bounded.
+    if let Some(n) = std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+    {
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(cmd::threads_of("RAYON_NUM_THREADS", n))
+            .build_global();
+    }
     let result = match cli.command {
         Command::Config(args) => cmd::config::run(&args),
         Command::Generate(args) => cmd::generate::run(&args),
@@ -51,8 +61,78 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("stepsim: error: {e:#}");
+            eprintln!("stepsim: error: {}", chain_message(&e));
             ExitCode::from(1)
+        }
+    }
+}
+
+/// The error and its causes joined by ": ", leaving out a cause whose text
+/// the message before it already contains (a wrapper that shows its source
+/// would otherwise print it twice).
+fn chain_message(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if text.is_empty() || out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chain_message;
+    use std::fmt;
+
+    #[derive(Debug)]
+    struct Inner;
+    impl fmt::Display for Inner {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("cannot write /d/x.fits: the disk is full")
+        }
+    }
+    impl std::error::Error for Inner {}
+
+    /// A wrapper whose message shows its source, and which also returns it
+    /// as `source()` (what thiserror does with a field named `source`).
+    #[derive(Debug)]
+    struct Wrapper {
+        shows: bool,
+        inner: Inner,
+    }
+    impl fmt::Display for Wrapper {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            if self.shows {
+                write!(f, "base field 3: {}", self.inner)
+            } else {
+                f.write_str("base field 3")
+            }
+        }
+    }
+    impl std::error::Error for Wrapper {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.inner)
+        }
+    }
+
+    #[test]
+    fn a_cause_already_in_the_message_is_printed_once() {
+        for shows in [true, false] {
+            let e = anyhow::Error::new(Wrapper {
+                shows,
+                inner: Inner,
+            })
+            .context("generating runs/a");
+            assert_eq!(
+                chain_message(&e),
+                "generating runs/a: base field 3: cannot write /d/x.fits: the disk is full"
+            );
         }
     }
 }

@@ -452,10 +452,7 @@ fn parse_fits(
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
     use fitsio::hdu::HduInfo;
-    let fe = |e: fitsio::errors::Error| {
-        HarnessError::submission(path, None, None, format!("FITS error: {e}"))
-    };
-    let mut f = fitsio::FitsFile::open(path).map_err(fe)?;
+    let mut f = stepsim_sim::io::fits::open_fits(path)?;
     let mut found = None;
     let mut last_error = String::from("none");
     // Walk the extensions by index (fitsio's HDU iterator panics on a

@@ -140,7 +140,7 @@ pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> 
     use stepsim_sim::io::IoError;
     use stepsim_sim::io::truth::TRUTH_EXTNAME;
     let fe = |e: fitsio::errors::Error| HarnessError::from(IoError::fits(path, e));
-    let mut f = fitsio::FitsFile::open(path).map_err(fe)?;
+    let mut f = stepsim_sim::io::fits::open_fits(path)?;
     let hdu = f.hdu(TRUTH_EXTNAME).map_err(fe)?;
     let col = |f: &mut fitsio::FitsFile, name: &str| -> Result<Vec<f64>, HarnessError> {
         hdu.read_col(f, name)

@@ -3,9 +3,9 @@
 use crate::error::KsbError;
 use crate::image::Image;
 use crate::pipeline::MeasuredObject;
-use fitsio::FitsFile;
 use std::fmt::Write as _;
 use std::path::Path;
+use stepsim_sim::io::fits::{Primary, create_fits, finish_fits};
 use stepsim_sim::io::image_fits::read_image_fits;
 use stepsim_sim::io::{IoError, write_atomically};
 use stepsim_sim::run_layout::{MANIFEST_FORMAT, Manifest};
@@ -60,15 +60,20 @@ pub fn write_fits_image(path: &Path, img: &Image) -> Result<(), KsbError> {
     use fitsio::images::{ImageDescription, ImageType};
     write_atomically(path, |tmp| -> Result<(), KsbError> {
         let fe = |e: fitsio::errors::Error| KsbError::Io(IoError::fits(path, e));
-        let mut f = FitsFile::create(tmp)
-            .with_custom_primary(&ImageDescription {
-                data_type: ImageType::Float,
-                dimensions: &[img.height, img.width],
-            })
-            .open()
-            .map_err(fe)?;
+        let desc = ImageDescription {
+            data_type: ImageType::Float,
+            dimensions: &[img.height, img.width],
+        };
+        let mut f = create_fits(
+            tmp,
+            Primary {
+                image: Some(&desc),
+                rice: false,
+            },
+        )?;
         let hdu = f.primary_hdu().map_err(fe)?;
         hdu.write_image(&mut f, &img.data).map_err(fe)?;
+        finish_fits(f, path)?;
         Ok(())
     })
 }
@@ -108,6 +113,7 @@ pub fn write_submission<'a>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use fitsio::FitsFile;
 
     #[test]
     fn fits_images_round_trip_plain_and_rice_compressed() {

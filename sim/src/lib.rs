@@ -25,6 +25,7 @@ pub mod blind;
 pub mod config;
 pub mod generate;
 pub mod io;
+pub mod memory;
 pub mod moments;
 pub mod noise;
 pub mod picture;

@@ -25,8 +25,9 @@ pub struct Args {
     /// Repeats; the median of each stage is reported.
     #[arg(long, value_name = "N", default_value_t = 3)]
     repeats: usize,
-    /// Worker threads (0: one per core).
-    #[arg(long, value_name = "N", default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 1024, and at most 4 per
+    /// core are used).
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = super::threads_arg)]
     threads: usize,
     /// Directory for the scratch image (default: the system temp dir);
     /// the file is removed afterwards.
@@ -61,10 +62,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             plan.n_fields()
         );
     }
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads)
-        .build()
-        .context("cannot start the thread pool")?;
+    let threads = super::threads(args.threads);
+    super::check_memory(
+        "bench",
+        stepsim_sim::memory::bench_estimate(&plan, psf_index),
+        stepsim_sim::memory::RUN_HINT,
+    )?;
+    let pool = super::thread_pool(threads)?;
     let dir = args.scratch.clone().unwrap_or_else(std::env::temp_dir);
     let scratch = dir.join(format!("stepsim-bench-{}.fits", std::process::id()));
     let mut runs: Vec<StageTimes> = Vec::new();

@@ -33,7 +33,13 @@ pub struct Args {
 /// Writes the base fields of the config.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
+    super::fits_path("--out", &args.out)?;
     population::preflight(&plan)?;
+    super::check_memory(
+        "catalog",
+        stepsim_sim::memory::catalog_estimate(&plan),
+        "lower population.galaxies.mag_faint, population.stars.density_per_arcmin2, image.margin_arcsec or the image size",
+    )?;
     write_bytes_atomically(&args.out.join("config.json"), plan.raw.to_json().as_bytes())?;
     let mut n_gal = 0usize;
     let mut n_star = 0usize;

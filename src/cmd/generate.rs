@@ -5,6 +5,7 @@ use anyhow::Context as _;
 use std::io::IsTerminal as _;
 use std::path::PathBuf;
 use stepsim_sim::generate::{self, Event, Options, Shard};
+use stepsim_sim::memory;
 
 /// Arguments of `stepsim generate`.
 #[derive(Debug, clap::Args)]
@@ -14,8 +15,9 @@ pub struct Args {
     /// The run directory (public/ and private/ are made inside it).
     #[arg(long, value_name = "RUN")]
     out: PathBuf,
-    /// Worker threads (0: one per core). The output does not depend on it.
-    #[arg(long, value_name = "N", default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 1024, and at most 4 per
+    /// core are used). The output does not depend on it.
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = super::threads_arg)]
     threads: usize,
     /// Make only share K of N of the images (1 ≤ K ≤ N); the manifest is
     /// written by whichever shard finds every image finished.
@@ -26,10 +28,14 @@ pub struct Args {
 /// Runs (or resumes) the generation.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(args.threads)
-        .build()
-        .context("cannot start the thread pool")?;
+    super::fits_path("--out", &args.out)?;
+    let threads = super::threads(args.threads);
+    super::check_memory(
+        "generate",
+        memory::generate_estimate(&plan, threads),
+        memory::RUN_HINT,
+    )?;
+    let pool = super::thread_pool(threads)?;
     let bar = if std::io::stderr().is_terminal() && std::env::var_os("CI").is_none() {
         indicatif::ProgressBar::new(0)
     } else {

@@ -21,8 +21,9 @@ pub struct Args {
     /// The submission to write (SPEC §6: `# image x y e1 e2 weight flags`).
     #[arg(long, value_name = "FILE")]
     out: PathBuf,
-    /// Worker threads (0: one per core). The output does not depend on it.
-    #[arg(long, default_value_t = 0)]
+    /// Worker threads (0: one per core; at most 1024, and at most 4 per
+    /// core are used). The output does not depend on it.
+    #[arg(long, default_value_t = 0, value_parser = super::threads_arg)]
     threads: usize,
     /// Order of the PSF polynomial across the field (lowered automatically
     /// when there are too few stars).
@@ -35,6 +36,7 @@ pub struct Args {
 
 /// Measures every image of the run and writes the submission.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    super::fits_path("--run", &args.run)?;
     let params = KsbParams {
         psf_order: usize::from(args.psf_order),
         pgamma_mode: match args.pgamma {
@@ -43,7 +45,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         },
         ..KsbParams::default()
     };
-    let summary = stepsim_ksb::run::measure_run(&args.run, &args.out, args.threads, &params)?;
+    let threads = super::threads(args.threads);
+    // An unreadable manifest is reported by the pipeline itself.
+    if let Ok(m) = stepsim_ksb::io::read_manifest(&args.run.join("manifest.json")) {
+        super::check_memory(
+            "measure",
+            stepsim_sim::memory::measure_estimate(
+                m.instrument.width_px,
+                m.instrument.height_px,
+                m.images.len(),
+                threads,
+            ),
+            "lower --threads",
+        )?;
+    }
+    let summary = stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params)?;
     let (mut rows, mut weighted) = (0, 0);
     for s in &summary {
         rows += s.n_objects;

@@ -11,6 +11,109 @@ pub mod score;
 
 use std::path::PathBuf;
 
+/// Largest `--threads` accepted (beyond it: a usage error, exit 2).
+pub const MAX_THREADS: usize = 1024;
+
+/// Worker threads allowed per available core: more only adds start-up and
+/// scheduling cost (3000 threads made a 1 s job take 32 s) and memory, since
+/// every thread holds one image in flight; a few per core stay allowed so
+/// that thread-independence can be checked on small machines.
+pub const THREADS_PER_CORE: usize = 4;
+
+/// Parses `--threads`: 0 (one per core) to [`MAX_THREADS`] (a usage
+/// error, exit 2, otherwise).
+pub fn threads_arg(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if n <= MAX_THREADS => Ok(n),
+        Ok(n) => Err(format!(
+            "{n} is more than {MAX_THREADS} (0 means one per core)"
+        )),
+        Err(e) => Err(format!("not a thread count: {e}")),
+    }
+}
+
+/// The thread count to use for `requested` (0: one per core) on a machine
+/// with `cores` cores, and a note when it was lowered: at most
+/// [`THREADS_PER_CORE`] × `cores`.
+pub fn effective_threads(what: &str, requested: usize, cores: usize) -> (usize, Option<String>) {
+    let cores = cores.max(1);
+    let cap = THREADS_PER_CORE * cores;
+    match requested {
+        0 => (cores, None),
+        n if n > cap => (
+            cap,
+            Some(format!(
+                "{what} {n} is more than {THREADS_PER_CORE} per core ({cores} cores here); using {cap} (the output does not depend on it)"
+            )),
+        ),
+        n => (n, None),
+    }
+}
+
+/// Cores available to this process.
+pub fn available_cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// [`effective_threads`] of `--threads` for this machine, printing the note
+/// if any.
+pub fn threads(requested: usize) -> usize {
+    threads_of("--threads", requested)
+}
+
+/// [`effective_threads`] of a setting named `what`, printing the note if any.
+pub fn threads_of(what: &str, requested: usize) -> usize {
+    let (n, note) = effective_threads(what, requested, available_cores());
+    if let Some(note) = note {
+        eprintln!("stepsim: note: {note}");
+    }
+    n
+}
+
+/// A rayon pool of `n` workers (`n` from [`threads`]).
+pub fn thread_pool(n: usize) -> anyhow::Result<rayon::ThreadPool> {
+    use anyhow::Context as _;
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .context("cannot start the thread pool")
+}
+
+/// Refuses a command whose memory estimate exceeds the memory available
+/// (`STEPSIM_MEMORY_LIMIT_BYTES`, else /proc/meminfo), before it writes
+/// anything.
+pub fn check_memory(
+    command: &str,
+    estimate: stepsim_sim::memory::MemoryEstimate,
+    hint: &str,
+) -> anyhow::Result<()> {
+    let var = stepsim_sim::io::MEMORY_LIMIT_ENV;
+    if let Some(v) = std::env::var_os(var)
+        && v.to_str()
+            .and_then(|t| t.trim().parse::<u64>().ok())
+            .is_none()
+    {
+        anyhow::bail!(
+            "{var}={}: not a number of bytes (unset it to use the memory the system reports)",
+            v.to_string_lossy()
+        );
+    }
+    stepsim_sim::memory::check(command, estimate, stepsim_sim::io::available_memory(), hint)?;
+    Ok(())
+}
+
+/// Refuses a path that is not valid UTF-8 where FITS files are read or
+/// written below it (cfitsio's file names are text), before any work.
+pub fn fits_path(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    if path.to_str().is_none() {
+        anyhow::bail!(
+            "{flag} {}: the path is not valid UTF-8, which FITS file names must be",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 /// Arguments shared by every command that reads a config.
 #[derive(Debug, clap::Args)]
 pub struct ConfigArgs {
@@ -30,5 +133,27 @@ impl ConfigArgs {
             &self.config,
             &self.overrides,
         )?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn thread_counts_are_capped_per_core_with_a_note() {
+        assert_eq!(effective_threads("--threads", 0, 2), (2, None));
+        assert_eq!(effective_threads("--threads", 3, 2), (3, None));
+        assert_eq!(effective_threads("--threads", 8, 2), (8, None));
+        let (n, note) = effective_threads("--threads", 3000, 2);
+        assert_eq!(n, 8);
+        let note = note.unwrap();
+        assert!(
+            note.contains("--threads 3000") && note.contains("using 8"),
+            "{note}"
+        );
+        assert_eq!(effective_threads("--threads", 5, 1).0, 4);
+        // No core count (0) is taken as one core.
+        assert_eq!(effective_threads("--threads", 0, 0), (1, None));
     }
 }

@@ -52,6 +52,7 @@ fn even_size(s: &str) -> Result<u32, String> {
 /// Builds, measures and writes every PSF of the config.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
+    super::fits_path("--out", &args.out)?;
     let p = plan.raw.image.pixel_scale_arcsec;
     let (n, os) = (args.size_px as usize, args.oversample as usize);
     // One PSF per work item, at most two at a time (each holds ~200 MB of
@@ -64,10 +65,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let psfs = &plan.raw.psfs;
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let workers = std::thread::available_parallelism()
-        .map_or(1, |k| k.get())
-        .min(2)
-        .min(psfs.len());
+    let workers = super::available_cores().min(2).min(psfs.len());
+    super::check_memory(
+        "psf",
+        stepsim_sim::memory::psf_estimate(&plan, n, os, workers),
+        "lower --size-px or --oversample",
+    )?;
     let one = |raw: &stepsim_sim::config::RawPsf| -> anyhow::Result<Done> {
         let start = std::time::Instant::now();
         let built = psf::build(raw, &plan.raw.telescope, p)?;

@@ -34,6 +34,8 @@ pub struct Args {
 
 /// Scores and writes the report.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    super::fits_path("--truth", &args.truth)?;
+    super::fits_path("--submission", &args.submission)?;
     let json = args.out.join(stepsim_harness::pipeline::REPORT_JSON);
     if json.exists() && !args.force {
         return Err(stepsim_harness::HarnessError::ReportExists { path: json }.into());

@@ -71,6 +71,19 @@ pub enum ConfigError {
         /// What is wrong.
         message: String,
     },
+    /// A section that must be a JSON object is something else (an array
+    /// would otherwise be read by position).
+    #[error("{path}: {}{}: expected a JSON object {{...}}, found {found}", shape_where(key), at_line(*line))]
+    NotAnObject {
+        /// The file (or `--set` for an override).
+        path: PathBuf,
+        /// Dotted key path (empty for the whole config).
+        key: String,
+        /// Line in the file, when known.
+        line: Option<usize>,
+        /// What was found ("an array", "a number", ...).
+        found: &'static str,
+    },
     /// A value is out of its allowed range.
     #[error("{path}: key `{key}`: {message}")]
     Invalid {
@@ -81,6 +94,14 @@ pub enum ConfigError {
         /// What is wrong, with the offending value.
         message: String,
     },
+}
+
+fn shape_where(key: &str) -> String {
+    if key.is_empty() {
+        "the config".into()
+    } else {
+        format!("key `{key}`")
+    }
 }
 
 fn at_line(line: Option<usize>) -> String {
@@ -179,11 +200,19 @@ impl RawConfig {
 
     /// Parses config text; `path` is only used in messages.
     pub fn parse(text: &str, path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        let _: serde_json::Value = serde_json::from_str(text).map_err(|e| ConfigError::Syntax {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| ConfigError::Syntax {
+                path: path.into(),
+                line: e.line(),
+                column: e.column(),
+                message: strip_position(&e.to_string()),
+            })?;
+        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        check_shape(&value, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
             path: path.into(),
-            line: e.line(),
-            column: e.column(),
-            message: strip_position(&e.to_string()),
+            line: line_of_key(text, &key),
+            key,
+            found,
         })?;
         // First pass straight from the text, so that errors carry a line.
         let mut de = serde_json::Deserializer::from_str(text);
@@ -203,6 +232,13 @@ impl RawConfig {
         for arg in overrides {
             apply_override(&mut tree, arg)?;
         }
+        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        check_shape(&tree, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
+            path: PathBuf::from("--set"),
+            key,
+            line: None,
+            found,
+        })?;
         serde_path_to_error::deserialize(tree).map_err(|e| ConfigError::Key {
             path: PathBuf::from("--set"),
             key: e.path().to_string(),
@@ -215,6 +251,68 @@ impl RawConfig {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("config serialises")
     }
+}
+
+/// Finds where `value` holds something other than an object where the
+/// default config (`shape`) has one: serde would read an array there by
+/// position (`[4096, 4096, 0.2]` as `width_px`, `height_px`, ...). Returns the
+/// dotted key and what was found.
+fn check_shape(
+    value: &serde_json::Value,
+    shape: &serde_json::Value,
+    key: &str,
+) -> Result<(), (String, &'static str)> {
+    use serde_json::Value;
+    let join = |k: &str| {
+        if key.is_empty() {
+            k.to_string()
+        } else {
+            format!("{key}.{k}")
+        }
+    };
+    match (value, shape) {
+        (Value::Object(v), Value::Object(d)) => {
+            for (k, item) in v {
+                if let Some(ds) = d.get(k) {
+                    check_shape(item, ds, &join(k))?;
+                }
+            }
+            Ok(())
+        }
+        (Value::Array(v), Value::Array(d)) => match d.first() {
+            Some(first) => v
+                .iter()
+                .enumerate()
+                .try_for_each(|(i, item)| check_shape(item, first, &join(&i.to_string()))),
+            None => Ok(()),
+        },
+        (Value::Array(_), Value::Object(_)) => Err((key.to_string(), "an array")),
+        (Value::Number(_), Value::Object(_)) if key.is_empty() => Err((key.into(), "a number")),
+        (Value::String(_), Value::Object(_)) if key.is_empty() => Err((key.into(), "a string")),
+        (Value::Bool(_), Value::Object(_)) if key.is_empty() => Err((key.into(), "a boolean")),
+        (Value::Null, Value::Object(_)) if key.is_empty() => Err((key.into(), "null")),
+        _ => Ok(()),
+    }
+}
+
+/// The line of the last key of a dotted path in `text`, when that key
+/// appears exactly once (for messages; `None` when unsure).
+fn line_of_key(text: &str, key: &str) -> Option<usize> {
+    if key.is_empty() {
+        let offset = text.find(|c: char| !c.is_whitespace())?;
+        return Some(text[..offset].matches('\n').count() + 1);
+    }
+    let last = key.rsplit('.').next()?;
+    if last.parse::<usize>().is_ok() {
+        return None;
+    }
+    let needle = format!("\"{last}\"");
+    let mut hits = text.match_indices(&needle);
+    let (offset, _) = hits.next()?;
+    if hits.next().is_some() {
+        return None;
+    }
+    Some(text[..offset].matches('\n').count() + 1)
 }
 
 fn strip_position(msg: &str) -> String {
@@ -308,6 +406,7 @@ impl Plan {
         };
         raw.image.validate().map_err(|(k, m)| invalid(&k, m))?;
         raw.instrument.validate().map_err(|(k, m)| invalid(&k, m))?;
+        check_sky_below_saturation(&raw).map_err(|(k, m)| invalid(&k, m))?;
         raw.telescope.validate().map_err(|(k, m)| invalid(&k, m))?;
         raw.population.validate().map_err(|(k, m)| invalid(&k, m))?;
         raw.render.validate().map_err(|(k, m)| invalid(&k, m))?;
@@ -372,12 +471,49 @@ impl Plan {
     }
 }
 
+/// The sky alone must stay below the clip level, or every pixel of every
+/// image is the saturation value (a blank image).
+fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), (String, String)> {
+    let ins = &raw.instrument;
+    let sky_adu =
+        crate::noise::sky_e_per_pixel(ins, raw.image.pixel_scale_arcsec) / ins.gain_e_per_adu;
+    if sky_adu.is_finite() && sky_adu < ins.saturation_adu {
+        return Ok(());
+    }
+    Err((
+        "instrument".into(),
+        format!(
+            "the sky alone gives {sky_adu:.4e} ADU per pixel, at or above instrument.saturation_adu = {}: every pixel would be clipped (a blank image); lower instrument.exposure_s or image.pixel_scale_arcsec, or raise instrument.sky_mag_arcsec2 or instrument.gain_e_per_adu",
+            ins.saturation_adu
+        ),
+    ))
+}
+
 /// Checks that `value` lies in `[lo, hi]`; the error names `key`.
 pub(crate) fn check_range(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), (String, String)> {
     if value.is_finite() && value >= lo && value <= hi {
         Ok(())
     } else {
-        Err((key.into(), format!("must be in [{lo}, {hi}], got {value}")))
+        Err((
+            key.into(),
+            format!(
+                "must be in [{}, {}], got {}",
+                short_number(lo),
+                short_number(hi),
+                short_number(value)
+            ),
+        ))
+    }
+}
+
+/// A number as people write it: plain when that is short (`0.206`,
+/// `65535`), else in exponent form (`1e300`, not 301 digits).
+pub fn short_number(v: f64) -> String {
+    let a = v.abs();
+    if v == 0.0 || !v.is_finite() || (1e-4..1e12).contains(&a) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
     }
 }
 
@@ -386,7 +522,10 @@ pub(crate) fn check_positive(key: &str, value: f64) -> Result<(), (String, Strin
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err((key.into(), format!("must be > 0, got {value}")))
+        Err((
+            key.into(),
+            format!("must be > 0, got {}", short_number(value)),
+        ))
     }
 }
 
@@ -469,6 +608,37 @@ mod tests {
         .unwrap();
         let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
         assert!(err.contains("image.pixel_scale_arcsec"), "{err}");
+    }
+
+    #[test]
+    fn arrays_are_never_read_by_position() {
+        // serde would map these onto the structs field by field.
+        let err = parse("[{}, {}, {}, {}]").unwrap_err();
+        assert!(
+            matches!(&err, ConfigError::NotAnObject { key, line: Some(1), found: "an array", .. } if key.is_empty()),
+            "{err}"
+        );
+        let err = parse("{\n \"instrument\": [19.2, 26, 1e300, 4, 5, 65535]\n}").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "test.json: key `instrument` (line 2): expected a JSON object {...}, found an array"
+        );
+        let err = parse("{\"shears\": [[0.1, 0.0]]}").unwrap_err();
+        assert!(err.to_string().contains("key `shears.0`"), "{err}");
+        // Arrays where the schema has arrays stay fine.
+        let raw = parse("{\"shears\": [{\"g1\": 0.1}], \"population\": {\"galaxies\": {\"abs_mag_limits\": [-25, -14]}}}").unwrap();
+        assert_eq!(raw.shears.len(), 1);
+    }
+
+    #[test]
+    fn numbers_in_messages_are_short() {
+        assert_eq!(short_number(0.206), "0.206");
+        assert_eq!(short_number(65535.0), "65535");
+        assert_eq!(short_number(2_147_483_647.0), "2147483647");
+        assert_eq!(short_number(1e300), "1e300");
+        assert_eq!(short_number(1e-9), "1e-9");
+        assert_eq!(short_number(-0.5), "-0.5");
+        assert_eq!(short_number(f64::NAN), "NaN");
     }
 
     #[test]

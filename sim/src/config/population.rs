@@ -325,12 +325,14 @@ impl RawPopulation {
             90.0,
         )?;
         let g = &self.galaxies;
-        check_range("population.galaxies.mag_bright", g.mag_bright, 0.0, 40.0)?;
+        // I = 10 to 32: no galaxy of the model is brighter; beyond 32 the
+        // counts only add memory (millions per arcmin²), no visible light.
+        check_range("population.galaxies.mag_bright", g.mag_bright, 10.0, 32.0)?;
         check_range(
             "population.galaxies.mag_faint",
             g.mag_faint,
             g.mag_bright,
-            40.0,
+            32.0,
         )?;
         check_range("population.galaxies.z_max", g.z_max, 0.01, 5.5)?;
         check_range(
@@ -374,19 +376,20 @@ impl RawPopulation {
         check_positive(&k("bulge_re_knee_kpc_h"), z.bulge_re_knee_kpc_h)?;
         check_range(&k("bulge_evol"), z.bulge_evol, -5.0, 5.0)?;
         let s = &self.stars;
+        // Up to 1e4 per arcmin² (about 3 per arcsec²: a stellar cluster core).
         check_range(
             "population.stars.density_per_arcmin2",
             s.density_per_arcmin2,
             0.0,
-            1e5,
+            1e4,
         )?;
         check_range("population.stars.slope", s.slope, -2.0, 2.0)?;
-        check_range("population.stars.mag_bright", s.mag_bright, 0.0, 40.0)?;
+        check_range("population.stars.mag_bright", s.mag_bright, 5.0, 32.0)?;
         check_range(
             "population.stars.mag_faint",
             s.mag_faint,
             s.mag_bright,
-            40.0,
+            32.0,
         )?;
         let c = &self.cosmology;
         check_positive("population.cosmology.h0", c.h0)?;

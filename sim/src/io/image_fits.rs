@@ -19,6 +19,7 @@
 //!
 //! Files are written atomically ([`super::write_atomically`]).
 
+use super::fits::{Primary, create_fits, finish_fits, open_fits};
 use super::{IoError, write_atomically};
 use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
 use crate::wcs::TanWcs;
@@ -107,10 +108,6 @@ pub fn write_image_fits(
     }
     write_atomically(path, |tmp| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-        let name = match compression {
-            Compression::None => tmp.to_string_lossy().into_owned(),
-            Compression::Rice => format!("{}[compress R]", tmp.to_string_lossy()),
-        };
         let dims = [height as usize, width as usize];
         let desc = ImageDescription {
             data_type: match format {
@@ -119,17 +116,20 @@ pub fn write_image_fits(
             },
             dimensions: &dims,
         };
-        let mut f = FitsFile::create(&name)
-            .with_custom_primary(&desc)
-            .open()
-            .map_err(fe)?;
+        let mut f = create_fits(
+            tmp,
+            Primary {
+                image: Some(&desc),
+                rice: compression == Compression::Rice,
+            },
+        )?;
         // The image is the last HDU: the primary, or HDU 1 behind an empty
         // primary when cfitsio tile-compresses it.
         let last = f.num_hdus().map_err(fe)? - 1;
         let hdu = f.hdu(last).map_err(fe)?;
         // fitsio names the new HDU `_PRIMARY`; that is not a FITS keyword
         // anyone needs, so remove it again.
-        delete_key(&mut f, "EXTNAME").map_err(|e| IoError::fits(path, e))?;
+        delete_key(&mut f, "EXTNAME").map_err(|e| IoError::format(path, e))?;
         match format {
             SampleFormat::Float32 => hdu.write_image(&mut f, pixels_adu).map_err(fe)?,
             SampleFormat::Int32 => {
@@ -179,7 +179,7 @@ pub fn write_image_fits(
             "[arcsec/pixel]",
         )
         .map_err(fe)?;
-        Ok(())
+        finish_fits(f, path)
     })
 }
 
@@ -247,7 +247,7 @@ fn delete_key(f: &mut FitsFile, key: &str) -> Result<(), String> {
 /// a tile-compressed file) as ADU.
 pub fn read_image_fits(path: &Path) -> Result<FitsImage, IoError> {
     let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-    let mut f = FitsFile::open(path).map_err(fe)?;
+    let mut f = open_fits(path)?;
     let n_hdus = f.num_hdus().map_err(fe)?;
     for i in 0..n_hdus {
         let hdu = f.hdu(i).map_err(fe)?;

@@ -5,6 +5,7 @@
 //! temporary name in the same directory and renamed into place only when
 //! complete, so a killed run never leaves a truncated file under a final name.
 
+pub mod fits;
 pub mod image_fits;
 pub mod png;
 pub mod psf_fits;
@@ -26,12 +27,13 @@ pub enum IoError {
         /// The error.
         error: std::io::Error,
     },
-    /// cfitsio error.
-    #[error("{path}: FITS error: {message}")]
+    /// cfitsio error, as a sentence that names the file
+    /// ([`fits::status_sentence`]).
+    #[error("{message}")]
     Fits {
         /// The file.
         path: PathBuf,
-        /// What cfitsio said.
+        /// The sentence (names the file).
         message: String,
     },
     /// The file's content is not what was expected.
@@ -52,11 +54,29 @@ impl IoError {
             error: source,
         }
     }
-    /// Wraps a cfitsio error.
-    pub fn fits(path: &Path, e: impl std::fmt::Display) -> Self {
+    /// Wraps an error of the fitsio crate as a sentence naming the file
+    /// (cfitsio statuses are translated, never shown as structs).
+    pub fn fits(path: &Path, e: fitsio::errors::Error) -> Self {
+        use fitsio::errors::Error;
+        let p = path.display();
+        let message = match e {
+            Error::Fits(f) => fits::status_sentence(path, f.status),
+            Error::ExistingFile(_) => format!("cannot create {p}: the file exists"),
+            Error::Message(m) => format!("{p}: {m}"),
+            Error::Index(i) => format!("{p}: {}", i.message),
+            Error::Io(io) => format!("{p}: {io}"),
+            other => format!("{p}: {other}"),
+        };
         Self::Fits {
             path: path.into(),
-            message: e.to_string(),
+            message,
+        }
+    }
+    /// A cfitsio status as a sentence naming the file.
+    pub fn fits_status(path: &Path, status: i32) -> Self {
+        Self::Fits {
+            path: path.into(),
+            message: fits::status_sentence(path, status),
         }
     }
     /// A content error.
@@ -66,6 +86,46 @@ impl IoError {
             message: message.into(),
         }
     }
+}
+
+/// Environment variable that sets the memory (bytes) a command may plan to
+/// use, instead of what the system reports (for tests, and for organisers
+/// who share a machine).
+pub const MEMORY_LIMIT_ENV: &str = "STEPSIM_MEMORY_LIMIT_BYTES";
+
+/// The memory this process may use, and where the number comes from:
+/// `STEPSIM_MEMORY_LIMIT_BYTES` if set, else `MemAvailable` of
+/// `/proc/meminfo`, lowered to what the cgroup (`memory.max` −
+/// `memory.current`) leaves when that is less. `None` when unknown.
+pub fn available_memory() -> Option<(u64, String)> {
+    if let Ok(v) = std::env::var(MEMORY_LIMIT_ENV) {
+        return v
+            .trim()
+            .parse::<u64>()
+            .ok()
+            .map(|b| (b, format!("{MEMORY_LIMIT_ENV}={b}")));
+    }
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kib: u64 = meminfo
+        .lines()
+        .find_map(|l| l.strip_prefix("MemAvailable:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    let mut best = (kib * 1024, "MemAvailable in /proc/meminfo".to_string());
+    let read = |p: &str| -> Option<u64> { std::fs::read_to_string(p).ok()?.trim().parse().ok() };
+    if let (Some(max), Some(cur)) = (
+        read("/sys/fs/cgroup/memory.max"),
+        read("/sys/fs/cgroup/memory.current"),
+    ) {
+        let left = max.saturating_sub(cur);
+        if left < best.0 {
+            best = (left, "the cgroup's memory.max".into());
+        }
+    }
+    Some(best)
 }
 
 /// The temporary name used while `path` is written: same directory, so the

@@ -7,6 +7,7 @@
 //! `PIXSCALE` (arcsec of this HDU's samples), `OVERSAMP`, `PSFNAME`, plus
 //! the caller's measurements (FWHM, χ, seeing, amplitude).
 
+use super::fits::{Primary, create_fits, open_fits};
 use super::{IoError, write_atomically};
 use fitsio::FitsFile;
 use fitsio::hdu::HduInfo;
@@ -54,10 +55,13 @@ pub fn write_psf_fits(
             data_type: ImageType::Double,
             dimensions: &[at_pixel.n, at_pixel.n],
         };
-        let mut f = FitsFile::create(tmp)
-            .with_custom_primary(&desc)
-            .open()
-            .map_err(fe)?;
+        let mut f = create_fits(
+            tmp,
+            Primary {
+                image: Some(&desc),
+                rice: false,
+            },
+        )?;
         let hdu = f.primary_hdu().map_err(fe)?;
         hdu.write_image(&mut f, at_pixel.data).map_err(fe)?;
         let common = |f: &mut FitsFile, hdu: &fitsio::hdu::FitsHdu, scale: f64| {
@@ -81,7 +85,7 @@ pub fn write_psf_fits(
         let ext = f.create_image("OVERSAMPLED", &desc).map_err(fe)?;
         ext.write_image(&mut f, oversampled.data).map_err(fe)?;
         common(&mut f, &ext, oversampled.scale_arcsec).map_err(fe)?;
-        Ok(())
+        super::fits::finish_fits(f, path)
     })
 }
 
@@ -160,7 +164,7 @@ pub fn read_image_hdu(
             std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         ));
     }
-    let mut f = FitsFile::open(path).map_err(fe)?;
+    let mut f = open_fits(path)?;
     let hdu = match extname {
         None => f.primary_hdu().map_err(fe)?,
         Some(name) => f.hdu(name).map_err(fe)?,

@@ -1,9 +1,9 @@
 //! Truth tables on disk: FITS binary table (the reference form) and a CSV
 //! twin for people who want to look at one.
 
+use super::fits::{Primary, create_fits, finish_fits, open_fits};
 use super::{IoError, write_atomically};
 use crate::truth::{COLUMN_ORDER, Column, FLOAT_COLUMNS, INT_COLUMNS, TruthRow};
-use fitsio::FitsFile;
 use fitsio::tables::{ColumnDataType, ColumnDescription};
 use std::path::Path;
 
@@ -22,7 +22,7 @@ pub fn write_truth_fits(
 ) -> Result<(), IoError> {
     write_atomically(path, |tmp| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-        let mut f = FitsFile::create(tmp).open().map_err(fe)?;
+        let mut f = create_fits(tmp, Primary::default())?;
         // Columns in SPEC §5 order; values are written by name below.
         let mut cols = Vec::with_capacity(COLUMN_ORDER.len());
         for name in COLUMN_ORDER {
@@ -52,7 +52,7 @@ pub fn write_truth_fits(
         for (k, v, c) in keywords {
             hdu.write_key(&mut f, k, (*v, c.as_str())).map_err(fe)?;
         }
-        Ok(())
+        finish_fits(f, path)
     })
 }
 
@@ -60,7 +60,7 @@ pub fn write_truth_fits(
 /// an error naming the file and the column.
 pub fn read_truth_fits(path: &Path) -> Result<Vec<TruthRow>, IoError> {
     let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-    let mut f = FitsFile::open(path).map_err(fe)?;
+    let mut f = open_fits(path)?;
     let hdu = f.hdu(TRUTH_EXTNAME).map_err(fe)?;
     let col_err = |name: &str, e: fitsio::errors::Error| {
         IoError::format(path, format!("column `{name}`: {e}"))
@@ -134,7 +134,7 @@ mod tests {
         write_truth_fits(&path, &rows, &[("PIXSCALE".into(), 0.206, "arcsec".into())]).unwrap();
         assert_eq!(read_truth_fits(&path).unwrap(), rows);
         // The file's columns are in SPEC §5 order.
-        let mut f = FitsFile::open(&path).unwrap();
+        let mut f = open_fits(&path).unwrap();
         let hdu = f.hdu(TRUTH_EXTNAME).unwrap();
         let names: Vec<String> = match &hdu.info {
             fitsio::hdu::HduInfo::TableInfo {
