@@ -56,9 +56,13 @@ pub fn normalise(public: &Path, instant: SystemTime) -> Result<(), IoError> {
     }
     let times = FileTimes::new().set_accessed(instant).set_modified(instant);
     for p in entries(public)? {
-        File::open(&p)
-            .and_then(|f| f.set_times(times))
-            .map_err(|e| IoError::os(&p, e))?;
+        match File::open(&p).and_then(|f| f.set_times(times)) {
+            Ok(()) => {}
+            // Removed meanwhile by another process of the run (a manifest
+            // found stale): nothing to stamp.
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(IoError::os(&p, e)),
+        }
     }
     Ok(())
 }
