@@ -100,6 +100,20 @@ fn a_directory_holds_one_run_even_without_its_config() {
     let mut expected = before.clone();
     expected.remove(Path::new("private/config.json"));
     assert!(files(&d.join("run")) == expected);
+    // Even with only the shared private files left, the other run is told.
+    let only = d.join("only");
+    ok(generate(d, "x.json", "only", &[]));
+    for sub in ["public", "private/truth", "private/done", "private/psf"] {
+        std::fs::remove_dir_all(only.join(sub)).unwrap();
+    }
+    std::fs::remove_file(only.join("private/config.json")).unwrap();
+    let o = generate(d, "y.json", "only", &[]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains("only/private/blinding.key") && e.contains("does not belong"),
+        "{e}"
+    );
     // With its own config back the first run is whole again.
     let e = ok(generate(d, "x.json", "run", &[]));
     assert!(e.contains("0 images written, 8 already"), "{e}");

@@ -5,7 +5,8 @@
 //! So is any file under `public/`, `private/truth`, `private/model`,
 //! `private/done` or `private/psf` whose name is not one of this run's (a
 //! leftover of another config, for instance after `private/config.json` was
-//! deleted). Temporary files (`.<name>.<pid>.tmp`) are left to
+//! deleted), and a `private/blinding.key` or `private/datasets.json` with
+//! other content than this run's. Temporary files (`.<name>.<pid>.tmp`) are left to
 //! [`crate::io::remove_stale_temporaries`].
 
 use super::{GenerateError, Job, RunPaths, Sidecar};
@@ -69,6 +70,22 @@ pub fn refuse_foreign_files(
     for file in listing(&private.join("psf"))? {
         if file.is_dir() || !psfs.contains(&file_name(&file)) {
             return Err(foreign(&file));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses, naming it, a file `dir/<name>` that exists with other content
+/// than this run's (e.g. the `blinding.key` of another run whose
+/// `private/config.json` was deleted).
+pub fn refuse_other_contents(dir: &Path, files: &[(&str, String)]) -> Result<(), GenerateError> {
+    for (name, want) in files {
+        let path = dir.join(name);
+        match std::fs::read(&path) {
+            Ok(bytes) if bytes != want.as_bytes() => return Err(foreign(&path)),
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(IoError::os(&path, e).into()),
         }
     }
     Ok(())

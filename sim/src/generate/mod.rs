@@ -345,7 +345,10 @@ pub fn generate(
     let config_sha256 = config_sha256(plan);
     let key = blinding_key(plan);
     let all = jobs(plan, &key)?;
-    if let Err(e) = integrity::refuse_foreign_files(plan, &paths, &all) {
+    let checked = integrity::refuse_foreign_files(plan, &paths, &all).and_then(|()| {
+        integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))
+    });
+    if let Err(e) = checked {
         // Leave the directory as it was found: a claim made just now is undone.
         if claim.created {
             let _ = std::fs::remove_file(paths.config());
@@ -644,13 +647,9 @@ fn write_shared(
     psfs: &[(usize, Arc<dyn crate::psf::Psf>)],
 ) -> Result<(), GenerateError> {
     let private = paths.private();
-    write_bytes_atomically(
-        &private.join("blinding.key"),
-        format!("{}\n", key.to_hex()).as_bytes(),
-    )?;
-    let datasets = datasets_json(plan, all);
-    let text = serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n";
-    write_bytes_atomically(&private.join("datasets.json"), text.as_bytes())?;
+    for (name, bytes) in private_shared(plan, key, all) {
+        write_bytes_atomically(&private.join(name), bytes.as_bytes())?;
+    }
     let para = options
         .submission_format
         .as_deref()
@@ -694,6 +693,19 @@ fn write_psf_file(
         DEFAULT_OVERSAMPLE,
         Some(&report),
     )
+}
+
+/// The private files every process of a run writes identically:
+/// `blinding.key` and `datasets.json` (name, content).
+fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str, String); 2] {
+    let datasets = datasets_json(plan, all);
+    [
+        ("blinding.key", format!("{}\n", key.to_hex())),
+        (
+            "datasets.json",
+            serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n",
+        ),
+    ]
 }
 
 /// `private/datasets.json` of a run.
