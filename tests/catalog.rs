@@ -77,8 +77,8 @@ fn same_seed_same_bytes_other_seed_other_bytes() {
         dir.path().join("c"),
     );
     for (out, extra) in [
-        (&a, vec![]),
-        (&b, vec![]),
+        (&a, vec!["--set", "run.seed=20060101"]),
+        (&b, vec!["--set", "run.seed=20060101"]),
         (&c, vec!["--set", "run.seed=5"]),
     ] {
         let o = stepsim(&extra, &mini(), out);
@@ -95,6 +95,31 @@ fn same_seed_same_bytes_other_seed_other_bytes() {
             assert!(x != z, "{name} identical for different seeds");
         }
     }
+}
+
+#[test]
+fn without_a_seed_each_run_draws_one_and_records_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b, c) = (
+        dir.path().join("a"),
+        dir.path().join("b"),
+        dir.path().join("c"),
+    );
+    let one = ["--set", "image.n_images=1"];
+    for out in [&a, &b] {
+        let o = stepsim(&one, &mini(), out);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success() && e.contains("drew one"), "{e}");
+    }
+    let field = |d: &Path| std::fs::read(d.join("field_000.fits")).unwrap();
+    assert!(field(&a) != field(&b), "two draws, two populations");
+    // The recorded seed reproduces the fields.
+    let cfg: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(a.join("config.json")).unwrap()).unwrap();
+    assert!(cfg["run"]["seed"].is_u64());
+    let o = stepsim(&[], &a.join("config.json"), &c);
+    assert!(o.status.success());
+    assert!(field(&a) == field(&c));
 }
 
 #[test]

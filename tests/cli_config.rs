@@ -27,6 +27,10 @@ fn resolved_config_is_printed_with_overrides() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["image"]["n_images"], 3);
     assert_eq!(v["image"]["width_px"], 1024);
+    // The preset has no seed: none is printed (each `generate` draws its own).
+    assert!(v["run"].get("seed").is_none(), "{}", v["run"]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("run.seed is not given"), "{e}");
 }
 
 #[test]

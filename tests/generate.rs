@@ -92,6 +92,27 @@ fn manifest(run: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(run.join("public/manifest.json")).unwrap()).unwrap()
 }
 
+/// Public file of each image, keyed by (dataset index, field, rotated), from
+/// `private/datasets.json`.
+fn image_files(run: &Path) -> BTreeMap<(usize, u64, bool), String> {
+    let d: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("private/datasets.json")).unwrap()).unwrap();
+    let mut out = BTreeMap::new();
+    for (i, ds) in d["datasets"].as_array().unwrap().iter().enumerate() {
+        let did = ds["dataset"].as_str().unwrap();
+        for im in ds["images"].as_array().unwrap() {
+            let key = (
+                i,
+                im["field"].as_u64().unwrap(),
+                im["rotated"].as_bool().unwrap(),
+            );
+            let file = format!("{did}/{}.fits", im["image"].as_str().unwrap());
+            out.insert(key, file);
+        }
+    }
+    out
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -206,9 +227,12 @@ fn resume_rewrites_only_missing_or_damaged_images() {
     let m = manifest(&d.join("run"));
     let list = m["images"].as_array().unwrap();
     let file = |i: usize| d.join("run/public").join(list[i]["file"].as_str().unwrap());
-    let mtime = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
+    // Every public file carries the run's one time stamp, so a rewrite is
+    // told by the inode (a rename puts a new one in place).
+    let inode = |p: &Path| std::os::unix::fs::MetadataExt::ino(&std::fs::metadata(p).unwrap());
     let untouched = file(7);
-    let untouched_time = mtime(&untouched);
+    let untouched_inode = inode(&untouched);
+    let rewritten_inode = inode(&file(2));
     // Image 0: deleted, but its complete bytes left under a temporary name.
     let tmp = file(0).with_file_name(format!(
         ".{}.4194305.tmp",
@@ -235,7 +259,8 @@ fn resume_rewrites_only_missing_or_damaged_images() {
         "{err}"
     );
     assert!(!tmp.exists());
-    assert_eq!(mtime(&untouched), untouched_time);
+    assert_eq!(inode(&untouched), untouched_inode);
+    assert_ne!(inode(&file(2)), rewritten_inode);
     assert!(release(&d.join("run")) == before);
     assert!(release(&d.join("ref")) == before);
     // Nothing left to do.
@@ -262,18 +287,17 @@ fn rice_int32_output_is_the_float_image_rounded_exactly() {
             "output.compression=rice",
         ],
     );
-    let (mf, mr) = (manifest(&d.join("f")), manifest(&d.join("r")));
-    let (lf, lr) = (
-        mf["images"].as_array().unwrap(),
-        mr["images"].as_array().unwrap(),
-    );
-    // Same ids (same seed), same noise: the Rice image is the float image
-    // rounded to integers, read back exactly.
-    assert_eq!(lf.len(), lr.len());
-    for (a, b) in lf.iter().zip(lr) {
-        assert_eq!(a["file"], b["file"]);
-        let fa = d.join("f/public").join(a["file"].as_str().unwrap());
-        let fb = d.join("r/public").join(b["file"].as_str().unwrap());
+    // Same seed, same noise: the Rice image is the float image rounded to
+    // integers, read back exactly. The configs differ, so the ids do: the
+    // images are paired by dataset, field and twin.
+    let (lf, lr) = (image_files(&d.join("f")), image_files(&d.join("r")));
+    assert_eq!(lf.len(), 8);
+    assert_eq!(lf.keys().collect::<Vec<_>>(), lr.keys().collect::<Vec<_>>());
+    for (k, a) in &lf {
+        let b = &lr[k];
+        assert_ne!(a, b, "ids are unique to a run");
+        let fa = d.join("f/public").join(a);
+        let fb = d.join("r/public").join(b);
         let x = stepsim_sim::io::image_fits::read_image_fits(&fa).unwrap();
         let y = stepsim_sim::io::image_fits::read_image_fits(&fb).unwrap();
         assert_eq!(x.pixels.len(), y.pixels.len());

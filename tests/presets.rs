@@ -25,6 +25,23 @@ fn every_preset_validates() {
 }
 
 #[test]
+fn the_step1_presets_carry_no_seed() {
+    // A release is only as blind as its seed is secret: each run of a preset
+    // draws its own.
+    for name in ["step1.json", "step1-mini.json"] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("configs")
+            .join(name);
+        let raw = stepsim_sim::config::RawConfig::load(&path, &[]).unwrap();
+        assert_eq!(raw.run.seed, None, "{name}");
+        assert_eq!(
+            load(name).seed_origin,
+            stepsim_sim::config::SeedOrigin::Drawn
+        );
+    }
+}
+
+#[test]
 fn step1_is_the_paper_design() {
     let p = load("step1.json");
     let r = &p.raw;

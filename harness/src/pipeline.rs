@@ -183,8 +183,8 @@ pub const REPORT_JSON: &str = "report.json";
 pub const REPORT_MD: &str = "report.md";
 
 /// Writes `DIR/report.json`, `DIR/report.md` and the plots, each atomically
-/// (the JSON last). Refuses when `DIR/report.json` exists unless `force`.
-/// Returns the paths written.
+/// (the JSON last). Refuses, before writing anything, when any of these
+/// files exists unless `force`. Returns the paths written.
 pub fn write_outputs(
     dir: &Path,
     report: &Report,
@@ -211,6 +211,9 @@ pub fn write_outputs(
     let mut json = serde_json::to_string_pretty(report).unwrap_or_default();
     json.push('\n');
     files.push((json_path, json.into_bytes()));
+    if !force && let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
+        return Err(HarnessError::ReportExists { path: path.clone() });
+    }
     let mut written = Vec::new();
     for (path, bytes) in files {
         stepsim_sim::io::write_bytes_atomically(&path, &bytes)?;

@@ -38,7 +38,7 @@ struct Bin {
 
 fn main() {
     let out = std::env::args().nth(1).unwrap_or_else(|| "docs".into());
-    let raw = RawConfig::parse("{}", Path::new("defaults"), &[]).unwrap();
+    let raw = RawConfig::parse("{}", Path::new("defaults"), &["run.seed=20060101".into()]).unwrap();
     let plan = Plan::new(raw, Path::new("defaults")).unwrap();
     let (area1, _, _) = placement_area(&plan);
     let area = area1 * f64::from(FIELDS);

@@ -11,7 +11,7 @@ use stepsim_sim::config::{Plan, RawConfig};
 use stepsim_sim::psf::{GaussianPsf, Psf};
 use stepsim_sim::render::{Accuracy, Method, Renderer, StageTimes};
 fn main() {
-    let raw = RawConfig::parse("{}", Path::new("t"), &[]).unwrap();
+    let raw = RawConfig::parse("{}", Path::new("t"), &["run.seed=20060101".into()]).unwrap();
     let plan = Plan::new(raw, Path::new("t")).unwrap();
     let rows = stepsim_sim::population::sheared(
         &stepsim_sim::population::base_field(&plan, 0).unwrap(),

@@ -1,10 +1,19 @@
 //! Opaque dataset and image ids (SPEC §5): the public half of a run must not
 //! reveal which PSF or shear an image has, nor the order of the datasets.
 //!
-//! A secret 32-byte blinding key is drawn from the run seed
-//! (`SeedKey::base(seed, 0, Stream::Blinding)`) and kept in
-//! `RUN/private/blinding.key` as 64 hex digits. Ids are truncated hex SHA-256
-//! digests of the key followed by a domain tag and the indices:
+//! A secret 32-byte blinding key derives from the run seed and the resolved
+//! config, and is kept in `RUN/private/blinding.key` as 64 hex digits:
+//!
+//! ```text
+//! s   = 32 bytes: four u64 LE drawn from SeedKey::base(seed, 0, Stream::Blinding)
+//! key = SHA-256("stepsim-blinding-key" ‖ s ‖ SHA-256(config))
+//! ```
+//!
+//! where `config` is the bytes of `RUN/private/config.json` (the resolved
+//! config, seed included). Two runs with the same seed and different configs
+//! therefore share no id, and a submission cannot be scored against the wrong
+//! run by accident. Ids are truncated hex SHA-256 digests of the key followed
+//! by a domain tag and the indices:
 //!
 //! ```text
 //! dataset id = "d" + hex(SHA-256(key ‖ "stepsim-dataset" ‖ dataset as u32 LE))[..12]
@@ -13,7 +22,8 @@
 //!
 //! Without the key the ids are unrelated random strings; with it, the
 //! organiser can recompute them. Since the key derives from `run.seed`, a real
-//! challenge must use a secret seed (the default seed is public).
+//! challenge needs a secret seed: a config without one gets a seed drawn from
+//! the operating system (`config::Plan::new`).
 
 use crate::seed::{SeedKey, Stream};
 use rand::RngExt;
@@ -43,14 +53,17 @@ impl std::fmt::Debug for BlindingKey {
 }
 
 impl BlindingKey {
-    /// The key of a run: 32 bytes from the `Blinding` stream of `run_seed`.
-    pub fn from_seed(run_seed: u64) -> Self {
+    /// The key of a run from its master seed and the bytes of its resolved
+    /// config (`private/config.json`); see the module documentation.
+    pub fn for_run(run_seed: u64, config: &[u8]) -> Self {
         let mut rng = SeedKey::base(run_seed, 0, Stream::Blinding).rng();
-        let mut k = [0u8; 32];
-        for chunk in k.chunks_mut(8) {
-            chunk.copy_from_slice(&rng.random::<u64>().to_le_bytes());
+        let mut h = Sha256::new();
+        h.update(b"stepsim-blinding-key");
+        for _ in 0..4 {
+            h.update(rng.random::<u64>().to_le_bytes());
         }
-        Self(k)
+        h.update(Sha256::digest(config));
+        Self(h.finalize().into())
     }
 
     /// The key as 64 lower-case hex digits (the content of `blinding.key`
@@ -138,15 +151,28 @@ mod tests {
     }
 
     #[test]
-    fn key_round_trips_through_hex_and_depends_on_the_seed() {
-        let k = BlindingKey::from_seed(20060101);
+    fn key_round_trips_through_hex_and_depends_on_seed_and_config() {
+        let k = BlindingKey::for_run(20060101, b"{}");
         assert_eq!(k.to_hex().len(), 64);
         assert_eq!(
             BlindingKey::from_hex(&format!(" {}\n", k.to_hex())).unwrap(),
             k
         );
-        assert_eq!(BlindingKey::from_seed(20060101), k);
-        assert_ne!(BlindingKey::from_seed(20060102), k);
+        assert_eq!(BlindingKey::for_run(20060101, b"{}"), k);
+        assert_ne!(BlindingKey::for_run(20060102, b"{}"), k);
+        // Same seed, another config: another key and no shared id.
+        let other = BlindingKey::for_run(20060101, b"{ }");
+        assert_ne!(other, k);
+        assert_ne!(other.dataset_id(0), k.dataset_id(0));
+        assert_ne!(other.image_id(0, 0, false), k.image_id(0, 0, false));
+        // The documented formula, restated.
+        let mut rng = SeedKey::base(20060101, 0, Stream::Blinding).rng();
+        let mut bytes = b"stepsim-blinding-key".to_vec();
+        for _ in 0..4 {
+            bytes.extend(rng.random::<u64>().to_le_bytes());
+        }
+        bytes.extend(Sha256::digest(b"{}"));
+        assert_eq!(k.to_hex(), sha256_hex(&bytes));
         for bad in ["", "abc", &"g".repeat(64), &"0".repeat(63)] {
             assert!(BlindingKey::from_hex(bad).is_err(), "{bad:?}");
         }
@@ -155,7 +181,7 @@ mod tests {
 
     #[test]
     fn ids_are_unique_well_formed_and_unordered() {
-        let k = BlindingKey::from_seed(1);
+        let k = BlindingKey::for_run(1, b"{}");
         let mut seen = HashSet::new();
         // STEP1 with rotated pairs: 30 datasets × 64 fields × 2.
         for d in 0..30 {
@@ -192,6 +218,9 @@ mod tests {
         let spearman = 1.0 - 6.0 * d2 / (n * (n * n - 1.0));
         assert!(spearman.abs() < 0.6, "rank correlation {spearman}");
         // Another key gives other ids.
-        assert_ne!(BlindingKey::from_seed(2).dataset_id(0), k.dataset_id(0));
+        assert_ne!(
+            BlindingKey::for_run(2, b"{}").dataset_id(0),
+            k.dataset_id(0)
+        );
     }
 }

@@ -39,7 +39,11 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
     let raw = RawConfig::parse(
         "{}",
         Path::new("t.json"),
-        &["image.width_px=1024".into(), "image.height_px=1024".into()],
+        &[
+            "run.seed=20060101".into(),
+            "image.width_px=1024".into(),
+            "image.height_px=1024".into(),
+        ],
     )
     .unwrap();
     let plan = Plan::new(raw, Path::new("t.json")).unwrap();

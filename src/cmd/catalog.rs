@@ -2,7 +2,10 @@
 //! lists) without rendering any image.
 //!
 //! Output, in `--out DIR`:
-//! * `config.json`: the resolved config (defaults and overrides applied);
+//! * `config.json`: the resolved config (defaults and overrides applied),
+//!   including the seed: when the config gives none, one is drawn from the
+//!   operating system and recorded only there (rerun with
+//!   `--config DIR/config.json` to reproduce the fields);
 //! * per base field k: `field_kkk.fits` (truth table, EXTNAME `TRUTH`, the
 //!   SPEC §5 columns, unsheared), `field_kkk.csv` (its CSV twin) and
 //!   `field_kkk.list` (SkyMaker/Stuff list);
@@ -15,7 +18,7 @@
 use super::ConfigArgs;
 use anyhow::Context as _;
 use std::path::{Path, PathBuf};
-use stepsim_sim::config::Plan;
+use stepsim_sim::config::{Plan, SeedOrigin};
 use stepsim_sim::io::{skymaker, truth, write_bytes_atomically};
 use stepsim_sim::population;
 use stepsim_sim::truth::TruthRow;
@@ -40,7 +43,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         stepsim_sim::memory::catalog_estimate(&plan),
         "lower population.galaxies.mag_faint, population.stars.density_per_arcmin2, image.margin_arcsec or the image size",
     )?;
-    write_bytes_atomically(&args.out.join("config.json"), plan.raw.to_json().as_bytes())?;
+    let config_path = args.out.join("config.json");
+    write_bytes_atomically(&config_path, plan.raw.to_json().as_bytes())?;
+    if plan.seed_origin == SeedOrigin::Drawn {
+        eprintln!(
+            "stepsim: run.seed is not given: drew one from the operating system; it is recorded in {}",
+            config_path.display()
+        );
+    }
     let mut n_gal = 0usize;
     let mut n_star = 0usize;
     for field in 0..plan.n_fields() {

@@ -1,6 +1,8 @@
-//! `stepsim config`: validate a config and print the resolved JSON.
+//! `stepsim config`: validate a config and print the resolved JSON (without a
+//! seed when the config gives none: each `generate` draws its own).
 
 use super::ConfigArgs;
+use stepsim_sim::config::SeedOrigin;
 
 /// Arguments of `stepsim config`.
 #[derive(Debug, clap::Args)]
@@ -12,7 +14,7 @@ pub struct Args {
 /// Prints the resolved config, or refuses it with the key and reason.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
-    println!("{}", plan.raw.to_json());
+    println!("{}", super::as_given(&plan).to_json());
     eprintln!(
         "stepsim: {}: {} PSFs × {} shears = {} datasets of {} images each",
         args.config.config.display(),
@@ -21,5 +23,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         plan.datasets.len(),
         plan.n_fields()
     );
+    match plan.seed_origin {
+        SeedOrigin::Config => eprintln!(
+            "stepsim: run.seed is given: a release made with it is only as blind as the seed is secret"
+        ),
+        SeedOrigin::Drawn => eprintln!(
+            "stepsim: run.seed is not given: `generate` draws a secret one and records it only in RUN/private/config.json"
+        ),
+    }
     Ok(())
 }

@@ -4,7 +4,8 @@ use super::ConfigArgs;
 use anyhow::Context as _;
 use std::io::IsTerminal as _;
 use std::path::PathBuf;
-use stepsim_sim::generate::{self, Event, Options, Shard};
+use stepsim_sim::config::SeedOrigin;
+use stepsim_sim::generate::{self, Event, Options, SeedUse, Shard};
 use stepsim_sim::memory;
 
 /// Arguments of `stepsim generate`.
@@ -29,6 +30,12 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
+    if plan.seed_origin == SeedOrigin::Config {
+        eprintln!(
+            "stepsim: warning: run.seed is given ({}): this release is only as blind as that seed is secret; leave run.seed out for a real challenge (a secret seed is then drawn and recorded only in RUN/private/config.json)",
+            plan.source.display()
+        );
+    }
     let threads = super::threads(args.threads);
     super::check_memory(
         "generate",
@@ -59,6 +66,26 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .install(|| generate::generate(&plan, &args.out, &options, &progress))
         .with_context(|| format!("generating {}", args.out.display()))?;
     bar.finish_and_clear();
+    let config_path = args.out.join("private/config.json");
+    match summary.seed {
+        SeedUse::Given => {}
+        SeedUse::Drawn => eprintln!(
+            "stepsim: drew a secret seed from the operating system; it is recorded only in {} (keep private/ secret; rerun with --config {} to reproduce the run)",
+            config_path.display(),
+            config_path.display()
+        ),
+        SeedUse::Adopted => eprintln!(
+            "stepsim: continuing the run in {} with its seed (from {})",
+            args.out.display(),
+            config_path.display()
+        ),
+    }
+    if summary.removed_manifest {
+        eprintln!(
+            "stepsim: removed the manifest of {}: not every image is finished",
+            args.out.display()
+        );
+    }
     eprintln!(
         "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
         options.shard, summary.written, summary.skipped, summary.in_shard, summary.total

@@ -126,6 +126,18 @@ pub struct ConfigArgs {
     pub overrides: Vec<String>,
 }
 
+/// The resolved config as the user gave it: with the seed when the config
+/// (or a `--set`) gave one, without it when [`Plan::new`] drew it.
+///
+/// [`Plan::new`]: stepsim_sim::config::Plan::new
+pub fn as_given(plan: &stepsim_sim::config::Plan) -> stepsim_sim::config::RawConfig {
+    let mut raw = plan.raw.clone();
+    if plan.seed_origin == stepsim_sim::config::SeedOrigin::Drawn {
+        raw.run.seed = None;
+    }
+    raw
+}
+
 impl ConfigArgs {
     /// Loads and validates the config with its overrides.
     pub fn plan(&self) -> anyhow::Result<stepsim_sim::config::Plan> {

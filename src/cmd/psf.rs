@@ -4,7 +4,8 @@
 //! Writes, in `--out DIR`:
 //! * `<name>.fits`: the pixel-convolved PSF at the image pixel scale
 //!   (primary HDU) and `--oversample` times finer (extension `OVERSAMPLED`);
-//! * `config.json`: the resolved config the PSFs were built from;
+//! * `config.json`: the resolved config the PSFs were built from (without a
+//!   seed when the config gives none: PSFs do not depend on it);
 //! * `psf_report.json`: `{"pixel_scale_arcsec": p, "psfs": [report, ...]}`
 //!   with each PSF's FWHM, χ1, χ2, centroid, seeing and amplitude;
 //! * `psf_cores.png`: the cores (±1.6″, linear, contours at 3 %, 25 %, 90 %
@@ -130,7 +131,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     });
     let text = serde_json::to_string_pretty(&json)? + "\n";
     stepsim_sim::io::write_bytes_atomically(&args.out.join("psf_report.json"), text.as_bytes())?;
-    let config = format!("{}\n", plan.raw.to_json());
+    // PSFs do not depend on the seed: a drawn one is not recorded.
+    let config = format!("{}\n", super::as_given(&plan).to_json());
     stepsim_sim::io::write_bytes_atomically(&args.out.join("config.json"), config.as_bytes())?;
     let core_refs: Vec<&[f64]> = cores.iter().map(Vec::as_slice).collect();
     let wing_refs: Vec<&[f64]> = wings.iter().map(Vec::as_slice).collect();

@@ -84,6 +84,9 @@ pub enum ConfigError {
         /// What was found ("an array", "a number", ...).
         found: &'static str,
     },
+    /// The config gives no seed and the operating system gave none.
+    #[error(transparent)]
+    Entropy(#[from] NoEntropy),
     /// A value is out of its allowed range.
     #[error("{path}: key `{key}`: {message}")]
     Invalid {
@@ -155,16 +158,40 @@ pub struct RawRun {
     /// A name for humans (appears in the private half only).
     pub name: String,
     /// Master seed: every random stream derives from it (see [`crate::seed`]).
-    pub seed: u64,
+    /// Absent (the default, and the presets): [`Plan::new`] draws one from
+    /// the operating system, so that a release is blind; the resolved config
+    /// (`RUN/private/config.json`) records it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
 }
 
 impl Default for RawRun {
     fn default() -> Self {
         Self {
             name: "step1".into(),
-            seed: 20060101,
+            seed: None,
         }
     }
+}
+
+/// Where a plan's master seed came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SeedOrigin {
+    /// Written in the config (or a `--set run.seed=N`): anyone who knows it
+    /// can rebuild the run, so the release is only as blind as it is secret.
+    Config,
+    /// The config gave none: drawn from the operating system's entropy.
+    Drawn,
+}
+
+/// Why no seed could be drawn from the operating system.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot draw a seed from the operating system: {0}")]
+pub struct NoEntropy(pub String);
+
+/// A fresh secret seed: 64 bits from the operating system's entropy source.
+pub fn draw_seed() -> Result<u64, NoEntropy> {
+    getrandom::u64().map_err(|e| NoEntropy(e.to_string()))
 }
 
 /// One applied reduced shear (κ = 0 as in STEP1).
@@ -394,11 +421,15 @@ pub struct Plan {
     pub source: PathBuf,
     /// Every PSF × shear pair, PSF-major.
     pub datasets: Vec<Dataset>,
+    /// Whether `raw.run.seed` was given or drawn by [`Plan::new`].
+    pub seed_origin: SeedOrigin,
 }
 
 impl Plan {
-    /// Validates a raw config.
-    pub fn new(raw: RawConfig, source: &Path) -> Result<Self, ConfigError> {
+    /// Validates a raw config. A config without `run.seed` gets one drawn
+    /// from the operating system ([`draw_seed`]; [`SeedOrigin::Drawn`]), so
+    /// `raw.run.seed` is always set in a plan.
+    pub fn new(mut raw: RawConfig, source: &Path) -> Result<Self, ConfigError> {
         let invalid = |key: &str, message: String| ConfigError::Invalid {
             path: source.into(),
             key: key.into(),
@@ -437,6 +468,13 @@ impl Plan {
                 ));
             }
         }
+        let seed_origin = match raw.run.seed {
+            Some(_) => SeedOrigin::Config,
+            None => {
+                raw.run.seed = Some(draw_seed()?);
+                SeedOrigin::Drawn
+            }
+        };
         let n_shears = raw.shears.len();
         let datasets = (0..raw.psfs.len())
             .flat_map(|p| (0..n_shears).map(move |s| (p, s)))
@@ -452,7 +490,16 @@ impl Plan {
             raw,
             source: source.into(),
             datasets,
+            seed_origin,
         })
+    }
+
+    /// The same plan with master seed `seed` (the origin is kept: adopting
+    /// the seed of an existing run does not make it public).
+    pub fn with_seed(&self, seed: u64) -> Self {
+        let mut p = self.clone();
+        p.raw.run.seed = Some(seed);
+        p
     }
 
     /// Loads, overrides and validates a config file in one go.
@@ -465,9 +512,9 @@ impl Plan {
         self.raw.image.n_images
     }
 
-    /// Master seed.
+    /// Master seed ([`Plan::new`] always sets one).
     pub fn seed(&self) -> u64 {
-        self.raw.run.seed
+        self.raw.run.seed.unwrap_or_default()
     }
 }
 
@@ -639,6 +686,33 @@ mod tests {
         assert_eq!(short_number(1e-9), "1e-9");
         assert_eq!(short_number(-0.5), "-0.5");
         assert_eq!(short_number(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn a_config_without_seed_gets_a_fresh_one_and_records_it() {
+        let raw = parse("{}").unwrap();
+        assert_eq!(raw.run.seed, None);
+        assert!(!raw.to_json().contains("seed"), "no seed key when absent");
+        let a = Plan::new(raw.clone(), Path::new("t.json")).unwrap();
+        let b = Plan::new(raw, Path::new("t.json")).unwrap();
+        assert_eq!(
+            (a.seed_origin, b.seed_origin),
+            (SeedOrigin::Drawn, SeedOrigin::Drawn)
+        );
+        assert_eq!(a.raw.run.seed, Some(a.seed()));
+        // 64 bits from the OS: two draws agreeing would be a broken source.
+        assert_ne!(a.seed(), b.seed());
+        assert!(a.raw.to_json().contains(&format!("\"seed\": {}", a.seed())));
+        // The resolved JSON gives the same seed back, now as given.
+        let again = Plan::new(parse(&a.raw.to_json()).unwrap(), Path::new("c.json")).unwrap();
+        assert_eq!(
+            (again.seed(), again.seed_origin),
+            (a.seed(), SeedOrigin::Config)
+        );
+        let given = parse("{\"run\": {\"seed\": 7}}").unwrap();
+        let p = Plan::new(given, Path::new("t.json")).unwrap();
+        assert_eq!((p.seed(), p.seed_origin), (7, SeedOrigin::Config));
+        assert_eq!(p.with_seed(9).seed(), 9);
     }
 
     #[test]

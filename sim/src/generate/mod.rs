@@ -11,19 +11,30 @@
 //!    `SeedKey::image(seed, k, d, Noise).with_index(rotated)`;
 //! 4. `public/<dataset-id>/<image-id>.fits`, `private/truth/<image-id>.fits`,
 //!    optionally `private/model/<image-id>.fits`, and last the sidecar
-//!    `private/done/<image-id>.json` holding the files' SHA-256.
+//!    `private/done/<image-id>.json` holding the files' SHA-256 and what made
+//!    them (config SHA-256, [`OUTPUT_VERSION`]).
 //!
-//! Images are made field by field (the base field is drawn once and shared by
-//! the datasets), in parallel over the images of a field and within each
-//! image. A rerun skips every image whose sidecar matches the files on disk
+//! A run first claims its directory ([`claim`]: `private/config.json` is
+//! created, never replaced) and refuses any file another run left there
+//! ([`integrity`]). Images are made field by field (the base field is drawn
+//! once and shared by the datasets), within a field in the order of their
+//! opaque ids, in parallel over the images of a field and within each image.
+//! A rerun skips every image whose sidecar matches the files on disk
 //! (resume), and `--shard K/N` makes only image j with j mod N = K − 1. The
 //! manifest is (re)written by whichever process finds every sidecar present,
-//! so after the last shard has run it is complete.
+//! so after the last shard has run it is complete; a process that finds an
+//! image unfinished first removes a stale manifest. Every process ends by
+//! giving all of `public/` one time stamp ([`times`]).
 
 pub mod bench;
+pub mod claim;
+pub mod integrity;
 mod readme;
 mod shard;
+pub mod times;
 
+pub use claim::{Claim, SeedUse};
+pub use integrity::OUTPUT_VERSION;
 pub use readme::{SUBMISSION_FORMAT, participants_readme};
 pub use shard::{BadShard, Shard};
 
@@ -81,10 +92,28 @@ pub enum GenerateError {
         source: crate::psf::PsfError,
     },
     /// The output directory holds a run made from another config.
-    #[error("{path} holds a run made from a different config; use another --out (or delete it)")]
+    #[error(
+        "{path} holds a run made from a different config; use another --out, or delete the whole run directory"
+    )]
     DifferentRun {
         /// The existing `private/config.json`.
         path: PathBuf,
+    },
+    /// A file in the run directory does not belong to this run.
+    #[error(
+        "{path} does not belong to this run (it was made by another config or another version of stepsim); use another --out, or delete the whole run directory"
+    )]
+    ForeignFile {
+        /// The file or directory.
+        path: PathBuf,
+    },
+    /// A sidecar was made by another config or output version.
+    #[error("{path} is refused: {why}; use another --out, or delete the whole run directory")]
+    ForeignSidecar {
+        /// The sidecar.
+        path: PathBuf,
+        /// Who made it.
+        why: String,
     },
     /// Two opaque ids collided (practically impossible; change `run.seed`).
     #[error("opaque id {id} is not unique; choose another run.seed")]
@@ -121,6 +150,17 @@ impl Job {
         SeedKey::image(run_seed, self.field, self.dataset, Stream::Noise)
             .with_index(u64::from(self.rotated))
     }
+}
+
+/// The blinding key of a run: from its seed and resolved config
+/// ([`BlindingKey::for_run`] of [`claim::config_json`]).
+pub fn blinding_key(plan: &Plan) -> BlindingKey {
+    BlindingKey::for_run(plan.seed(), claim::config_json(plan).as_bytes())
+}
+
+/// SHA-256 of a run's `private/config.json` (recorded in every sidecar).
+pub fn config_sha256(plan: &Plan) -> String {
+    sha256_hex(claim::config_json(plan).as_bytes())
 }
 
 /// Every image of a plan in canonical order, with its opaque ids.
@@ -177,6 +217,10 @@ pub struct Sidecar {
     /// SHA-256 of `private/model/<image-id>.fits`, when written.
     #[serde(default)]
     pub model_sha256: Option<String>,
+    /// SHA-256 of the run's `private/config.json` (what made the files).
+    pub config_sha256: String,
+    /// [`OUTPUT_VERSION`] of the stepsim that made the files.
+    pub output_version: u32,
 }
 
 /// Paths of a run directory.
@@ -194,6 +238,10 @@ impl RunPaths {
     /// `RUN/private`.
     pub fn private(&self) -> PathBuf {
         self.root.join("private")
+    }
+    /// `RUN/private/config.json`, the resolved config (claims the run).
+    pub fn config(&self) -> PathBuf {
+        self.private().join("config.json")
     }
     /// The public image of a job.
     pub fn image(&self, job: &Job) -> PathBuf {
@@ -250,6 +298,12 @@ pub enum Event {
 /// What a run did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Summary {
+    /// How the seed was chosen (given, drawn now, or adopted from the run
+    /// found in the directory).
+    pub seed: SeedUse,
+    /// True when a stale `public/manifest.json` was removed (an image of the
+    /// run was unfinished or damaged).
+    pub removed_manifest: bool,
     /// Images in the whole run.
     pub total: usize,
     /// Images of this shard.
@@ -271,6 +325,12 @@ pub struct Summary {
 
 /// Makes (this shard's share of) the run described by `plan` in `out`.
 /// Parallel in the current rayon pool; `progress` is told what happens.
+///
+/// Order of work: preflight (nothing written), claim `private/config.json`
+/// (adopting the existing run's seed when `plan`'s was drawn), refuse foreign
+/// files and sidecars, verify this shard's images, remove a stale manifest,
+/// create the dataset directories in the order of their ids, then build the
+/// PSFs and make the pending images.
 pub fn generate(
     plan: &Plan,
     out: &Path,
@@ -278,27 +338,42 @@ pub fn generate(
     progress: &(dyn Fn(Event) + Sync),
 ) -> Result<Summary, GenerateError> {
     let paths = RunPaths { root: out.into() };
-    let key = BlindingKey::from_seed(plan.seed());
-    let all = jobs(plan, &key)?;
-    let config_json = format!("{}\n", plan.raw.to_json());
-    let config_path = paths.private().join("config.json");
-    if let Ok(existing) = std::fs::read_to_string(&config_path)
-        && existing != config_json
-    {
-        return Err(GenerateError::DifferentRun { path: config_path });
-    }
     // Everything that could fail before drawing is checked before writing.
     crate::population::preflight(plan).map_err(GenerateError::Preflight)?;
+    let claim = claim::claim(plan, out)?;
+    let plan = &claim.plan;
+    let config_sha256 = config_sha256(plan);
+    let key = blinding_key(plan);
+    let all = jobs(plan, &key)?;
+    let checked = integrity::refuse_foreign_files(plan, &paths, &all).and_then(|()| {
+        integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))
+    });
+    if let Err(e) = checked {
+        // Leave the directory as it was found: a claim made just now is undone.
+        if claim.created {
+            let _ = std::fs::remove_file(paths.config());
+        }
+        return Err(e);
+    }
     // Temporaries left by a killed run are junk (never finished files): remove
     // them so that they can't reach a release; a live shard's stay.
     let removed_tmp = crate::io::remove_stale_temporaries(out);
 
-    // Resume: verify what is already there (read only).
-    let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
+    // Resume: read every sidecar (refusing foreign ones), verify this shard's
+    // images against theirs (read only).
+    let sides: Vec<Option<Sidecar>> = all
+        .par_iter()
+        .map(|j| integrity::read_sidecar(&paths, j, &config_sha256))
+        .collect::<Result<_, _>>()?;
     let want_model = plan.raw.output.write_model;
+    let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
     let done: Vec<bool> = mine
         .par_iter()
-        .map(|j| verify(&paths, j, want_model))
+        .map(|j| {
+            sides[j.order]
+                .as_ref()
+                .is_some_and(|s| verify_files(&paths, j, s, want_model))
+        })
         .collect();
     let pending: Vec<&Job> = mine
         .iter()
@@ -306,6 +381,18 @@ pub fn generate(
         .filter(|(_, d)| !**d)
         .map(|(j, _)| *j)
         .collect();
+    // A manifest must never list an image that is missing or damaged: other
+    // shards' images count as finished when their sidecar and file exist.
+    let unfinished = !pending.is_empty()
+        || all
+            .iter()
+            .any(|j| sides[j.order].is_none() || !paths.image(j).is_file());
+    let manifest_path = paths.public().join("manifest.json");
+    let removed_manifest = unfinished && manifest_path.exists();
+    if removed_manifest {
+        std::fs::remove_file(&manifest_path).map_err(|e| IoError::os(&manifest_path, e))?;
+    }
+    make_dataset_dirs(&paths, &all)?;
 
     // PSFs: built once, only those this process needs.
     let ds = &plan.datasets;
@@ -350,17 +437,23 @@ pub fn generate(
         done: mine.len() - pending.len(),
     });
 
-    // Field by field: the base field is drawn once for all its images.
+    // Field by field: the base field is drawn once for all its images. Within
+    // a field, images are written in the order of their opaque ids (keyed by
+    // the blinding secret), so that no write order follows the datasets.
     let mut by_field: BTreeMap<u32, Vec<&Job>> = BTreeMap::new();
     for j in &pending {
         by_field.entry(j.field).or_default().push(j);
     }
+    let made = Made {
+        config_sha256: &config_sha256,
+    };
     let mut shared_written = false;
-    for (&field, field_jobs) in &by_field {
+    for (&field, field_jobs) in &mut by_field {
+        field_jobs.sort_by(|a, b| a.image_id.cmp(&b.image_id));
         let base = crate::population::base_field(plan, field)
             .map_err(|source| GenerateError::Population { field, source })?;
         if !shared_written {
-            write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
+            write_shared(plan, &paths, &key, &all, options, &built)?;
             shared_written = true;
         }
         let twin = if field_jobs.iter().any(|j| j.rotated) {
@@ -379,21 +472,25 @@ pub fn generate(
                     &base
                 };
                 let renderer = &renderers[&ds[job.dataset as usize].psf];
-                make_image(plan, &paths, job, rows, renderer, &det)?;
+                make_image(plan, &paths, job, rows, renderer, &det, &made)?;
                 progress(Event::ImageWritten);
                 Ok::<(), GenerateError>(())
             })?;
         }
     }
     if !shared_written {
-        write_shared(plan, &paths, &key, &all, &config_json, options, &built)?;
+        write_shared(plan, &paths, &key, &all, options, &built)?;
     }
 
-    let (finished, manifest_written) = write_manifest_if_complete(plan, &paths, &all)?;
+    let (finished, manifest_written) =
+        write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+    times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
     let mut stray_tmp = Vec::new();
     find_tmp(out, &mut stray_tmp);
     stray_tmp.sort();
     Ok(Summary {
+        seed: claim.seed,
+        removed_manifest,
         total: all.len(),
         in_shard: mine.len(),
         written: pending.len(),
@@ -405,12 +502,39 @@ pub fn generate(
     })
 }
 
-/// True when the image's sidecar exists and every file it lists is on disk
-/// with the recorded SHA-256.
-pub fn verify(paths: &RunPaths, job: &Job, want_model: bool) -> bool {
-    let Some(side) = read_sidecar(paths, job) else {
-        return false;
-    };
+/// What made an image's files (recorded in its sidecar).
+struct Made<'a> {
+    config_sha256: &'a str,
+}
+
+/// Creates `public/<dataset-id>/` for every dataset, in the order of the ids
+/// (so that neither inode numbers nor creation order follow the datasets).
+fn make_dataset_dirs(paths: &RunPaths, all: &[Job]) -> Result<(), IoError> {
+    let mut ids: Vec<&str> = all.iter().map(|j| j.dataset_id.as_str()).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    for id in ids {
+        let dir = paths.public().join(id);
+        std::fs::create_dir_all(&dir).map_err(|e| IoError::os(&dir, e))?;
+    }
+    Ok(())
+}
+
+/// True when the image's sidecar is this run's and every file it lists is on
+/// disk with the recorded SHA-256 (a foreign sidecar is an error: see
+/// [`integrity::read_sidecar`]).
+pub fn verify(
+    paths: &RunPaths,
+    job: &Job,
+    want_model: bool,
+    config_sha256: &str,
+) -> Result<bool, GenerateError> {
+    Ok(integrity::read_sidecar(paths, job, config_sha256)?
+        .is_some_and(|side| verify_files(paths, job, &side, want_model)))
+}
+
+/// True when every file `side` lists is on disk with the recorded SHA-256.
+fn verify_files(paths: &RunPaths, job: &Job, side: &Sidecar, want_model: bool) -> bool {
     let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| sha256_hex(&b) == want);
     side.image == job.image_id
         && side.file == job.public_file()
@@ -423,11 +547,6 @@ pub fn verify(paths: &RunPaths, job: &Job, want_model: bool) -> bool {
         }
 }
 
-fn read_sidecar(paths: &RunPaths, job: &Job) -> Option<Sidecar> {
-    let text = std::fs::read_to_string(paths.sidecar(job)).ok()?;
-    serde_json::from_str(&text).ok()
-}
-
 /// Makes one image and its private files; the sidecar is written last.
 fn make_image(
     plan: &Plan,
@@ -436,6 +555,7 @@ fn make_image(
     base: &[TruthRow],
     renderer: &Renderer,
     det: &Detector,
+    made: &Made,
 ) -> Result<(), GenerateError> {
     let raw = &plan.raw;
     let d = &plan.datasets[job.dataset as usize];
@@ -502,6 +622,8 @@ fn make_image(
         sha256: file_sha256(&image_path)?,
         truth_sha256: file_sha256(&truth_path)?,
         model_sha256,
+        config_sha256: made.config_sha256.to_string(),
+        output_version: OUTPUT_VERSION,
     };
     let text = serde_json::to_string_pretty(&side).expect("sidecar serialises") + "\n";
     write_bytes_atomically(&paths.sidecar(job), text.as_bytes())?;
@@ -513,26 +635,21 @@ fn file_sha256(path: &Path) -> Result<String, IoError> {
     Ok(sha256_hex(&bytes))
 }
 
-/// The files every shard writes identically: resolved config, datasets,
-/// blinding key, participants' README, and the PSFs this process built.
+/// The files every shard writes identically: datasets, blinding key,
+/// participants' README, and the PSFs this process built (the resolved config
+/// was written first, by [`claim::claim`]).
 fn write_shared(
     plan: &Plan,
     paths: &RunPaths,
     key: &BlindingKey,
     all: &[Job],
-    config_json: &str,
     options: &Options,
     psfs: &[(usize, Arc<dyn crate::psf::Psf>)],
 ) -> Result<(), GenerateError> {
     let private = paths.private();
-    write_bytes_atomically(&private.join("config.json"), config_json.as_bytes())?;
-    write_bytes_atomically(
-        &private.join("blinding.key"),
-        format!("{}\n", key.to_hex()).as_bytes(),
-    )?;
-    let datasets = datasets_json(plan, all);
-    let text = serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n";
-    write_bytes_atomically(&private.join("datasets.json"), text.as_bytes())?;
+    for (name, bytes) in private_shared(plan, key, all) {
+        write_bytes_atomically(&private.join(name), bytes.as_bytes())?;
+    }
     let para = options
         .submission_format
         .as_deref()
@@ -576,6 +693,19 @@ fn write_psf_file(
         DEFAULT_OVERSAMPLE,
         Some(&report),
     )
+}
+
+/// The private files every process of a run writes identically:
+/// `blinding.key` and `datasets.json` (name, content).
+fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str, String); 2] {
+    let datasets = datasets_json(plan, all);
+    [
+        ("blinding.key", format!("{}\n", key.to_hex())),
+        (
+            "datasets.json",
+            serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n",
+        ),
+    ]
 }
 
 /// `private/datasets.json` of a run.
@@ -635,13 +765,13 @@ fn write_manifest_if_complete(
     plan: &Plan,
     paths: &RunPaths,
     all: &[Job],
+    config_sha256: &str,
 ) -> Result<(usize, bool), GenerateError> {
-    let sides: Vec<Option<Sidecar>> = all
-        .iter()
-        .map(|j| {
-            read_sidecar(paths, j).filter(|s| paths.image(j).is_file() && s.image == j.image_id)
-        })
-        .collect();
+    let mut sides: Vec<Option<Sidecar>> = Vec::with_capacity(all.len());
+    for j in all {
+        let side = integrity::read_sidecar(paths, j, config_sha256)?;
+        sides.push(side.filter(|_| paths.image(j).is_file()));
+    }
     let finished = sides.iter().filter(|s| s.is_some()).count();
     if finished < all.len() {
         return Ok((finished, false));
@@ -688,6 +818,7 @@ mod tests {
 
     fn plan(overrides: &[&str]) -> Plan {
         let mut o: Vec<String> = [
+            "run.seed=20060101",
             "image.width_px=96",
             "image.height_px=80",
             "image.n_images=2",
@@ -706,7 +837,7 @@ mod tests {
     #[test]
     fn jobs_enumerate_fields_twins_and_datasets() {
         let p = plan(&["population.rotated_pairs=true"]);
-        let key = BlindingKey::from_seed(p.seed());
+        let key = blinding_key(&p);
         let js = jobs(&p, &key).unwrap();
         assert_eq!(js.len(), 2 * 2 * 4);
         assert_eq!((js[0].field, js[0].rotated, js[0].dataset), (0, false, 0));
@@ -765,7 +896,7 @@ mod tests {
         let p = plan(&["output.noise=false", "output.write_model=true"]);
         let quiet = |_: Event| {};
         generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
-        let key = BlindingKey::from_seed(p.seed());
+        let key = blinding_key(&p);
         let js = jobs(&p, &key).unwrap();
         let paths = RunPaths {
             root: dir.path().into(),
@@ -780,13 +911,16 @@ mod tests {
                 // float32 rounding at 2e4 ADU: ulp 0.002
                 assert!((f64::from(a - m) - sky_adu).abs() < 0.01, "{a} - {m}");
             }
-            let side = read_sidecar(&paths, j).unwrap();
+            let side = integrity::read_sidecar(&paths, j, &config_sha256(&p))
+                .unwrap()
+                .unwrap();
             assert!(side.model_sha256.is_some());
-            assert!(verify(&paths, j, true));
+            assert_eq!(side.output_version, OUTPUT_VERSION);
+            assert!(verify(&paths, j, true, &config_sha256(&p)).unwrap());
         }
         // A damaged model makes its image pending again.
         std::fs::write(paths.model(&js[3]), b"junk").unwrap();
-        assert!(!verify(&paths, &js[3], true));
+        assert!(!verify(&paths, &js[3], true, &config_sha256(&p)).unwrap());
         let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
         assert_eq!((s.written, s.skipped), (1, 7));
     }
@@ -800,7 +934,7 @@ mod tests {
         let p = plan(&["population.rotated_pairs=true"]);
         let quiet = |_: Event| {};
         generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
-        let key = BlindingKey::from_seed(p.seed());
+        let key = blinding_key(&p);
         let job = jobs(&p, &key)
             .unwrap()
             .into_iter()

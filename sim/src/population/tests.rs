@@ -6,8 +6,13 @@ use crate::population::stars::mag_cdf;
 use crate::stats::{ks_p_value, ks_statistic, median};
 use std::path::Path;
 
+/// The defaults with a fixed seed (so that the tests are reproducible), then
+/// `overrides`.
 fn plan_with(overrides: &[&str]) -> Plan {
-    let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+    let o: Vec<String> = std::iter::once("run.seed=20060101")
+        .chain(overrides.iter().copied())
+        .map(|s| s.to_string())
+        .collect();
     let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
     Plan::new(raw, Path::new("t.json")).unwrap()
 }

@@ -1,0 +1,160 @@
+//! What a run accepts in its directory: its own files and nothing else.
+//!
+//! Every sidecar records what made it (the SHA-256 of the resolved config and
+//! [`OUTPUT_VERSION`]); a sidecar made by anything else is refused by name.
+//! So is any file under `public/`, `private/truth`, `private/model`,
+//! `private/done` or `private/psf` whose name is not one of this run's (a
+//! leftover of another config, for instance after `private/config.json` was
+//! deleted), and a `private/blinding.key` or `private/datasets.json` with
+//! other content than this run's. Temporary files (`.<name>.<pid>.tmp`) are left to
+//! [`crate::io::remove_stale_temporaries`].
+
+use super::{GenerateError, Job, RunPaths, Sidecar};
+use crate::config::Plan;
+use crate::io::IoError;
+use std::collections::HashSet;
+use std::path::Path;
+
+/// Version of what `generate` writes: bumped whenever the bytes of a run's
+/// files change on purpose, so that a rerun refuses the files of an older
+/// stepsim instead of mixing them with new ones.
+pub const OUTPUT_VERSION: u32 = 2;
+
+/// Refuses, naming it, the first file or directory (in sorted order) that
+/// does not belong to the run of `all`.
+pub fn refuse_foreign_files(
+    plan: &Plan,
+    paths: &RunPaths,
+    all: &[Job],
+) -> Result<(), GenerateError> {
+    let mut datasets: HashSet<&str> = HashSet::new();
+    let mut public_files: HashSet<String> = HashSet::new();
+    let mut images: HashSet<String> = HashSet::new();
+    for j in all {
+        datasets.insert(&j.dataset_id);
+        public_files.insert(j.public_file());
+        images.insert(j.image_id.clone());
+    }
+    let public = paths.public();
+    for entry in listing(&public)? {
+        let name = file_name(&entry);
+        if entry.is_dir() && datasets.contains(name.as_str()) {
+            for file in listing(&entry)? {
+                let rel = format!("{name}/{}", file_name(&file));
+                if file.is_dir() || !public_files.contains(&rel) {
+                    return Err(foreign(&file));
+                }
+            }
+        } else if entry.is_dir() || !(name == "README.md" || name == "manifest.json") {
+            return Err(foreign(&entry));
+        }
+    }
+    let private = paths.private();
+    for (dir, ext) in [("truth", "fits"), ("model", "fits"), ("done", "json")] {
+        for file in listing(&private.join(dir))? {
+            let name = file_name(&file);
+            let ours = name
+                .strip_suffix(&format!(".{ext}"))
+                .is_some_and(|id| images.contains(id));
+            if file.is_dir() || !ours {
+                return Err(foreign(&file));
+            }
+        }
+    }
+    let psfs: HashSet<String> = plan
+        .raw
+        .psfs
+        .iter()
+        .map(|p| format!("{}.fits", p.name))
+        .collect();
+    for file in listing(&private.join("psf"))? {
+        if file.is_dir() || !psfs.contains(&file_name(&file)) {
+            return Err(foreign(&file));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses, naming it, a file `dir/<name>` that exists with other content
+/// than this run's (e.g. the `blinding.key` of another run whose
+/// `private/config.json` was deleted).
+pub fn refuse_other_contents(dir: &Path, files: &[(&str, String)]) -> Result<(), GenerateError> {
+    for (name, want) in files {
+        let path = dir.join(name);
+        match std::fs::read(&path) {
+            Ok(bytes) if bytes != want.as_bytes() => return Err(foreign(&path)),
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(IoError::os(&path, e).into()),
+        }
+    }
+    Ok(())
+}
+
+fn foreign(path: &Path) -> GenerateError {
+    GenerateError::ForeignFile { path: path.into() }
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// The entries of `dir`, sorted, without temporaries; empty when `dir` does
+/// not exist.
+fn listing(dir: &Path) -> Result<Vec<std::path::PathBuf>, IoError> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(IoError::os(dir, e)),
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        let p = e.map_err(|e| IoError::os(dir, e))?.path();
+        if crate::io::temporary_owner(&p).is_none() {
+            out.push(p);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// The sidecar of `job`: `None` when there is none; refused (naming the
+/// file) when it cannot be read as a sidecar of this stepsim, or was made by
+/// another config or output version.
+pub fn read_sidecar(
+    paths: &RunPaths,
+    job: &Job,
+    config_sha256: &str,
+) -> Result<Option<Sidecar>, GenerateError> {
+    let path = paths.sidecar(job);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(IoError::os(&path, e).into()),
+    };
+    let side: Sidecar = serde_json::from_str(&text).map_err(|e| GenerateError::ForeignSidecar {
+        path: path.clone(),
+        why: format!("it is not a sidecar this stepsim can read ({e})"),
+    })?;
+    if side.output_version != OUTPUT_VERSION {
+        return Err(GenerateError::ForeignSidecar {
+            path,
+            why: format!(
+                "it was made by another version of stepsim (output version {}, this one writes {OUTPUT_VERSION})",
+                side.output_version
+            ),
+        });
+    }
+    if side.config_sha256 != config_sha256 || side.image != job.image_id {
+        return Err(GenerateError::ForeignSidecar {
+            path,
+            why: format!(
+                "it was made by another config (config SHA-256 {}, this run's is {config_sha256})",
+                side.config_sha256
+            ),
+        });
+    }
+    Ok(Some(side))
+}
