@@ -23,6 +23,8 @@
 pub mod bootstrap;
 pub mod error;
 pub mod fit;
+pub mod fits_table;
+pub mod input;
 pub mod leaderboard;
 pub mod markdown;
 pub mod matching;
