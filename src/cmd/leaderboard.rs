@@ -1,7 +1,7 @@
 //! `stepsim leaderboard`: rank several score reports in one table.
 
 use std::path::PathBuf;
-use stepsim_harness::leaderboard::{leaderboard_markdown, rank, read_report};
+use stepsim_harness::leaderboard::{check_comparable, leaderboard_markdown, rank, read_report};
 
 /// Arguments of `stepsim leaderboard`.
 #[derive(Debug, clap::Args)]
@@ -22,6 +22,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .iter()
         .map(|p| Ok((p.clone(), read_report(p)?)))
         .collect::<Result<Vec<_>, stepsim_harness::HarnessError>>()?;
+    check_comparable(&reports)?;
     let board = rank(&reports);
     let md = leaderboard_markdown(&reports, &board);
     match &args.out {
