@@ -227,3 +227,56 @@ pub fn report_markdown(r: &Report) -> String {
     );
     o
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_short_whatever_their_size() {
+        assert_eq!(fixed(0.012345, 4), "0.0123");
+        assert_eq!(fixed(-999_999.0, 1), "-999999.0");
+        assert_eq!(fixed(1e308, 4), "1.0000e308");
+        assert_eq!(fixed(-2.5e7, 1), "-2.5e7");
+        assert_eq!(fixed(f64::INFINITY, 2), "—");
+        assert_eq!(num(None, 2), "—");
+        assert_eq!(show_number(1e308), "1e308");
+        assert_eq!(show_number(0.25), "0.25");
+        assert_eq!(show_number(-3.0), "-3");
+        assert_eq!(show_number(1e-300), "1e-300");
+        assert_eq!(show_number(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn escaped_text_cannot_break_a_table_or_inject_html() {
+        assert_eq!(
+            escape("a|b`c`<script>&\n*_[x]#\\"),
+            "a\\|b\\`c\\`&lt;script&gt;&amp; \\*\\_\\[x\\]\\#\\\\"
+        );
+    }
+
+    #[test]
+    fn report_md_of_absurd_values_stays_readable() {
+        let mut r: Report =
+            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+        r.submission = "evil|name\n# heading".into();
+        r.match_radius_arcsec = 1e300;
+        r.datasets[0].g1 = Some(1e308);
+        r.datasets[0].g1_true = -1e300;
+        r.datasets[0].ngal_per_arcmin2 = 1e300;
+        r.psfs[0].m = Some(-1e308);
+        r.summary.m_mean = Some(1e308);
+        r.warnings.push("columns ignored: <b>|</b>".into());
+        let md = report_markdown(&r);
+        let longest = md.lines().map(|l| l.chars().count()).max().unwrap();
+        assert!(longest < 400, "a line of {longest} characters");
+        assert!(
+            md.starts_with("# Score of evil\\|name \\# heading\n"),
+            "{md}"
+        );
+        assert!(md.contains("Matched within 1e300 arcsec"));
+        assert!(md.contains("| 1.00000e308 ± 0.00100 |"), "{md}");
+        assert!(md.contains("columns ignored: &lt;b&gt;\\|&lt;/b&gt;"));
+        assert!(!md.contains("<b>"));
+    }
+}

@@ -1,11 +1,12 @@
 //! Reading a submission (SPEC §6): one table, or a directory of per-image
 //! tables, checked strictly against the run's images.
 //!
-//! Accepted forms, told apart by content (not by file name):
-//! * **FITS binary table** (the file starts with `SIMPLE  =`, or is
-//!   gzip-compressed, which cfitsio reads): the first
-//!   binary or ASCII table extension is read; column names are matched
-//!   case-insensitively; `image` must be a string column.
+//! Accepted forms, told apart by content (not by file name), each possibly
+//! gzip-compressed (inflated here within the input limit):
+//! * **FITS table** (the data start with `SIMPLE  =`): the first binary or
+//!   ASCII table extension is read through [`crate::fits_table`] (column
+//!   types from cfitsio's codes; extra columns of any type are ignored);
+//!   column names are matched case-insensitively; `image` must be text.
 //! * **Whitespace ASCII**: the first non-blank line is the header, `#`
 //!   followed by the column names (`# image x y e1 e2 weight`); later lines
 //!   starting with `#` are comments; fields are separated by blanks or tabs.
@@ -13,17 +14,25 @@
 //!   (`image,x,y,e1,e2,weight`; a leading `#` is tolerated); fields may be
 //!   wrapped in double quotes; no embedded commas.
 //!
+//! Text is UTF-8 (a leading byte-order mark is skipped); lines end with LF,
+//! CR LF or a lone CR.
+//!
 //! Required columns `image`, `x`, `y`, `e1`, `e2`; optional `weight`
 //! (default 1, must be finite and ≥ 0). In a directory each file is named
 //! `<image-id>.<ext>` and may omit `image` (when present it must equal the
 //! file's id). Other columns are ignored and reported as warnings.
 //!
 //! Refused, naming file, line (FITS: row) and column: an unknown image id, a
-//! missing required column, a repeated column, a value that does not parse,
-//! NaN or infinity, x or y off the image (the half-pixel border,
-//! 0.5 ≤ x ≤ width + 0.5, is on the image), a negative weight, a line with
-//! the wrong number of fields, a duplicate row (same image, x and y as an
-//! earlier row), a file with no rows. The submission is only read.
+//! missing required column, a repeated column, a required FITS column of
+//! the wrong type, a value that does not parse, NaN or infinity, x or y off
+//! the image (the half-pixel border, 0.5 ≤ x ≤ width + 0.5, is on the
+//! image), a negative weight, |e1| or |e2| above [`MAX_ABS_SHEAR`], weights
+//! whose sums over an image overflow, a line with the wrong number of
+//! fields, binary content (NUL or control bytes, UTF-16), a duplicate row
+//! (same image, x and y as an earlier row), a file with no rows; and, before
+//! reading, anything that is not a regular file, a symbolic link inside a
+//! directory, and more bytes than the limit ([`crate::input`]). The
+//! submission is only read.
 
 use crate::error::HarnessError;
 use crate::fits_table::{ColumnKind, Table};
