@@ -72,7 +72,7 @@ pub fn status_sentence(status: c_int) -> String {
         211..=216 | 220 | 221 | 225 | 251 => {
             "the header's structure keywords (SIMPLE, XTENSION, BITPIX, NAXIS, PCOUNT, GCOUNT) are invalid"
         }
-        217 | 234 | 241 | 261 | 311 | 312 => "the table's column formats are invalid",
+        217 | 218 | 234 | 236 | 241 | 261 | 311 | 312 => "the table's column formats are invalid",
         255 => "the data's fill area is not blank",
         301 => "the file has fewer extensions than its structure implies",
         322 => "a column has a zero scale factor (TSCALn = 0)",
@@ -270,7 +270,15 @@ impl<'a> Table<'a> {
                 sys::ffeqtyll(fptr, c, &mut typecode, &mut repeat, &mut width, &mut status);
             }
             check(path, status, &format!("column {c} (`{name}`)"))?;
-            let (kind, string_len) = kind_of(typecode, repeat, width, ascii);
+            let (mut kind, string_len) = kind_of(typecode, repeat, width, ascii);
+            // A field cannot be wider than the row (cfitsio does not check
+            // this for ASCII tables, and the string buffers are sized by it).
+            let field_bytes = if ascii { width } else { string_len as i64 };
+            if field_bytes > naxis1 {
+                kind = ColumnKind::Other(format!(
+                    "fields of {field_bytes} bytes in rows of {naxis1} bytes"
+                ));
+            }
             columns.push(Column {
                 name,
                 tform,
@@ -415,7 +423,7 @@ mod tests {
             "the file ends before its header or data do (truncated?)"
         );
         // Unknown to our table: cfitsio's own short text, never a struct.
-        let s = status_sentence(236);
+        let s = status_sentence(317);
         assert!(s.starts_with("cfitsio: ") && s.len() > 12, "{s}");
         let e = fitsio::errors::Error::Fits(fitsio::errors::FitsError {
             status: 106,

@@ -653,6 +653,15 @@ fn parse_fits(
     index: &ImageIndex,
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
+    if path.to_str().is_none() {
+        // fitsio panics converting such a name for cfitsio.
+        return Err(HarnessError::submission(
+            path,
+            None,
+            None,
+            "the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
+        ));
+    }
     let f = fitsio::FitsFile::open(path).map_err(|e| {
         HarnessError::submission(path, None, None, crate::fits_table::fitsio_sentence(&e))
     })?;

@@ -128,6 +128,16 @@ fn fits_headers_that_claim_more_than_the_file_holds_are_refused_before_reading()
         ),
         "{e}"
     );
+    // A text field wider than the row (buffers are sized by it).
+    let mut b = good_table(vec![]);
+    let at = (2880..b.len())
+        .step_by(80)
+        .find(|&i| b[i..i + 8] == *b"TFORM1  ")
+        .unwrap();
+    b[at + 10..at + 30].copy_from_slice(b"'900000000A'        ");
+    let e = parse_fits_bytes(&b).unwrap_err();
+    assert_eq!(e, ": HDU 2: the table's column formats are invalid");
+    let mut b = good_table(vec![]);
     // A table that is not there: no extension after the primary HDU.
     let e = parse_fits_bytes(&b[..2880]).unwrap_err();
     assert_eq!(
@@ -361,6 +371,111 @@ fn only_regular_files_are_read_and_links_in_a_directory_are_refused() {
         format!(
             "{}: not a regular file (a FIFO); only regular files are read",
             d.join("imB.txt").display()
+        )
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn a_fits_file_whose_name_is_not_utf8_is_refused_not_a_panic() {
+    use std::os::unix::ffi::OsStrExt;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir
+        .path()
+        .join(std::ffi::OsStr::from_bytes(b"sub\xff.fits"));
+    let b = good_table(vec![]);
+    std::fs::write(&p, &b).unwrap();
+    let e = read_submission(&p, &index()).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
+            p.display()
+        )
+    );
+}
+
+/// An ASCII table extension (XTENSION = 'TABLE'), `image_tform` for the
+/// image column.
+fn ascii_table(image_tform: &str) -> Vec<u8> {
+    let card = |o: &mut Vec<u8>, s: &str| {
+        let mut c = s.as_bytes().to_vec();
+        c.resize(80, b' ');
+        o.extend(c);
+    };
+    let pad = |o: &mut Vec<u8>, f: u8| {
+        while o.len() % 2880 != 0 {
+            o.push(f);
+        }
+    };
+    let mut o = Vec::new();
+    for c in [
+        "SIMPLE  =                    T",
+        "BITPIX  =                    8",
+        "NAXIS   =                    0",
+        "END",
+    ] {
+        card(&mut o, c);
+    }
+    pad(&mut o, b' ');
+    let rows = [
+        "imA     1.0     5.0     0.1     0.0     ",
+        "imB     2.0     5.0     0.2     0.0     ",
+    ];
+    let mut cards = vec![
+        "XTENSION= 'TABLE   '".to_owned(),
+        "BITPIX  =                    8".into(),
+        "NAXIS   =                    2".into(),
+        "NAXIS1  =                   40".into(),
+        "NAXIS2  =                    2".into(),
+        "PCOUNT  =                    0".into(),
+        "GCOUNT  =                    1".into(),
+        "TFIELDS =                    5".into(),
+    ];
+    for (k, name) in ["IMAGE", "X", "Y", "E1", "E2"].iter().enumerate() {
+        cards.push(format!("TTYPE{}  = '{name}'", k + 1));
+        cards.push(format!("TBCOL{}  = {:>20}", k + 1, 8 * k + 1));
+        let f = if k == 0 { image_tform } else { "F8.2" };
+        cards.push(format!("TFORM{}  = '{f}'", k + 1));
+    }
+    cards.push("END".into());
+    for c in &cards {
+        card(&mut o, c);
+    }
+    pad(&mut o, b' ');
+    for r in rows {
+        o.extend(r.as_bytes());
+    }
+    pad(&mut o, b' ');
+    o
+}
+
+#[test]
+fn ascii_tables_are_read_and_a_field_wider_than_the_row_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("a.fits");
+    let b = ascii_table("A8");
+    std::fs::write(&p, &b).unwrap();
+    let fr = parse_file(&p, &b, &index(), None).unwrap();
+    assert_eq!(fr.rows.len(), 2);
+    assert_eq!(
+        (fr.rows[1].0, fr.rows[1].1.x, fr.rows[1].1.e1),
+        (1, 2.0, 0.2)
+    );
+    // A field wider than the row (a string buffer sized by it would take
+    // 900 MB per row): cfitsio refuses it, in words.
+    let b = ascii_table("A900000000");
+    std::fs::write(&p, &b).unwrap();
+    let e = parse_file(&p, &b, &index(), None).unwrap_err().to_string();
+    assert!(
+        !e.contains("FitsError") && e.starts_with(&p.display().to_string()),
+        "{e}"
+    );
+    assert_eq!(
+        e,
+        format!(
+            "{}: HDU 2: the table's column formats are invalid",
+            p.display()
         )
     );
 }
