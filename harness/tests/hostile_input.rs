@@ -137,7 +137,7 @@ fn fits_headers_that_claim_more_than_the_file_holds_are_refused_before_reading()
     b[at + 10..at + 30].copy_from_slice(b"'900000000A'        ");
     let e = parse_fits_bytes(&b).unwrap_err();
     assert_eq!(e, ": HDU 2: the table's column formats are invalid");
-    let mut b = good_table(vec![]);
+    let b = good_table(vec![]);
     // A table that is not there: no extension after the primary HDU.
     let e = parse_fits_bytes(&b[..2880]).unwrap_err();
     assert_eq!(
