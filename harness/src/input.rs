@@ -144,23 +144,35 @@ pub fn is_gzip(bytes: &[u8]) -> bool {
     bytes.starts_with(&[0x1f, 0x8b])
 }
 
-/// Inflates a gzip file (RFC 1952; every member in turn, bytes after the last
-/// member ignored) into at most `cap` bytes. Refuses, without producing more
-/// than `cap` bytes, a stream that inflates to more; refuses a stream that is
-/// not gzip, uses another method than deflate, is corrupt or truncated.
+/// Inflates a gzip file (RFC 1952; every member in turn) into at most `cap`
+/// bytes. Refuses, without producing more than `cap` bytes, a stream that
+/// inflates to more; refuses a stream that is not gzip, uses another method
+/// than deflate, is corrupt or truncated, whose trailer records another size
+/// than the data have, or that has bytes after its last member. (cfitsio,
+/// which inflates a gzip FITS file again itself, sizes its buffer from the
+/// last trailer: so that buffer never exceeds what was checked here.)
 pub fn gunzip_bounded(bytes: &[u8], cap: u64) -> Result<Vec<u8>, InputError> {
     let mut out = Vec::new();
     let mut pos = 0;
     loop {
         pos += skip_gzip_header(&bytes[pos..])?;
+        let before = out.len();
         pos += inflate_member(&bytes[pos..], &mut out, cap)?;
-        // Trailer: CRC-32 and size, 8 bytes.
-        if bytes.len() < pos + 8 {
+        // Trailer: CRC-32 and size mod 2³², 8 bytes.
+        let Some(t) = bytes.get(pos + 4..pos + 8) else {
             return Err(InputError::BadGzip("the file ends inside the gzip trailer"));
+        };
+        if u32::from_le_bytes([t[0], t[1], t[2], t[3]]) != (out.len() - before) as u32 {
+            return Err(InputError::BadGzip(
+                "the size recorded in the gzip trailer is not the size of the data",
+            ));
         }
         pos += 8;
-        if !is_gzip(&bytes[pos..]) {
+        if pos == bytes.len() {
             return Ok(out);
+        }
+        if !is_gzip(&bytes[pos..]) {
+            return Err(InputError::BadGzip("bytes follow the end of the gzip data"));
         }
     }
 }
@@ -260,13 +272,28 @@ mod tests {
         );
         assert_eq!(gunzip_bounded(&bomb, 4 << 20).unwrap().len(), 4 << 20);
         // Truncations and corruptions are refused, never a panic.
-        for n in 0..bomb.len() {
-            let _ = gunzip_bounded(&bomb[..n], 8 << 20);
+        let small = gzip(&b"x y e1 e2\n".repeat(50));
+        for n in 0..small.len() {
+            assert!(gunzip_bounded(&small[..n], 8 << 20).is_err());
         }
         assert!(matches!(
             gunzip_bounded(&bomb[..bomb.len() - 9], 8 << 20),
             Err(InputError::BadGzip(_))
         ));
+        let mut lying = gzip(b"abc");
+        let n = lying.len();
+        lying[n - 4..].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert_eq!(
+            gunzip_bounded(&lying, 100).unwrap_err().to_string(),
+            "not a valid gzip file: the size recorded in the gzip trailer is not the size of \
+             the data"
+        );
+        let mut trailing = gzip(b"abc");
+        trailing.extend(b"\xff\xff\xff\xff");
+        assert_eq!(
+            gunzip_bounded(&trailing, 100).unwrap_err().to_string(),
+            "not a valid gzip file: bytes follow the end of the gzip data"
+        );
         let mut bad = gzip(b"abc");
         bad[2] = 7;
         assert_eq!(
