@@ -100,7 +100,23 @@ pub fn kind_of(t: &std::fs::FileType) -> &'static str {
 /// file swapped for a FIFO in between cannot block either. At most `cap + 1`
 /// bytes are ever read, whatever the metadata says.
 pub fn read_regular_file(path: &Path, cap: u64) -> Result<Vec<u8>, InputError> {
-    let meta = std::fs::metadata(path).map_err(|e| InputError::Unreadable(e.to_string()))?;
+    read_regular(path, cap, true)
+}
+
+/// [`read_regular_file`] for an entry of a submission directory: a symbolic
+/// link is refused, not followed (checked on the metadata, and the file is
+/// opened with `O_NOFOLLOW`, so a link swapped in meanwhile is refused too).
+pub fn read_entry_file(path: &Path, cap: u64) -> Result<Vec<u8>, InputError> {
+    read_regular(path, cap, false)
+}
+
+fn read_regular(path: &Path, cap: u64, follow: bool) -> Result<Vec<u8>, InputError> {
+    let meta = if follow {
+        std::fs::metadata(path)
+    } else {
+        std::fs::symlink_metadata(path)
+    }
+    .map_err(|e| InputError::Unreadable(e.to_string()))?;
     if !meta.is_file() {
         return Err(InputError::NotRegular(kind_of(&meta.file_type())));
     }
@@ -115,7 +131,8 @@ pub fn read_regular_file(path: &Path, cap: u64) -> Result<Vec<u8>, InputError> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::OpenOptionsExt;
-        options.custom_flags(libc::O_NONBLOCK);
+        let nofollow = if follow { 0 } else { libc::O_NOFOLLOW };
+        options.custom_flags(libc::O_NONBLOCK | nofollow);
     }
     let file = options
         .open(path)
@@ -338,6 +355,18 @@ mod tests {
                 read_regular_file(&fifo, 9).unwrap_err(),
                 InputError::NotRegular("a FIFO")
             );
+        }
+        #[cfg(unix)]
+        {
+            // A link: followed by read_regular_file, refused as an entry.
+            let link = dir.path().join("l.txt");
+            std::os::unix::fs::symlink(&p, &link).unwrap();
+            assert_eq!(read_regular_file(&link, 10).unwrap(), b"0123456789");
+            assert_eq!(
+                read_entry_file(&link, 10).unwrap_err(),
+                InputError::NotRegular("a symbolic link")
+            );
+            assert_eq!(read_entry_file(&p, 10).unwrap(), b"0123456789");
         }
         assert_eq!(show_bytes(256 << 20), "256 MiB");
         assert_eq!(show_bytes(3 << 10), "3 KiB");

@@ -37,8 +37,8 @@
 use crate::error::HarnessError;
 use crate::fits_table::{ColumnKind, Table};
 use crate::input::{
-    InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, is_gzip, kind_of, read_regular_file,
-    show_bytes,
+    InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, is_gzip, kind_of, read_entry_file,
+    read_regular_file, show_bytes,
 };
 use crate::markdown::show_number;
 use crate::truth_set::ImageIndex;
@@ -235,16 +235,14 @@ pub fn read_submission_limited(
     })
 }
 
-/// [`read_regular_file`], not following a symbolic link unless `follow`.
+/// [`read_regular_file`], or [`read_entry_file`] (links refused) unless
+/// `follow`.
 fn read_file(path: &Path, cap: u64, follow: bool) -> Result<Vec<u8>, InputError> {
-    if !follow {
-        let meta =
-            std::fs::symlink_metadata(path).map_err(|e| InputError::Unreadable(e.to_string()))?;
-        if !meta.is_file() {
-            return Err(InputError::NotRegular(kind_of(&meta.file_type())));
-        }
+    if follow {
+        read_regular_file(path, cap)
+    } else {
+        read_entry_file(path, cap)
     }
-    read_regular_file(path, cap)
 }
 
 /// Parses the bytes of one submission file (any accepted form), within
