@@ -673,6 +673,13 @@ fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
         )) && e.contains("a leaderboard ranks the submissions of one run"),
         "{e}"
     );
+    // A device as a report: refused at once, not read forever.
+    let o = stepsim(&[&"leaderboard", &a, &"/dev/zero"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        "stepsim: error: /dev/zero: not a regular file (a device); only regular files are read"
+    );
     // A report from before the run identity: score again.
     let mut old: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&b).unwrap()).unwrap();
