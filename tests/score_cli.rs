@@ -388,6 +388,25 @@ fn directory_submissions_and_the_leaderboard() {
     );
     let md = std::fs::read_to_string(lb.join("leaderboard.md")).unwrap();
     assert!(md.find("perimage").unwrap() < md.find("worse.txt").unwrap());
+    // An earlier leaderboard is not overwritten without --force (each file).
+    for name in [
+        "fig3_m_sigma_c.svg",
+        "fig3_m_sigma_c.png",
+        "leaderboard.md",
+        "leaderboard.json",
+    ] {
+        let lb2 = fx.path("lb2");
+        let _ = std::fs::remove_dir_all(&lb2);
+        std::fs::create_dir(&lb2).unwrap();
+        std::fs::write(lb2.join(name), "keep").unwrap();
+        let o = stepsim(&[&"leaderboard", &a, &b, &"--out", &lb2]);
+        assert_eq!(o.status.code(), Some(1), "{name}");
+        assert!(stderr(&o).contains("already exists"), "{}", stderr(&o));
+        assert_eq!(std::fs::read_to_string(lb2.join(name)).unwrap(), "keep");
+        assert_eq!(std::fs::read_dir(&lb2).unwrap().count(), 1);
+    }
+    let o = stepsim(&[&"leaderboard", &a, &b, &"--out", &lb, &"--force"]);
+    assert!(o.status.success(), "{}", stderr(&o));
     let o = stepsim(&[&"leaderboard", &a, &fx.path("best/report.md")]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("report.md"));
@@ -409,8 +428,7 @@ fn score_refuses_when_any_file_it_writes_exists() {
         assert_eq!(
             stderr(&o).trim_end(),
             format!(
-                "stepsim: error: {}: already exists (output of an earlier score?); pass --force \
-                 to overwrite it",
+                "stepsim: error: {}: already exists; pass --force to overwrite it",
                 p.display()
             )
         );

@@ -52,8 +52,9 @@ pub enum HarnessError {
         /// What is wrong.
         message: String,
     },
-    /// A file `score` writes already exists and `--force` was not given.
-    #[error("{path}: already exists (output of an earlier score?); pass --force to overwrite it")]
+    /// A file `score` or `leaderboard` writes already exists and `--force`
+    /// was not given.
+    #[error("{path}: already exists; pass --force to overwrite it")]
     ReportExists {
         /// The existing file.
         path: PathBuf,
