@@ -115,10 +115,20 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
             "datasets",
             "match_radius_arcsec",
             "psfs",
+            "run",
             "submission",
             "summary",
             "warnings"
         ]
+    );
+    // The run's identity: the SHA-256 of the truth's datasets.json.
+    let dj = std::fs::read(fx.path("private/datasets.json")).unwrap();
+    assert_eq!(
+        r["run"],
+        stepsim_harness::truth_set::run_identity(&dj).as_str()
+    );
+    assert!(
+        r["run"].as_str().unwrap().starts_with("sha256:") && r["run"].as_str().unwrap().len() == 71
     );
     assert_eq!(r["submission"], "Team A");
     assert_eq!(r["match_radius_arcsec"], 1.0);
@@ -375,7 +385,330 @@ fn directory_submissions_and_the_leaderboard() {
     );
     let md = std::fs::read_to_string(lb.join("leaderboard.md")).unwrap();
     assert!(md.find("perimage").unwrap() < md.find("worse.txt").unwrap());
+    // An earlier leaderboard is not overwritten without --force (each file).
+    for name in [
+        "fig3_m_sigma_c.svg",
+        "fig3_m_sigma_c.png",
+        "leaderboard.md",
+        "leaderboard.json",
+    ] {
+        let lb2 = fx.path("lb2");
+        let _ = std::fs::remove_dir_all(&lb2);
+        std::fs::create_dir(&lb2).unwrap();
+        std::fs::write(lb2.join(name), "keep").unwrap();
+        let o = stepsim(&[&"leaderboard", &a, &b, &"--out", &lb2]);
+        assert_eq!(o.status.code(), Some(1), "{name}");
+        assert!(stderr(&o).contains("already exists"), "{}", stderr(&o));
+        assert_eq!(std::fs::read_to_string(lb2.join(name)).unwrap(), "keep");
+        assert_eq!(std::fs::read_dir(&lb2).unwrap().count(), 1);
+    }
+    let o = stepsim(&[&"leaderboard", &a, &b, &"--out", &lb, &"--force"]);
+    assert!(o.status.success(), "{}", stderr(&o));
     let o = stepsim(&[&"leaderboard", &a, &fx.path("best/report.md")]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("report.md"));
+}
+
+#[test]
+fn score_refuses_when_any_file_it_writes_exists() {
+    let fx = Fixture::new();
+    let sub = fx.submission("team.txt", 0.0);
+    let out = fx.path("out");
+    let all = stepsim_harness::pipeline::output_paths(&out);
+    assert_eq!(all.len(), 10);
+    for p in &all {
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(p, "keep me").unwrap();
+        let o = fx.score(&sub, "out", &[]);
+        assert_eq!(o.status.code(), Some(1), "{}", p.display());
+        assert_eq!(
+            stderr(&o).trim_end(),
+            format!(
+                "stepsim: error: {}: already exists; pass --force to overwrite it",
+                p.display()
+            )
+        );
+        assert_eq!(std::fs::read_to_string(p).unwrap(), "keep me");
+        assert_eq!(
+            std::fs::read_dir(&out).unwrap().count(),
+            1,
+            "nothing else written"
+        );
+    }
+    // With --force every file is replaced, and the list is what is written.
+    assert!(fx.score(&sub, "out", &["--force"]).status.success());
+    let mut written: Vec<PathBuf> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    written.sort();
+    let mut want = all.clone();
+    want.sort();
+    assert_eq!(written, want);
+}
+
+/// A FITS file with the submission's columns and an extra complex column
+/// (`M`), written byte by byte (fitsio cannot write complex columns).
+fn fits_with_complex_column(rows: &[(String, f64, f64)], e1_tform_complex: bool) -> Vec<u8> {
+    let card = |o: &mut Vec<u8>, s: &str| {
+        let mut c = s.as_bytes().to_vec();
+        c.resize(80, b' ');
+        o.extend(c);
+    };
+    let pad = |o: &mut Vec<u8>, f: u8| {
+        while o.len() % 2880 != 0 {
+            o.push(f);
+        }
+    };
+    let mut o = Vec::new();
+    for c in [
+        "SIMPLE  =                    T",
+        "BITPIX  =                    8",
+        "NAXIS   =                    0",
+        "END",
+    ] {
+        card(&mut o, c);
+    }
+    pad(&mut o, b' ');
+    let e1 = if e1_tform_complex { "M" } else { "D" };
+    let width = 16 + 8 * 4 + if e1_tform_complex { 8 } else { 0 } + 16;
+    for c in [
+        "XTENSION= 'BINTABLE'".to_owned(),
+        "BITPIX  =                    8".into(),
+        "NAXIS   =                    2".into(),
+        format!("NAXIS1  = {width:>20}"),
+        format!("NAXIS2  = {:>20}", rows.len()),
+        "PCOUNT  =                    0".into(),
+        "GCOUNT  =                    1".into(),
+        "TFIELDS =                    6".into(),
+        "TTYPE1  = 'IMAGE'".into(),
+        "TFORM1  = '16A'".into(),
+        "TTYPE2  = 'X'".into(),
+        "TFORM2  = 'D'".into(),
+        "TTYPE3  = 'Y'".into(),
+        "TFORM3  = 'D'".into(),
+        "TTYPE4  = 'E1'".into(),
+        format!("TFORM4  = '{e1}'"),
+        "TTYPE5  = 'E2'".into(),
+        "TFORM5  = 'D'".into(),
+        "TTYPE6  = 'SPIN'".into(),
+        "TFORM6  = 'M'".into(),
+        "END".into(),
+    ] {
+        card(&mut o, &c);
+    }
+    pad(&mut o, b' ');
+    for (im, x, y) in rows {
+        let mut id = im.as_bytes().to_vec();
+        id.resize(16, b' ');
+        o.extend(id);
+        o.extend(x.to_be_bytes());
+        o.extend(y.to_be_bytes());
+        o.extend(0.01f64.to_be_bytes());
+        if e1_tform_complex {
+            o.extend(0.0f64.to_be_bytes());
+        }
+        o.extend(0.0f64.to_be_bytes());
+        o.extend([0u8; 16]);
+    }
+    pad(&mut o, 0);
+    o
+}
+
+#[test]
+fn hostile_submissions_exit_1_without_panic_hang_or_unbounded_read() {
+    let fx = Fixture::new();
+    let rows: Vec<(String, f64, f64)> = fx
+        .run
+        .index()
+        .images
+        .iter()
+        .map(|i| (i.image.clone(), 10.0, 12.0))
+        .collect();
+    // An extra complex column is ignored with a warning (fitsio panicked).
+    let p = fx.path("complex.fits");
+    std::fs::write(&p, fits_with_complex_column(&rows, false)).unwrap();
+    let o = fx.score(&p, "ok", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("warning: columns ignored: spin"),
+        "{}",
+        stderr(&o)
+    );
+    // A complex e1 is refused by name.
+    std::fs::write(&p, fits_with_complex_column(&rows, true)).unwrap();
+    let o = fx.score(&p, "out", &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o)
+            .contains("complex.fits, column `e1`: the column holds complex numbers (TFORM `M`)"),
+        "{}",
+        stderr(&o)
+    );
+    // A device and a FIFO: refused at once (the FIFO used to hang).
+    let o = fx.score(Path::new("/dev/zero"), "out", &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("/dev/zero: not a regular file (a device)"),
+        "{}",
+        stderr(&o)
+    );
+    let fifo = fx.path("fifo.txt");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let o = fx.score(&fifo, "out", &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("fifo.txt: not a regular file (a FIFO)"),
+        "{}",
+        stderr(&o)
+    );
+    // A 300 MiB file (sparse: no disk used) is refused by its size.
+    let big = fx.path("big.txt");
+    std::fs::File::create(&big)
+        .unwrap()
+        .set_len(300 << 20)
+        .unwrap();
+    let o = fx.score(&big, "out", &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("big.txt: larger than the limit of 256 MiB (the file)"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!fx.path("out").exists(), "nothing written");
+}
+
+#[test]
+fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
+    let fx = Fixture::new();
+    let sub = fx.submission("a.txt", 0.0);
+    assert!(
+        fx.score(
+            &sub,
+            "a",
+            &["--name", "x|y`z`<script>alert(1)</script>\nnext"]
+        )
+        .status
+        .success()
+    );
+    assert!(fx.score(&sub, "b", &[]).status.success());
+    assert!(
+        fx.score(
+            &sub,
+            "r2",
+            &["--match-radius-arcsec", "2", "--name", "wide"]
+        )
+        .status
+        .success()
+    );
+    assert!(fx.score(&sub, "same", &[]).status.success());
+    let a = fx.path("a/report.json");
+    let b = fx.path("b/report.json");
+    // Names cannot break the table or inject HTML.
+    let o = stepsim(&[&"leaderboard", &a, &b]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let md = String::from_utf8(o.stdout).unwrap();
+    let row = md.lines().find(|l| l.contains("script")).unwrap();
+    assert!(
+        row.contains(" | x\\|y\\`z\\`&lt;script&gt;alert(1)&lt;/script&gt; next | "),
+        "{row}"
+    );
+    let other_row = md.lines().find(|l| l.contains("a.txt")).unwrap();
+    assert_eq!(row.matches(" | ").count(), other_row.matches(" | ").count());
+    assert!(!md.contains("<script>"));
+    let report_md = std::fs::read_to_string(fx.path("a/report.md")).unwrap();
+    assert!(
+        report_md.starts_with("# Score of x\\|y\\`z\\`&lt;script&gt;"),
+        "{report_md}"
+    );
+    // Another radius, the same file twice, the same name twice.
+    let cases: [(&Path, &Path, String); 3] = [
+        (
+            &a,
+            &fx.path("r2/report.json"),
+            format!(
+                "{}: matched within 2 arcsec, {} within 1 arcsec; a leaderboard compares one \
+                 match radius",
+                fx.path("r2/report.json").display(),
+                a.display()
+            ),
+        ),
+        (
+            &b,
+            &b,
+            format!("{}: given twice (also as {})", b.display(), b.display()),
+        ),
+        (
+            &b,
+            &fx.path("same/report.json"),
+            format!(
+                "{}: submission `a.txt` is also the name in {}; score one of them again with \
+                 another --name",
+                fx.path("same/report.json").display(),
+                b.display()
+            ),
+        ),
+    ];
+    for (x, y, want) in cases {
+        let o = stepsim(&[&"leaderboard", &x, &y]);
+        assert_eq!(o.status.code(), Some(1));
+        assert_eq!(stderr(&o).trim_end(), format!("stepsim: error: {want}"));
+    }
+    // Another run (other shears, so another datasets.json).
+    let other = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(2);
+    spec.shears.truncate(3);
+    let run2 = make_run(&spec);
+    run2.write(&other.path().join("private")).unwrap();
+    let rows2 = run2.submission(&|t: &TruthRow, _| Some((t.e1, t.e2, 1.0)));
+    let sub2 = other.path().join("s2.txt");
+    std::fs::write(&sub2, submission_text(&run2.index(), &rows2)).unwrap();
+    let o = stepsim(&[
+        &"score",
+        &"--truth",
+        &other.path().join("private"),
+        &"--submission",
+        &sub2,
+        &"--out",
+        &other.path().join("o"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c = other.path().join("o/report.json");
+    let o = stepsim(&[&"leaderboard", &a, &c]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains(&format!(
+            "{}: scored against another run than {}",
+            c.display(),
+            a.display()
+        )) && e.contains("a leaderboard ranks the submissions of one run"),
+        "{e}"
+    );
+    // A device as a report: refused at once, not read forever.
+    let o = stepsim(&[&"leaderboard", &a, &"/dev/zero"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        "stepsim: error: /dev/zero: not a regular file (a device); only regular files are read"
+    );
+    // A report from before the run identity: score again.
+    let mut old: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&b).unwrap()).unwrap();
+    old.as_object_mut().unwrap().remove("run");
+    let oldp = fx.path("old.json");
+    std::fs::write(&oldp, old.to_string()).unwrap();
+    let o = stepsim(&[&"leaderboard", &a, &oldp]);
+    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        format!(
+            "stepsim: error: {}: this report has no `run` key (the run's identity): it was \
+             written by an earlier stepsim; score the submission again to rank it",
+            oldp.display()
+        )
+    );
 }

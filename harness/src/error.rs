@@ -52,10 +52,11 @@ pub enum HarnessError {
         /// What is wrong.
         message: String,
     },
-    /// A report already exists and `--force` was not given.
-    #[error("{path}: a report already exists; pass --force to overwrite it")]
+    /// A file `score` or `leaderboard` writes already exists and `--force`
+    /// was not given.
+    #[error("{path}: already exists; pass --force to overwrite it")]
     ReportExists {
-        /// The existing report.
+        /// The existing file.
         path: PathBuf,
     },
     /// The submission lacks images and `--allow-missing-images` was not given.

@@ -1,9 +1,11 @@
 //! `stepsim leaderboard`: several reports ranked in one table (paper
 //! Table 5 layout). Ranking: Q_c descending (larger is better); reports
-//! without Q_c last; ties by |⟨m⟩| then by name.
+//! without Q_c last; ties by |⟨m⟩| then by name. Only reports of one run
+//! and one match radius are ranked together ([`check_comparable`]).
 
 use crate::error::HarnessError;
-use crate::markdown::{TABLE5_HEADER, table5_cells};
+use crate::input::{MAX_REPORT_BYTES, read_regular_file};
+use crate::markdown::{TABLE5_HEADER, escape, show_number, table5_cells};
 use crate::report::{Report, Summary};
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -34,16 +36,70 @@ pub struct Leaderboard {
     pub entries: Vec<Entry>,
 }
 
-/// Reads one `report.json`.
+/// Reads one `report.json` (a regular file of at most
+/// [`MAX_REPORT_BYTES`]). A report without the run identity `run` (written
+/// before it existed) is refused with a sentence asking to score again.
 pub fn read_report(path: &Path) -> Result<Report, HarnessError> {
-    let text = std::fs::read_to_string(path).map_err(|e| HarnessError::Report {
+    let refuse = |message: String| HarnessError::Report {
         path: path.into(),
-        message: format!("cannot read: {e}"),
-    })?;
-    serde_json::from_str(&text).map_err(|e| HarnessError::Report {
-        path: path.into(),
-        message: format!("not a stepsim report: {e}"),
-    })
+        message,
+    };
+    let bytes = read_regular_file(path, MAX_REPORT_BYTES).map_err(|e| refuse(e.to_string()))?;
+    let value: serde_json::Value = serde_json::from_slice(&bytes)
+        .map_err(|e| refuse(format!("not a stepsim report (not JSON: {e})")))?;
+    if value.is_object() && value.get("submission").is_some() && value.get("run").is_none() {
+        return Err(refuse(
+            "this report has no `run` key (the run's identity): it was written by an \
+             earlier stepsim; score the submission again to rank it"
+                .into(),
+        ));
+    }
+    serde_json::from_value(value).map_err(|e| refuse(format!("not a stepsim report: {e}")))
+}
+
+/// Refuses a set of reports that cannot be ranked together, naming both
+/// files: the same file given twice, reports of different runs (`run`) or
+/// match radii, two reports with the same submission name.
+pub fn check_comparable(reports: &[(PathBuf, Report)]) -> Result<(), HarnessError> {
+    let canonical: Vec<PathBuf> = reports
+        .iter()
+        .map(|(p, _)| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone()))
+        .collect();
+    for (j, (pj, rj)) in reports.iter().enumerate() {
+        for (i, (pi, ri)) in reports[..j].iter().enumerate() {
+            let refuse = |message: String| HarnessError::Report {
+                path: pj.clone(),
+                message,
+            };
+            let other = pi.display();
+            if canonical[i] == canonical[j] {
+                return Err(refuse(format!("given twice (also as {other})")));
+            }
+            if ri.run != rj.run {
+                return Err(refuse(format!(
+                    "scored against another run than {other} (run `{}`, there `{}`); a \
+                     leaderboard ranks the submissions of one run",
+                    rj.run, ri.run
+                )));
+            }
+            if ri.match_radius_arcsec.to_bits() != rj.match_radius_arcsec.to_bits() {
+                return Err(refuse(format!(
+                    "matched within {} arcsec, {other} within {} arcsec; a leaderboard \
+                     compares one match radius",
+                    show_number(rj.match_radius_arcsec),
+                    show_number(ri.match_radius_arcsec)
+                )));
+            }
+            if ri.submission == rj.submission {
+                return Err(refuse(format!(
+                    "submission `{}` is also the name in {other}; score one of them again \
+                     with another --name",
+                    rj.submission
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Ranks reports (pure).
@@ -95,7 +151,13 @@ pub fn leaderboard_markdown(reports: &[(PathBuf, Report)], board: &Leaderboard) 
             .find(|(p, r)| *p == e.report && r.submission == e.submission)
             .map(|x| &x.1);
         if let Some(r) = r {
-            let _ = writeln!(o, "| {} | {} {}", e.rank, e.submission, table5_cells(r));
+            let _ = writeln!(
+                o,
+                "| {} | {} {}",
+                e.rank,
+                escape(&e.submission),
+                table5_cells(r)
+            );
         }
     }
     o

@@ -6,6 +6,8 @@
 //!
 //! ```text
 //! submission.rs  read + check a submission (text, CSV, FITS, directory)
+//! input.rs       bounded reads of regular files, gzip within a cap
+//! fits_table.rs  a submission's FITS table via raw cfitsio; error sentences
 //! truth_set.rs   RUN/private: datasets.json, truth/<image>.fits
 //! matching.rs    nearest truth object within the radius (grid + brute force)
 //! metrics.rs     per-image sums -> per-dataset, per-PSF, summary, bins
@@ -23,6 +25,8 @@
 pub mod bootstrap;
 pub mod error;
 pub mod fit;
+pub mod fits_table;
+pub mod input;
 pub mod leaderboard;
 pub mod markdown;
 pub mod matching;

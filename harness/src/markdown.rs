@@ -4,12 +4,56 @@
 use crate::report::{Binned, Report};
 use std::fmt::Write as _;
 
-/// Formats an optional number with `d` decimals; `—` when missing.
-pub fn num(v: Option<f64>, d: usize) -> String {
-    match v {
-        Some(x) if x.is_finite() => format!("{x:.d$}"),
-        _ => "—".into(),
+/// Formats a number with `d` decimals when it is of a sane size
+/// (|x| < 10⁶), in scientific notation (`d` significant decimals) otherwise,
+/// so that no value, however absurd, prints as hundreds of digits; `—` when
+/// not finite.
+pub fn fixed(x: f64, d: usize) -> String {
+    if !x.is_finite() {
+        "—".into()
+    } else if x.abs() < 1e6 {
+        format!("{x:.d$}")
+    } else {
+        format!("{x:.d$e}")
     }
+}
+
+/// Formats an optional number with `d` decimals ([`fixed`]); `—` when
+/// missing.
+pub fn num(v: Option<f64>, d: usize) -> String {
+    v.map_or_else(|| "—".into(), |x| fixed(x, d))
+}
+
+/// Formats a number shortly, as Rust does (`0.25`, `1e308`, `-3`) but in
+/// scientific notation outside 10⁻⁴ ≤ |x| < 10¹⁵; `inf`, `-inf`, `NaN`
+/// as such.
+pub fn show_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e15).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+/// Escapes text for a Markdown table cell or heading: `|`, backslash, backticks,
+/// `*`, `_`, `[`, `]`, `<`, `>` and `&` cannot change the layout or inject
+/// HTML, and line breaks and other control characters become spaces.
+pub fn escape(s: &str) -> String {
+    let mut o = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '<' => o.push_str("&lt;"),
+            '>' => o.push_str("&gt;"),
+            '&' => o.push_str("&amp;"),
+            '|' | '\\' | '`' | '*' | '_' | '[' | ']' | '#' => {
+                o.push('\\');
+                o.push(c);
+            }
+            c if c.is_control() => o.push(' '),
+            c => o.push(c),
+        }
+    }
+    o
 }
 
 /// Formats `value ± error`.
@@ -50,9 +94,9 @@ fn binned(out: &mut String, title: &str, unit: &str, b: &Binned) {
     for bin in b.bins.iter().chain(std::iter::once(&b.all)) {
         let label = match (bin.lo, bin.hi) {
             (None, None) => "all".to_owned(),
-            (None, Some(h)) => format!("< {h}"),
-            (Some(l), None) => format!("≥ {l}"),
-            (Some(l), Some(h)) => format!("{l} – {h}"),
+            (None, Some(h)) => format!("< {}", show_number(h)),
+            (Some(l), None) => format!("≥ {}", show_number(l)),
+            (Some(l), Some(h)) => format!("{} – {}", show_number(l), show_number(h)),
         };
         let _ = writeln!(
             out,
@@ -67,14 +111,14 @@ fn binned(out: &mut String, title: &str, unit: &str, b: &Binned) {
 /// The Markdown report.
 pub fn report_markdown(r: &Report) -> String {
     let mut o = String::new();
-    let _ = writeln!(o, "# Score of `{}`\n", r.submission);
+    let _ = writeln!(o, "# Score of {}\n", escape(&r.submission));
     let _ = writeln!(
         o,
         "Matched within {} arcsec. Definitions: `docs/scoring.md` (paper section 4).\n",
-        r.match_radius_arcsec
+        show_number(r.match_radius_arcsec)
     );
     for w in &r.warnings {
-        let _ = writeln!(o, "- **warning:** {w}");
+        let _ = writeln!(o, "- **warning:** {}", escape(w));
     }
     let _ = writeln!(
         o,
@@ -82,10 +126,10 @@ pub fn report_markdown(r: &Report) -> String {
     );
     let _ = writeln!(o, "| submission {TABLE5_HEADER}");
     let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let _ = writeln!(o, "| {} {}", r.submission, table5_cells(r));
+    let _ = writeln!(o, "| {} {}", escape(&r.submission), table5_cells(r));
     if let Some(b) = &r.summary.bootstrap {
         let ci = |v: Option<[f64; 2]>, d: usize| match v {
-            Some([a, b]) => format!("[{a:.d$}, {b:.d$}]"),
+            Some([a, b]) => format!("[{}, {}]", fixed(a, d), fixed(b, d)),
             None => "—".into(),
         };
         let _ = writeln!(
@@ -116,7 +160,7 @@ pub fn report_markdown(r: &Report) -> String {
         let _ = writeln!(
             o,
             "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            p.psf,
+            escape(&p.psf),
             pm(p.m, p.m_err, 4),
             pm(p.q, p.q_err, 3),
             pm(p.c1, p.c1_err, 5),
@@ -145,16 +189,16 @@ pub fn report_markdown(r: &Report) -> String {
     for d in &r.datasets {
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
-            d.dataset,
-            d.psf,
-            d.g1_true,
-            d.g2_true,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            escape(&d.dataset),
+            escape(&d.psf),
+            show_number(d.g1_true),
+            show_number(d.g2_true),
             d.n_images,
             d.n_objects,
-            d.ngal_per_arcmin2,
-            d.pct_stars,
-            d.pct_false,
+            fixed(d.ngal_per_arcmin2, 1),
+            fixed(d.pct_stars, 2),
+            fixed(d.pct_false, 2),
             num(d.pct_stars_weighted, 2),
             num(d.pct_false_weighted, 2),
             pm(d.g1, d.g1_err, 5),
@@ -182,4 +226,57 @@ pub fn report_markdown(r: &Report) -> String {
          `fig5_residual_magnitude` (each as `.svg` and `.png`)."
     );
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_print_short_whatever_their_size() {
+        assert_eq!(fixed(0.012345, 4), "0.0123");
+        assert_eq!(fixed(-999_999.0, 1), "-999999.0");
+        assert_eq!(fixed(1e308, 4), "1.0000e308");
+        assert_eq!(fixed(-2.5e7, 1), "-2.5e7");
+        assert_eq!(fixed(f64::INFINITY, 2), "—");
+        assert_eq!(num(None, 2), "—");
+        assert_eq!(show_number(1e308), "1e308");
+        assert_eq!(show_number(0.25), "0.25");
+        assert_eq!(show_number(-3.0), "-3");
+        assert_eq!(show_number(1e-300), "1e-300");
+        assert_eq!(show_number(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn escaped_text_cannot_break_a_table_or_inject_html() {
+        assert_eq!(
+            escape("a|b`c`<script>&\n*_[x]#\\"),
+            "a\\|b\\`c\\`&lt;script&gt;&amp; \\*\\_\\[x\\]\\#\\\\"
+        );
+    }
+
+    #[test]
+    fn report_md_of_absurd_values_stays_readable() {
+        let mut r: Report =
+            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+        r.submission = "evil|name\n# heading".into();
+        r.match_radius_arcsec = 1e300;
+        r.datasets[0].g1 = Some(1e308);
+        r.datasets[0].g1_true = -1e300;
+        r.datasets[0].ngal_per_arcmin2 = 1e300;
+        r.psfs[0].m = Some(-1e308);
+        r.summary.m_mean = Some(1e308);
+        r.warnings.push("columns ignored: <b>|</b>".into());
+        let md = report_markdown(&r);
+        let longest = md.lines().map(|l| l.chars().count()).max().unwrap();
+        assert!(longest < 400, "a line of {longest} characters");
+        assert!(
+            md.starts_with("# Score of evil\\|name \\# heading\n"),
+            "{md}"
+        );
+        assert!(md.contains("Matched within 1e300 arcsec"));
+        assert!(md.contains("| 1.00000e308 ± 0.00100 |"), "{md}");
+        assert!(md.contains("columns ignored: &lt;b&gt;\\|&lt;/b&gt;"));
+        assert!(!md.contains("<b>"));
+    }
 }

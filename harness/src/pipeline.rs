@@ -158,6 +158,7 @@ pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> 
     });
     Report {
         submission: name,
+        run: p.truth.run.clone(),
         match_radius_arcsec: opts.match_radius_arcsec,
         datasets: scores.datasets,
         psfs: scores.psfs,
@@ -182,18 +183,51 @@ pub const REPORT_JSON: &str = "report.json";
 /// File name of the Markdown report.
 pub const REPORT_MD: &str = "report.md";
 
-/// Writes `DIR/report.json`, `DIR/report.md` and the plots, each atomically
-/// (the JSON last). Refuses, before writing anything, when any of these
-/// files exists unless `force`. Returns the paths written.
+/// Base names of the plots `score` writes, each as `.svg` and `.png`.
+pub const REPORT_FIGURES: [&str; 4] = [
+    "fig2_shear_response",
+    "fig3_m_sigma_c",
+    "fig4_mselc_muncontaminated",
+    "fig5_residual_magnitude",
+];
+
+/// Every file [`write_outputs`] writes into `dir`, in the order written.
+pub fn output_paths(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = REPORT_FIGURES
+        .iter()
+        .flat_map(|n| [dir.join(format!("{n}.svg")), dir.join(format!("{n}.png"))])
+        .collect();
+    v.push(dir.join(REPORT_MD));
+    v.push(dir.join(REPORT_JSON));
+    v
+}
+
+/// Refuses, unless `force`, when any of the files `score` writes into `dir`
+/// already exists (or is a link, even a broken one), naming the first.
+pub fn check_outputs_free(dir: &Path, force: bool) -> Result<(), HarnessError> {
+    if force {
+        return Ok(());
+    }
+    match output_paths(dir)
+        .into_iter()
+        .find(|p| std::fs::symlink_metadata(p).is_ok())
+    {
+        Some(path) => Err(HarnessError::ReportExists { path }),
+        None => Ok(()),
+    }
+}
+
+/// Writes `DIR/report.json`, `DIR/report.md` and the plots
+/// ([`output_paths`]), each atomically (the JSON last). Refuses when any of
+/// them exists unless `force` ([`check_outputs_free`]). Returns the paths
+/// written.
 pub fn write_outputs(
     dir: &Path,
     report: &Report,
     force: bool,
 ) -> Result<Vec<PathBuf>, HarnessError> {
+    check_outputs_free(dir, force)?;
     let json_path = dir.join(REPORT_JSON);
-    if json_path.exists() && !force {
-        return Err(HarnessError::ReportExists { path: json_path });
-    }
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     for (name, fig) in crate::plots::report_figures(report) {
         files.push((dir.join(format!("{name}.svg")), fig.to_svg().into_bytes()));
@@ -211,9 +245,6 @@ pub fn write_outputs(
     let mut json = serde_json::to_string_pretty(report).unwrap_or_default();
     json.push('\n');
     files.push((json_path, json.into_bytes()));
-    if !force && let Some((path, _)) = files.iter().find(|(p, _)| p.exists()) {
-        return Err(HarnessError::ReportExists { path: path.clone() });
-    }
     let mut written = Vec::new();
     for (path, bytes) in files {
         stepsim_sim::io::write_bytes_atomically(&path, &bytes)?;

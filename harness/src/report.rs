@@ -5,7 +5,8 @@
 //! SPEC §7: the `*_err` of every fitted parameter (SPEC asks for errors on
 //! every parameter), `m2`/`q2` only when component 2 is fitted, `q_c` and
 //! `bootstrap` in `summary`, and `warnings` at the top level (ignored
-//! columns, images skipped). See `docs/scoring.md`.
+//! columns, images skipped), and `run`, the run's identity. See
+//! `docs/scoring.md`.
 
 use serde::{Deserialize, Serialize};
 
@@ -14,6 +15,10 @@ use serde::{Deserialize, Serialize};
 pub struct Report {
     /// Submission name (`--name`, default the submission's file name).
     pub submission: String,
+    /// The run scored against: `sha256:` + SHA-256 of its `datasets.json`
+    /// ([`crate::truth_set::run_identity`]). The leaderboard ranks only
+    /// reports of one run.
+    pub run: String,
     /// Match radius used.
     pub match_radius_arcsec: f64,
     /// One entry per dataset with at least one submitted image.

@@ -1,11 +1,12 @@
 //! Reading a submission (SPEC §6): one table, or a directory of per-image
 //! tables, checked strictly against the run's images.
 //!
-//! Accepted forms, told apart by content (not by file name):
-//! * **FITS binary table** (the file starts with `SIMPLE  =`, or is
-//!   gzip-compressed, which cfitsio reads): the first
-//!   binary or ASCII table extension is read; column names are matched
-//!   case-insensitively; `image` must be a string column.
+//! Accepted forms, told apart by content (not by file name), each possibly
+//! gzip-compressed (inflated here within the input limit):
+//! * **FITS table** (the data start with `SIMPLE  =`): the first binary or
+//!   ASCII table extension is read through [`crate::fits_table`] (column
+//!   types from cfitsio's codes; extra columns of any type are ignored);
+//!   column names are matched case-insensitively; `image` must be text.
 //! * **Whitespace ASCII**: the first non-blank line is the header, `#`
 //!   followed by the column names (`# image x y e1 e2 weight`); later lines
 //!   starting with `#` are comments; fields are separated by blanks or tabs.
@@ -13,19 +14,33 @@
 //!   (`image,x,y,e1,e2,weight`; a leading `#` is tolerated); fields may be
 //!   wrapped in double quotes; no embedded commas.
 //!
+//! Text is UTF-8 (a leading byte-order mark is skipped); lines end with LF,
+//! CR LF or a lone CR.
+//!
 //! Required columns `image`, `x`, `y`, `e1`, `e2`; optional `weight`
 //! (default 1, must be finite and ≥ 0). In a directory each file is named
 //! `<image-id>.<ext>` and may omit `image` (when present it must equal the
 //! file's id). Other columns are ignored and reported as warnings.
 //!
 //! Refused, naming file, line (FITS: row) and column: an unknown image id, a
-//! missing required column, a repeated column, a value that does not parse,
-//! NaN or infinity, x or y off the image (the half-pixel border,
-//! 0.5 ≤ x ≤ width + 0.5, is on the image), a negative weight, a line with
-//! the wrong number of fields, a duplicate row (same image, x and y as an
-//! earlier row), a file with no rows. The submission is only read.
+//! missing required column, a repeated column, a required FITS column of
+//! the wrong type, a value that does not parse, NaN or infinity, x or y off
+//! the image (the half-pixel border, 0.5 ≤ x ≤ width + 0.5, is on the
+//! image), a negative weight, |e1| or |e2| above [`MAX_ABS_SHEAR`], weights
+//! whose sums over an image overflow, a line with the wrong number of
+//! fields, binary content (NUL or control bytes, UTF-16), a duplicate row
+//! (same image, x and y as an earlier row), a file with no rows; and, before
+//! reading, anything that is not a regular file, a symbolic link inside a
+//! directory, and more bytes than the limit ([`crate::input`]). The
+//! submission is only read.
 
 use crate::error::HarnessError;
+use crate::fits_table::{ColumnKind, Table};
+use crate::input::{
+    InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, is_gzip, kind_of, read_entry_file,
+    read_regular_file, show_bytes,
+};
+use crate::markdown::show_number;
 use crate::truth_set::ImageIndex;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -80,31 +95,67 @@ pub struct FileRows {
     pub rows: Vec<(usize, SubRow)>,
     /// Columns ignored.
     pub ignored_columns: Vec<String>,
+    /// Bytes of the file after gzip decompression (as stored when not
+    /// compressed).
+    pub uncompressed_bytes: u64,
 }
 
-/// Reads a submission file or directory.
+/// Largest |e1| or |e2| accepted. A shear estimate beyond it can only be a
+/// failed measurement; refusing it keeps every sum of the metrics finite and
+/// every printed number short.
+pub const MAX_ABS_SHEAR: f64 = 1e6;
+
+/// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`].
 pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, HarnessError> {
-    let meta = std::fs::metadata(path)
-        .map_err(|e| HarnessError::submission(path, None, None, format!("cannot read: {e}")))?;
+    read_submission_limited(path, index, MAX_SUBMISSION_BYTES)
+}
+
+/// Reads a submission file or directory of at most `max_bytes` bytes (the
+/// sum over its files, both as stored and after gzip decompression).
+///
+/// The top-level `path` may be a symbolic link (it is followed: the organiser
+/// named it). In a directory, entries whose names start with `.` and
+/// subdirectories are skipped; an entry that is a symbolic link, a FIFO, a
+/// socket or a device is refused, so that nothing outside the directory is
+/// ever read.
+pub fn read_submission_limited(
+    path: &Path,
+    index: &ImageIndex,
+    max_bytes: u64,
+) -> Result<Submission, HarnessError> {
+    let at = |p: &Path, m: String| HarnessError::submission(p, None, None, m);
+    let meta = std::fs::metadata(path).map_err(|e| at(path, format!("cannot read: {e}")))?;
     let files: Vec<(PathBuf, Option<usize>)> = if meta.is_dir() {
         let mut entries = Vec::new();
-        let rd = std::fs::read_dir(path)
-            .map_err(|e| HarnessError::submission(path, None, None, format!("cannot list: {e}")))?;
+        let rd = std::fs::read_dir(path).map_err(|e| at(path, format!("cannot list: {e}")))?;
         for entry in rd {
-            let entry = entry.map_err(|e| {
-                HarnessError::submission(path, None, None, format!("cannot list: {e}"))
-            })?;
+            let entry = entry.map_err(|e| at(path, format!("cannot list: {e}")))?;
             let p = entry.path();
             let name = entry.file_name().to_string_lossy().into_owned();
-            if name.starts_with('.') || p.is_dir() {
+            if name.starts_with('.') {
                 continue;
+            }
+            let ft = entry
+                .file_type()
+                .map_err(|e| at(&p, format!("cannot read: {e}")))?;
+            if ft.is_dir() {
+                continue;
+            }
+            if ft.is_symlink() {
+                return Err(at(
+                    &p,
+                    "is a symbolic link; a submission directory must hold the files \
+                     themselves (links are refused so that nothing outside it is read)"
+                        .into(),
+                ));
+            }
+            if !ft.is_file() {
+                return Err(at(&p, InputError::NotRegular(kind_of(&ft)).to_string()));
             }
             let stem = name.split('.').next().unwrap_or_default().to_owned();
             let Some(&i) = index.by_id.get(&stem) else {
-                return Err(HarnessError::submission(
+                return Err(at(
                     &p,
-                    None,
-                    None,
                     format!("unknown image id `{stem}` (files are named <image-id>.<ext>)"),
                 ));
             };
@@ -113,10 +164,8 @@ pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, Ha
         entries.sort();
         for w in entries.windows(2) {
             if w[0].1 == w[1].1 {
-                return Err(HarnessError::submission(
+                return Err(at(
                     &w[1].0,
-                    None,
-                    None,
                     format!(
                         "a second file for image `{}`",
                         index.images[w[1].1.unwrap_or(0)].image
@@ -125,30 +174,53 @@ pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, Ha
             }
         }
         if entries.is_empty() {
-            return Err(HarnessError::submission(
-                path,
-                None,
-                None,
-                "empty directory",
-            ));
+            return Err(at(path, "empty directory".into()));
+        }
+        // The sizes as listed, before reading anything.
+        let mut total = 0u64;
+        for (p, _) in &entries {
+            let len = std::fs::symlink_metadata(p)
+                .map_err(|e| at(p, format!("cannot read: {e}")))?
+                .len();
+            total = total.saturating_add(len);
+            if total > max_bytes {
+                return Err(at(
+                    p,
+                    format!(
+                        "the submission's files together are larger than the limit of {}",
+                        show_bytes(max_bytes)
+                    ),
+                ));
+            }
         }
         entries
     } else {
         vec![(path.to_path_buf(), None)]
     };
+    let follow = files.len() == 1 && files[0].1.is_none();
     let parsed: Vec<Result<FileRows, HarnessError>> = files
         .par_iter()
         .map(|(p, fixed)| {
-            let bytes = std::fs::read(p).map_err(|e| {
-                HarnessError::submission(p, None, None, format!("cannot read: {e}"))
-            })?;
-            parse_file(p, &bytes, index, *fixed)
+            let bytes = read_file(p, max_bytes, follow).map_err(|e| at(p, e.to_string()))?;
+            parse_file_limited(p, &bytes, index, *fixed, max_bytes)
         })
         .collect();
     let mut per_image = vec![Vec::new(); index.images.len()];
     let mut ignored = Vec::new();
-    for r in parsed {
+    let mut total = 0u64;
+    for ((p, _), r) in files.iter().zip(parsed) {
         let fr = r?;
+        total = total.saturating_add(fr.uncompressed_bytes);
+        if total > max_bytes {
+            return Err(at(
+                p,
+                format!(
+                    "the submission's files together are larger than the limit of {} \
+                     after gzip decompression",
+                    show_bytes(max_bytes)
+                ),
+            ));
+        }
         for (i, row) in fr.rows {
             per_image[i].push(row);
         }
@@ -163,21 +235,51 @@ pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, Ha
     })
 }
 
-/// Parses the bytes of one submission file (any accepted form). `fixed`
-/// is the image of a per-image file. Pure apart from FITS, which cfitsio
-/// reads from `path`.
+/// [`read_regular_file`], or [`read_entry_file`] (links refused) unless
+/// `follow`.
+fn read_file(path: &Path, cap: u64, follow: bool) -> Result<Vec<u8>, InputError> {
+    if follow {
+        read_regular_file(path, cap)
+    } else {
+        read_entry_file(path, cap)
+    }
+}
+
+/// Parses the bytes of one submission file (any accepted form), within
+/// [`MAX_SUBMISSION_BYTES`]. `fixed` is the image of a per-image file.
+/// Pure apart from FITS, which cfitsio reads from `path`.
 pub fn parse_file(
     path: &Path,
     bytes: &[u8],
     index: &ImageIndex,
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
-    let is_fits = bytes.starts_with(b"SIMPLE  =") || bytes.starts_with(&[0x1f, 0x8b]);
-    let fr = if is_fits {
-        parse_fits(path, index, fixed)?
+    parse_file_limited(path, bytes, index, fixed, MAX_SUBMISSION_BYTES)
+}
+
+/// [`parse_file`] with the cap on the decompressed size of a gzip file.
+pub fn parse_file_limited(
+    path: &Path,
+    bytes: &[u8],
+    index: &ImageIndex,
+    fixed: Option<usize>,
+    max_bytes: u64,
+) -> Result<FileRows, HarnessError> {
+    let inflated;
+    let data = if is_gzip(bytes) {
+        inflated = gunzip_bounded(bytes, max_bytes)
+            .map_err(|e| HarnessError::submission(path, None, None, e.to_string()))?;
+        &inflated[..]
     } else {
-        parse_text(path, bytes, index, fixed)?
+        bytes
     };
+    let is_fits = data.starts_with(b"SIMPLE  =");
+    let mut fr = if is_fits {
+        parse_fits(path, data, index, fixed)?
+    } else {
+        parse_text(path, data, index, fixed)?
+    };
+    fr.uncompressed_bytes = data.len() as u64;
     if fr.rows.is_empty() {
         return Err(HarnessError::submission(
             path,
@@ -187,7 +289,41 @@ pub fn parse_file(
         ));
     }
     check_duplicates(path, &fr.rows, index, !is_fits)?;
+    check_sums(path, &fr.rows, index, !is_fits)?;
     Ok(fr)
+}
+
+/// Refuses weights whose sums over an image overflow: Σw, Σw|e1| and
+/// Σw|e2| must stay finite (every image's rows are in one file). Names the
+/// row at which a sum first becomes infinite.
+fn check_sums(
+    path: &Path,
+    rows: &[(usize, SubRow)],
+    index: &ImageIndex,
+    text: bool,
+) -> Result<(), HarnessError> {
+    let mut sums = vec![[0.0f64; 3]; index.images.len()];
+    for (i, r) in rows {
+        let s = &mut sums[*i];
+        s[0] += r.weight;
+        s[1] += r.weight * r.e1.abs();
+        s[2] += r.weight * r.e2.abs();
+        if s.iter().any(|v| !v.is_finite()) {
+            let msg = format!(
+                "weight {} makes the weighted sums of image `{}` overflow (larger than \
+                 {:e}); scale the weights down",
+                show_number(r.weight),
+                index.images[*i].image,
+                f64::MAX
+            );
+            return Err(if text {
+                HarnessError::submission(path, Some(r.line), Some("weight"), msg)
+            } else {
+                HarnessError::submission_row(path, r.line, Some("weight"), msg)
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The column layout of a table.
@@ -278,7 +414,7 @@ fn make_row(
     let names = ["x", "y", "e1", "e2", "weight"];
     for (v, n) in vals.iter().zip(names) {
         if !v.is_finite() {
-            return Err(err(n, format!("value `{v}` is not finite")));
+            return Err(err(n, format!("value `{}` is not finite", show_number(*v))));
         }
     }
     let [x, y, e1, e2, weight] = vals;
@@ -301,7 +437,22 @@ fn make_row(
         ));
     }
     if weight < 0.0 {
-        return Err(err("weight", format!("weight {weight} is negative")));
+        return Err(err(
+            "weight",
+            format!("weight {} is negative", show_number(weight)),
+        ));
+    }
+    for (v, n) in [(e1, "e1"), (e2, "e2")] {
+        if v.abs() > MAX_ABS_SHEAR {
+            return Err(err(
+                n,
+                format!(
+                    "{n} = {} is beyond the accepted range (|{n}| ≤ {MAX_ABS_SHEAR:e}); \
+                     cut failed measurements",
+                    show_number(v)
+                ),
+            ));
+        }
     }
     Ok((
         image,
@@ -355,12 +506,34 @@ fn parse_text(
     let mut header: Option<(Layout, usize, bool)> = None; // layout, n columns, csv?
     let mut rows = Vec::new();
     let mut fields: Vec<&str> = Vec::new();
-    for (k, raw) in bytes.split(|&b| b == b'\n').enumerate() {
+    if bytes.starts_with(&[0xff, 0xfe]) || bytes.starts_with(&[0xfe, 0xff]) {
+        return Err(HarnessError::submission(
+            path,
+            Some(1),
+            None,
+            "the file is UTF-16 text; save it as UTF-8",
+        ));
+    }
+    let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
+    for (k, raw) in Lines(bytes).enumerate() {
         let line_no = k as u64 + 1;
+        if let Some(c) = raw.iter().find(|&&c| c < 0x20 && c != b'\t' || c == 0x7f) {
+            let what = if *c == 0 {
+                "a NUL byte".to_owned()
+            } else {
+                format!("the control character 0x{c:02x}")
+            };
+            return Err(HarnessError::submission(
+                path,
+                Some(line_no),
+                None,
+                format!("contains {what}: this is binary data, not a text table"),
+            ));
+        }
         let text = std::str::from_utf8(raw).map_err(|_| {
             HarnessError::submission(path, Some(line_no), None, "not text (invalid UTF-8)")
         })?;
-        let text = text.strip_suffix('\r').unwrap_or(text).trim();
+        let text = text.trim();
         if text.is_empty() {
             continue;
         }
@@ -437,7 +610,33 @@ fn parse_text(
     Ok(FileRows {
         rows,
         ignored_columns: lay.ignored,
+        uncompressed_bytes: 0,
     })
+}
+
+/// The lines of a text, ended by LF, CR LF or a lone CR (without the ends).
+struct Lines<'a>(&'a [u8]);
+
+impl<'a> Iterator for Lines<'a> {
+    type Item = &'a [u8];
+    fn next(&mut self) -> Option<&'a [u8]> {
+        if self.0.is_empty() {
+            return None;
+        }
+        let end = self
+            .0
+            .iter()
+            .position(|&c| c == b'\n' || c == b'\r')
+            .unwrap_or(self.0.len());
+        let line = &self.0[..end];
+        let skip = match self.0.get(end..end + 2) {
+            Some(b"\r\n") => 2,
+            Some(_) => 1,
+            None => usize::from(end < self.0.len()),
+        };
+        self.0 = &self.0[end + skip..];
+        Some(line)
+    }
 }
 
 fn unquote(s: &str) -> &str {
@@ -448,102 +647,76 @@ fn unquote(s: &str) -> &str {
 
 fn parse_fits(
     path: &Path,
+    data: &[u8],
     index: &ImageIndex,
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
-    use fitsio::hdu::HduInfo;
-    let mut f = stepsim_sim::io::fits::open_fits(path)?;
-    let mut found = None;
-    let mut last_error = String::from("none");
-    // Walk the extensions by index (fitsio's HDU iterator panics on a
-    // corrupt header; `hdu(i)` returns an error instead).
-    for i in 1..=999 {
-        let hdu = match f.hdu(i) {
-            Ok(h) => h,
-            Err(e) => {
-                last_error = e.to_string();
-                break;
-            }
-        };
-        if let HduInfo::TableInfo {
-            column_descriptions,
-            num_rows,
-        } = &hdu.info
-        {
-            let (cols, n) = (column_descriptions.clone(), *num_rows);
-            found = Some((hdu, cols, n));
-            break;
-        }
-    }
-    let Some((hdu, cols, nrows)) = found else {
+    if path.to_str().is_none() {
+        // fitsio panics converting such a name for cfitsio.
         return Err(HarnessError::submission(
             path,
             None,
             None,
-            format!("no readable table extension in this FITS file (cfitsio: {last_error})"),
+            "the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
         ));
-    };
-    let names: Vec<String> = cols.iter().map(|c| c.name.clone()).collect();
+    }
+    let f = stepsim_sim::io::fits::open_fits(path)?;
+    let mut t = Table::first_table(f, path, data.len() as u64)?;
+    let names: Vec<String> = t.columns.iter().map(|c| c.name.clone()).collect();
     let lay = layout(path, None, &names, fixed)?;
-    for (i, c) in cols.iter().enumerate() {
-        let used = [
-            Some(lay.x),
-            Some(lay.y),
-            Some(lay.e1),
-            Some(lay.e2),
-            lay.weight,
-        ];
-        if used.contains(&Some(i)) && c.data_type.repeat != 1 {
-            return Err(HarnessError::submission(
+    let used = [
+        Some(lay.x),
+        Some(lay.y),
+        Some(lay.e1),
+        Some(lay.e2),
+        lay.weight,
+    ];
+    for (i, c) in t.columns.iter().enumerate() {
+        let wrong = |what: &str, need: &str| {
+            HarnessError::submission(
                 path,
                 None,
                 Some(&names[i].to_ascii_lowercase()),
                 format!(
-                    "a vector column (repeat {}) where one number per row is needed",
-                    c.data_type.repeat
+                    "the column holds {what} (TFORM `{}`) where {need} is needed",
+                    c.tform
                 ),
-            ));
+            )
+        };
+        match &c.kind {
+            ColumnKind::Number if Some(i) == lay.image => {
+                return Err(wrong("numbers", "text (the image id)"));
+            }
+            ColumnKind::Text if used.contains(&Some(i)) => {
+                return Err(wrong("text", "one number per row"));
+            }
+            ColumnKind::Other(what) if used.contains(&Some(i)) => {
+                return Err(wrong(what, "one number per row"));
+            }
+            ColumnKind::Other(what) if Some(i) == lay.image => {
+                return Err(wrong(what, "text (the image id)"));
+            }
+            _ => {}
         }
     }
-    let read = |f: &mut fitsio::FitsFile, col: usize| -> Result<Vec<f64>, HarnessError> {
-        hdu.read_col::<f64>(f, names[col].as_str()).map_err(|e| {
-            HarnessError::submission(
-                path,
-                None,
-                Some(&names[col].to_ascii_lowercase()),
-                format!("cannot read as numbers: {e}"),
-            )
-        })
-    };
-    let xs = read(&mut f, lay.x)?;
-    let ys = read(&mut f, lay.y)?;
-    let e1s = read(&mut f, lay.e1)?;
-    let e2s = read(&mut f, lay.e2)?;
+    let cols = t.columns.clone();
+    let xs = t.numbers(&cols[lay.x])?;
+    let ys = t.numbers(&cols[lay.y])?;
+    let e1s = t.numbers(&cols[lay.e1])?;
+    let e2s = t.numbers(&cols[lay.e2])?;
     let ws = match lay.weight {
-        Some(c) => Some(read(&mut f, c)?),
+        Some(c) => Some(t.numbers(&cols[c])?),
         None => None,
     };
-    let ids: Option<Vec<String>> = match lay.image {
-        Some(c) => Some(
-            hdu.read_col::<String>(&mut f, names[c].as_str())
-                .map_err(|e| {
-                    HarnessError::submission(
-                        path,
-                        None,
-                        Some("image"),
-                        format!("cannot read as text: {e}"),
-                    )
-                })?,
-        ),
+    let ids = match lay.image {
+        Some(c) => Some(t.strings(&cols[c])?),
         None => None,
     };
-    let mut rows = Vec::with_capacity(nrows);
-    for r in 0..nrows.min(xs.len()) {
+    let mut rows = Vec::with_capacity(t.n_rows);
+    for r in 0..t.n_rows {
         let row_no = r as u64 + 1;
         let err = |c: &str, m: String| HarnessError::submission_row(path, row_no, Some(c), m);
-        let id = ids
-            .as_ref()
-            .map(|v| v.get(r).map(|s| s.trim()).unwrap_or(""));
+        let id = ids.as_ref().map(|v| v[r].as_str());
         let image = resolve_image(index, fixed, id, &err)?;
         let vals = [
             xs[r],
@@ -557,6 +730,7 @@ fn parse_fits(
     Ok(FileRows {
         rows,
         ignored_columns: lay.ignored,
+        uncompressed_bytes: 0,
     })
 }
 

@@ -88,14 +88,30 @@ pub struct TruthSet {
     pub index: ImageIndex,
     /// The private directory.
     pub dir: PathBuf,
+    /// The run's identity: [`run_identity`] of the `datasets.json` bytes.
+    pub run: String,
+}
+
+/// The identity of a run: `sha256:` and the SHA-256 of its `datasets.json`
+/// bytes, in lower-case hex. `datasets.json` holds every dataset and image
+/// id, shear and PSF of the run, so two runs share an identity only when
+/// they agree on all of it (and then their scores are comparable).
+pub fn run_identity(datasets_json: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    let digest = Sha256::digest(datasets_json);
+    let mut s = String::from("sha256:");
+    for b in digest {
+        s.push_str(&format!("{b:02x}"));
+    }
+    s
 }
 
 /// Reads `DIR/datasets.json` (DIR = `RUN/private`).
 pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
     let path = dir.join("datasets.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| HarnessError::truth(&path, format!("cannot read: {e}")))?;
-    let datasets: Datasets = serde_json::from_str(&text)
+    let bytes = crate::input::read_regular_file(&path, crate::input::MAX_DATASETS_JSON_BYTES)
+        .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
+    let datasets: Datasets = serde_json::from_slice(&bytes)
         .map_err(|e| HarnessError::truth(&path, format!("not a datasets.json: {e}")))?;
     if datasets.format != DATASETS_FORMAT {
         return Err(HarnessError::truth(
@@ -117,6 +133,7 @@ pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
         datasets,
         index,
         dir: dir.to_path_buf(),
+        run: run_identity(&bytes),
     })
 }
 
@@ -139,16 +156,32 @@ pub const SCORING_COLUMNS: [&str; 8] = [
 pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> {
     use stepsim_sim::io::IoError;
     use stepsim_sim::io::truth::TRUTH_EXTNAME;
-    let fe = |e: fitsio::errors::Error| HarnessError::from(IoError::fits(path, e));
+    let fe = |e: fitsio::errors::Error| {
+        HarnessError::from(IoError::format(
+            path,
+            crate::fits_table::fitsio_sentence(&e),
+        ))
+    };
     let mut f = stepsim_sim::io::fits::open_fits(path)?;
     let hdu = f.hdu(TRUTH_EXTNAME).map_err(fe)?;
     let col = |f: &mut fitsio::FitsFile, name: &str| -> Result<Vec<f64>, HarnessError> {
-        hdu.read_col(f, name)
-            .map_err(|e| IoError::format(path, format!("column `{name}`: {e}")).into())
+        hdu.read_col(f, name).map_err(|e| {
+            IoError::format(
+                path,
+                format!(
+                    "column `{name}`: {}",
+                    crate::fits_table::fitsio_sentence(&e)
+                ),
+            )
+            .into()
+        })
     };
-    let kind: Vec<i32> = hdu
-        .read_col(&mut f, "kind")
-        .map_err(|e| HarnessError::from(IoError::format(path, format!("column `kind`: {e}"))))?;
+    let kind: Vec<i32> = hdu.read_col(&mut f, "kind").map_err(|e| {
+        HarnessError::from(IoError::format(
+            path,
+            format!("column `kind`: {}", crate::fits_table::fitsio_sentence(&e)),
+        ))
+    })?;
     let mut rows = vec![TruthRow::default(); kind.len()];
     for (r, k) in rows.iter_mut().zip(kind) {
         r.kind = k;
@@ -247,7 +280,11 @@ mod tests {
             assert_eq!(a.e2, 0.0, "columns not needed are not read");
         }
         let e = read_scoring_columns(&dir.path().join("none.fits")).unwrap_err();
-        assert!(e.to_string().contains("none.fits"));
+        assert!(
+            e.to_string()
+                .ends_with("none.fits: the file cannot be opened"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -27,7 +27,7 @@ pub struct Args {
     /// Score a submission that lacks some images (they are left out).
     #[arg(long)]
     allow_missing_images: bool,
-    /// Overwrite an existing report in --out.
+    /// Overwrite the files of an earlier report in --out.
     #[arg(long)]
     force: bool,
 }
@@ -36,10 +36,7 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     super::fits_path("--truth", &args.truth)?;
     super::fits_path("--submission", &args.submission)?;
-    let json = args.out.join(stepsim_harness::pipeline::REPORT_JSON);
-    if json.exists() && !args.force {
-        return Err(stepsim_harness::HarnessError::ReportExists { path: json }.into());
-    }
+    stepsim_harness::pipeline::check_outputs_free(&args.out, args.force)?;
     let mut opts = ScoreOptions::new(&args.truth, &args.submission);
     opts.name = args.name.clone();
     opts.match_radius_arcsec = args.match_radius_arcsec;
