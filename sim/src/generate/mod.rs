@@ -549,6 +549,7 @@ fn write_shared(
                 psf,
                 raw,
                 plan.raw.image.pixel_scale_arcsec,
+                plan.raw.render.max_stamp_px as usize,
             )?;
         }
     }
@@ -557,14 +558,16 @@ fn write_shared(
 
 /// Writes `private/psf/<name>.fits`: the pixel-scale image and the
 /// oversampled one, with the measured report in the header (the same file
-/// `stepsim psf` writes, at its default sizes).
+/// `stepsim psf` writes, at its default sizes: the extent the renderer
+/// gives the PSF).
 fn write_psf_file(
     path: &Path,
     psf: &Arc<dyn crate::psf::Psf>,
     raw: &crate::config::RawPsf,
     pixel_scale_arcsec: f64,
+    max_stamp_px: usize,
 ) -> Result<(), IoError> {
-    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX, write_psf};
+    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
     let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
     write_psf(
@@ -572,7 +575,7 @@ fn write_psf_file(
         &raw.name,
         psf.as_ref(),
         pixel_scale_arcsec,
-        DEFAULT_SIZE_PX,
+        renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
         DEFAULT_OVERSAMPLE,
         Some(&report),
     )
