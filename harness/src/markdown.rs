@@ -136,16 +136,16 @@ pub fn report_markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         o,
-        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
+        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % chance | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
     );
     let _ = writeln!(
         o,
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for d in &r.datasets {
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {:.1} | {:.2} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} |",
             d.dataset,
             d.psf,
             d.g1_true,
@@ -155,6 +155,7 @@ pub fn report_markdown(r: &Report) -> String {
             d.ngal_per_arcmin2,
             d.pct_stars,
             d.pct_false,
+            num(d.pct_chance_match, 2),
             num(d.pct_stars_weighted, 2),
             num(d.pct_false_weighted, 2),
             pm(d.g1, d.g1_err, 5),

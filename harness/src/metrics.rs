@@ -109,6 +109,45 @@ pub struct ImageStats {
     pub by_mag: Vec<BinAcc>,
     /// Galaxy rows by true disk scale length ([`DISK_EDGES_ARCSEC`]).
     pub by_disk: Vec<BinAcc>,
+    /// Chance matches: lattice positions within the match radius of a
+    /// truth object ([`chance_matches`]).
+    pub chance_hits: u64,
+    /// Lattice positions tried ([`CHANCE_LATTICE`]²).
+    pub chance_samples: u64,
+}
+
+/// Positions per image axis of the lattice that measures the chance-match
+/// rate (128² positions per image).
+pub const CHANCE_LATTICE: usize = 128;
+
+/// How often a detection at a random on-image position would count as
+/// real: (hits, samples) over a regular [`CHANCE_LATTICE`]² lattice of
+/// positions covering the image (FITS x = 0.5 + (i + ½) W / 128, likewise
+/// y), a hit being a position with a truth object (any kind, on or off the
+/// image) within `radius_px`, as the matching decides.
+pub fn chance_matches(
+    truth: &[TruthRow],
+    width_px: u32,
+    height_px: u32,
+    radius_px: f64,
+) -> (u64, u64) {
+    let k = CHANCE_LATTICE;
+    let (w, h) = (f64::from(width_px), f64::from(height_px));
+    let lattice: Vec<(f64, f64)> = (0..k * k)
+        .map(|n| {
+            let (i, j) = ((n % k) as f64, (n / k) as f64);
+            (
+                0.5 + (i + 0.5) * w / k as f64,
+                0.5 + (j + 0.5) * h / k as f64,
+            )
+        })
+        .collect();
+    let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
+    let hits = match_nearest(&txy, &lattice, radius_px)
+        .iter()
+        .filter(|m| m.is_some())
+        .count();
+    (hits as u64, (k * k) as u64)
 }
 
 /// Index of the bin of `v` among `edges` (lower edge inclusive).
@@ -164,19 +203,23 @@ pub fn image_stats(
 }
 
 /// Matches one image's submitted `rows` to its `truth` table (nearest
-/// truth object within `radius_px`, [`match_nearest`]) and reduces them
-/// ([`image_stats`]).
+/// truth object within `radius_px`, [`match_nearest`]), reduces them
+/// ([`image_stats`]) and measures the chance-match rate of the image
+/// (`size_px` = (width, height), [`chance_matches`]).
 pub fn match_image(
     dataset: usize,
     field: u32,
     rows: &[SubRow],
     truth: &[TruthRow],
     radius_px: f64,
+    size_px: (u32, u32),
 ) -> ImageStats {
     let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
     let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
     let m = match_nearest(&txy, &qxy, radius_px);
-    image_stats(dataset, field, rows, &m, truth)
+    let mut s = image_stats(dataset, field, rows, &m, truth);
+    (s.chance_hits, s.chance_samples) = chance_matches(truth, size_px.0, size_px.1, radius_px);
+    s
 }
 
 /// A dataset as the metrics need it.
@@ -263,6 +306,8 @@ fn dataset_numbers(
     let sw_false: f64 = imgs.iter().map(|s| s.sw_false).sum();
     let n_star: u64 = imgs.iter().map(|s| s.n_star).sum();
     let n_false: u64 = imgs.iter().map(|s| s.n_false).sum();
+    let chance_hits: u64 = imgs.iter().map(|s| s.chance_hits).sum();
+    let chance_samples: u64 = imgs.iter().map(|s| s.chance_samples).sum();
     let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
     let shot = per_image(imgs, |s| ratio(s.sum_e1_true, s.n_gal as f64)).1;
     let shot_w = per_image(imgs, |s| ratio(s.sw_e1_true, s.gal.sw)).1;
@@ -286,6 +331,8 @@ fn dataset_numbers(
         pct_false: pct(n_false as f64, n as f64),
         pct_stars_weighted: (sw > 0.0).then(|| pct(sw_star, sw)),
         pct_false_weighted: (sw > 0.0).then(|| pct(sw_false, sw)),
+        pct_chance_match: (chance_samples > 0)
+            .then(|| pct(chance_hits as f64, chance_samples as f64)),
         snr: sn(meta.g1, core.g1.1),
         sn_shot: sn(meta.g1, shot),
         sn_shot_weighted: sn(meta.g1, shot_w),
@@ -481,6 +528,7 @@ pub fn summarize(psfs: &[PsfReport]) -> Summary {
         sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
         m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
         q_c: q_c(psfs),
+        pct_chance_match: None,
         bootstrap: None,
     }
 }
@@ -529,7 +577,8 @@ pub fn score_tables(meta: &[DatasetMeta], stats: &[ImageStats], area_arcmin2: f6
             psf_numbers(&group[0].0.psf, &group)
         })
         .collect();
-    let summary = summarize(&psfs);
+    let mut summary = summarize(&psfs);
+    summary.pct_chance_match = mean_of(datasets.iter().map(|d| d.pct_chance_match));
     Scores {
         datasets,
         psfs,
@@ -601,6 +650,42 @@ pub fn binned_residuals(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn chance_matches_measure_the_area_within_the_radius() {
+        let at = |x: f64, y: f64| TruthRow {
+            x,
+            y,
+            ..TruthRow::default()
+        };
+        // A disc of radius 10 px in the middle of a 100² image: π 100 / 1e4.
+        let (h, n) = chance_matches(&[at(50.5, 50.5)], 100, 100, 10.0);
+        assert_eq!(n, 128 * 128);
+        let f = h as f64 / n as f64;
+        assert!((f - std::f64::consts::PI * 1e-2).abs() < 1e-3, "{f}");
+        // An object off the image still catches positions on it: the disc's
+        // segment beyond the edge x = 0.5 (centre 5.5 px outside).
+        let (h, _) = chance_matches(&[at(-5.0, 50.5)], 100, 100, 10.0);
+        let d: f64 = 5.5;
+        let seg = 100.0 * (d / 10.0).acos() - d * (100.0 - d * d).sqrt();
+        let f = h as f64 / n as f64;
+        assert!((f - seg / 1e4).abs() < 5e-4, "{f} vs {}", seg / 1e4);
+        assert_eq!(chance_matches(&[], 100, 100, 10.0), (0, n));
+        // Per dataset and in the summary: the synthetic run's 196 objects
+        // per field, all discs (r = 1″ = 5 px) on the image and disjoint.
+        let spec = crate::synthetic::SynthSpec::small(2);
+        let run = crate::synthetic::make_run(&spec);
+        let rows = run.submission(&|t, _| Some((t.e1, t.e2, 1.0)));
+        let scores = score_tables(&run.meta(), &run.stats(&rows, 1.0), 1.0);
+        let want = 100.0 * 196.0 * std::f64::consts::PI * 25.0 / 9e4;
+        for d in &scores.datasets {
+            let got = d.pct_chance_match.unwrap();
+            assert!((got - want).abs() < 0.2, "{got} vs {want}");
+            assert_eq!(d.pct_false, 0.0);
+        }
+        let got = scores.summary.pct_chance_match.unwrap();
+        assert!((got - want).abs() < 0.2, "{got} vs {want}");
+    }
 
     #[test]
     fn bins_include_their_lower_edge() {

@@ -123,6 +123,7 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
                 rows,
                 &truth,
                 radius_px,
+                (p.truth.index.width_px, p.truth.index.height_px),
             ))
         })
         .collect()

@@ -64,6 +64,11 @@ pub struct DatasetReport {
     pub pct_stars_weighted: Option<f64>,
     /// 100 Σw(false) / Σw.
     pub pct_false_weighted: Option<f64>,
+    /// Percentage of on-image positions (a regular 128² lattice per image)
+    /// within the match radius of a truth object: how often a detection at a
+    /// random position would count as real (read `pct_false` against it).
+    #[serde(default)]
+    pub pct_chance_match: Option<f64>,
     /// γ1_true / σ_γ1.
     pub snr: Option<f64>,
     /// γ1_true / σ(true e1 of the matched galaxies).
@@ -152,6 +157,9 @@ pub struct Summary {
     pub m_weight_mean: Option<f64>,
     /// GREAT3-style quality factor Q_c.
     pub q_c: Option<f64>,
+    /// Mean over datasets of `pct_chance_match`.
+    #[serde(default)]
+    pub pct_chance_match: Option<f64>,
     /// Bootstrap confidence intervals (over base fields).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bootstrap: Option<BootstrapCi>,

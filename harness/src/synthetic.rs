@@ -299,7 +299,16 @@ impl SynthRun {
             .iter()
             .enumerate()
             .filter(|(i, _)| !rows[*i].is_empty())
-            .map(|(i, info)| match_image(info.dataset, info.field, &rows[i], &self.truth[i], r))
+            .map(|(i, info)| {
+                match_image(
+                    info.dataset,
+                    info.field,
+                    &rows[i],
+                    &self.truth[i],
+                    r,
+                    (self.datasets.width_px, self.datasets.height_px),
+                )
+            })
             .collect()
     }
 
