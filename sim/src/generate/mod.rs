@@ -440,7 +440,10 @@ fn make_image(
     let raw = &plan.raw;
     let d = &plan.datasets[job.dataset as usize];
     let (w, h) = (raw.image.width_px, raw.image.height_px);
-    let rows = crate::population::sheared(base, d.g1, d.g2);
+    let mut rows = crate::population::sheared(base, d.g1, d.g2);
+    if raw.population.lens_positions {
+        rows = crate::population::lensed(plan, job.field, &rows, d.g1, d.g2);
+    }
     let model = try_draw_image(renderer, &rows, w, h).map_err(|source| GenerateError::Render {
         field: job.field,
         source,
