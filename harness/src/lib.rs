@@ -8,6 +8,7 @@
 //! submission.rs  read + check a submission (text, CSV, FITS, directory)
 //! truth_set.rs   RUN/private: datasets.json, truth/<image>.fits
 //! matching.rs    nearest truth object within the radius (grid + brute force)
+//! isolation.rs   which galaxies have no bright neighbour (sweep + brute force)
 //! metrics.rs     per-image sums -> per-dataset, per-PSF, summary, bins
 //! fit.rs         weighted least squares, means with errors
 //! bootstrap.rs   intervals from resampled base fields
@@ -23,6 +24,7 @@
 pub mod bootstrap;
 pub mod error;
 pub mod fit;
+pub mod isolation;
 pub mod leaderboard;
 pub mod markdown;
 pub mod matching;

@@ -132,6 +132,22 @@ pub fn report_markdown(r: &Report) -> String {
     }
     let _ = writeln!(
         o,
+        "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
+    );
+    let _ = writeln!(o, "| PSF | m_isolated | c1_isolated | c2_isolated |");
+    let _ = writeln!(o, "|---|---:|---:|---:|");
+    for p in &r.psfs {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} |",
+            p.psf,
+            pm(p.m_isolated, p.m_isolated_err, 4),
+            pm(p.c1_isolated, p.c1_isolated_err, 5),
+            pm(p.c2_isolated, p.c2_isolated_err, 5)
+        );
+    }
+    let _ = writeln!(
+        o,
         "\n## Table 4: number density, contamination, signal-to-noise\n"
     );
     let _ = writeln!(

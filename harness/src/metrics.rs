@@ -8,6 +8,7 @@
 //! `docs/scoring.md`.
 
 use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
+use crate::isolation::ISOLATION_FLUX_FRACTION;
 use crate::matching::match_nearest;
 use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
 use crate::submission::SubRow;
@@ -109,6 +110,8 @@ pub struct ImageStats {
     pub by_mag: Vec<BinAcc>,
     /// Galaxy rows by true disk scale length ([`DISK_EDGES_ARCSEC`]).
     pub by_disk: Vec<BinAcc>,
+    /// Rows matched to isolated galaxies ([`crate::isolation`]).
+    pub iso: BinAcc,
     /// Chance matches: lattice positions within the match radius of a
     /// truth object ([`chance_matches`]).
     pub chance_hits: u64,
@@ -204,8 +207,11 @@ pub fn image_stats(
 
 /// Matches one image's submitted `rows` to its `truth` table (nearest
 /// truth object within `radius_px`, [`match_nearest`]), reduces them
-/// ([`image_stats`]) and measures the chance-match rate of the image
-/// (`size_px` = (width, height), [`chance_matches`]).
+/// ([`image_stats`]), sums the rows matched to isolated galaxies (no
+/// neighbour above [`ISOLATION_FLUX_FRACTION`] of the flux within
+/// `isolation_radius_px`, [`crate::isolation::isolated`]) and measures the
+/// chance-match rate of the image (`size_px` = (width, height),
+/// [`chance_matches`]).
 pub fn match_image(
     dataset: usize,
     field: u32,
@@ -213,11 +219,20 @@ pub fn match_image(
     truth: &[TruthRow],
     radius_px: f64,
     size_px: (u32, u32),
+    isolation_radius_px: f64,
 ) -> ImageStats {
     let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
     let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
     let m = match_nearest(&txy, &qxy, radius_px);
     let mut s = image_stats(dataset, field, rows, &m, truth);
+    let iso = crate::isolation::isolated(truth, isolation_radius_px, ISOLATION_FLUX_FRACTION);
+    for (r, j) in rows.iter().zip(&m) {
+        if let Some(j) = *j
+            && iso[j]
+        {
+            s.iso.add(r.weight, r.e1, r.e2);
+        }
+    }
     (s.chance_hits, s.chance_samples) = chance_matches(truth, size_px.0, size_px.1, radius_px);
     s
 }
@@ -322,6 +337,8 @@ struct Core {
     g1: FieldSeries,
     g2: FieldSeries,
     g1u: FieldSeries,
+    g1iso: FieldSeries,
+    g2iso: FieldSeries,
     e1s: FieldSeries,
     e2s: FieldSeries,
     dw: FieldSeries,
@@ -347,6 +364,8 @@ fn dataset_numbers(
         g1: FieldSeries::of(imgs, |s| ratio(s.all.swe1, s.all.sw)),
         g2: FieldSeries::of(imgs, |s| ratio(s.all.swe2, s.all.sw)),
         g1u: FieldSeries::of(imgs, |s| ratio(s.gal.swe1, s.gal.sw)),
+        g1iso: FieldSeries::of(imgs, |s| ratio(s.iso.swe1, s.iso.sw)),
+        g2iso: FieldSeries::of(imgs, |s| ratio(s.iso.swe2, s.iso.sw)),
         e1s: FieldSeries::of(imgs, |s| ratio(s.sum_e1_int, s.n_gal as f64)),
         e2s: FieldSeries::of(imgs, |s| ratio(s.sum_e2_int, s.n_gal as f64)),
         dw: FieldSeries::of(imgs, |s| {
@@ -567,6 +586,8 @@ pub struct FitModel {
     pub g2_linear: Option<bool>,
     /// γ1 response of the rows matched to galaxies.
     pub g1u_linear: bool,
+    /// γ1 response of the rows matched to isolated galaxies.
+    pub g1iso_linear: bool,
 }
 
 fn psf_numbers(
@@ -589,6 +610,11 @@ fn psf_numbers(
         (r.c, Some(r))
     };
     let ru = fit_response_fields(&g1, &pick(|c| &c.g1u), model.map(|m| m.g1u_linear));
+    let ri = fit_response_fields(&g1, &pick(|c| &c.g1iso), model.map(|m| m.g1iso_linear));
+    let c2_iso = {
+        let (_, y, s, kept) = fit_inputs(&g2, &pick(|c| &c.g2iso), |x| x);
+        plain_mean(&y, &s, Some(&kept))
+    };
     let (m_selc, c1_selc) = fit_linear(&g1, &pick(|c| &c.e1s));
     let c2_selc = {
         let (_, y, s, kept) = fit_inputs(&g1, &pick(|c| &c.e2s), |_| 0.0);
@@ -599,6 +625,7 @@ fn psf_numbers(
         g1_linear: r1.linear,
         g2_linear: r2.as_ref().map(|r| r.linear),
         g1u_linear: ru.linear,
+        g1iso_linear: ri.linear,
     };
     let rep = PsfReport {
         psf: name.to_owned(),
@@ -627,6 +654,12 @@ fn psf_numbers(
         m_weight_err: m_weight.1,
         c1_weight: c1_weight.0,
         c1_weight_err: c1_weight.1,
+        m_isolated: ri.m.0,
+        m_isolated_err: ri.m.1,
+        c1_isolated: ri.c.0,
+        c1_isolated_err: ri.c.1,
+        c2_isolated: c2_iso.0,
+        c2_isolated_err: c2_iso.1,
     };
     (rep, used)
 }
@@ -671,6 +704,7 @@ pub fn summarize(psfs: &[PsfReport]) -> Summary {
         m_selc_mean: mean_of(psfs.iter().map(|p| p.m_selc)),
         sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
         m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
+        m_isolated_mean: mean_of(psfs.iter().map(|p| p.m_isolated)),
         q_c: q_c(psfs),
         pct_chance_match: None,
         bootstrap: None,
@@ -907,6 +941,51 @@ mod tests {
     }
 
     #[test]
+    fn isolated_galaxies_give_their_own_m_and_c() {
+        // Isolated galaxies measured with m = 0, c1 = 1e-3; galaxies with a
+        // bright neighbour within 3″ with m = −0.2: the isolated figures see
+        // only the former, the paper's m a mixture.
+        let spec = crate::synthetic::SynthSpec::small(2);
+        let run = crate::synthetic::make_run(&spec);
+        let r_px = crate::isolation::ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let mut iso = std::collections::HashSet::new();
+        let mut counts = (0, 0);
+        for t in &run.truth {
+            for (row, ok) in
+                t.iter()
+                    .zip(crate::isolation::isolated(t, r_px, ISOLATION_FLUX_FRACTION))
+            {
+                if ok {
+                    iso.insert((row.x.to_bits(), row.y.to_bits()));
+                    counts.0 += 1;
+                } else if !row.is_star() {
+                    counts.1 += 1;
+                }
+            }
+        }
+        assert!(counts.0 > 0 && counts.1 > 0, "{counts:?}");
+        let ds = run.datasets.datasets.clone();
+        let rows = run.submission(&|t, d| {
+            let g = (ds[d].g1, ds[d].g2);
+            if t.is_star() {
+                None
+            } else if iso.contains(&(t.x.to_bits(), t.y.to_bits())) {
+                Some((g.0 + 1e-3, g.1 - 2e-3, 1.0))
+            } else {
+                Some((0.8 * g.0, g.1, 1.0))
+            }
+        });
+        let scores = score_tables(&run.meta(), &run.stats(&rows, 1.0), 1.0);
+        for p in &scores.psfs {
+            assert!(p.m_isolated.unwrap().abs() < 1e-12, "{p:?}");
+            assert!((p.c1_isolated.unwrap() - 1e-3).abs() < 1e-12);
+            assert!((p.c2_isolated.unwrap() + 2e-3).abs() < 1e-12);
+            assert!(p.m.unwrap() < -0.01 && p.m.unwrap() > -0.2, "{:?}", p.m);
+        }
+        assert!(scores.summary.m_isolated_mean.unwrap().abs() < 1e-12);
+    }
+
+    #[test]
     fn bins_include_their_lower_edge() {
         assert_eq!(bin_of(&MAG_EDGES, 10.0), 0);
         assert_eq!(bin_of(&MAG_EDGES, 20.0), 1);
@@ -973,6 +1052,12 @@ mod tests {
             m_weight_err: None,
             c1_weight: None,
             c1_weight_err: None,
+            m_isolated: None,
+            m_isolated_err: None,
+            c1_isolated: None,
+            c1_isolated_err: None,
+            c2_isolated: None,
+            c2_isolated_err: None,
         };
         assert!((q_c(std::slice::from_ref(&p)).unwrap() - 1232.0).abs() < 1e-9);
         let p2 = PsfReport {

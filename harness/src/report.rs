@@ -136,6 +136,26 @@ pub struct PsfReport {
     pub c1_weight: Option<f64>,
     /// Its error.
     pub c1_weight_err: Option<f64>,
+    /// m from rows matched to isolated galaxies (no neighbour above 10 % of
+    /// the flux within 3″; `isolation.rs`): the method without the scene's
+    /// blending.
+    #[serde(default)]
+    pub m_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub m_isolated_err: Option<f64>,
+    /// c1 from the same rows.
+    #[serde(default)]
+    pub c1_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub c1_isolated_err: Option<f64>,
+    /// c2 from the same rows (mean of γ2 − γ2_true, as `c2`).
+    #[serde(default)]
+    pub c2_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub c2_isolated_err: Option<f64>,
 }
 
 /// Averages over PSFs (paper Table 5) and the extra figures.
@@ -155,6 +175,9 @@ pub struct Summary {
     pub sigma_c_selc: Option<f64>,
     /// ⟨m_weight⟩.
     pub m_weight_mean: Option<f64>,
+    /// ⟨m_isolated⟩.
+    #[serde(default)]
+    pub m_isolated_mean: Option<f64>,
     /// GREAT3-style quality factor Q_c.
     pub q_c: Option<f64>,
     /// Mean over datasets of `pct_chance_match`.

@@ -323,6 +323,7 @@ impl SynthRun {
                     &self.truth[i],
                     r,
                     (self.datasets.width_px, self.datasets.height_px),
+                    crate::isolation::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
                 )
             })
             .collect()

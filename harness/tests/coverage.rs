@@ -77,6 +77,7 @@ const LINEAR: FitModel = FitModel {
     g1_linear: true,
     g2_linear: None,
     g1u_linear: true,
+    g1iso_linear: true,
 };
 
 /// Fractions of realisations whose ±1σ and ±1.96σ intervals cover the truth,
