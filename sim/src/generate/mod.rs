@@ -766,6 +766,47 @@ mod tests {
     }
 
     #[test]
+    fn lens_positions_moves_the_galaxies_of_each_dataset() {
+        // Datasets 0 (g = 0) and 1 (g = (0.04, −0.02)) of field 0: in the
+        // truth tables, every galaxy of dataset 1 sits at the lensed position
+        // of the same galaxy in dataset 0; stars do not move.
+        let dir = tempfile::tempdir().unwrap();
+        let p = plan(&["population.lens_positions=true", "image.n_images=1"]);
+        generate(&p, dir.path(), &Options::default(), &|_: Event| {}).unwrap();
+        let d: Datasets = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("private/datasets.json")).unwrap(),
+        )
+        .unwrap();
+        let truth = |k: usize| {
+            crate::io::truth::read_truth_fits(&dir.path().join(format!(
+                "private/truth/{}.fits",
+                d.datasets[k].images[0].image
+            )))
+            .unwrap()
+        };
+        let (flat, lensed) = (truth(0), truth(1));
+        let (cx, cy) = crate::population::lensing_centre(&p);
+        let mut moved = 0;
+        for r in &lensed {
+            let Some(f) = flat.iter().find(|f| f.id == r.id) else {
+                continue;
+            };
+            let want = if r.is_star() {
+                (f.x, f.y)
+            } else {
+                let (dx, dy) = crate::shear::lens_offset((f.x - cx, f.y - cy), 0.04, -0.02);
+                (cx + dx, cy + dy)
+            };
+            assert!(
+                (r.x - want.0).abs() < 1e-9 && (r.y - want.1).abs() < 1e-9,
+                "{r:?}"
+            );
+            moved += usize::from(!r.is_star() && (r.x, r.y) != (f.x, f.y));
+        }
+        assert!(moved > 0);
+    }
+
+    #[test]
     fn noise_free_image_is_model_plus_sky_and_model_is_verified() {
         let dir = tempfile::tempdir().unwrap();
         let p = plan(&["output.noise=false", "output.write_model=true"]);
