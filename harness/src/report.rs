@@ -46,9 +46,10 @@ pub struct DatasetReport {
     pub n_images: usize,
     /// Submitted rows.
     pub n_objects: u64,
-    /// Mean over images of the weighted mean γ̂1.
+    /// Mean over base fields (twins averaged first) of the per-image
+    /// weighted mean γ̂1.
     pub g1: Option<f64>,
-    /// Its error (std over images / √N).
+    /// Its error (std over base fields / √F).
     pub g1_err: Option<f64>,
     /// Same for γ̂2.
     pub g2: Option<f64>,
