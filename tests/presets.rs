@@ -56,6 +56,9 @@ fn step1_is_the_paper_design() {
     assert!(r.shears.iter().all(|s| s.g2 == 0.0));
     assert_eq!(p.datasets.len(), 30);
     assert_eq!(r.instrument.sky_mag_arcsec2, 19.2);
+    // STEP1 sheared shapes only: positions are not lensed (κ = 0).
+    assert!(!r.population.lens_positions);
+    assert!(!load("step1-mini.json").raw.population.lens_positions);
 }
 
 #[test]

@@ -2,13 +2,16 @@
 //!
 //! Image k of every dataset shows base field k, so the resampling draws
 //! *base fields* with replacement (as many as there are) and every dataset
-//! takes its images of the drawn fields: the correlation between datasets
-//! that makes σ_c small is kept. Each resample has its own generator keyed
-//! by (seed, resample index), so the intervals do not depend on the thread
-//! count. Intervals are the 2.5 and 97.5 percentiles (nearest rank on the
-//! sorted finite values).
+//! takes its images of the drawn fields, the rotated twin with its field:
+//! the correlation between datasets that makes σ_c small, and the
+//! cancellation of shape noise within a pair, are kept. A field drawn twice
+//! counts as two fields. The fit model of each PSF (linear or quadratic) is
+//! the one chosen on the full data, in every resample. Each resample has
+//! its own generator keyed by (seed, resample index), so the intervals do
+//! not depend on the thread count. Intervals are the 2.5 and 97.5
+//! percentiles (nearest rank on the sorted finite values).
 
-use crate::metrics::{DatasetMeta, ImageStats, score_tables};
+use crate::metrics::{DatasetMeta, ImageStats, score_tables, score_tables_with};
 use crate::report::{BootstrapCi, Summary};
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
@@ -51,16 +54,20 @@ pub fn resample_summaries(
         let k = fields.binary_search(&s.field).unwrap_or(0);
         by_field[k].push(s);
     }
+    let models = score_tables(meta, stats, area_arcmin2).models;
     (0..n)
         .into_par_iter()
         .map(|b| {
             let mut rng = SimRng::seed_from_u64(splitmix64(seed ^ splitmix64(b as u64)));
             let mut sample = Vec::with_capacity(stats.len());
-            for _ in 0..fields.len() {
+            for draw in 0..fields.len() {
                 let k = rng.random_range(0..fields.len());
-                sample.extend(by_field[k].iter().map(|s| (*s).clone()));
+                sample.extend(by_field[k].iter().map(|s| ImageStats {
+                    field: draw as u32,
+                    ..(*s).clone()
+                }));
             }
-            score_tables(meta, &sample, area_arcmin2).summary
+            score_tables_with(meta, &sample, area_arcmin2, &models).summary
         })
         .collect()
 }

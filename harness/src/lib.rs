@@ -10,6 +10,7 @@
 //! fits_table.rs  a submission's FITS table via raw cfitsio; error sentences
 //! truth_set.rs   RUN/private: datasets.json, truth/<image>.fits
 //! matching.rs    nearest truth object within the radius (grid + brute force)
+//! isolation.rs   which galaxies have no bright neighbour (sweep + brute force)
 //! metrics.rs     per-image sums -> per-dataset, per-PSF, summary, bins
 //! fit.rs         weighted least squares, means with errors
 //! bootstrap.rs   intervals from resampled base fields
@@ -27,6 +28,7 @@ pub mod error;
 pub mod fit;
 pub mod fits_table;
 pub mod input;
+pub mod isolation;
 pub mod leaderboard;
 pub mod markdown;
 pub mod matching;

@@ -176,20 +176,36 @@ pub fn report_markdown(r: &Report) -> String {
     }
     let _ = writeln!(
         o,
+        "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
+    );
+    let _ = writeln!(o, "| PSF | m_isolated | c1_isolated | c2_isolated |");
+    let _ = writeln!(o, "|---|---:|---:|---:|");
+    for p in &r.psfs {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} | {} |",
+            escape(&p.psf),
+            pm(p.m_isolated, p.m_isolated_err, 4),
+            pm(p.c1_isolated, p.c1_isolated_err, 5),
+            pm(p.c2_isolated, p.c2_isolated_err, 5)
+        );
+    }
+    let _ = writeln!(
+        o,
         "\n## Table 4: number density, contamination, signal-to-noise\n"
     );
     let _ = writeln!(
         o,
-        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
+        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % chance | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
     );
     let _ = writeln!(
         o,
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for d in &r.datasets {
         let _ = writeln!(
             o,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
             escape(&d.dataset),
             escape(&d.psf),
             show_number(d.g1_true),
@@ -199,6 +215,7 @@ pub fn report_markdown(r: &Report) -> String {
             fixed(d.ngal_per_arcmin2, 1),
             fixed(d.pct_stars, 2),
             fixed(d.pct_false, 2),
+            num(d.pct_chance_match, 2),
             num(d.pct_stars_weighted, 2),
             num(d.pct_false_weighted, 2),
             pm(d.g1, d.g1_err, 5),

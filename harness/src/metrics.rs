@@ -8,6 +8,7 @@
 //! `docs/scoring.md`.
 
 use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
+use crate::isolation::ISOLATION_FLUX_FRACTION;
 use crate::matching::match_nearest;
 use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
 use crate::submission::SubRow;
@@ -109,6 +110,47 @@ pub struct ImageStats {
     pub by_mag: Vec<BinAcc>,
     /// Galaxy rows by true disk scale length ([`DISK_EDGES_ARCSEC`]).
     pub by_disk: Vec<BinAcc>,
+    /// Rows matched to isolated galaxies ([`crate::isolation`]).
+    pub iso: BinAcc,
+    /// Chance matches: lattice positions within the match radius of a
+    /// truth object ([`chance_matches`]).
+    pub chance_hits: u64,
+    /// Lattice positions tried ([`CHANCE_LATTICE`]²).
+    pub chance_samples: u64,
+}
+
+/// Positions per image axis of the lattice that measures the chance-match
+/// rate (128² positions per image).
+pub const CHANCE_LATTICE: usize = 128;
+
+/// How often a detection at a random on-image position would count as
+/// real: (hits, samples) over a regular [`CHANCE_LATTICE`]² lattice of
+/// positions covering the image (FITS x = 0.5 + (i + ½) W / 128, likewise
+/// y), a hit being a position with a truth object (any kind, on or off the
+/// image) within `radius_px`, as the matching decides.
+pub fn chance_matches(
+    truth: &[TruthRow],
+    width_px: u32,
+    height_px: u32,
+    radius_px: f64,
+) -> (u64, u64) {
+    let k = CHANCE_LATTICE;
+    let (w, h) = (f64::from(width_px), f64::from(height_px));
+    let lattice: Vec<(f64, f64)> = (0..k * k)
+        .map(|n| {
+            let (i, j) = ((n % k) as f64, (n / k) as f64);
+            (
+                0.5 + (i + 0.5) * w / k as f64,
+                0.5 + (j + 0.5) * h / k as f64,
+            )
+        })
+        .collect();
+    let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
+    let hits = match_nearest(&txy, &lattice, radius_px)
+        .iter()
+        .filter(|m| m.is_some())
+        .count();
+    (hits as u64, (k * k) as u64)
 }
 
 /// Index of the bin of `v` among `edges` (lower edge inclusive).
@@ -164,19 +206,35 @@ pub fn image_stats(
 }
 
 /// Matches one image's submitted `rows` to its `truth` table (nearest
-/// truth object within `radius_px`, [`match_nearest`]) and reduces them
-/// ([`image_stats`]).
+/// truth object within `radius_px`, [`match_nearest`]), reduces them
+/// ([`image_stats`]), sums the rows matched to isolated galaxies (no
+/// neighbour above [`ISOLATION_FLUX_FRACTION`] of the flux within
+/// `isolation_radius_px`, [`crate::isolation::isolated`]) and measures the
+/// chance-match rate of the image (`size_px` = (width, height),
+/// [`chance_matches`]).
 pub fn match_image(
     dataset: usize,
     field: u32,
     rows: &[SubRow],
     truth: &[TruthRow],
     radius_px: f64,
+    size_px: (u32, u32),
+    isolation_radius_px: f64,
 ) -> ImageStats {
     let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
     let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
     let m = match_nearest(&txy, &qxy, radius_px);
-    image_stats(dataset, field, rows, &m, truth)
+    let mut s = image_stats(dataset, field, rows, &m, truth);
+    let iso = crate::isolation::isolated(truth, isolation_radius_px, ISOLATION_FLUX_FRACTION);
+    for (r, j) in rows.iter().zip(&m) {
+        if let Some(j) = *j
+            && iso[j]
+        {
+            s.iso.add(r.weight, r.e1, r.e2);
+        }
+    }
+    (s.chance_hits, s.chance_samples) = chance_matches(truth, size_px.0, size_px.1, radius_px);
+    s
 }
 
 /// A dataset as the metrics need it.
@@ -212,27 +270,82 @@ impl DatasetMeta {
     }
 }
 
+/// A per-dataset quantity measured on every image and reduced per base
+/// field: the images of one field (the field and its rotated twin) are
+/// averaged first, then the mean and its error are taken over fields. Base
+/// fields are the independent units: rotated twins share their galaxies,
+/// and every dataset shows the same fields.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FieldSeries {
+    /// (base field, mean over the field's images), sorted by field.
+    pub fields: Vec<(u32, f64)>,
+    /// Mean over fields.
+    pub mean: Option<f64>,
+    /// Standard deviation over fields (n − 1) / √n_fields.
+    pub err: Option<f64>,
+}
+
+impl FieldSeries {
+    /// Reduces `value` of each image (images where it is `None` are left
+    /// out).
+    pub fn of(imgs: &[&ImageStats], value: impl Fn(&ImageStats) -> Option<f64>) -> Self {
+        let mut acc: std::collections::BTreeMap<u32, (f64, usize)> = Default::default();
+        for s in imgs {
+            if let Some(v) = value(s) {
+                let e = acc.entry(s.field).or_default();
+                e.0 += v;
+                e.1 += 1;
+            }
+        }
+        let fields: Vec<(u32, f64)> = acc
+            .into_iter()
+            .map(|(f, (sum, n))| (f, sum / n as f64))
+            .collect();
+        let v: Vec<f64> = fields.iter().map(|p| p.1).collect();
+        let (mean, err) = mean_and_error(&v);
+        Self { fields, mean, err }
+    }
+}
+
+/// Error of a linear combination Σ_d l_d ȳ_d of per-dataset means ȳ_d =
+/// mean over the fields of `series[d]`, with base fields as the independent
+/// units (a field's contribution to every dataset moves together):
+/// σ² = F/(F − 1) Σ_f u_f², u_f = Σ_d l_d (y_{d,f} − ȳ_d) / F_d, over the F
+/// fields that appear anywhere (F_d those of dataset d). For one dataset this
+/// is the standard deviation over fields / √F. `None` with fewer than two
+/// fields or a series without a mean.
+pub fn paired_error(l: &[f64], series: &[&FieldSeries]) -> Option<f64> {
+    let mut u: std::collections::BTreeMap<u32, f64> = Default::default();
+    for (ld, s) in l.iter().zip(series) {
+        let mean = s.mean?;
+        let nf = s.fields.len() as f64;
+        for &(f, v) in &s.fields {
+            *u.entry(f).or_default() += ld * (v - mean) / nf;
+        }
+    }
+    let nf = u.len();
+    if nf < 2 {
+        return None;
+    }
+    let ss: f64 = u.values().map(|x| x * x).sum();
+    Some((ss * nf as f64 / (nf - 1) as f64).sqrt())
+}
+
 /// Per-dataset values that feed the fits.
 #[derive(Debug, Clone, Default)]
 struct Core {
-    g1: (Option<f64>, Option<f64>),
-    g2: (Option<f64>, Option<f64>),
-    g1u: (Option<f64>, Option<f64>),
-    e1s: (Option<f64>, Option<f64>),
-    e2s: (Option<f64>, Option<f64>),
-    dw: (Option<f64>, Option<f64>),
+    g1: FieldSeries,
+    g2: FieldSeries,
+    g1u: FieldSeries,
+    g1iso: FieldSeries,
+    g2iso: FieldSeries,
+    e1s: FieldSeries,
+    e2s: FieldSeries,
+    dw: FieldSeries,
 }
 
 fn ratio(a: f64, b: f64) -> Option<f64> {
     (b != 0.0).then(|| a / b)
-}
-
-fn per_image<'a>(
-    imgs: &'a [&'a ImageStats],
-    f: impl Fn(&ImageStats) -> Option<f64> + 'a,
-) -> (Option<f64>, Option<f64>) {
-    let v: Vec<f64> = imgs.iter().filter_map(|s| f(s)).collect();
-    mean_and_error(&v)
 }
 
 fn sn(g_true: f64, err: Option<f64>) -> Option<f64> {
@@ -248,12 +361,14 @@ fn dataset_numbers(
     area_arcmin2: f64,
 ) -> (DatasetReport, Core) {
     let core = Core {
-        g1: per_image(imgs, |s| ratio(s.all.swe1, s.all.sw)),
-        g2: per_image(imgs, |s| ratio(s.all.swe2, s.all.sw)),
-        g1u: per_image(imgs, |s| ratio(s.gal.swe1, s.gal.sw)),
-        e1s: per_image(imgs, |s| ratio(s.sum_e1_int, s.n_gal as f64)),
-        e2s: per_image(imgs, |s| ratio(s.sum_e2_int, s.n_gal as f64)),
-        dw: per_image(imgs, |s| {
+        g1: FieldSeries::of(imgs, |s| ratio(s.all.swe1, s.all.sw)),
+        g2: FieldSeries::of(imgs, |s| ratio(s.all.swe2, s.all.sw)),
+        g1u: FieldSeries::of(imgs, |s| ratio(s.gal.swe1, s.gal.sw)),
+        g1iso: FieldSeries::of(imgs, |s| ratio(s.iso.swe1, s.iso.sw)),
+        g2iso: FieldSeries::of(imgs, |s| ratio(s.iso.swe2, s.iso.sw)),
+        e1s: FieldSeries::of(imgs, |s| ratio(s.sum_e1_int, s.n_gal as f64)),
+        e2s: FieldSeries::of(imgs, |s| ratio(s.sum_e2_int, s.n_gal as f64)),
+        dw: FieldSeries::of(imgs, |s| {
             Some(ratio(s.sum_e1_int, s.n_gal as f64)? - ratio(s.sw_e1_int, s.gal.sw)?)
         }),
     };
@@ -263,9 +378,11 @@ fn dataset_numbers(
     let sw_false: f64 = imgs.iter().map(|s| s.sw_false).sum();
     let n_star: u64 = imgs.iter().map(|s| s.n_star).sum();
     let n_false: u64 = imgs.iter().map(|s| s.n_false).sum();
+    let chance_hits: u64 = imgs.iter().map(|s| s.chance_hits).sum();
+    let chance_samples: u64 = imgs.iter().map(|s| s.chance_samples).sum();
     let pct = |a: f64, b: f64| if b > 0.0 { 100.0 * a / b } else { 0.0 };
-    let shot = per_image(imgs, |s| ratio(s.sum_e1_true, s.n_gal as f64)).1;
-    let shot_w = per_image(imgs, |s| ratio(s.sw_e1_true, s.gal.sw)).1;
+    let shot = FieldSeries::of(imgs, |s| ratio(s.sum_e1_true, s.n_gal as f64)).err;
+    let shot_w = FieldSeries::of(imgs, |s| ratio(s.sw_e1_true, s.gal.sw)).err;
     let rep = DatasetReport {
         dataset: meta.dataset.clone(),
         psf: meta.psf.clone(),
@@ -273,10 +390,10 @@ fn dataset_numbers(
         g2_true: meta.g2,
         n_images: imgs.len(),
         n_objects: n,
-        g1: core.g1.0,
-        g1_err: core.g1.1,
-        g2: core.g2.0,
-        g2_err: core.g2.1,
+        g1: core.g1.mean,
+        g1_err: core.g1.err,
+        g2: core.g2.mean,
+        g2_err: core.g2.err,
         ngal_per_arcmin2: if imgs.is_empty() {
             0.0
         } else {
@@ -286,7 +403,9 @@ fn dataset_numbers(
         pct_false: pct(n_false as f64, n as f64),
         pct_stars_weighted: (sw > 0.0).then(|| pct(sw_star, sw)),
         pct_false_weighted: (sw > 0.0).then(|| pct(sw_false, sw)),
-        snr: sn(meta.g1, core.g1.1),
+        pct_chance_match: (chance_samples > 0)
+            .then(|| pct(chance_hits as f64, chance_samples as f64)),
+        snr: sn(meta.g1, core.g1.err),
         sn_shot: sn(meta.g1, shot),
         sn_shot_weighted: sn(meta.g1, shot_w),
     };
@@ -312,17 +431,96 @@ fn coef(f: &PolyFit, k: usize) -> (Option<f64>, Option<f64>) {
 
 /// Fits γ − γ_true = q γ_true² + m γ_true + c over points (γ_true, γ, σ).
 /// Quadratic first (with ≥ 3 points); when |q| < 2σ_q, or σ_q is unknown,
-/// refits with q = 0. With one point only c = γ − γ_true.
+/// refits with q = 0. With one point only c = γ − γ_true. The errors are
+/// those of the weighted fit ([`fit_poly`]), the points taken as
+/// independent; the scoring uses [`fit_response_fields`].
 pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
     let x: Vec<f64> = points.iter().map(|p| p.0).collect();
     let y: Vec<f64> = points.iter().map(|p| p.1 - p.0).collect();
     let s: Vec<Option<f64>> = points.iter().map(|p| p.2).collect();
-    let quadratic = if points.len() >= 3 {
-        fit_poly(&x, &y, &s, 3)
+    response(&x, &y, &s, None, None)
+}
+
+/// [`fit_response`] for per-dataset [`FieldSeries`] of γ at applied shears
+/// `x`, with the errors of m, q and c from the base fields
+/// ([`paired_error`]: datasets that show the same fields are not
+/// independent). `linear` fixes the model (`Some(true)` linear,
+/// `Some(false)` quadratic) instead of choosing it from the data: the
+/// bootstrap keeps the model of the full data in every resample.
+pub fn fit_response_fields(x: &[f64], series: &[&FieldSeries], linear: Option<bool>) -> Response {
+    let (x, y, s, kept) = fit_inputs(x, series, |x| x);
+    response(&x, &y, &s, Some(&kept), linear)
+}
+
+/// Points with a mean: (x, y − offset(x), σ, series).
+#[allow(clippy::type_complexity)]
+fn fit_inputs<'a>(
+    x: &[f64],
+    series: &[&'a FieldSeries],
+    offset: impl Fn(f64) -> f64,
+) -> (Vec<f64>, Vec<f64>, Vec<Option<f64>>, Vec<&'a FieldSeries>) {
+    let mut out = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (&xi, s) in x.iter().zip(series) {
+        if let Some(m) = s.mean {
+            out.0.push(xi);
+            out.1.push(m - offset(xi));
+            out.2.push(s.err);
+            out.3.push(*s);
+        }
+    }
+    out
+}
+
+/// The weighted polynomial fit of degree p − 1, with the coefficient errors
+/// from the fields when `series` is given and they are defined (else the
+/// fit's own).
+fn fit_fields(
+    x: &[f64],
+    y: &[f64],
+    s: &[Option<f64>],
+    series: Option<&[&FieldSeries]>,
+    p: usize,
+) -> Option<PolyFit> {
+    let mut f = fit_poly(x, y, s, p)?;
+    if let Some(series) = series {
+        // The coefficients are linear in y: row k of the hat matrix is the
+        // fit of the unit vectors.
+        let n = x.len();
+        let mut rows = vec![vec![0.0; n]; p];
+        for d in 0..n {
+            let mut e = vec![0.0; n];
+            e[d] = 1.0;
+            let fd = fit_poly(x, &e, s, p)?;
+            for (k, row) in rows.iter_mut().enumerate() {
+                row[d] = fd.coef[k];
+            }
+        }
+        for (k, row) in rows.iter().enumerate() {
+            if let Some(e) = paired_error(row, series) {
+                f.err[k] = Some(e);
+            }
+        }
+    }
+    Some(f)
+}
+
+fn response(
+    x: &[f64],
+    y: &[f64],
+    s: &[Option<f64>],
+    series: Option<&[&FieldSeries]>,
+    linear: Option<bool>,
+) -> Response {
+    let quadratic = if x.len() >= 3 && linear != Some(true) {
+        fit_fields(x, y, s, series, 3)
     } else {
         None
     };
-    if let Some(f) = quadratic.filter(|f| f.err[2].is_some_and(|qe| f.coef[2].abs() >= 2.0 * qe)) {
+    let keep = |f: &PolyFit| match linear {
+        Some(l) => !l,
+        None => f.err[2].is_some_and(|qe| f.coef[2].abs() >= 2.0 * qe),
+    };
+    if let Some(f) = quadratic.filter(keep) {
         return Response {
             m: coef(&f, 1),
             q: coef(&f, 2),
@@ -330,7 +528,7 @@ pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
             linear: false,
         };
     }
-    if let Some(f) = fit_poly(&x, &y, &s, 2) {
+    if let Some(f) = fit_fields(x, y, s, series, 2) {
         return Response {
             m: coef(&f, 1),
             q: (Some(0.0), None),
@@ -338,7 +536,7 @@ pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
             linear: true,
         };
     }
-    let (c, ce) = mean_with_errors(points.iter().map(|p| (p.1 - p.0, p.2)));
+    let (c, ce) = plain_mean(y, s, series);
     Response {
         m: (None, None),
         q: (None, None),
@@ -350,67 +548,86 @@ pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
 /// A value and its error, either possibly missing.
 pub type ValErr = (Option<f64>, Option<f64>);
 
-/// Straight-line fit y = m x + c over points (x, y, σ): (m, c).
-fn fit_linear(points: &[(f64, f64, Option<f64>)]) -> (ValErr, ValErr) {
-    let x: Vec<f64> = points.iter().map(|p| p.0).collect();
-    let y: Vec<f64> = points.iter().map(|p| p.1).collect();
-    let s: Vec<Option<f64>> = points.iter().map(|p| p.2).collect();
-    match fit_poly(&x, &y, &s, 2) {
+/// Straight-line fit y = m x + c of the series' means against `x`: (m, c),
+/// errors from the fields.
+fn fit_linear(x: &[f64], series: &[&FieldSeries]) -> (ValErr, ValErr) {
+    let (x, y, s, kept) = fit_inputs(x, series, |_| 0.0);
+    match fit_fields(&x, &y, &s, Some(&kept), 2) {
         Some(f) => (coef(&f, 1), coef(&f, 0)),
-        None => (
-            (None, None),
-            mean_with_errors(points.iter().map(|p| (p.1, p.2))),
-        ),
+        None => ((None, None), plain_mean(&y, &s, Some(&kept))),
     }
 }
 
-/// Plain mean of values with errors; error = sqrt(Σσ²)/n when every σ is
-/// known.
-fn mean_with_errors(v: impl Iterator<Item = (f64, Option<f64>)>) -> (Option<f64>, Option<f64>) {
-    let v: Vec<(f64, Option<f64>)> = v.collect();
-    if v.is_empty() {
+/// Plain mean of `y`; its error from the fields when `series` is given and
+/// it is defined, else sqrt(Σσ²)/n when every σ is known.
+fn plain_mean(y: &[f64], s: &[Option<f64>], series: Option<&[&FieldSeries]>) -> ValErr {
+    if y.is_empty() {
         return (None, None);
     }
-    let n = v.len() as f64;
-    let mean = v.iter().map(|p| p.0).sum::<f64>() / n;
-    let err = v
-        .iter()
-        .map(|p| p.1.map(|e| e * e))
-        .sum::<Option<f64>>()
-        .map(|s| s.sqrt() / n);
+    let n = y.len() as f64;
+    let mean = y.iter().sum::<f64>() / n;
+    let paired = series.and_then(|series| paired_error(&vec![1.0 / n; y.len()], series));
+    let err = paired.or_else(|| {
+        s.iter()
+            .map(|e| e.map(|e| e * e))
+            .sum::<Option<f64>>()
+            .map(|v| v.sqrt() / n)
+    });
     (Some(mean), err)
 }
 
-fn points(
-    cores: &[(&DatasetMeta, &Core)],
-    x: impl Fn(&DatasetMeta) -> f64,
-    y: impl Fn(&Core) -> (Option<f64>, Option<f64>),
-) -> Vec<(f64, f64, Option<f64>)> {
-    cores
-        .iter()
-        .filter_map(|(m, c)| {
-            let (v, e) = y(c);
-            Some((x(m), v?, e))
-        })
-        .collect()
+/// The fit model of each PSF (`true` = linear), chosen on the full data
+/// and kept in every bootstrap resample.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FitModel {
+    /// γ1 response.
+    pub g1_linear: bool,
+    /// γ2 response (when fitted).
+    pub g2_linear: Option<bool>,
+    /// γ1 response of the rows matched to galaxies.
+    pub g1u_linear: bool,
+    /// γ1 response of the rows matched to isolated galaxies.
+    pub g1iso_linear: bool,
 }
 
-fn psf_numbers(name: &str, cores: &[(&DatasetMeta, &Core)]) -> PsfReport {
-    let g1 = |m: &DatasetMeta| m.g1;
-    let r1 = fit_response(&points(cores, g1, |c| c.g1));
+fn psf_numbers(
+    name: &str,
+    cores: &[(&DatasetMeta, &Core)],
+    model: Option<FitModel>,
+) -> (PsfReport, FitModel) {
+    let g1: Vec<f64> = cores.iter().map(|(m, _)| m.g1).collect();
+    let pick = |f: fn(&Core) -> &FieldSeries| -> Vec<&FieldSeries> {
+        cores.iter().map(|(_, c)| f(c)).collect()
+    };
+    let r1 = fit_response_fields(&g1, &pick(|c| &c.g1), model.map(|m| m.g1_linear));
     let g2_const = cores.windows(2).all(|w| w[0].0.g2 == w[1].0.g2);
+    let g2: Vec<f64> = cores.iter().map(|(m, _)| m.g2).collect();
     let (c2, r2) = if g2_const {
-        let p = points(cores, |m| m.g2, |c| c.g2);
-        (mean_with_errors(p.iter().map(|p| (p.1 - p.0, p.2))), None)
+        let (_, y, s, kept) = fit_inputs(&g2, &pick(|c| &c.g2), |x| x);
+        (plain_mean(&y, &s, Some(&kept)), None)
     } else {
-        let r = fit_response(&points(cores, |m| m.g2, |c| c.g2));
+        let r = fit_response_fields(&g2, &pick(|c| &c.g2), model.and_then(|m| m.g2_linear));
         (r.c, Some(r))
     };
-    let ru = fit_response(&points(cores, g1, |c| c.g1u));
-    let (m_selc, c1_selc) = fit_linear(&points(cores, g1, |c| c.e1s));
-    let c2_selc = mean_with_errors(points(cores, g1, |c| c.e2s).iter().map(|p| (p.1, p.2)));
-    let (m_weight, c1_weight) = fit_linear(&points(cores, g1, |c| c.dw));
-    PsfReport {
+    let ru = fit_response_fields(&g1, &pick(|c| &c.g1u), model.map(|m| m.g1u_linear));
+    let ri = fit_response_fields(&g1, &pick(|c| &c.g1iso), model.map(|m| m.g1iso_linear));
+    let c2_iso = {
+        let (_, y, s, kept) = fit_inputs(&g2, &pick(|c| &c.g2iso), |x| x);
+        plain_mean(&y, &s, Some(&kept))
+    };
+    let (m_selc, c1_selc) = fit_linear(&g1, &pick(|c| &c.e1s));
+    let c2_selc = {
+        let (_, y, s, kept) = fit_inputs(&g1, &pick(|c| &c.e2s), |_| 0.0);
+        plain_mean(&y, &s, Some(&kept))
+    };
+    let (m_weight, c1_weight) = fit_linear(&g1, &pick(|c| &c.dw));
+    let used = FitModel {
+        g1_linear: r1.linear,
+        g2_linear: r2.as_ref().map(|r| r.linear),
+        g1u_linear: ru.linear,
+        g1iso_linear: ri.linear,
+    };
+    let rep = PsfReport {
         psf: name.to_owned(),
         m: r1.m.0,
         m_err: r1.m.1,
@@ -437,7 +654,14 @@ fn psf_numbers(name: &str, cores: &[(&DatasetMeta, &Core)]) -> PsfReport {
         m_weight_err: m_weight.1,
         c1_weight: c1_weight.0,
         c1_weight_err: c1_weight.1,
-    }
+        m_isolated: ri.m.0,
+        m_isolated_err: ri.m.1,
+        c1_isolated: ri.c.0,
+        c1_isolated_err: ri.c.1,
+        c2_isolated: c2_iso.0,
+        c2_isolated_err: c2_iso.1,
+    };
+    (rep, used)
 }
 
 fn mean_of(v: impl Iterator<Item = Option<f64>>) -> Option<f64> {
@@ -480,7 +704,9 @@ pub fn summarize(psfs: &[PsfReport]) -> Summary {
         m_selc_mean: mean_of(psfs.iter().map(|p| p.m_selc)),
         sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
         m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
+        m_isolated_mean: mean_of(psfs.iter().map(|p| p.m_isolated)),
         q_c: q_c(psfs),
+        pct_chance_match: None,
         bootstrap: None,
     }
 }
@@ -494,12 +720,26 @@ pub struct Scores {
     pub psfs: Vec<PsfReport>,
     /// Averages over PSFs.
     pub summary: Summary,
+    /// The fit model of each PSF, (psf id, model), ordered by PSF id.
+    pub models: Vec<(u32, FitModel)>,
 }
 
 /// Per-dataset numbers, per-PSF fits and the summary from the image sums.
 /// `stats` may hold several images of one dataset in any order; datasets
-/// without images are left out.
+/// without images are left out. Images of the same `field` (a base field
+/// and its rotated twin) are averaged before the statistics over fields.
 pub fn score_tables(meta: &[DatasetMeta], stats: &[ImageStats], area_arcmin2: f64) -> Scores {
+    score_tables_with(meta, stats, area_arcmin2, &[])
+}
+
+/// [`score_tables`] with the fit model of the PSFs listed in `models`
+/// fixed (the others choose theirs from the data).
+pub fn score_tables_with(
+    meta: &[DatasetMeta],
+    stats: &[ImageStats],
+    area_arcmin2: f64,
+    models: &[(u32, FitModel)],
+) -> Scores {
     let mut by_ds: Vec<Vec<&ImageStats>> = vec![Vec::new(); meta.len()];
     for s in stats {
         by_ds[s.dataset].push(s);
@@ -517,7 +757,7 @@ pub fn score_tables(meta: &[DatasetMeta], stats: &[ImageStats], area_arcmin2: f6
     let mut psf_ids: Vec<u32> = cores.iter().map(|(m, _)| m.psf_id).collect();
     psf_ids.sort_unstable();
     psf_ids.dedup();
-    let psfs: Vec<PsfReport> = psf_ids
+    let (psfs, used): (Vec<PsfReport>, Vec<(u32, FitModel)>) = psf_ids
         .iter()
         .map(|&p| {
             let mut group: Vec<(&DatasetMeta, &Core)> = cores
@@ -526,14 +766,18 @@ pub fn score_tables(meta: &[DatasetMeta], stats: &[ImageStats], area_arcmin2: f6
                 .map(|(m, c)| (*m, c))
                 .collect();
             group.sort_by(|a, b| a.0.g1.total_cmp(&b.0.g1));
-            psf_numbers(&group[0].0.psf, &group)
+            let fixed = models.iter().find(|m| m.0 == p).map(|m| m.1);
+            let (rep, model) = psf_numbers(&group[0].0.psf, &group, fixed);
+            (rep, (p, model))
         })
-        .collect();
-    let summary = summarize(&psfs);
+        .unzip();
+    let mut summary = summarize(&psfs);
+    summary.pct_chance_match = mean_of(datasets.iter().map(|d| d.pct_chance_match));
     Scores {
         datasets,
         psfs,
         summary,
+        models: used,
     }
 }
 
@@ -544,23 +788,31 @@ fn bin_report(
     hi: f64,
     pick: impl Fn(&ImageStats) -> BinAcc,
 ) -> BinReport {
-    let mut per_ds: Vec<(Vec<f64>, Vec<f64>)> = vec![(Vec::new(), Vec::new()); meta.len()];
+    let mut by_ds: Vec<Vec<&ImageStats>> = vec![Vec::new(); meta.len()];
     let mut n = 0;
     for s in stats {
-        let b = pick(s);
-        n += b.n;
-        if b.sw > 0.0 {
-            let m = &meta[s.dataset];
-            per_ds[s.dataset].0.push(b.swe1 / b.sw - m.g1);
-            per_ds[s.dataset].1.push(b.swe2 / b.sw - m.g2);
-        }
+        n += pick(s).n;
+        by_ds[s.dataset].push(s);
     }
     let comp = |k: usize| {
-        mean_with_errors(per_ds.iter().filter_map(|v| {
-            let v = if k == 0 { &v.0 } else { &v.1 };
-            let (m, e) = mean_and_error(v);
-            Some((m?, e))
-        }))
+        let series: Vec<FieldSeries> = by_ds
+            .iter()
+            .enumerate()
+            .map(|(d, imgs)| {
+                FieldSeries::of(imgs, |s| {
+                    let b = pick(s);
+                    let (g, sum) = if k == 0 {
+                        (meta[d].g1, b.swe1)
+                    } else {
+                        (meta[d].g2, b.swe2)
+                    };
+                    (b.sw > 0.0).then(|| sum / b.sw - g)
+                })
+            })
+            .collect();
+        let refs: Vec<&FieldSeries> = series.iter().collect();
+        let (_, y, s, kept) = fit_inputs(&vec![0.0; refs.len()], &refs, |_| 0.0);
+        plain_mean(&y, &s, Some(&kept))
     };
     let (g1, g1e) = comp(0);
     let (g2, g2e) = comp(1);
@@ -577,9 +829,9 @@ fn bin_report(
 }
 
 /// Residuals γ − γ_true of the matched galaxies binned in a true property:
-/// for each bin and dataset, per-image weighted mean of the bin's galaxies,
-/// mean over images minus the applied shear, then the plain mean over
-/// datasets (error: sqrt(Σσ_d²)/n_d).
+/// for each bin and dataset, per-image weighted mean of the bin's galaxies
+/// minus the applied shear, reduced over fields ([`FieldSeries`]), then the
+/// plain mean over datasets (error from the fields, [`paired_error`]).
 pub fn binned_residuals(
     meta: &[DatasetMeta],
     stats: &[ImageStats],
@@ -601,6 +853,137 @@ pub fn binned_residuals(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn chance_matches_measure_the_area_within_the_radius() {
+        let at = |x: f64, y: f64| TruthRow {
+            x,
+            y,
+            ..TruthRow::default()
+        };
+        // A disc of radius 10 px in the middle of a 100² image: π 100 / 1e4.
+        let (h, n) = chance_matches(&[at(50.5, 50.5)], 100, 100, 10.0);
+        assert_eq!(n, 128 * 128);
+        let f = h as f64 / n as f64;
+        assert!((f - std::f64::consts::PI * 1e-2).abs() < 1e-3, "{f}");
+        // An object off the image still catches positions on it: the disc's
+        // segment beyond the edge x = 0.5 (centre 5.5 px outside).
+        let (h, _) = chance_matches(&[at(-5.0, 50.5)], 100, 100, 10.0);
+        let d: f64 = 5.5;
+        let seg = 100.0 * (d / 10.0).acos() - d * (100.0 - d * d).sqrt();
+        let f = h as f64 / n as f64;
+        assert!((f - seg / 1e4).abs() < 5e-4, "{f} vs {}", seg / 1e4);
+        assert_eq!(chance_matches(&[], 100, 100, 10.0), (0, n));
+        // Per dataset and in the summary: the synthetic run's 196 objects
+        // per field, all discs (r = 1″ = 5 px) on the image and disjoint.
+        let spec = crate::synthetic::SynthSpec::small(2);
+        let run = crate::synthetic::make_run(&spec);
+        let rows = run.submission(&|t, _| Some((t.e1, t.e2, 1.0)));
+        let scores = score_tables(&run.meta(), &run.stats(&rows, 1.0), 1.0);
+        let want = 100.0 * 196.0 * std::f64::consts::PI * 25.0 / 9e4;
+        for d in &scores.datasets {
+            let got = d.pct_chance_match.unwrap();
+            assert!((got - want).abs() < 0.2, "{got} vs {want}");
+            assert_eq!(d.pct_false, 0.0);
+        }
+        let got = scores.summary.pct_chance_match.unwrap();
+        assert!((got - want).abs() < 0.2, "{got} vs {want}");
+    }
+
+    #[test]
+    fn paired_errors_follow_the_shared_fields() {
+        let img = |dataset, field, g: f64| ImageStats {
+            dataset,
+            field,
+            all: BinAcc {
+                n: 1,
+                sw: 1.0,
+                swe1: g,
+                swe2: 0.0,
+            },
+            ..Default::default()
+        };
+        let v = [0.01, -0.02, 0.03, 0.005];
+        // One dataset: the error over fields, twins averaged first.
+        let mut one = Vec::new();
+        for (f, &x) in v.iter().enumerate() {
+            one.push(img(0, f as u32, x + 0.1));
+            one.push(img(0, f as u32, x - 0.1));
+        }
+        let refs: Vec<&ImageStats> = one.iter().collect();
+        let s = FieldSeries::of(&refs, |s| Some(s.all.swe1));
+        assert_eq!(s.fields.len(), 4);
+        let (m, e) = mean_and_error(&v);
+        assert!((s.mean.unwrap() - m.unwrap()).abs() < 1e-15);
+        assert!((s.err.unwrap() - e.unwrap()).abs() < 1e-15);
+        assert!((paired_error(&[1.0], &[&s]).unwrap() - e.unwrap()).abs() < 1e-15);
+        // Two datasets showing the same fields, one offset by a constant:
+        // their difference has no field noise at all, their sum twice it.
+        let other: Vec<ImageStats> = one
+            .iter()
+            .map(|s| ImageStats {
+                dataset: 1,
+                all: BinAcc {
+                    swe1: s.all.swe1 + 0.05,
+                    ..s.all
+                },
+                ..s.clone()
+            })
+            .collect();
+        let refs2: Vec<&ImageStats> = other.iter().collect();
+        let s2 = FieldSeries::of(&refs2, |s| Some(s.all.swe1));
+        assert!(paired_error(&[1.0, -1.0], &[&s, &s2]).unwrap() < 1e-15);
+        let sum = paired_error(&[1.0, 1.0], &[&s, &s2]).unwrap();
+        assert!((sum - 2.0 * e.unwrap()).abs() < 1e-15, "{sum}");
+        // A single field gives no error.
+        let single = FieldSeries::of(&refs[..2], |s| Some(s.all.swe1));
+        assert_eq!(paired_error(&[1.0], &[&single]), None);
+    }
+
+    #[test]
+    fn isolated_galaxies_give_their_own_m_and_c() {
+        // Isolated galaxies measured with m = 0, c1 = 1e-3; galaxies with a
+        // bright neighbour within 3″ with m = −0.2: the isolated figures see
+        // only the former, the paper's m a mixture.
+        let spec = crate::synthetic::SynthSpec::small(2);
+        let run = crate::synthetic::make_run(&spec);
+        let r_px = crate::isolation::ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let mut iso = std::collections::HashSet::new();
+        let mut counts = (0, 0);
+        for t in &run.truth {
+            for (row, ok) in
+                t.iter()
+                    .zip(crate::isolation::isolated(t, r_px, ISOLATION_FLUX_FRACTION))
+            {
+                if ok {
+                    iso.insert((row.x.to_bits(), row.y.to_bits()));
+                    counts.0 += 1;
+                } else if !row.is_star() {
+                    counts.1 += 1;
+                }
+            }
+        }
+        assert!(counts.0 > 0 && counts.1 > 0, "{counts:?}");
+        let ds = run.datasets.datasets.clone();
+        let rows = run.submission(&|t, d| {
+            let g = (ds[d].g1, ds[d].g2);
+            if t.is_star() {
+                None
+            } else if iso.contains(&(t.x.to_bits(), t.y.to_bits())) {
+                Some((g.0 + 1e-3, g.1 - 2e-3, 1.0))
+            } else {
+                Some((0.8 * g.0, g.1, 1.0))
+            }
+        });
+        let scores = score_tables(&run.meta(), &run.stats(&rows, 1.0), 1.0);
+        for p in &scores.psfs {
+            assert!(p.m_isolated.unwrap().abs() < 1e-12, "{p:?}");
+            assert!((p.c1_isolated.unwrap() - 1e-3).abs() < 1e-12);
+            assert!((p.c2_isolated.unwrap() + 2e-3).abs() < 1e-12);
+            assert!(p.m.unwrap() < -0.01 && p.m.unwrap() > -0.2, "{:?}", p.m);
+        }
+        assert!(scores.summary.m_isolated_mean.unwrap().abs() < 1e-12);
+    }
 
     #[test]
     fn bins_include_their_lower_edge() {
@@ -669,6 +1052,12 @@ mod tests {
             m_weight_err: None,
             c1_weight: None,
             c1_weight_err: None,
+            m_isolated: None,
+            m_isolated_err: None,
+            c1_isolated: None,
+            c1_isolated_err: None,
+            c2_isolated: None,
+            c2_isolated_err: None,
         };
         assert!((q_c(std::slice::from_ref(&p)).unwrap() - 1232.0).abs() < 1e-9);
         let p2 = PsfReport {

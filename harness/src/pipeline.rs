@@ -123,6 +123,8 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
                 rows,
                 &truth,
                 radius_px,
+                (p.truth.index.width_px, p.truth.index.height_px),
+                crate::isolation::ISOLATION_RADIUS_ARCSEC / p.truth.index.pixel_scale_arcsec,
             ))
         })
         .collect()

@@ -51,9 +51,10 @@ pub struct DatasetReport {
     pub n_images: usize,
     /// Submitted rows.
     pub n_objects: u64,
-    /// Mean over images of the weighted mean γ̂1.
+    /// Mean over base fields (twins averaged first) of the per-image
+    /// weighted mean γ̂1.
     pub g1: Option<f64>,
-    /// Its error (std over images / √N).
+    /// Its error (std over base fields / √F).
     pub g1_err: Option<f64>,
     /// Same for γ̂2.
     pub g2: Option<f64>,
@@ -69,6 +70,11 @@ pub struct DatasetReport {
     pub pct_stars_weighted: Option<f64>,
     /// 100 Σw(false) / Σw.
     pub pct_false_weighted: Option<f64>,
+    /// Percentage of on-image positions (a regular 128² lattice per image)
+    /// within the match radius of a truth object: how often a detection at a
+    /// random position would count as real (read `pct_false` against it).
+    #[serde(default)]
+    pub pct_chance_match: Option<f64>,
     /// γ1_true / σ_γ1.
     pub snr: Option<f64>,
     /// γ1_true / σ(true e1 of the matched galaxies).
@@ -136,6 +142,26 @@ pub struct PsfReport {
     pub c1_weight: Option<f64>,
     /// Its error.
     pub c1_weight_err: Option<f64>,
+    /// m from rows matched to isolated galaxies (no neighbour above 10 % of
+    /// the flux within 3″; `isolation.rs`): the method without the scene's
+    /// blending.
+    #[serde(default)]
+    pub m_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub m_isolated_err: Option<f64>,
+    /// c1 from the same rows.
+    #[serde(default)]
+    pub c1_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub c1_isolated_err: Option<f64>,
+    /// c2 from the same rows (mean of γ2 − γ2_true, as `c2`).
+    #[serde(default)]
+    pub c2_isolated: Option<f64>,
+    /// Its error.
+    #[serde(default)]
+    pub c2_isolated_err: Option<f64>,
 }
 
 /// Averages over PSFs (paper Table 5) and the extra figures.
@@ -155,8 +181,14 @@ pub struct Summary {
     pub sigma_c_selc: Option<f64>,
     /// ⟨m_weight⟩.
     pub m_weight_mean: Option<f64>,
+    /// ⟨m_isolated⟩.
+    #[serde(default)]
+    pub m_isolated_mean: Option<f64>,
     /// GREAT3-style quality factor Q_c.
     pub q_c: Option<f64>,
+    /// Mean over datasets of `pct_chance_match`.
+    #[serde(default)]
+    pub pct_chance_match: Option<f64>,
     /// Bootstrap confidence intervals (over base fields).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bootstrap: Option<BootstrapCi>,

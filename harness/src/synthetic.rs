@@ -41,6 +41,10 @@ pub struct SynthSpec {
     pub star_fraction: f64,
     /// Independent random shapes instead of rings.
     pub shape_noise: bool,
+    /// Every base field also appears as its 90°-rotated twin (each galaxy's
+    /// intrinsic ellipticity negated, positions unchanged), as with
+    /// `population.rotated_pairs`.
+    pub rotated_pairs: bool,
     /// Seed.
     pub seed: u64,
 }
@@ -69,6 +73,7 @@ impl SynthSpec {
             ring_size: 8,
             star_fraction: 0.1,
             shape_noise: false,
+            rotated_pairs: false,
             seed: 1,
         }
     }
@@ -201,26 +206,37 @@ pub fn make_run(spec: &SynthSpec) -> SynthRun {
         for (s, &(g1, g2)) in spec.shears.iter().enumerate() {
             let d = p * spec.shears.len() + s;
             let mut images = Vec::new();
+            let rotations: &[bool] = if spec.rotated_pairs {
+                &[false, true]
+            } else {
+                &[false]
+            };
             for f in 0..spec.n_fields {
-                images.push(DatasetImage {
-                    image: format!("i{d:03}f{f:03}"),
-                    field: f,
-                    rotated: false,
-                });
-                truth.push(
-                    fields[f as usize]
-                        .iter()
-                        .map(|r| {
-                            let mut r = *r;
-                            if !r.is_star() {
-                                (r.e1, r.e2) = shear((r.e1_int, r.e2_int), (g1, g2));
-                                r.g1 = g1;
-                                r.g2 = g2;
-                            }
-                            r
-                        })
-                        .collect(),
-                );
+                for &rotated in rotations {
+                    images.push(DatasetImage {
+                        image: format!("i{d:03}f{f:03}{}", if rotated { "r" } else { "" }),
+                        field: f,
+                        rotated,
+                    });
+                    truth.push(
+                        fields[f as usize]
+                            .iter()
+                            .map(|r| {
+                                let mut r = *r;
+                                if !r.is_star() {
+                                    if rotated {
+                                        (r.e1_int, r.e2_int) = (-r.e1_int, -r.e2_int);
+                                        r.pa_deg = (r.pa_deg + 90.0) % 180.0;
+                                    }
+                                    (r.e1, r.e2) = shear((r.e1_int, r.e2_int), (g1, g2));
+                                    r.g1 = g1;
+                                    r.g2 = g2;
+                                }
+                                r
+                            })
+                            .collect(),
+                    );
+                }
             }
             datasets.push(DatasetEntry {
                 dataset: format!("d{d:03}"),
@@ -299,7 +315,17 @@ impl SynthRun {
             .iter()
             .enumerate()
             .filter(|(i, _)| !rows[*i].is_empty())
-            .map(|(i, info)| match_image(info.dataset, info.field, &rows[i], &self.truth[i], r))
+            .map(|(i, info)| {
+                match_image(
+                    info.dataset,
+                    info.field,
+                    &rows[i],
+                    &self.truth[i],
+                    r,
+                    (self.datasets.width_px, self.datasets.height_px),
+                    crate::isolation::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
+                )
+            })
             .collect()
     }
 

@@ -280,11 +280,7 @@ mod tests {
             assert_eq!(a.e2, 0.0, "columns not needed are not read");
         }
         let e = read_scoring_columns(&dir.path().join("none.fits")).unwrap_err();
-        assert!(
-            e.to_string()
-                .ends_with("none.fits: the file cannot be opened"),
-            "{e}"
-        );
+        assert!(e.to_string().contains("none.fits: no such file"), "{e}");
     }
 
     #[test]

@@ -140,7 +140,28 @@ pub fn adaptive(
             (0, f64::NEG_INFINITY),
             |b, (i, &v)| if v > b.1 { (i, v) } else { b },
         );
-    let (mut cx, mut cy) = ((peak.0 % nx) as f64, (peak.0 / nx) as f64);
+    let start = ((peak.0 % nx) as f64 + 1.0, (peak.0 / nx) as f64 + 1.0);
+    adaptive_from(image, nx, ny, start, sigma_guess_px)
+}
+
+/// [`adaptive`] with the iteration started at `start` (FITS pixels of the
+/// image) instead of the brightest pixel: measures the object there when a
+/// brighter neighbour shares the image.
+pub fn adaptive_from(
+    image: &[f64],
+    nx: usize,
+    ny: usize,
+    start: (f64, f64),
+    sigma_guess_px: f64,
+) -> Result<Moments, MomentsError> {
+    if image.len() != nx * ny {
+        return Err(MomentsError::Shape {
+            len: image.len(),
+            nx,
+            ny,
+        });
+    }
+    let (mut cx, mut cy) = (start.0 - 1.0, start.1 - 1.0);
     let s2 = sigma_guess_px.max(0.5).powi(2);
     let (mut mxx, mut myy, mut mxy) = (s2, s2, 0.0);
     const MAX_ITER: usize = 500;
@@ -228,6 +249,30 @@ mod tests {
             }
         }
         img
+    }
+
+    #[test]
+    fn adaptive_from_measures_the_object_at_its_start() {
+        // A faint round Gaussian at (20, 20) and one 10× brighter at (60, 60):
+        // from the brightest pixel the bright one is measured; started at
+        // the faint one, the faint one.
+        let faint = gaussian(80, 20.0, 20.0, 2.5, (0.2, 0.0));
+        let bright = gaussian(80, 60.0, 60.0, 3.0, (0.0, 0.0));
+        let img: Vec<f64> = faint
+            .iter()
+            .zip(&bright)
+            .map(|(a, b)| a + 10.0 * b)
+            .collect();
+        let m = adaptive(&img, 80, 80, 2.0).unwrap();
+        assert!((m.x - 60.0).abs() < 1e-3, "{m:?}");
+        let f = adaptive_from(&img, 80, 80, (20.4, 19.6), 2.0).unwrap();
+        assert!(
+            (f.x - 20.0).abs() < 1e-3 && (f.y - 20.0).abs() < 1e-3,
+            "{f:?}"
+        );
+        assert!((f.chi().0 - 0.2).abs() < 1e-5, "{:?}", f.chi());
+        // Started at the brightest pixel it is `adaptive`.
+        assert_eq!(adaptive_from(&img, 80, 80, (60.0, 60.0), 2.0).unwrap(), m);
     }
 
     #[test]

@@ -60,6 +60,20 @@ pub fn shear_matrix(g1: f64, g2: f64) -> [[f64; 2]; 2] {
     [[s * (1.0 - g1), -s * g2], [-s * g2, s * (1.0 + g1)]]
 }
 
+/// Where a point at offset `d` from the lensing centre (source plane)
+/// appears through the constant reduced shear g: x = A⁻¹ d, with
+/// A⁻¹ = (1−|g|²)^(−1/2) [[1+g1, g2], [g2, 1−g1]] the inverse of
+/// [`shear_matrix`]. This is the mapping of positions that goes with the
+/// sheared profiles I'(x) = I(A x): a pattern of points is stretched like
+/// every galaxy (positive g1 along x), and areas are kept (κ = 0).
+pub fn lens_offset(d: (f64, f64), g1: f64, g2: f64) -> (f64, f64) {
+    let s = 1.0 / (1.0 - g1 * g1 - g2 * g2).sqrt();
+    (
+        s * ((1.0 + g1) * d.0 + g2 * d.1),
+        s * (g2 * d.0 + (1.0 - g1) * d.1),
+    )
+}
+
 /// A symmetric 2×2 second-moment tensor Q (arcsec², or any squared unit),
 /// Q = ∫ x xᵀ I(x) d²x / ∫ I d²x about the centroid.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -159,6 +173,21 @@ mod tests {
     use crate::seed::{SeedKey, Stream};
     use rand::RngExt;
     use std::f64::consts::PI;
+
+    #[test]
+    fn lensed_offsets_undo_the_shear_matrix() {
+        for (g1, g2) in [(0.1, 0.0), (0.0, 0.05), (-0.03, 0.07)] {
+            let a = shear_matrix(g1, g2);
+            for d in [(1.0, 0.0), (0.0, 1.0), (3.0, -2.0)] {
+                let x = lens_offset(d, g1, g2);
+                let back = (a[0][0] * x.0 + a[0][1] * x.1, a[1][0] * x.0 + a[1][1] * x.1);
+                assert!((back.0 - d.0).abs() < 1e-14 && (back.1 - d.1).abs() < 1e-14);
+            }
+        }
+        // Positive g1 stretches along x and squeezes along y.
+        let x = lens_offset((1.0, 1.0), 0.1, 0.0);
+        assert!(x.0 > 1.09 && x.1 < 0.91, "{x:?}");
+    }
 
     #[test]
     fn eq1_and_distortion_by_hand() {

@@ -30,10 +30,10 @@ pub struct Args {
     /// Output directory (created if missing).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Side of the PSF image at the pixel scale, in pixels (even, 16 to 4096).
-    #[arg(long, default_value_t = psf_fits::DEFAULT_SIZE_PX as u32, value_name = "PX",
-          value_parser = even_size)]
-    size_px: u32,
+    /// Side of the PSF image at the pixel scale, in pixels (even, 16 to 4096;
+    /// default: the extent the renderer gives each PSF, at least 128).
+    #[arg(long, value_name = "PX", value_parser = even_size)]
+    size_px: Option<u32>,
     /// Samples per pixel of the oversampled image (1 to 16).
     #[arg(long, default_value_t = psf_fits::DEFAULT_OVERSAMPLE as u32, value_name = "N",
           value_parser = clap::value_parser!(u32).range(1..=16))]
@@ -55,7 +55,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
     let p = plan.raw.image.pixel_scale_arcsec;
-    let (n, os) = (args.size_px as usize, args.oversample as usize);
+    let os = args.oversample as usize;
+    let max_stamp_px = plan.raw.render.max_stamp_px as usize;
     // One PSF per work item, at most two at a time (each holds ~200 MB of
     // 2048² grids); results are gathered in config order, so the output does
     // not depend on scheduling.
@@ -67,9 +68,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let psfs = &plan.raw.psfs;
     let next = std::sync::atomic::AtomicUsize::new(0);
     let workers = super::available_cores().min(2).min(psfs.len());
+    // The file side is known per PSF once it is built; bound it from above.
+    let n_max = args.size_px.map_or(
+        (max_stamp_px + 2).max(psf_fits::DEFAULT_SIZE_PX),
+        |n| n as usize,
+    );
     super::check_memory(
         "psf",
-        stepsim_sim::memory::psf_estimate(&plan, n, os, workers),
+        stepsim_sim::memory::psf_estimate(&plan, n_max, os, workers),
         "lower --size-px or --oversample",
     )?;
     let one = |raw: &stepsim_sim::config::RawPsf| -> anyhow::Result<Done> {
@@ -86,6 +92,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             start.elapsed().as_secs_f64()
         );
         let path = args.out.join(format!("{}.fits", raw.name));
+        let n = args.size_px.map_or_else(
+            || psf_fits::renderer_side_px(built.as_ref(), p, max_stamp_px),
+            |n| n as usize,
+        );
         write_psf(&path, &raw.name, built.as_ref(), p, n, os, Some(&report))?;
         // Pictures: cores at p/8, wings at p/2.
         Ok(Done {

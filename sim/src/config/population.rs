@@ -22,6 +22,11 @@ pub struct RawPopulation {
     /// angle turned by 90° (STEP2/GREAT3 shape-noise cancellation). Doubles
     /// the number of images per dataset.
     pub rotated_pairs: bool,
+    /// Beyond STEP1: lens the galaxies' positions with the dataset's shear
+    /// too (x = A⁻¹ x_s about the image centre, the mapping that goes with
+    /// the shear matrix A of the profiles; stars stay put). Off by default
+    /// and in the STEP1 presets: STEP1 sheared shapes only (κ = 0).
+    pub lens_positions: bool,
 }
 
 /// Where the objects of the base fields come from.

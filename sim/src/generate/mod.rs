@@ -560,7 +560,10 @@ fn make_image(
     let raw = &plan.raw;
     let d = &plan.datasets[job.dataset as usize];
     let (w, h) = (raw.image.width_px, raw.image.height_px);
-    let rows = crate::population::sheared(base, d.g1, d.g2);
+    let mut rows = crate::population::sheared(base, d.g1, d.g2);
+    if raw.population.lens_positions {
+        rows = crate::population::lensed(plan, job.field, &rows, d.g1, d.g2);
+    }
     let model = try_draw_image(renderer, &rows, w, h).map_err(|source| GenerateError::Render {
         field: job.field,
         source,
@@ -666,6 +669,7 @@ fn write_shared(
                 psf,
                 raw,
                 plan.raw.image.pixel_scale_arcsec,
+                plan.raw.render.max_stamp_px as usize,
             )?;
         }
     }
@@ -674,14 +678,16 @@ fn write_shared(
 
 /// Writes `private/psf/<name>.fits`: the pixel-scale image and the
 /// oversampled one, with the measured report in the header (the same file
-/// `stepsim psf` writes, at its default sizes).
+/// `stepsim psf` writes, at its default sizes: the extent the renderer
+/// gives the PSF).
 fn write_psf_file(
     path: &Path,
     psf: &Arc<dyn crate::psf::Psf>,
     raw: &crate::config::RawPsf,
     pixel_scale_arcsec: f64,
+    max_stamp_px: usize,
 ) -> Result<(), IoError> {
-    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX, write_psf};
+    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
     let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
     write_psf(
@@ -689,7 +695,7 @@ fn write_psf_file(
         &raw.name,
         psf.as_ref(),
         pixel_scale_arcsec,
-        DEFAULT_SIZE_PX,
+        renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
         DEFAULT_OVERSAMPLE,
         Some(&report),
     )
@@ -888,6 +894,47 @@ mod tests {
         let other = plan(&["run.seed=5"]);
         let err = generate(&other, dir.path(), &Options::default(), &quiet).unwrap_err();
         assert!(matches!(err, GenerateError::DifferentRun { .. }), "{err}");
+    }
+
+    #[test]
+    fn lens_positions_moves_the_galaxies_of_each_dataset() {
+        // Datasets 0 (g = 0) and 1 (g = (0.04, −0.02)) of field 0: in the
+        // truth tables, every galaxy of dataset 1 sits at the lensed position
+        // of the same galaxy in dataset 0; stars do not move.
+        let dir = tempfile::tempdir().unwrap();
+        let p = plan(&["population.lens_positions=true", "image.n_images=1"]);
+        generate(&p, dir.path(), &Options::default(), &|_: Event| {}).unwrap();
+        let d: Datasets = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join("private/datasets.json")).unwrap(),
+        )
+        .unwrap();
+        let truth = |k: usize| {
+            crate::io::truth::read_truth_fits(&dir.path().join(format!(
+                "private/truth/{}.fits",
+                d.datasets[k].images[0].image
+            )))
+            .unwrap()
+        };
+        let (flat, lensed) = (truth(0), truth(1));
+        let (cx, cy) = crate::population::lensing_centre(&p);
+        let mut moved = 0;
+        for r in &lensed {
+            let Some(f) = flat.iter().find(|f| f.id == r.id) else {
+                continue;
+            };
+            let want = if r.is_star() {
+                (f.x, f.y)
+            } else {
+                let (dx, dy) = crate::shear::lens_offset((f.x - cx, f.y - cy), 0.04, -0.02);
+                (cx + dx, cy + dy)
+            };
+            assert!(
+                (r.x - want.0).abs() < 1e-9 && (r.y - want.1).abs() < 1e-9,
+                "{r:?}"
+            );
+            moved += usize::from(!r.is_star() && (r.x, r.y) != (f.x, f.y));
+        }
+        assert!(moved > 0);
     }
 
     #[test]

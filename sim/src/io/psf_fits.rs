@@ -89,9 +89,26 @@ pub fn write_psf_fits(
     })
 }
 
-/// Side in pixels of the pixel-scale PSF image written by default
-/// (`stepsim psf --size-px`, and the run's `private/psf/` files).
+/// Smallest side in pixels of the pixel-scale PSF image written by default
+/// (`stepsim psf` without `--size-px`, and the run's `private/psf/` files);
+/// see [`renderer_side_px`].
 pub const DEFAULT_SIZE_PX: usize = 128;
+
+/// Side (pixels, even) of the PSF images written by default: the extent the
+/// split renderer gives the PSF around every object, ±[`kernel_margin_px`]
+/// (beyond it the PSF is below 1e-7 of its peak and holds < 1e-5 of the
+/// flux), and at least [`DEFAULT_SIZE_PX`]. 328 for the STEP1 PSFs at
+/// 0.206″ (±163 px); a 128² file missed 1.1e-3 of their flux.
+///
+/// [`kernel_margin_px`]: crate::render::split::kernel_margin_px
+pub fn renderer_side_px(
+    psf: &dyn crate::psf::Psf,
+    pixel_scale_arcsec: f64,
+    max_stamp_px: usize,
+) -> usize {
+    let m = crate::render::split::kernel_margin_px(psf, pixel_scale_arcsec, max_stamp_px);
+    (2 * m + 2).max(DEFAULT_SIZE_PX)
+}
 /// Samples per pixel of the oversampled PSF image written by default.
 pub const DEFAULT_OVERSAMPLE: usize = 4;
 
@@ -225,5 +242,47 @@ mod tests {
             std::fs::read_dir(dir.path().join("psf")).unwrap().count(),
             1
         );
+    }
+
+    #[test]
+    fn psf_files_cover_the_renderer_extent() {
+        // STEP1 PSF 0 at 0.206″: the file reaches ±163 px like the image
+        // kernel; 1.1e-3 of the flux lies outside the central 128² (what the
+        // old 128² file left out), and the outer border holds almost nothing
+        // (no wrapped wings).
+        let p = 0.206;
+        let raw = crate::config::RawPsf::step1_set()
+            .into_iter()
+            .find(|r| r.name == "none")
+            .unwrap();
+        let psf = crate::psf::build(&raw, &crate::config::RawTelescope::default(), p).unwrap();
+        let n = renderer_side_px(psf.as_ref(), p, 1024);
+        assert_eq!(n, 328);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("none.fits");
+        write_psf(&path, "none", psf.as_ref(), p, n, 1, None).unwrap();
+        let (v, nx, ny) = read_psf_fits(&path).unwrap();
+        assert_eq!((nx, ny), (328, 328));
+        let total: f64 = v.iter().sum();
+        let (lo, hi) = (n / 2 - 64, n / 2 + 64);
+        let mut core = 0.0;
+        let mut border = 0.0;
+        for (k, &x) in v.iter().enumerate() {
+            let (i, j) = (k % n, k / n);
+            if (lo..hi).contains(&i) && (lo..hi).contains(&j) {
+                core += x;
+            }
+            if i < 2 || j < 2 || i >= n - 2 || j >= n - 2 {
+                border += x;
+            }
+        }
+        let outside = total - core;
+        eprintln!("sum {total}, outside the central 128²: {outside:.3e}, border {border:.2e}");
+        assert!((total - 1.0).abs() < 1e-9, "{total}");
+        assert!(outside > 9e-4 && outside < 1.3e-3, "{outside}");
+        assert!(border.abs() < 1e-6, "{border}");
+        // A Gaussian needs no more than the smallest default side.
+        let g = crate::psf::GaussianPsf::round(0.9);
+        assert_eq!(renderer_side_px(&g, p, 1024), DEFAULT_SIZE_PX);
     }
 }

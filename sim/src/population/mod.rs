@@ -70,6 +70,69 @@ pub fn placement_area(plan: &Plan) -> (f64, (f64, f64), (f64, f64)) {
     ((xr.1 - xr.0) * (yr.1 - yr.0) * s * s, xr, yr)
 }
 
+/// Where galaxies are placed: [`placement_area`], widened with
+/// `population.lens_positions` so that after lensing by any shear of the plan
+/// the galaxies still cover the image and its margin (the source-plane
+/// rectangle A·(image + margin), A the shear matrix, about the image
+/// centre). Lensing keeps areas, so the density on the image is unchanged.
+pub fn galaxy_placement_area(plan: &Plan) -> (f64, (f64, f64), (f64, f64)) {
+    let (area, xr, yr) = placement_area(plan);
+    if !plan.raw.population.lens_positions {
+        return (area, xr, yr);
+    }
+    let (cx, cy) = lensing_centre(plan);
+    let (mut hx, mut hy) = (xr.1 - cx, yr.1 - cy);
+    let (hx0, hy0) = (hx, hy);
+    for d in &plan.datasets {
+        let a = crate::shear::shear_matrix(d.g1, d.g2);
+        hx = hx.max(a[0][0].abs() * hx0 + a[0][1].abs() * hy0);
+        hy = hy.max(a[1][0].abs() * hx0 + a[1][1].abs() * hy0);
+    }
+    let s = plan.raw.image.pixel_scale_arcsec / 60.0;
+    (
+        4.0 * hx * hy * s * s,
+        (cx - hx, cx + hx),
+        (cy - hy, cy + hy),
+    )
+}
+
+/// The centre of the image in FITS pixels, ((W + 1)/2, (H + 1)/2): the
+/// point about which `population.lens_positions` lenses positions.
+pub fn lensing_centre(plan: &Plan) -> (f64, f64) {
+    let im = &plan.raw.image;
+    (
+        (f64::from(im.width_px) + 1.0) / 2.0,
+        (f64::from(im.height_px) + 1.0) / 2.0,
+    )
+}
+
+/// The galaxies of `rows` with their positions lensed by (g1, g2) about
+/// [`lensing_centre`] ([`crate::shear::lens_offset`]), sky coordinates
+/// recomputed from the field's WCS; stars unchanged. Galaxies that land
+/// beyond the image and its margin ([`placement_area`]) are left out, so
+/// every dataset has the density of an unlensed one.
+pub fn lensed(plan: &Plan, field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
+    let (_, xr, yr) = placement_area(plan);
+    let (cx, cy) = lensing_centre(plan);
+    let wcs = TanWcs::for_field(&plan.raw.image, field);
+    rows.iter()
+        .filter_map(|r| {
+            if r.is_star() {
+                return Some(*r);
+            }
+            let (dx, dy) = crate::shear::lens_offset((r.x - cx, r.y - cy), g1, g2);
+            let (x, y) = (cx + dx, cy + dy);
+            if !(xr.0..=xr.1).contains(&x) || !(yr.0..=yr.1).contains(&y) {
+                return None;
+            }
+            let mut r = *r;
+            (r.x, r.y) = (x, y);
+            (r.ra_deg, r.dec_deg) = wcs.pixel_to_sky(x, y);
+            Some(r)
+        })
+        .collect()
+}
+
 /// The Stuff model of a plan for the configured galaxy magnitude range.
 pub fn model(plan: &Plan) -> StuffModel {
     let g = &plan.raw.population.galaxies;
@@ -112,7 +175,7 @@ pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationEr
 pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
     match &plan.raw.population.source {
         Source::Stuff => {
-            let (area, _, _) = placement_area(plan);
+            let (area, _, _) = galaxy_placement_area(plan);
             let expected = model(plan).density_per_arcmin2() * area;
             if expected > MAX_OBJECTS_PER_FIELD {
                 return Err(PopulationError::TooMany {
@@ -163,7 +226,7 @@ pub fn list_path(plan: &Plan, pattern: &str, field: u32) -> PathBuf {
 fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
     let g = &plan.raw.population.galaxies;
     let model = model(plan);
-    let (area, xr, yr) = placement_area(plan);
+    let (area, xr, yr) = galaxy_placement_area(plan);
     let expected = model.density_per_arcmin2() * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {

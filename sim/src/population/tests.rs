@@ -439,3 +439,89 @@ fn inclinations_follow_the_law_unless_extinction_selects_face_on_disks() {
     let mean = i.iter().sum::<f64>() / i.len() as f64;
     assert!((34.0..40.0).contains(&mean), "mean inclination {mean}");
 }
+
+#[test]
+fn lensed_positions_follow_the_shear_and_keep_the_density() {
+    // Default shears reach g1 = 0.1: galaxies are placed over a rectangle
+    // about 10% wider along y, so that after lensing they still cover the
+    // image and its margin with the density of an unlensed field.
+    let flags = [
+        "image.width_px=2048",
+        "image.height_px=2048",
+        "population.galaxies.mag_faint=24.5",
+    ];
+    let lens = plan_with(&[flags.as_slice(), &["population.lens_positions=true"]].concat());
+    let flat = plan_with(&flags);
+    assert!(!flat.raw.population.lens_positions);
+    let (a0, xr0, yr0) = placement_area(&lens);
+    let (a1, xr1, yr1) = galaxy_placement_area(&lens);
+    assert_eq!(galaxy_placement_area(&flat), placement_area(&flat));
+    assert!(
+        a1 > 1.09 * a0 && (xr1.0 - xr0.0).abs() < 1e-9 && yr1.0 < yr0.0,
+        "{a1} {a0}"
+    );
+    let (cx, cy) = lensing_centre(&lens);
+    assert_eq!((cx, cy), (1024.5, 1024.5));
+    let base = base_field(&lens, 0).unwrap();
+    let (g1, g2) = (0.1, 0.0);
+    let twin = rotated(&base);
+    let view = lensed(&lens, 0, &sheared(&base, g1, g2), g1, g2);
+    let view_twin = lensed(&lens, 0, &sheared(&twin, g1, g2), g1, g2);
+    assert_eq!(view.len(), view_twin.len());
+    let by_id: std::collections::HashMap<i64, &TruthRow> = base.iter().map(|r| (r.id, r)).collect();
+    for (v, t) in view.iter().zip(&view_twin) {
+        // Twins land on the same spots.
+        assert_eq!((v.id, v.x, v.y), (t.id, t.x, t.y));
+        let b = by_id[&v.id];
+        if b.is_star() {
+            assert_eq!(
+                (v.x, v.y, v.ra_deg, v.dec_deg),
+                (b.x, b.y, b.ra_deg, b.dec_deg)
+            );
+            continue;
+        }
+        let s = 1.0 / (1.0 - g1 * g1).sqrt();
+        assert!((v.x - (cx + s * (1.0 + g1) * (b.x - cx))).abs() < 1e-9);
+        assert!((v.y - (cy + s * (1.0 - g1) * (b.y - cy))).abs() < 1e-9);
+        assert!((xr0.0..=xr0.1).contains(&v.x) && (yr0.0..=yr0.1).contains(&v.y));
+        assert_eq!(
+            (v.e1, v.e2, v.flux_e),
+            (
+                sheared(&[*b], g1, g2)[0].e1,
+                sheared(&[*b], g1, g2)[0].e2,
+                b.flux_e
+            )
+        );
+    }
+    // Stars are all kept; galaxies on the image: as many as without lensing
+    // (Poisson, 5σ).
+    let on = |rows: &[TruthRow]| {
+        rows.iter()
+            .filter(|r| {
+                !r.is_star() && (0.5..=2048.5).contains(&r.x) && (0.5..=2048.5).contains(&r.y)
+            })
+            .count() as f64
+    };
+    assert_eq!(
+        view.iter().filter(|r| r.is_star()).count(),
+        base.iter().filter(|r| r.is_star()).count()
+    );
+    let unlensed = on(&base_field(&flat, 0).unwrap());
+    let got = on(&view);
+    eprintln!("galaxies on the image: lensed {got}, unlensed {unlensed}");
+    assert!(
+        (got - unlensed).abs() < 5.0 * (2.0 * unlensed).sqrt(),
+        "{got} vs {unlensed}"
+    );
+    // With g = 0 nothing moves.
+    let still = lensed(&lens, 0, &sheared(&base, 0.0, 0.0), 0.0, 0.0);
+    let inside = base.iter().filter(|r| {
+        r.is_star() || ((xr0.0..=xr0.1).contains(&r.x) && (yr0.0..=yr0.1).contains(&r.y))
+    });
+    assert!(
+        still
+            .iter()
+            .zip(inside)
+            .all(|(a, b)| a.id == b.id && (a.x - b.x).abs() < 1e-9 && (a.y - b.y).abs() < 1e-9)
+    );
+}

@@ -23,14 +23,15 @@
 //! represented on the tile grid within ±`margin` pixels. The PSF's wings
 //! reach ±`margin` pixels from every object, far beyond what a per-object
 //! stamp could afford (diffraction spikes of every star included).
-//! Measured against whole-PSF stamps: ≤ 2.2e-4 of an object's peak
+//! Measured against whole-PSF stamps: ≤ 7.2e-5 of an object's peak
 //! (docs/rendering.md).
 //!
 //! σ_L is the widest Gaussian (up to [`MAX_SIGMA_PX`] pixels) with
 //! L ≥ |T| on the tile grids, so |K| ≤ 1: the convolution never amplifies
 //! anything, in particular not the small errors of the stamps (their
 //! k-space cut and wrapped tails). Both the Nyquist row and column of K are
-//! zero, as in the stamps.
+//! zero (T is ≲ 1e-6 there); the stamps hold their Nyquist cells, where L is
+//! still 4.6e-3 (render/stamp.rs).
 
 use super::convolve::Convolver;
 use super::stamp::fft_friendly;
@@ -71,16 +72,7 @@ impl Split {
         sky_sigma_e: f64,
     ) -> Split {
         let p = pixel_scale_arcsec;
-        let r = psf
-            .radius_below(MARGIN_LEVEL)
-            .max(psf.radius_enclosing(1.0 - 1e-5));
-        let cap = (accuracy.max_stamp_px / 2).max(4);
-        let want = if r.is_finite() {
-            (r / p).ceil().min(1e6) as usize + 2
-        } else {
-            cap
-        };
-        let margin = want.clamp(4, cap);
+        let margin = kernel_margin_px(psf.as_ref(), p, accuracy.max_stamp_px);
         // σ_L: the bound on the smallest and the largest tile grid images
         // use, less 5% for the frequencies between grid points when the cap
         // does not bind (a test checks |T / L| ≤ 1 on the tiles of a 4096²
@@ -143,6 +135,24 @@ impl Split {
     pub fn margin_px(&self) -> usize {
         self.margin
     }
+}
+
+/// How far (pixels) the image kernel reaches from every object: the radius
+/// beyond which `psf` is below [`MARGIN_LEVEL`] of its peak or that holds all
+/// but 1e-5 of its flux, whichever is larger, plus 2 pixels, capped at half
+/// of `max_stamp_px` (`render.max_stamp_px`). The PSF files of a run are
+/// written to this extent (`io::psf_fits::renderer_side_px`).
+pub fn kernel_margin_px(psf: &dyn Psf, pixel_scale_arcsec: f64, max_stamp_px: usize) -> usize {
+    let r = psf
+        .radius_below(MARGIN_LEVEL)
+        .max(psf.radius_enclosing(1.0 - 1e-5));
+    let cap = (max_stamp_px / 2).max(4);
+    let want = if r.is_finite() {
+        (r / pixel_scale_arcsec).ceil().min(1e6) as usize + 2
+    } else {
+        cap
+    };
+    want.clamp(4, cap)
 }
 
 /// Tile side for `margin` and images of longest side `image_side`: about 8

@@ -8,12 +8,12 @@
 //! result is scaled by 1/n² (that makes the pixels sum to the k = 0 value,
 //! the flux).
 //!
-//! The Nyquist row and column (|u| or |v| = 1/(2p)) are set to zero: a
-//! shifted component at exactly Nyquist has no real-valued representation,
-//! and there the PSF ⊗ pixel transfer is already ≲ 1e-6 for any PSF the
-//! renderer is meant for (FWHM ≳ 3 pixels). Frequencies beyond Nyquist are
-//! not folded in (no aliasing of the PSF-convolved profile): the comparison
-//! with the real-space reference measures what this leaves out.
+//! The Nyquist row and column (|u| or |v| = 1/(2p)) hold the sum of the
+//! transform at +ν_N and −ν_N, the two frequencies the pixel samples cannot
+//! tell apart (this is what the DFT of the samples of a real, band-limited
+//! image holds there). Frequencies beyond Nyquist are not folded in (no
+//! aliasing of the PSF-convolved profile): the comparison with the
+//! real-space reference measures what this leaves out.
 
 use crate::profile::galaxy::Component;
 use num_complex::Complex32;
@@ -244,6 +244,11 @@ impl<T: FftNum> StampEngine<T> {
 }
 
 /// Fills the `[u][v]` buffer with object × PSF × pixel × shift.
+///
+/// The Nyquist row and column hold what the samples of a real image hold
+/// there: both frequencies ±ν_N fall on the same cell, so the cell is the sum
+/// of the continuous transform at +ν_N and −ν_N (at the corner, of all four
+/// sign combinations); see [`nyquist_cell`].
 fn fill_kspace<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
@@ -256,16 +261,16 @@ fn fill_kspace<T: FftNum>(
     let dk = 1.0 / (n as f64 * fill.pixel_scale_arcsec);
     // Shift phases e^{−2πi m d / n} per column and per row.
     let px = phases(nc, n, fill.dx_px);
+    let pos_y = phases(n / 2 + 1, n, fill.dy_px);
     let py: Vec<(f64, f64)> = {
         // Rows 0..=n/2 are m = j; rows above are m = j − n, the conjugates
         // of rows n − j.
-        let pos = phases(n / 2 + 1, n, fill.dy_px);
         (0..n)
             .map(|j| {
                 if j <= n / 2 {
-                    pos[j]
+                    pos_y[j]
                 } else {
-                    let (c, s) = pos[n - j];
+                    let (c, s) = pos_y[n - j];
                     (c, -s)
                 }
             })
@@ -279,12 +284,23 @@ fn fill_kspace<T: FftNum>(
         .collect();
     let is_star = fill.components.is_empty();
     let cut = fill.cut;
-    let zero = Complex::<T>::new(T::zero(), T::zero());
     let to_t = |x: f64| T::from_f64(x).expect("float");
+    let at = Spectrum {
+        fill,
+        transfer,
+        sinc,
+        px: &px,
+        py: &pos_y,
+        comps: &comps,
+        dk,
+    };
     for i in 0..nc {
         let col = &mut buf[i * n..(i + 1) * n];
         if i == n / 2 {
-            col.fill(zero);
+            for (j, cell) in col.iter_mut().enumerate() {
+                let (re, im) = nyquist_cell(&at, i, j);
+                *cell = Complex::new(to_t(re), to_t(im));
+            }
             continue;
         }
         let u = i as f64 * dk;
@@ -292,7 +308,8 @@ fn fill_kspace<T: FftNum>(
         let (pxr, pxi) = px[i];
         for j in 0..n {
             if j == n / 2 {
-                col[j] = zero;
+                let (re, im) = nyquist_cell(&at, i, j);
+                col[j] = Complex::new(to_t(re), to_t(im));
                 continue;
             }
             let tr = transfer[j * nc + i];
@@ -302,7 +319,7 @@ fn fill_kspace<T: FftNum>(
                 fill.star_flux_e
             } else {
                 if tre.abs() + tim.abs() < cut {
-                    col[j] = zero;
+                    col[j] = Complex::new(T::zero(), T::zero());
                     continue;
                 }
                 let v = vs[j];
@@ -321,6 +338,102 @@ fn fill_kspace<T: FftNum>(
             col[j] = Complex::new(to_t(re), to_t(im));
         }
     }
+}
+
+/// What [`fill_kspace`] needs to evaluate the stamp's continuous transform at
+/// any signed frequency index.
+struct Spectrum<'a> {
+    fill: &'a Fill,
+    transfer: &'a [Complex32],
+    sinc: &'a [f64],
+    /// Shift phases along x for m = 0..=n/2.
+    px: &'a [(f64, f64)],
+    /// Shift phases along y for m = 0..=n/2.
+    py: &'a [(f64, f64)],
+    comps: &'a [(crate::profile::ProfileKind, f64, [f64; 3])],
+    dk: f64,
+}
+
+impl Spectrum<'_> {
+    /// object × PSF × pixel × shift at the signed frequency index (mu, mv),
+    /// |mu|, |mv| ≤ n/2.
+    ///
+    /// The PSF transfer is known on the half plane u ≥ 0; at u < 0 it is the
+    /// conjugate of the transfer at (−u, −v) (a real PSF). The grid holds one
+    /// Nyquist row, v = +ν_N; the transfer at v = −ν_N, u ≠ 0, ±ν_N is taken
+    /// from it. That is exact for PSFs symmetric about the x axis (the round
+    /// Gaussian L of the split method) and otherwise an error bounded by
+    /// |T| at Nyquist (≲ 1e-6 for the PSFs the renderer is meant for).
+    fn at(&self, mu: i64, mv: i64) -> (f64, f64) {
+        let n = self.fill.n as i64;
+        let nc = (n / 2 + 1) as usize;
+        let row = |m: i64| -> usize {
+            if m == -n / 2 {
+                (n / 2) as usize
+            } else {
+                m.rem_euclid(n) as usize
+            }
+        };
+        let (t_re, t_im) = if mu >= 0 {
+            let t = self.transfer[row(mv) * nc + mu as usize];
+            (f64::from(t.re), f64::from(t.im))
+        } else {
+            let t = self.transfer[row(-mv) * nc + (-mu) as usize];
+            (f64::from(t.re), -f64::from(t.im))
+        };
+        let ts = self.sinc[row(mu)] * self.sinc[row(mv)];
+        let (tre, tim) = (t_re * ts, t_im * ts);
+        let amp = if self.fill.components.is_empty() {
+            self.fill.star_flux_e
+        } else {
+            if tre.abs() + tim.abs() < self.fill.cut {
+                return (0.0, 0.0);
+            }
+            let (u, v) = (mu as f64 * self.dk, mv as f64 * self.dk);
+            self.comps
+                .iter()
+                .map(|&(kind, flux, [a, b, c])| {
+                    flux * kind.transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
+                })
+                .sum()
+        };
+        let signed = |table: &[(f64, f64)], m: i64| {
+            let (c, s) = table[m.unsigned_abs() as usize];
+            if m >= 0 { (c, s) } else { (c, -s) }
+        };
+        let (pxr, pxi) = signed(self.px, mu);
+        let (pyr, pyi) = signed(self.py, mv);
+        let (ph_r, ph_i) = (pxr * pyr - pxi * pyi, pxr * pyi + pxi * pyr);
+        (
+            amp * (tre * ph_r - tim * ph_i),
+            amp * (tre * ph_i + tim * ph_r),
+        )
+    }
+}
+
+/// The cell (column `i`, row `j`) of the half-plane grid when it lies on the
+/// Nyquist row or column: the sum of the transform over the frequencies that
+/// the pixel samples cannot tell apart, ±ν_N on each Nyquist axis. This is
+/// what the DFT of the samples of the (band-limited) image holds there;
+/// leaving the cell zero instead removes a pattern of alternating sign over
+/// the whole stamp, which the image convolution of the split method turns
+/// into lobes at the stamp's edges.
+fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize) -> (f64, f64) {
+    let n = at.fill.n;
+    let half = (n / 2) as i64;
+    let mu = i as i64; // columns are u ≥ 0
+    let mv = wrap(j, n);
+    let us: &[i64] = if i == n / 2 { &[half, -half] } else { &[mu] };
+    let vs: &[i64] = if j == n / 2 { &[half, -half] } else { &[mv] };
+    let mut sum = (0.0, 0.0);
+    for &u in us {
+        for &v in vs {
+            let (re, im) = at.at(u, v);
+            sum.0 += re;
+            sum.1 += im;
+        }
+    }
+    sum
 }
 
 #[cfg(test)]
