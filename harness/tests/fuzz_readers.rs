@@ -181,7 +181,7 @@ fn check(
         }
         Err(e) => {
             let e = e.to_string();
-            assert!(e.starts_with(&p.display().to_string()), "{e}");
+            assert!(e.contains(&p.display().to_string()), "names the file: {e}");
             assert!(
                 !e.contains("FitsError") && !e.contains("Fits error"),
                 "raw cfitsio error: {e}"
@@ -375,7 +375,7 @@ fn fuzz_report_json() {
         std::fs::write(&p, &v).unwrap();
         if let Err(e) = read_report(&p) {
             let e = e.to_string();
-            assert!(e.starts_with(&p.display().to_string()), "{e}");
+            assert!(e.contains(&p.display().to_string()), "names the file: {e}");
         }
     }
 }
