@@ -270,7 +270,7 @@ impl Script {
             &score,
         ));
         s.push_str(&format!(
-            "\necho \"submitted: generate $gen, generate-finish $gen_finish, measure $meas, measure-finish $meas_finish, score $score\"\necho \"logs in {}; follow with: squeue -u \\\"$USER\\\"\"\n",
+            "\necho \"submitted: generate $gen, generate-finish $gen_finish, measure $meas, measure-finish $meas_finish, score $score\"\necho \"logs in {}; follow with: squeue --me\"\n",
             logs.display()
         ));
         s
