@@ -6,7 +6,7 @@
 # cancels one shard, shows that --finish refuses, reruns the shard alone and
 # finishes: byte-identical again. Stops only the daemons it started (by their
 # pid files). Needs root and apt; says so and exits 0 with SKIPPED where apt
-# is missing. Usage: tests/slurm/run.sh [path/to/stepsim]
+# is missing. Called by .ci/run. Usage: tests/slurm/run.sh [path/to/stepsim]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 start=$(date +%s)
@@ -18,6 +18,7 @@ if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     echo "tests/slurm: SKIPPED: apt-get is not available to install slurm-wlm and munge"
     exit 0
   fi
+  apt-get update -qq
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq slurm-wlm munge >/dev/null
 fi
 
