@@ -34,6 +34,8 @@ enum Command {
     Catalog(cmd::catalog::Args),
     /// Build the config's PSFs: FITS images, psf_report.json, a picture.
     Psf(cmd::psf::Args),
+    /// Print a Slurm submit script: generate, measure and score as job arrays.
+    Slurm(cmd::slurm::Args),
 }
 
 fn main() -> ExitCode {
@@ -57,6 +59,7 @@ fn main() -> ExitCode {
         Command::Leaderboard(args) => cmd::leaderboard::run(&args),
         Command::Catalog(args) => cmd::catalog::run(&args),
         Command::Psf(args) => cmd::psf::run(&args),
+        Command::Slurm(args) => cmd::slurm::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

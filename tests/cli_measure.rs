@@ -166,3 +166,77 @@ fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
     let out = stepsim().args(["measure", "--run", "x"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2));
 }
+
+#[test]
+fn sharded_measure_joined_is_byte_identical_to_one_measure() {
+    // Three datasets whose image ids interleave, one image poor in stars
+    // (it needs its dataset's pooled locus): shards split by dataset, so the
+    // pooling, and every row, is the same.
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    let scenes: Vec<_> = [
+        ("d0", "ia", 80),
+        ("d1", "ib", 60),
+        ("d0", "ic", 2),
+        ("d2", "id", 60),
+    ]
+    .iter()
+    .enumerate()
+    .map(|(k, (d, id, stars))| {
+        let spec = SceneSpec {
+            width: 384,
+            height: 384,
+            n_galaxy_pairs: 30,
+            n_stars: *stars,
+            star_flux_e: (1e5, 3e6),
+            ..SceneSpec::step_like([0.05, 0.0], [0.04, 0.01], 300 + k as u64)
+        };
+        (*d, *id, synthetic_scene(&spec).1)
+    })
+    .collect();
+    let refs: Vec<_> = scenes.iter().map(|(d, id, img)| (*d, *id, img)).collect();
+    write_public_run(&run, &refs).unwrap();
+    let whole = dir.path().join("whole.txt");
+    assert!(measure(&run, &whole, "2").status.success());
+    let sub = dir.path().join("sub.txt");
+    let shard = |k: u32| {
+        let o = stepsim()
+            .args(["measure", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(&sub)
+            .args(["--shard", &format!("{k}/2"), "--threads", "1"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    let finish = || {
+        stepsim()
+            .args(["measure", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(&sub)
+            .arg("--finish")
+            .output()
+            .unwrap()
+    };
+    shard(2);
+    // Shard 2 of 2 measured dataset d1 only (sorted ids d0, d1, d2).
+    let part = std::fs::read_to_string(dir.path().join("sub.txt.shards/2-of-2.txt")).unwrap();
+    let imgs: std::collections::BTreeSet<&str> = part
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split_whitespace().next().unwrap())
+        .collect();
+    assert_eq!(imgs.into_iter().collect::<Vec<_>>(), ["ib"]);
+    // A missing part: refused, naming it, nothing written.
+    let o = finish();
+    assert_eq!(o.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("1-of-2.txt") && e.contains("--shard 1/2"), "{e}");
+    assert!(!sub.exists());
+    shard(1);
+    let o = finish();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read(&sub).unwrap() == std::fs::read(&whole).unwrap());
+}

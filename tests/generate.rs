@@ -77,11 +77,12 @@ fn files(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
 }
 
 /// The files that must be identical between runs: public/ and private/
-/// except the PSF files (written by whichever shard built the PSF).
+/// except the PSF files (written by whichever shard built the PSF) and the
+/// shards' done-markers.
 fn release(run: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     let mut f = files(&run.join("public"));
     for (k, v) in files(&run.join("private")) {
-        if !k.starts_with("psf") {
+        if !k.starts_with("psf") && !k.starts_with("shards") {
             f.insert(Path::new("private").join(k), v);
         }
     }
@@ -118,16 +119,134 @@ fn stderr(o: &Output) -> String {
 }
 
 #[test]
+fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "whole", &[]);
+    generate(d, "sh", &["--shard", "1/2"]);
+    let o = stepsim(
+        &["generate", "--config", "c.json", "--out", "sh", "--finish"],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("4 of 8 images"), "{e}");
+    assert!(e.contains("rerun shard 2/2"), "{e}");
+    // Every missing image is listed: the ones of shard 2 (odd j).
+    let files = image_files(&d.join("whole"));
+    let listed = e.matches("missing or unverified: public/").count();
+    assert_eq!(listed, 4, "{e}");
+    assert!(files.values().filter(|f| e.contains(f.as_str())).count() == 4);
+    // Nothing written: no manifest.
+    assert!(!d.join("sh/public/manifest.json").exists());
+    // A damaged image of shard 1 is caught by --finish, by its checksum.
+    generate(d, "sh", &["--shard", "2/2"]);
+    let first = files[&(0, 0, false)].clone();
+    let path = d.join("sh/public").join(&first);
+    let good = std::fs::read(&path).unwrap();
+    let mut bad = good.clone();
+    *bad.last_mut().unwrap() ^= 1;
+    std::fs::write(&path, &bad).unwrap();
+    let o = stepsim(
+        &["generate", "--config", "c.json", "--out", "sh", "--finish"],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("1 of 8 images") && e.contains(&first), "{e}");
+    assert!(e.contains("rerun shard 1/2"), "{e}");
+    assert!(!d.join("sh/public/manifest.json").exists());
+    // Shard 1 rerun alone makes that image again; --finish then completes.
+    generate(d, "sh", &["--shard", "1/2"]);
+    generate(d, "sh", &["--finish"]);
+    assert_eq!(
+        std::fs::read(d.join("sh/public/manifest.json")).unwrap(),
+        std::fs::read(d.join("whole/public/manifest.json")).unwrap()
+    );
+    assert_eq!(release(&d.join("sh")), release(&d.join("whole")));
+    // --finish of a directory without a run, and with --shard: refused.
+    let o = stepsim(
+        &[
+            "generate", "--config", "c.json", "--out", "none", "--finish",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("no run to finish"), "{}", stderr(&o));
+    assert!(!d.join("none").exists());
+    let o = stepsim(
+        &[
+            "generate", "--config", "c.json", "--out", "sh", "--finish", "--shard", "1/2",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
+    let dir = setup();
+    let d = dir.path();
+    let o = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args([
+            "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
+        ])
+        .current_dir(d)
+        .env_remove("SLURM_ARRAY_TASK_ID")
+        .env_remove("SLURM_ARRAY_TASK_COUNT")
+        .env_remove("SLURM_ARRAY_TASK_MIN")
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("SLURM_ARRAY_TASK_ID is not set"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!d.join("a").exists());
+    // Array 0-1: task 1 is shard 2/2.
+    let o = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args([
+            "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
+        ])
+        .current_dir(d)
+        .env("SLURM_ARRAY_TASK_ID", "1")
+        .env("SLURM_ARRAY_TASK_COUNT", "2")
+        .env("SLURM_ARRAY_TASK_MIN", "0")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(d.join("a/private/shards/2-of-2.json").is_file());
+}
+
+#[test]
 fn threads_and_shards_write_identical_bytes() {
     let dir = setup();
     let d = dir.path();
     generate(d, "t1", &["--threads", "1"]);
     generate(d, "t2", &["--threads", "2"]);
-    for k in 1..=3 {
+    // Shards in the order 3, 1, 2: none writes the manifest, each leaves its
+    // done-marker naming the images it owns; --finish writes the manifest.
+    for k in [3, 1, 2] {
         let o = generate(d, "sh", &["--shard", &format!("{k}/3"), "--threads", "2"]);
-        let has_manifest = d.join("sh/public/manifest.json").exists();
-        assert_eq!(has_manifest, k == 3, "after shard {k}/3: {}", stderr(&o));
+        assert!(
+            !d.join("sh/public/manifest.json").exists(),
+            "after shard {k}/3"
+        );
+        assert!(stderr(&o).contains("--finish"), "{}", stderr(&o));
+        let marker: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(d.join(format!("sh/private/shards/{k}-of-3.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(marker["shard"], format!("{k}/3"));
+        // 8 images: shard 1 owns j = 0, 3, 6; shard 2 j = 1, 4, 7; shard 3 j = 2, 5.
+        let owned = if k == 3 { 2 } else { 3 };
+        assert_eq!(marker["images"].as_array().unwrap().len(), owned);
     }
+    let o = generate(d, "sh", &["--finish"]);
+    assert!(stderr(&o).contains("all 8 images"), "{}", stderr(&o));
+    // A whole run writes no marker.
+    assert!(!d.join("t1/private/shards").exists());
     let a = release(&d.join("t1"));
     // 8 images + 8 truth tables + 8 sidecars + manifest, README, config,
     // datasets, blinding key.

@@ -7,6 +7,14 @@ use std::path::PathBuf;
 /// Everything that makes `measure` refuse its input.
 #[derive(Debug, thiserror::Error)]
 pub enum KsbError {
+    /// A part of a sharded measure is missing or belongs to another run.
+    #[error("{path}: {message}")]
+    Part {
+        /// The part (or its directory).
+        path: std::path::PathBuf,
+        /// What is wrong and what to do.
+        message: String,
+    },
     /// File-level I/O problem (names the file).
     #[error(transparent)]
     Io(#[from] stepsim_sim::io::IoError),

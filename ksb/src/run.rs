@@ -49,6 +49,200 @@ pub fn measure_run(
     threads: usize,
     params: &KsbParams,
 ) -> Result<Vec<ImageSummary>, KsbError> {
+    let (images, measured) = measure_datasets(public_dir, threads, params, |_| true)?;
+    write_submission(out, rows(&images, &measured))?;
+    Ok(summaries(&images, &measured))
+}
+
+/// The datasets of shard `k` of `n` (1-based): the dataset ids of the
+/// manifest sorted, and the one at position p belongs to shard p mod n + 1.
+/// Sharding by dataset keeps the star pooling (which is per dataset) whole,
+/// so the shards' rows are exactly those of an unsharded run.
+pub fn shard_datasets(manifest_datasets: &[&str], k: u32, n: u32) -> Vec<String> {
+    let mut ids: Vec<&str> = manifest_datasets.to_vec();
+    ids.sort_unstable();
+    ids.dedup();
+    ids.iter()
+        .enumerate()
+        .filter(|(p, _)| p % n as usize == (k - 1) as usize)
+        .map(|(_, d)| d.to_string())
+        .collect()
+}
+
+/// The part a measure shard writes: `<SUB>.shards/K-of-N.txt` (a
+/// submission of the shard's datasets).
+pub fn part_path(out: &Path, k: u32, n: u32) -> std::path::PathBuf {
+    let mut dir = out.as_os_str().to_owned();
+    dir.push(".shards");
+    std::path::PathBuf::from(dir).join(format!("{k}-of-{n}.txt"))
+}
+
+/// Measures the datasets of shard `k` of `n` ([`shard_datasets`]) and
+/// writes them to [`part_path`]`(out, k, n)`, a submission of those images
+/// only; the first line after the header records the manifest's SHA-256
+/// (`# manifest-sha256 <hex>`), so that [`join_parts`] refuses parts of
+/// another run.
+pub fn measure_shard(
+    public_dir: &Path,
+    out: &Path,
+    k: u32,
+    n: u32,
+    threads: usize,
+    params: &KsbParams,
+) -> Result<Vec<ImageSummary>, KsbError> {
+    let manifest_path = public_dir.join("manifest.json");
+    let manifest = read_manifest(&manifest_path)?;
+    let all: Vec<&str> = manifest.images.iter().map(|i| i.dataset.as_str()).collect();
+    let mine = shard_datasets(&all, k, n);
+    let (images, measured) =
+        measure_datasets(public_dir, threads, params, |d| mine.iter().any(|m| m == d))?;
+    let text = crate::io::format_submission(rows(&images, &measured));
+    let text = with_manifest_line(&text, &manifest_sha256(&manifest_path)?);
+    let path = part_path(out, k, n);
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| stepsim_sim::io::IoError::os(dir, e))?;
+    }
+    stepsim_sim::io::write_bytes_atomically(&path, text.as_bytes())?;
+    Ok(summaries(&images, &measured))
+}
+
+const MANIFEST_LINE: &str = "# manifest-sha256 ";
+
+fn manifest_sha256(path: &Path) -> Result<String, KsbError> {
+    let bytes = std::fs::read(path).map_err(|e| stepsim_sim::io::IoError::os(path, e))?;
+    Ok(stepsim_sim::blind::sha256_hex(&bytes))
+}
+
+fn with_manifest_line(submission: &str, sha: &str) -> String {
+    let (header, body) = submission.split_once('\n').unwrap_or((submission, ""));
+    format!("{header}\n{MANIFEST_LINE}{sha}\n{body}")
+}
+
+/// Joins the parts of an `n`-shard measure of `public_dir` into the one
+/// submission `out`: every part `1..=n` must exist and name this manifest;
+/// the images' rows are taken whole and put in image-id order, so the result
+/// is byte-identical to [`measure_run`]'s. Returns (parts, images) or an
+/// error naming the missing or foreign part. Nothing is written on refusal.
+pub fn join_parts(public_dir: &Path, out: &Path, n: u32) -> Result<(u32, usize), KsbError> {
+    let manifest_path = public_dir.join("manifest.json");
+    let manifest = read_manifest(&manifest_path)?;
+    let sha = manifest_sha256(&manifest_path)?;
+    let mut blocks: BTreeMap<String, String> = BTreeMap::new();
+    let mut header = String::new();
+    for k in 1..=n {
+        let path = part_path(out, k, n);
+        let text = std::fs::read_to_string(&path).map_err(|e| KsbError::Part {
+            path: path.clone(),
+            message: format!("cannot read it ({e}); run measure --shard {k}/{n} first"),
+        })?;
+        let mut lines = text.lines();
+        header = lines.next().unwrap_or_default().to_string();
+        if lines.next() != Some(&format!("{MANIFEST_LINE}{sha}")) {
+            return Err(KsbError::Part {
+                path,
+                message: format!(
+                    "it was not made from {}; run measure --shard {k}/{n} again",
+                    manifest_path.display()
+                ),
+            });
+        }
+        for line in lines {
+            let image = line.split_whitespace().next().unwrap_or_default();
+            let block = blocks.entry(image.to_string()).or_default();
+            block.push_str(line);
+            block.push('\n');
+        }
+    }
+    // Shard k measured exactly the datasets of shard_datasets(.., k, n):
+    // parts 1..=n of this manifest cover every image once.
+    let mut text = header;
+    text.push('\n');
+    for block in blocks.values() {
+        text.push_str(block);
+    }
+    stepsim_sim::io::write_bytes_atomically(out, text.as_bytes())?;
+    Ok((n, manifest.images.len()))
+}
+
+/// The number of shards of the parts found beside `out` (`<SUB>.shards/`),
+/// when they all say the same N.
+pub fn parts_count(out: &Path) -> Result<u32, KsbError> {
+    let dir = part_path(out, 1, 1)
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let entries = std::fs::read_dir(&dir).map_err(|e| KsbError::Part {
+        path: dir.clone(),
+        message: format!("no measure shards found ({e}); run measure --shard K/N first"),
+    })?;
+    let mut ns = std::collections::BTreeSet::new();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if let Some(n) = name
+            .strip_suffix(".txt")
+            .and_then(|s| s.split_once("-of-"))
+            .and_then(|(_, n)| n.parse::<u32>().ok())
+        {
+            ns.insert(n);
+        }
+    }
+    match ns.len() {
+        1 => Ok(*ns.iter().next().expect("one")),
+        0 => Err(KsbError::Part {
+            path: dir,
+            message: "no measure shards found; run measure --shard K/N first".into(),
+        }),
+        _ => Err(KsbError::Part {
+            path: dir,
+            message: format!(
+                "parts of different shard counts ({ns:?}); delete the directory and measure again"
+            ),
+        }),
+    }
+}
+
+fn rows<'a>(
+    images: &'a [stepsim_sim::run_layout::ManifestImage],
+    measured: &'a [ImageMeasurement],
+) -> impl Iterator<Item = (&'a str, &'a crate::pipeline::MeasuredObject)> {
+    images
+        .iter()
+        .zip(measured)
+        .flat_map(|(im, m)| m.objects.iter().map(move |o| (im.image.as_str(), o)))
+}
+
+fn summaries(
+    images: &[stepsim_sim::run_layout::ManifestImage],
+    measured: &[ImageMeasurement],
+) -> Vec<ImageSummary> {
+    images
+        .iter()
+        .zip(measured)
+        .map(|(im, m)| ImageSummary {
+            image: im.image.clone(),
+            n_objects: m.objects.len(),
+            n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
+            n_stars: m.n_stars,
+            rg_star_px: m.locus.map(|l| l.rg_star),
+            psf_order: m.psf_order,
+        })
+        .collect()
+}
+
+/// Measures the images of the datasets `keep` accepts (in image-id order),
+/// pooling star candidates per dataset (two passes).
+fn measure_datasets(
+    public_dir: &Path,
+    threads: usize,
+    params: &KsbParams,
+    keep: impl Fn(&str) -> bool,
+) -> Result<
+    (
+        Vec<stepsim_sim::run_layout::ManifestImage>,
+        Vec<ImageMeasurement>,
+    ),
+    KsbError,
+> {
     params.validate()?;
     let manifest_path = public_dir.join("manifest.json");
     let manifest = read_manifest(&manifest_path)?;
@@ -65,7 +259,12 @@ pub fn measure_run(
             threads,
             message: e.to_string(),
         })?;
-    let mut images: Vec<&stepsim_sim::run_layout::ManifestImage> = manifest.images.iter().collect();
+    let mut images: Vec<stepsim_sim::run_layout::ManifestImage> = manifest
+        .images
+        .iter()
+        .filter(|im| keep(&im.dataset))
+        .cloned()
+        .collect();
     images.sort_by(|a, b| a.image.cmp(&b.image));
     let read =
         |im: &stepsim_sim::run_layout::ManifestImage| -> Result<crate::image::Image, KsbError> {
@@ -119,25 +318,7 @@ pub fn measure_run(
     for (r, a) in second.into_iter().zip(alone) {
         measured.push(r?.unwrap_or(a));
     }
-    write_submission(
-        out,
-        images
-            .iter()
-            .zip(&measured)
-            .flat_map(|(im, m)| m.objects.iter().map(move |o| (im.image.as_str(), o))),
-    )?;
-    Ok(images
-        .iter()
-        .zip(&measured)
-        .map(|(im, m)| ImageSummary {
-            image: im.image.clone(),
-            n_objects: m.objects.len(),
-            n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
-            n_stars: m.n_stars,
-            rg_star_px: m.locus.map(|l| l.rg_star),
-            psf_order: m.psf_order,
-        })
-        .collect())
+    Ok((images, measured))
 }
 
 #[cfg(test)]

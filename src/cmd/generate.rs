@@ -20,10 +20,17 @@ pub struct Args {
     /// core are used). The output does not depend on it.
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = super::threads_arg)]
     threads: usize,
-    /// Make only share K of N of the images (1 ≤ K ≤ N); the manifest is
-    /// written by whichever shard finds every image finished.
-    #[arg(long, value_name = "K/N")]
+    /// Make only share K of N of the images (1 ≤ K ≤ N), or `auto`: K and
+    /// N of this Slurm array task (SLURM_ARRAY_TASK_ID, _COUNT, _MIN). A
+    /// shard leaves private/shards/K-of-N.json; the manifest is written by
+    /// `--finish` once every shard has run.
+    #[arg(long, value_name = "K/N|auto", value_parser = super::shard_arg, conflicts_with = "finish")]
     shard: Option<Shard>,
+    /// Finish a run made in shards: verify every image (sidecar and
+    /// checksums) and write public/manifest.json; refused, listing the
+    /// missing images, when one is missing (nothing is written then).
+    #[arg(long)]
+    finish: bool,
 }
 
 /// Runs (or resumes) the generation.
@@ -37,6 +44,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         );
     }
     let threads = super::threads(args.threads);
+    if args.finish {
+        return finish(args, &plan, threads);
+    }
     super::check_memory(
         "generate",
         memory::generate_estimate(&plan, threads),
@@ -90,7 +100,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
         options.shard, summary.written, summary.skipped, summary.in_shard, summary.total
     );
-    if summary.manifest_written {
+    if let Some(marker) = &summary.marker {
+        eprintln!(
+            "stepsim: shard {} finished; wrote {} ({} of {} images of the run finished); when every shard has run: stepsim generate --config {} --out {} --finish",
+            options.shard,
+            marker.display(),
+            summary.finished,
+            summary.total,
+            args.config.config.display(),
+            args.out.display()
+        );
+    } else if summary.manifest_written {
         eprintln!(
             "stepsim: all {} images finished; wrote {}",
             summary.total,
@@ -112,4 +132,40 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--finish`: verify every image and write the manifest.
+fn finish(args: &Args, plan: &stepsim_sim::config::Plan, threads: usize) -> anyhow::Result<()> {
+    let pool = super::thread_pool(threads)?;
+    match pool.install(|| generate::finish(plan, &args.out)) {
+        Ok(f) => {
+            eprintln!(
+                "stepsim: all {} images of {} verified ({} done-markers: {}); wrote {}",
+                f.total,
+                args.out.display(),
+                f.markers.len(),
+                f.markers.join(" "),
+                args.out.join("public/manifest.json").display()
+            );
+            Ok(())
+        }
+        Err(generate::GenerateError::Incomplete {
+            run,
+            missing,
+            total,
+            rerun,
+        }) => {
+            for file in &missing {
+                eprintln!("stepsim: missing or unverified: public/{file}");
+            }
+            Err(generate::GenerateError::Incomplete {
+                run,
+                missing,
+                total,
+                rerun,
+            })
+            .with_context(|| format!("finishing {}", args.out.display()))
+        }
+        Err(e) => Err(e).with_context(|| format!("finishing {}", args.out.display())),
+    }
 }

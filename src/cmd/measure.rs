@@ -32,6 +32,15 @@ pub struct Args {
     /// How P^γ is applied.
     #[arg(long, value_enum, default_value_t = Pgamma::PerObject)]
     pgamma: Pgamma,
+    /// Measure only the datasets of share K of N (or `auto`: this Slurm
+    /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
+    /// parts into FILE.
+    #[arg(long, value_name = "K/N|auto", value_parser = super::shard_arg, conflicts_with = "finish")]
+    shard: Option<stepsim_sim::generate::Shard>,
+    /// Join the parts FILE.shards/K-of-N.txt of every shard into FILE,
+    /// byte-identical to an unsharded measure (refused when one is missing).
+    #[arg(long)]
+    finish: bool,
 }
 
 /// Measures every image of the run and writes the submission.
@@ -46,6 +55,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..KsbParams::default()
     };
     let threads = super::threads(args.threads);
+    if args.finish {
+        let n = stepsim_ksb::run::parts_count(&args.out)?;
+        let (parts, images) = stepsim_ksb::run::join_parts(&args.run, &args.out, n)?;
+        eprintln!(
+            "stepsim: joined {parts} measure shards ({images} images) into {}",
+            args.out.display()
+        );
+        return Ok(());
+    }
     // An unreadable manifest is reported by the pipeline itself.
     if let Ok(m) = stepsim_ksb::io::read_manifest(&args.run.join("manifest.json")) {
         super::check_memory(
@@ -59,7 +77,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             "lower --threads",
         )?;
     }
-    let summary = stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params)?;
+    let (summary, written) = match args.shard {
+        Some(sh) if sh.n > 1 => (
+            stepsim_ksb::run::measure_shard(&args.run, &args.out, sh.k, sh.n, threads, &params)?,
+            stepsim_ksb::run::part_path(&args.out, sh.k, sh.n),
+        ),
+        _ => (
+            stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params)?,
+            args.out.clone(),
+        ),
+    };
     let (mut rows, mut weighted) = (0, 0);
     for s in &summary {
         rows += s.n_objects;
@@ -77,7 +104,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     eprintln!(
         "stepsim: wrote {} ({} images, {rows} objects, {weighted} with weight > 0)",
-        args.out.display(),
+        written.display(),
         summary.len()
     );
     Ok(())

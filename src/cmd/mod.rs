@@ -8,6 +8,7 @@ pub mod leaderboard;
 pub mod measure;
 pub mod psf;
 pub mod score;
+pub mod slurm;
 
 use std::path::PathBuf;
 
@@ -53,6 +54,29 @@ pub fn effective_threads(what: &str, requested: usize, cores: usize) -> (usize, 
 /// Cores available to this process.
 pub fn available_cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// Parses `--shard`: `K/N`, or `auto` for the shard of a Slurm job-array
+/// task (K = SLURM_ARRAY_TASK_ID − SLURM_ARRAY_TASK_MIN + 1, N =
+/// SLURM_ARRAY_TASK_COUNT). `auto` outside an array, or with variables that
+/// do not describe a contiguous array, is a usage error (exit 2): the
+/// command line asks for something this environment does not give, and
+/// nothing has been read or written yet.
+pub fn shard_arg(s: &str) -> Result<stepsim_sim::generate::Shard, String> {
+    shard_arg_with(s, |name| std::env::var(name).ok())
+}
+
+/// [`shard_arg`] with the environment given as a function.
+pub fn shard_arg_with(
+    s: &str,
+    var: impl Fn(&str) -> Option<String>,
+) -> Result<stepsim_sim::generate::Shard, String> {
+    use stepsim_sim::generate::Shard;
+    if s.trim() == "auto" {
+        Shard::from_slurm(var).map_err(|e| e.to_string())
+    } else {
+        s.parse::<Shard>().map_err(|e| e.to_string())
+    }
 }
 
 /// [`effective_threads`] of `--threads` for this machine, printing the note
@@ -151,6 +175,27 @@ impl ConfigArgs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shard_auto_reads_the_slurm_array_and_k_n_stays() {
+        let slurm = |name: &str| {
+            [
+                ("SLURM_ARRAY_TASK_ID", "5"),
+                ("SLURM_ARRAY_TASK_COUNT", "4"),
+                ("SLURM_ARRAY_TASK_MIN", "2"),
+            ]
+            .iter()
+            .find(|(k, _)| *k == name)
+            .map(|(_, v)| v.to_string())
+        };
+        let s = shard_arg_with("auto", slurm).unwrap();
+        assert_eq!((s.k, s.n), (4, 4));
+        let s = shard_arg_with("2/3", slurm).unwrap();
+        assert_eq!((s.k, s.n), (2, 3));
+        let e = shard_arg_with("auto", |_| None).unwrap_err();
+        assert!(e.contains("SLURM_ARRAY_TASK_ID is not set"), "{e}");
+        assert!(shard_arg_with("4/3", slurm).is_err());
+    }
 
     #[test]
     fn thread_counts_are_capped_per_core_with_a_note() {

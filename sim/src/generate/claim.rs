@@ -180,6 +180,41 @@ mod tests {
     }
 
     #[test]
+    fn seedless_shards_started_at_the_same_moment_agree_on_one_seed() {
+        // N shards of a config without run.seed each draw a seed; one claims
+        // the directory and every other adopts its seed.
+        for round in 0..5 {
+            let dir = tempfile::tempdir().unwrap();
+            let n = 8;
+            let barrier = Arc::new(Barrier::new(n));
+            let claims: Vec<Claim> = std::thread::scope(|s| {
+                let handles: Vec<_> = (0..n)
+                    .map(|_| {
+                        let (barrier, out) = (barrier.clone(), dir.path());
+                        s.spawn(move || {
+                            let p = plan(&[]);
+                            barrier.wait();
+                            claim(&p, out).unwrap()
+                        })
+                    })
+                    .collect();
+                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            });
+            let created: Vec<&Claim> = claims.iter().filter(|c| c.created).collect();
+            assert_eq!(created.len(), 1, "round {round}");
+            assert_eq!(created[0].seed, SeedUse::Drawn);
+            let seed = created[0].plan.seed();
+            for c in &claims {
+                assert_eq!(c.plan.seed(), seed, "round {round}");
+                assert_eq!(c.config_json, created[0].config_json);
+                if !c.created {
+                    assert_eq!(c.seed, SeedUse::Adopted);
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_drawn_seed_gives_way_to_the_run_found_and_a_given_one_does_not() {
         let dir = tempfile::tempdir().unwrap();
         let first = plan(&[]);

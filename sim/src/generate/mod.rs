@@ -20,9 +20,14 @@
 //! once and shared by the datasets), within a field in the order of their
 //! opaque ids, in parallel over the images of a field and within each image.
 //! A rerun skips every image whose sidecar matches the files on disk
-//! (resume), and `--shard K/N` makes only image j with j mod N = K − 1. The
-//! manifest is (re)written by whichever process finds every sidecar present,
-//! so after the last shard has run it is complete; a process that finds an
+//! (resume), and `--shard K/N` makes only image j with j mod N = K − 1.
+//!
+//! Completion is explicit. A whole run (no shard, or N = 1) writes
+//! `public/manifest.json` itself. A shard (N > 1) never does, even when it
+//! happens to finish last: it ends by writing its done-marker
+//! `private/shards/K-of-N.json` ([`ShardMarker`]), and [`finish`] (run once
+//! after every shard) verifies every image against its sidecar and writes the
+//! manifest, or refuses listing the images missing. A process that finds an
 //! image unfinished first removes a stale manifest. Every process ends by
 //! giving all of `public/` one time stamp ([`times`]).
 
@@ -36,7 +41,7 @@ pub mod times;
 pub use claim::{Claim, SeedUse};
 pub use integrity::OUTPUT_VERSION;
 pub use readme::{SUBMISSION_FORMAT, participants_readme};
-pub use shard::{BadShard, Shard};
+pub use shard::{AutoShardError, BadShard, SLURM_ARRAY_VARS, Shard};
 
 use crate::blind::{BlindingKey, sha256_hex};
 use crate::config::{Plan, SampleFormat};
@@ -115,6 +120,25 @@ pub enum GenerateError {
         /// Who made it.
         why: String,
     },
+    /// `--finish` on a directory that holds no run.
+    #[error("{path} does not exist: there is no run to finish here (run the shards first)")]
+    NoRun {
+        /// The missing `private/config.json`.
+        path: PathBuf,
+    },
+    /// `--finish` found images missing or failing verification.
+    #[error("{}", incomplete_message(.run, .missing, .total, .rerun))]
+    Incomplete {
+        /// The run directory.
+        run: PathBuf,
+        /// The public files (relative to `public/`) of the images missing
+        /// or failing verification, in canonical order.
+        missing: Vec<String>,
+        /// Images in the run.
+        total: usize,
+        /// The shards that own them (when the done-markers agree on N).
+        rerun: Vec<Shard>,
+    },
     /// Two opaque ids collided (practically impossible; change `run.seed`).
     #[error("opaque id {id} is not unique; choose another run.seed")]
     IdCollision {
@@ -122,6 +146,50 @@ pub enum GenerateError {
         id: String,
     },
 }
+
+fn incomplete_message(run: &Path, missing: &[String], total: &usize, rerun: &[Shard]) -> String {
+    const SHOWN: usize = 10;
+    let mut list: Vec<&str> = missing.iter().take(SHOWN).map(String::as_str).collect();
+    let more = missing.len().saturating_sub(SHOWN);
+    let more = if more > 0 {
+        format!(" and {more} more")
+    } else {
+        String::new()
+    };
+    list.dedup();
+    let hint = if rerun.is_empty() {
+        "rerun the shards that own them".to_string()
+    } else {
+        let names: Vec<String> = rerun.iter().map(Shard::to_string).collect();
+        format!("rerun shard {}", names.join(", "))
+    };
+    format!(
+        "{} of {total} images of {} are missing or fail verification ({}{more}); {hint}, then --finish again (nothing was written)",
+        missing.len(),
+        run.display(),
+        list.join(", ")
+    )
+}
+
+/// The done-marker `private/shards/K-of-N.json` a shard writes when every
+/// image it owns is written and verified.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShardMarker {
+    /// [`SHARD_MARKER_FORMAT`].
+    pub format: String,
+    /// The shard, `K/N`.
+    pub shard: String,
+    /// SHA-256 of the run's `private/config.json`.
+    pub config_sha256: String,
+    /// [`OUTPUT_VERSION`] of the stepsim that made the files.
+    pub output_version: u32,
+    /// The images the shard owns, all finished and verified, sorted by id.
+    pub images: Vec<String>,
+}
+
+/// `format` of a [`ShardMarker`].
+pub const SHARD_MARKER_FORMAT: &str = "stepsim-shard-1";
 
 /// One image of the run.
 #[derive(Debug, Clone, PartialEq)]
@@ -265,6 +333,10 @@ impl RunPaths {
             .join("done")
             .join(format!("{}.json", job.image_id))
     }
+    /// `RUN/private/shards`, the done-markers of shards.
+    pub fn shards(&self) -> PathBuf {
+        self.private().join("shards")
+    }
     /// The PSF file of PSF `name`.
     pub fn psf(&self, name: &str) -> PathBuf {
         self.private().join("psf").join(format!("{name}.fits"))
@@ -314,8 +386,11 @@ pub struct Summary {
     pub skipped: usize,
     /// Images of the whole run finished (sidecar present) at the end.
     pub finished: usize,
-    /// True when `public/manifest.json` was written (every image finished).
+    /// True when `public/manifest.json` was written (a whole run, every
+    /// image finished; a shard of several never writes it).
     pub manifest_written: bool,
+    /// The done-marker this shard wrote (shards of N > 1 only).
+    pub marker: Option<PathBuf>,
     /// Temporary files of killed writers removed at the start.
     pub removed_tmp: Vec<PathBuf>,
     /// Temporary files (`*.tmp`) still under the run directory at the end:
@@ -482,8 +557,17 @@ pub fn generate(
         write_shared(plan, &paths, &key, &all, options, &built)?;
     }
 
-    let (finished, manifest_written) =
-        write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+    let (finished, manifest_written, marker) = if options.shard.n > 1 {
+        let marker = write_marker(&paths, options.shard, &mine, &config_sha256)?;
+        (
+            count_finished(&paths, &all, &config_sha256)?,
+            false,
+            Some(marker),
+        )
+    } else {
+        let (finished, written) = write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+        (finished, written, None)
+    };
     times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
     let mut stray_tmp = Vec::new();
     find_tmp(out, &mut stray_tmp);
@@ -497,9 +581,147 @@ pub fn generate(
         skipped: mine.len() - pending.len(),
         finished,
         manifest_written,
+        marker,
         removed_tmp,
         stray_tmp,
     })
+}
+
+/// Writes the done-marker of `shard` (atomically) and returns its path.
+fn write_marker(
+    paths: &RunPaths,
+    shard: Shard,
+    mine: &[&Job],
+    config_sha256: &str,
+) -> Result<PathBuf, GenerateError> {
+    let mut images: Vec<String> = mine.iter().map(|j| j.image_id.clone()).collect();
+    images.sort();
+    let marker = ShardMarker {
+        format: SHARD_MARKER_FORMAT.into(),
+        shard: shard.to_string(),
+        config_sha256: config_sha256.into(),
+        output_version: OUTPUT_VERSION,
+        images,
+    };
+    let path = paths.shards().join(shard.marker_name());
+    let text = serde_json::to_string_pretty(&marker).expect("marker serialises") + "\n";
+    write_bytes_atomically(&path, text.as_bytes())?;
+    Ok(path)
+}
+
+/// Images of the run whose sidecar and public file are present.
+fn count_finished(
+    paths: &RunPaths,
+    all: &[Job],
+    config_sha256: &str,
+) -> Result<usize, GenerateError> {
+    let mut n = 0;
+    for j in all {
+        if integrity::read_sidecar(paths, j, config_sha256)?.is_some() && paths.image(j).is_file() {
+            n += 1;
+        }
+    }
+    Ok(n)
+}
+
+/// What [`finish`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finished {
+    /// How the seed was chosen (adopted, for a config without `run.seed`).
+    pub seed: SeedUse,
+    /// Images in the run, all verified.
+    pub total: usize,
+    /// Done-markers found under `private/shards` (file names, sorted).
+    pub markers: Vec<String>,
+}
+
+/// Finishes a run made in shards: verifies every image (sidecar of this
+/// run, every file with its recorded SHA-256, as a resume does), then writes
+/// `public/manifest.json` and gives `public/` the run's time stamp. When an
+/// image is missing or fails verification nothing is written and the images
+/// are listed ([`GenerateError::Incomplete`]), with the shards to rerun when
+/// the done-markers name one shard count. Parallel in the current rayon pool.
+pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
+    let paths = RunPaths { root: out.into() };
+    if !paths.config().is_file() {
+        return Err(GenerateError::NoRun {
+            path: paths.config(),
+        });
+    }
+    let claim = claim::claim(plan, out)?;
+    let plan = &claim.plan;
+    let config_sha256 = config_sha256(plan);
+    let key = blinding_key(plan);
+    let all = jobs(plan, &key)?;
+    integrity::refuse_foreign_files(plan, &paths, &all)?;
+    integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))?;
+    let want_model = plan.raw.output.write_model;
+    let ok: Vec<bool> = all
+        .par_iter()
+        .map(|j| verify(&paths, j, want_model, &config_sha256))
+        .collect::<Result<_, _>>()?;
+    let markers = marker_names(&paths)?;
+    let missing: Vec<&Job> = all.iter().filter(|j| !ok[j.order]).collect();
+    let readme = paths.public().join("README.md");
+    if missing.is_empty() && !readme.is_file() {
+        return Err(IoError::format(
+            &readme,
+            "missing: no shard finished writing the shared files; rerun any shard",
+        )
+        .into());
+    }
+    if !missing.is_empty() {
+        let counts: std::collections::BTreeSet<u32> = markers
+            .iter()
+            .filter_map(|m| m.strip_suffix(".json")?.split_once("-of-")?.1.parse().ok())
+            .collect();
+        let rerun: Vec<Shard> = match counts.iter().collect::<Vec<_>>()[..] {
+            [&n] => {
+                let mut ks: Vec<u32> = missing
+                    .iter()
+                    .map(|j| (j.order % n as usize) as u32 + 1)
+                    .collect();
+                ks.sort_unstable();
+                ks.dedup();
+                ks.into_iter().map(|k| Shard { k, n }).collect()
+            }
+            _ => Vec::new(),
+        };
+        return Err(GenerateError::Incomplete {
+            run: out.into(),
+            missing: missing.iter().map(|j| j.public_file()).collect(),
+            total: all.len(),
+            rerun,
+        });
+    }
+    let (_, written) = write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+    debug_assert!(written);
+    times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
+    Ok(Finished {
+        seed: claim.seed,
+        total: all.len(),
+        markers,
+    })
+}
+
+/// The done-markers' file names under `private/shards`, sorted.
+fn marker_names(paths: &RunPaths) -> Result<Vec<String>, IoError> {
+    let dir = paths.shards();
+    let entries = match std::fs::read_dir(&dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(IoError::os(&dir, e)),
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        let name = e.map_err(|e| IoError::os(&dir, e))?.file_name();
+        let name = name.to_string_lossy().into_owned();
+        if name.ends_with(".json") && !name.starts_with('.') {
+            out.push(name);
+        }
+    }
+    out.sort();
+    Ok(out)
 }
 
 /// What made an image's files (recorded in its sidecar).
