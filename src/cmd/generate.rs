@@ -42,6 +42,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         memory::generate_estimate(&plan, threads),
         memory::RUN_HINT,
     )?;
+    super::check_disk(&plan, &args.out)?;
     let pool = super::thread_pool(threads)?;
     let bar = if std::io::stderr().is_terminal() && std::env::var_os("CI").is_none() {
         indicatif::ProgressBar::new(0)
