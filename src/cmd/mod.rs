@@ -6,6 +6,7 @@ pub mod config;
 pub mod generate;
 pub mod leaderboard;
 pub mod measure;
+pub mod progress;
 pub mod psf;
 pub mod score;
 
