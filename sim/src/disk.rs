@@ -8,7 +8,7 @@
 //!
 //! * **images**: width × height × 4 bytes (float32 or int32) per image.
 //!   Rice-compressed int32 images are counted uncompressed: the ratio
-//!   depends on the noise (measured 0.37 for the mini preset, README), and
+//!   depends on the noise (measured 0.29 for the mini preset, README), and
 //!   the check must not pass a run that then fills the disk;
 //! * **truth**: the expected objects of a base field, one table row each
 //!   (`id` 8 bytes, the other integer columns 4, the float columns 8);

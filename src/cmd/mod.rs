@@ -141,7 +141,9 @@ pub fn free_disk(path: &std::path::Path) -> anyhow::Result<Option<(u64, String)>
     }
     // SAFETY: statvfs returned 0, so it filled `st`.
     let st = unsafe { st.assume_init() };
-    let free = (st.f_bavail as u64).saturating_mul(st.f_frsize as u64);
+    // The field types differ between platforms (u64 on 64-bit Linux).
+    #[allow(clippy::useless_conversion)]
+    let free = u64::from(st.f_bavail).saturating_mul(u64::from(st.f_frsize));
     Ok(Some((free, format!("statvfs of {}", existing.display()))))
 }
 
