@@ -512,3 +512,40 @@ fn killed_run_leaves_no_truncated_file_and_resumes_identically() {
     assert_eq!(a.len(), 12 * 3 + 5);
     assert!(a == b, "resumed run differs from a straight run");
 }
+
+#[test]
+fn off_a_terminal_progress_is_logged_and_an_unsharded_run_names_no_shard() {
+    let dir = setup();
+    let d = dir.path();
+    let o = generate(d, "run", &["--threads", "1"]);
+    let err = stderr(&o);
+    let lines: Vec<&str> = err.lines().collect();
+    // What it is doing, before and while it does it, in order.
+    let at = |needle: &str| {
+        lines
+            .iter()
+            .position(|l| l.contains(needle))
+            .unwrap_or_else(|| panic!("no {needle:?} in {err}"))
+    };
+    let psfs = at("stepsim: building 2 PSFs");
+    let first = at("stepsim: built PSF 1/2 (psfAlphaSecret)");
+    let second = at("stepsim: built PSF 2/2 (psfBetaSecret)");
+    let making = at("stepsim: making 8 images");
+    let one = at("stepsim: 1/8 images written (12%)");
+    let all = at("stepsim: 8/8 images written (100%)");
+    assert!(psfs < first && first < second && second < making && making < one && one < all);
+    // One line per image here (a tenth of 8 rounds up to 1).
+    assert_eq!(err.matches("/8 images written").count(), 8, "{err}");
+    assert!(
+        err.contains("stepsim: 8 images written, 0 already finished and verified (8 in the run)"),
+        "{err}"
+    );
+    assert!(!err.contains("shard"), "{err}");
+    // A sharded run still names its shard.
+    let o = generate(d, "run2", &["--shard", "1/2"]);
+    assert!(
+        stderr(&o).contains("stepsim: shard 1/2: 4 images written"),
+        "{}",
+        stderr(&o)
+    );
+}

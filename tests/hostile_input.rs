@@ -481,3 +481,45 @@ fn a_full_disk_is_a_sentence_and_leaves_no_partial_file() {
     }
     std::fs::remove_dir_all(&run).unwrap();
 }
+
+#[test]
+fn a_run_too_big_for_the_disk_is_refused_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("c.json"), TINY).unwrap();
+    let o = stepsim(
+        &["generate", "--config", "c.json", "--out", "run"],
+        dir.path(),
+        &[("STEPSIM_DISK_LIMIT_BYTES", "100000")],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains("generate would write about ")
+            && e.contains("truth tables")
+            && e.contains("to run, of which 0.0 MiB is already there")
+            && e.contains("only 0.1 MiB is free (STEPSIM_DISK_LIMIT_BYTES=100000)")
+            && e.contains("output.compression \"rice\""),
+        "{e}"
+    );
+    assert_eq!(listing(dir.path()), ["c.json"]);
+    // A limit that is not a number is refused, not ignored.
+    let o = stepsim(
+        &["generate", "--config", "c.json", "--out", "run"],
+        dir.path(),
+        &[("STEPSIM_DISK_LIMIT_BYTES", "1T")],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("STEPSIM_DISK_LIMIT_BYTES=1T: not a number of bytes"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(listing(dir.path()), ["c.json"]);
+    // Enough room: the run is made.
+    let o = stepsim(
+        &["generate", "--config", "c.json", "--out", "run"],
+        dir.path(),
+        &[("STEPSIM_DISK_LIMIT_BYTES", "1000000000")],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}

@@ -348,9 +348,9 @@ fn directory_submissions_and_the_leaderboard() {
     let dir = fx.path("perimage");
     std::fs::create_dir(&dir).unwrap();
     for (info, rows) in fx.run.index().images.iter().zip(&rows) {
-        let mut s = String::from("x,y,e1,e2,flags\n");
+        let mut s = String::from("x,y,e1,e2,flags,mag\n");
         for r in rows {
-            s.push_str(&format!("{:?},{:?},{:?},{:?},0\n", r.x, r.y, r.e1, r.e2));
+            s.push_str(&format!("{:?},{:?},{:?},{:?},0,24\n", r.x, r.y, r.e1, r.e2));
         }
         std::fs::write(dir.join(format!("{}.csv", info.image)), s).unwrap();
     }
@@ -361,7 +361,9 @@ fn directory_submissions_and_the_leaderboard() {
             .unwrap();
     assert_eq!(r["submission"], "perimage");
     assert!(r["summary"]["m_mean"].as_f64().unwrap().abs() < 1e-6);
-    assert!(r["warnings"][0].as_str().unwrap().contains("flags"));
+    // `flags` is documented (not warned about); `mag` is not.
+    let w = r["warnings"][0].as_str().unwrap();
+    assert!(w.contains("mag") && !w.contains("flags"), "{w}");
     let sub = fx.submission("worse.txt", 0.05);
     assert!(fx.score(&sub, "worse", &[]).status.success());
     let a = fx.path("worse/report.json");

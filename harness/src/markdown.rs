@@ -108,6 +108,24 @@ fn binned(out: &mut String, title: &str, unit: &str, b: &Binned) {
     }
 }
 
+/// Below this many base fields the report warns that its bootstrap interval
+/// is not to be trusted.
+pub const FEW_BASE_FIELDS: usize = 10;
+
+/// Distinct bootstrap resamples of `n` items (multisets of size `n`:
+/// C(2n − 1, n)), saturating.
+pub fn distinct_resamples(n: usize) -> u64 {
+    let mut c: u64 = 1;
+    for i in 1..=n as u64 {
+        // C(n − 1 + i, i) = C(n − 1 + i − 1, i − 1) · (n − 1 + i) / i
+        c = match c.checked_mul(n as u64 - 1 + i) {
+            Some(v) => v / i,
+            None => return u64::MAX,
+        };
+    }
+    c
+}
+
 /// The Markdown report.
 pub fn report_markdown(r: &Report) -> String {
     let mut o = String::new();
@@ -146,6 +164,16 @@ pub fn report_markdown(r: &Report) -> String {
             ci(b.m_weight_mean, 4),
             ci(b.q_c, 1)
         );
+        let fields = r.datasets.iter().map(|d| d.n_images).max().unwrap_or(0);
+        if fields < FEW_BASE_FIELDS {
+            let _ = writeln!(
+                o,
+                "\n**Caveat:** the interval resamples only {fields} base field{} (images per dataset), so it can take at most {} distinct values and is no reliable {:.0} % interval; trust it from about {FEW_BASE_FIELDS} base fields on.",
+                if fields == 1 { "" } else { "s" },
+                distinct_resamples(fields),
+                100.0 * b.confidence
+            );
+        }
     }
     let _ = writeln!(o, "\n## Fits per PSF\n");
     let _ = writeln!(
@@ -239,6 +267,10 @@ pub fn report_markdown(r: &Report) -> String {
     );
     let _ = writeln!(
         o,
+        "\nA bin's error (±) is the scatter over a dataset's images of their mean residual, divided by √N and combined over datasets; it is left out when, in some dataset, fewer than two images have weighted galaxies in the bin (no scatter to measure)."
+    );
+    let _ = writeln!(
+        o,
         "\nPlots: `fig2_shear_response`, `fig3_m_sigma_c`, `fig4_mselc_muncontaminated`, \
          `fig5_residual_magnitude` (each as `.svg` and `.png`)."
     );
@@ -248,6 +280,16 @@ pub fn report_markdown(r: &Report) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn distinct_resamples_are_multisets() {
+        // 1 field: {a}; 2: {aa, ab, bb}; 3: C(5, 3) = 10; 10: C(19, 10).
+        assert_eq!(distinct_resamples(1), 1);
+        assert_eq!(distinct_resamples(2), 3);
+        assert_eq!(distinct_resamples(3), 10);
+        assert_eq!(distinct_resamples(10), 92378);
+        assert_eq!(distinct_resamples(0), 1);
+    }
 
     #[test]
     fn numbers_print_short_whatever_their_size() {
@@ -270,6 +312,41 @@ mod tests {
             escape("a|b`c`<script>&\n*_[x]#\\"),
             "a\\|b\\`c\\`&lt;script&gt;&amp; \\*\\_\\[x\\]\\#\\\\"
         );
+    }
+
+    #[test]
+    fn an_interval_from_few_base_fields_carries_a_caveat_and_bins_say_why_no_errors() {
+        let mut r: Report =
+            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+        r.summary.bootstrap = Some(crate::report::BootstrapCi {
+            n_resamples: 200,
+            seed: 1,
+            confidence: 0.95,
+            m_mean: Some([-0.1, 0.1]),
+            q_mean: None,
+            sigma_c: None,
+            m_uncontaminated_mean: None,
+            m_selc_mean: None,
+            sigma_c_selc: None,
+            m_weight_mean: None,
+            q_c: None,
+        });
+        for d in &mut r.datasets {
+            d.n_images = 2;
+        }
+        let md = report_markdown(&r);
+        assert!(
+            md.contains("**Caveat:** the interval resamples only 2 base fields (images per dataset), so it can take at most 3 distinct values and is no reliable 95 % interval"),
+            "{md}"
+        );
+        assert!(
+            md.contains("it is left out when, in some dataset, fewer than two images"),
+            "{md}"
+        );
+        for d in &mut r.datasets {
+            d.n_images = FEW_BASE_FIELDS;
+        }
+        assert!(!report_markdown(&r).contains("Caveat"));
     }
 
     #[test]

@@ -20,7 +20,9 @@
 //! Required columns `image`, `x`, `y`, `e1`, `e2`; optional `weight`
 //! (default 1, must be finite and ≥ 0). In a directory each file is named
 //! `<image-id>.<ext>` and may omit `image` (when present it must equal the
-//! file's id). Other columns are ignored and reported as warnings.
+//! file's id); optional `flags` (the pipeline's own bits, not used in
+//! scoring: zero-weight rows are how an object is dropped). Other columns
+//! are ignored and reported as warnings.
 //!
 //! Refused, naming file, line (FITS: row) and column: an unknown image id, a
 //! missing required column, a repeated column, a required FITS column of
@@ -385,7 +387,9 @@ fn layout(
             format!("required column missing (header has: {})", lower.join(" ")),
         ));
     }
-    let known = ["image", "x", "y", "e1", "e2", "weight"];
+    // `flags` is documented (the pipeline's own bits, e.g. `stepsim
+    // measure`'s): accepted and not used, so not reported as ignored.
+    let known = ["image", "x", "y", "e1", "e2", "weight", "flags"];
     let ignored = lower
         .iter()
         .filter(|n| !known.contains(&n.as_str()))

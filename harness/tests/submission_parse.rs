@@ -56,7 +56,9 @@ fn whitespace_table_with_comments_and_extra_columns() {
         "the half-pixel border is on the image"
     );
     assert_eq!(fr.rows[1].1.line, 5);
-    assert_eq!(fr.ignored_columns, vec!["flags".to_owned()]);
+    // `flags` is a documented optional column (what `stepsim measure`
+    // writes): read as nothing, and not reported as ignored.
+    assert!(fr.ignored_columns.is_empty(), "{:?}", fr.ignored_columns);
 }
 
 #[test]

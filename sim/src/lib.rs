@@ -23,6 +23,7 @@
 
 pub mod blind;
 pub mod config;
+pub mod disk;
 pub mod generate;
 pub mod io;
 pub mod memory;

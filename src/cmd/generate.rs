@@ -2,7 +2,6 @@
 
 use super::ConfigArgs;
 use anyhow::Context as _;
-use std::io::IsTerminal as _;
 use std::path::PathBuf;
 use stepsim_sim::config::SeedOrigin;
 use stepsim_sim::generate::{self, Event, Options, SeedUse, Shard};
@@ -52,30 +51,18 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         memory::generate_estimate(&plan, threads),
         memory::RUN_HINT,
     )?;
+    super::check_disk(&plan, &args.out)?;
     let pool = super::thread_pool(threads)?;
-    let bar = if std::io::stderr().is_terminal() && std::env::var_os("CI").is_none() {
-        indicatif::ProgressBar::new(0)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} {pos}/{len} images [{elapsed_precise}, eta {eta}] {wide_bar}",
-        )
-        .expect("valid template"),
-    );
-    let progress = |e: Event| match e {
-        Event::Start { pending, .. } => bar.set_length(pending as u64),
-        Event::ImageWritten => bar.inc(1),
-    };
+    let progress = super::progress::Progress::new();
+    let on_event = |e: Event| progress.event(e);
     let options = Options {
         shard: args.shard.unwrap_or_default(),
         submission_format: Some(stepsim_harness::SUBMISSION_FORMAT_MD.to_string()),
     };
     let summary = pool
-        .install(|| generate::generate(&plan, &args.out, &options, &progress))
+        .install(|| generate::generate(&plan, &args.out, &options, &on_event))
         .with_context(|| format!("generating {}", args.out.display()))?;
-    bar.finish_and_clear();
+    progress.finish();
     let config_path = args.out.join("private/config.json");
     match summary.seed {
         SeedUse::Given => {}
@@ -96,10 +83,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    eprintln!(
-        "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
-        options.shard, summary.written, summary.skipped, summary.in_shard, summary.total
-    );
+    if options.shard == Shard::ALL {
+        eprintln!(
+            "stepsim: {} images written, {} already finished and verified ({} in the run)",
+            summary.written, summary.skipped, summary.total
+        );
+    } else {
+        eprintln!(
+            "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
+            options.shard, summary.written, summary.skipped, summary.in_shard, summary.total
+        );
+    }
     if let Some(marker) = &summary.marker {
         eprintln!(
             "stepsim: shard {} finished; wrote {} ({} of {} images of the run finished); when every shard has run: stepsim generate --config {} --out {} --finish",

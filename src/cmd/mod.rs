@@ -6,10 +6,12 @@ pub mod config;
 pub mod generate;
 pub mod leaderboard;
 pub mod measure;
+pub mod progress;
 pub mod psf;
 pub mod score;
 pub mod slurm;
 
+use anyhow::Context as _;
 use std::path::PathBuf;
 
 /// Largest `--threads` accepted (beyond it: a usage error, exit 2).
@@ -123,6 +125,80 @@ pub fn check_memory(
         );
     }
     stepsim_sim::memory::check(command, estimate, stepsim_sim::io::available_memory(), hint)?;
+    Ok(())
+}
+
+/// Environment variable that sets the free disk space (bytes) `generate`
+/// may plan to fill, instead of what the file system reports (for tests).
+pub const DISK_LIMIT_ENV: &str = "STEPSIM_DISK_LIMIT_BYTES";
+
+/// Free bytes on the file system that holds `path` (or its nearest existing
+/// ancestor), and where the number comes from: `STEPSIM_DISK_LIMIT_BYTES`
+/// if set, else `statvfs` (blocks available to unprivileged users). `None`
+/// when unknown.
+pub fn free_disk(path: &std::path::Path) -> anyhow::Result<Option<(u64, String)>> {
+    if let Some(v) = std::env::var_os(DISK_LIMIT_ENV) {
+        let b = v
+            .to_str()
+            .and_then(|t| t.trim().parse::<u64>().ok())
+            .with_context(|| {
+                format!(
+                    "{DISK_LIMIT_ENV}={}: not a number of bytes (unset it to use the free space the file system reports)",
+                    v.to_string_lossy()
+                )
+            })?;
+        return Ok(Some((b, format!("{DISK_LIMIT_ENV}={b}"))));
+    }
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let Some(existing) = abs.ancestors().find(|p| p.exists()) else {
+        return Ok(None);
+    };
+    let Ok(c) = std::ffi::CString::new(existing.as_os_str().as_encoded_bytes()) else {
+        return Ok(None);
+    };
+    let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
+    // SAFETY: `c` is a valid NUL-terminated path and `st` a writable
+    // statvfs; the struct is read only when the call succeeds.
+    let rc = unsafe { libc::statvfs(c.as_ptr(), st.as_mut_ptr()) };
+    if rc != 0 {
+        return Ok(None);
+    }
+    // SAFETY: statvfs returned 0, so it filled `st`.
+    let st = unsafe { st.assume_init() };
+    // The field types differ between platforms (u64 on 64-bit Linux).
+    #[allow(clippy::useless_conversion)]
+    let free = u64::from(st.f_bavail).saturating_mul(u64::from(st.f_frsize));
+    Ok(Some((free, format!("statvfs of {}", existing.display()))))
+}
+
+/// Bytes of the regular files under `dir` (0 when it does not exist); the
+/// files of a run being resumed count against what it still has to write.
+pub fn bytes_under(dir: &std::path::Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut total = 0u64;
+    for e in entries.flatten() {
+        let Ok(t) = e.file_type() else { continue };
+        if t.is_dir() {
+            total = total.saturating_add(bytes_under(&e.path()));
+        } else if t.is_file() {
+            total = total.saturating_add(e.metadata().map(|m| m.len()).unwrap_or(0));
+        }
+    }
+    total
+}
+
+/// Refuses a `generate` whose files would not fit on the file system of
+/// `out` (before anything is written).
+pub fn check_disk(plan: &stepsim_sim::config::Plan, out: &std::path::Path) -> anyhow::Result<()> {
+    let free = free_disk(out)?;
+    stepsim_sim::disk::check(
+        &out.display().to_string(),
+        stepsim_sim::disk::generate_estimate(plan),
+        bytes_under(out),
+        free,
+    )?;
     Ok(())
 }
 

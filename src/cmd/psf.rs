@@ -69,10 +69,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let next = std::sync::atomic::AtomicUsize::new(0);
     let workers = super::available_cores().min(2).min(psfs.len());
     // The file side is known per PSF once it is built; bound it from above.
-    let n_max = args.size_px.map_or(
-        (max_stamp_px + 2).max(psf_fits::DEFAULT_SIZE_PX),
-        |n| n as usize,
-    );
+    let n_max = args
+        .size_px
+        .map_or((max_stamp_px + 2).max(psf_fits::DEFAULT_SIZE_PX), |n| {
+            n as usize
+        });
     super::check_memory(
         "psf",
         stepsim_sim::memory::psf_estimate(&plan, n_max, os, workers),

@@ -354,7 +354,7 @@ pub struct Options {
 }
 
 /// What the run reports while it works (for a progress bar).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Event {
     /// Work starts: `pending` images to make, `done` already verified.
     Start {
@@ -362,6 +362,20 @@ pub enum Event {
         pending: usize,
         /// Images of this shard found finished and verified.
         done: usize,
+    },
+    /// PSFs are about to be built: `total` of them.
+    PsfsStart {
+        /// PSFs this process builds.
+        total: usize,
+    },
+    /// One PSF was built (`done` of `total`).
+    PsfBuilt {
+        /// Its name in the config.
+        name: String,
+        /// PSFs built so far.
+        done: usize,
+        /// PSFs this process builds.
+        total: usize,
     },
     /// One image was written.
     ImageWritten,
@@ -486,6 +500,9 @@ pub fn generate(
     let det = Detector::new(&plan.raw.instrument, pixel_scale);
     let mut renderers: BTreeMap<usize, Renderer> = BTreeMap::new();
     let mut built = Vec::new();
+    progress(Event::PsfsStart {
+        total: psf_needed.len(),
+    });
     for &p in &psf_needed {
         let raw = &plan.raw.psfs[p];
         let psf = crate::psf::build(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
@@ -505,6 +522,11 @@ pub fn generate(
             ),
         );
         built.push((p, psf));
+        progress(Event::PsfBuilt {
+            name: raw.name.clone(),
+            done: built.len(),
+            total: psf_needed.len(),
+        });
     }
 
     progress(Event::Start {

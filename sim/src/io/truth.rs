@@ -88,21 +88,25 @@ pub fn read_truth_fits(path: &Path) -> Result<Vec<TruthRow>, IoError> {
 /// Writes the CSV twin of a truth table (header line of column names; floats
 /// with 17 significant digits so that they read back exactly).
 pub fn write_truth_csv(path: &Path, rows: &[TruthRow]) -> Result<(), IoError> {
-    use std::fmt::Write as _;
-    let mut s = TruthRow::column_names().join(",");
-    s.push('\n');
+    let fail = |e: csv::Error| IoError::format(path, format!("cannot format the CSV: {e}"));
+    let mut w = csv::WriterBuilder::new()
+        .terminator(csv::Terminator::Any(b'\n'))
+        .from_writer(Vec::new());
+    w.write_record(TruthRow::column_names()).map_err(fail)?;
     for r in rows {
-        for (k, name) in COLUMN_ORDER.iter().enumerate() {
-            let sep = if k == 0 { "" } else { "," };
-            let _ = match r.value(name).expect("every column has a value") {
-                Column::Long(v) => write!(s, "{sep}{v}"),
-                Column::Int(v) => write!(s, "{sep}{v}"),
-                Column::Float(v) => write!(s, "{sep}{v:?}"),
-            };
-        }
-        s.push('\n');
+        let fields = COLUMN_ORDER.iter().map(|name| {
+            match r.value(name).expect("every column has a value") {
+                Column::Long(v) => v.to_string(),
+                Column::Int(v) => v.to_string(),
+                Column::Float(v) => format!("{v:?}"),
+            }
+        });
+        w.write_record(fields).map_err(fail)?;
     }
-    super::write_bytes_atomically(path, s.as_bytes())
+    let bytes = w
+        .into_inner()
+        .map_err(|e| IoError::format(path, format!("cannot format the CSV: {e}")))?;
+    super::write_bytes_atomically(path, &bytes)
 }
 
 #[cfg(test)]
@@ -168,6 +172,15 @@ mod tests {
         assert_eq!(fields.len(), TruthRow::column_names().len());
         assert_eq!(fields[2].parse::<f64>().unwrap(), rows[1].x);
         assert_eq!(fields[9].parse::<i32>().unwrap(), rows[1].hubble_type);
+        // Read back with the csv crate: every value exactly.
+        let mut rd = csv::Reader::from_path(&path).unwrap();
+        let back: Vec<csv::StringRecord> = rd.records().map(|r| r.unwrap()).collect();
+        assert_eq!(back.len(), 3);
+        for (rec, row) in back.iter().zip(&rows) {
+            assert_eq!(rec[0].parse::<i64>().unwrap(), row.id);
+            assert_eq!(rec[2].parse::<f64>().unwrap(), row.x);
+            assert_eq!(rec[3].parse::<f64>().unwrap(), row.y);
+        }
     }
 
     #[test]

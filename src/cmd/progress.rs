@@ -1,0 +1,154 @@
+//! What `generate` tells its user while it works: a bar on a terminal, log
+//! lines elsewhere (one per PSF built, and one every tenth of the images or
+//! every [`LOG_EVERY_S`] seconds, whichever comes first).
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+use stepsim_sim::generate::Event;
+
+/// Longest silence between two log lines while images are made.
+pub const LOG_EVERY_S: u64 = 30;
+
+/// The log line after `done` of `total` images, `elapsed` after the first
+/// image was started (the rate of the images so far gives the time left).
+pub fn images_line(done: usize, total: usize, elapsed: Duration) -> String {
+    let s = elapsed.as_secs_f64();
+    let left = if done > 0 && done < total {
+        format!(
+            ", about {:.0} s left",
+            s / done as f64 * (total - done) as f64
+        )
+    } else {
+        String::new()
+    };
+    format!(
+        "stepsim: {done}/{total} images written ({:.0}%), {s:.0} s{left}",
+        100.0 * done as f64 / total.max(1) as f64
+    )
+}
+
+/// Tells the user about events, on a bar or in log lines.
+pub struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    state: Mutex<State>,
+}
+
+struct State {
+    started: Instant,
+    images_started: Instant,
+    last_line: Instant,
+    pending: usize,
+    written: usize,
+}
+
+impl Progress {
+    /// A bar when stderr is a terminal (and `CI` is unset), log lines
+    /// otherwise.
+    pub fn new() -> Self {
+        use std::io::IsTerminal as _;
+        let bar =
+            (std::io::stderr().is_terminal() && std::env::var_os("CI").is_none()).then(|| {
+                let b = indicatif::ProgressBar::new_spinner();
+                b.enable_steady_tick(Duration::from_millis(200));
+                b.set_message("preparing");
+                b
+            });
+        let now = Instant::now();
+        Self {
+            bar,
+            state: Mutex::new(State {
+                started: now,
+                images_started: now,
+                last_line: now,
+                pending: 0,
+                written: 0,
+            }),
+        }
+    }
+
+    /// Handles one event.
+    pub fn event(&self, e: Event) {
+        let mut st = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        match (e, &self.bar) {
+            (Event::PsfsStart { total }, Some(bar)) if total > 0 => {
+                bar.set_message(format!("building {total} PSFs"));
+            }
+            (Event::PsfsStart { total }, None) if total > 0 => {
+                eprintln!(
+                    "stepsim: building {total} PSF{}",
+                    if total == 1 { "" } else { "s" }
+                );
+            }
+            (Event::PsfsStart { .. }, _) => {}
+            (Event::PsfBuilt { name, done, total }, Some(bar)) => {
+                bar.set_message(format!("built PSF {done}/{total} ({name})"));
+            }
+            (Event::PsfBuilt { name, done, total }, None) => eprintln!(
+                "stepsim: built PSF {done}/{total} ({name}), {:.0} s",
+                st.started.elapsed().as_secs_f64()
+            ),
+            (Event::Start { pending, .. }, bar) => {
+                st.pending = pending;
+                st.images_started = Instant::now();
+                st.last_line = st.images_started;
+                if let Some(bar) = bar {
+                    bar.set_style(
+                        indicatif::ProgressStyle::with_template(
+                            "{spinner} {pos}/{len} images [{elapsed_precise}, eta {eta}] {wide_bar}",
+                        )
+                        .expect("valid template"),
+                    );
+                    bar.set_length(pending as u64);
+                    // The time spent on PSFs is not the images' rate.
+                    bar.reset();
+                } else if pending > 0 {
+                    eprintln!("stepsim: making {pending} images");
+                }
+            }
+            (Event::ImageWritten, Some(bar)) => {
+                st.written += 1;
+                bar.inc(1);
+            }
+            (Event::ImageWritten, None) => {
+                st.written += 1;
+                let step = st.pending.div_ceil(10).max(1);
+                let quiet = st.last_line.elapsed() >= Duration::from_secs(LOG_EVERY_S);
+                if st.written % step == 0 || st.written == st.pending || quiet {
+                    st.last_line = Instant::now();
+                    eprintln!(
+                        "{}",
+                        images_line(st.written, st.pending, st.images_started.elapsed())
+                    );
+                }
+            }
+        }
+    }
+
+    /// Removes the bar.
+    pub fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn image_lines_give_share_elapsed_and_time_left_from_the_rate() {
+        assert_eq!(
+            images_line(3, 12, Duration::from_secs(6)),
+            "stepsim: 3/12 images written (25%), 6 s, about 18 s left"
+        );
+        assert_eq!(
+            images_line(12, 12, Duration::from_secs(20)),
+            "stepsim: 12/12 images written (100%), 20 s"
+        );
+        assert_eq!(
+            images_line(0, 0, Duration::ZERO),
+            "stepsim: 0/0 images written (0%), 0 s"
+        );
+    }
+}
