@@ -8,8 +8,10 @@
 //! lensed positions. It measures the scene, not any shear method. The
 //! fields hold galaxies only (stars are not lensed, so with lensed
 //! positions a star–galaxy overlap would change with the sign of g).
-//! `STEPSIM_SLOW=1` runs 150 fields of 512² (numbers in docs/scoring.md);
-//! otherwise 3 fields.
+//! `STEPSIM_SLOW=1` runs 150 fields of 512² per case; `STEPSIM_BLEND_FIELDS`
+//! sets the number (one count for both cases, or `UNLENSED,LENSED`; the
+//! numbers in docs/scoring.md); otherwise 3 fields. The seed is fixed
+//! (`run.seed`), so every run measures the same scene.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -22,8 +24,12 @@ const W: usize = 512;
 const HALF: i64 = 12;
 const G: f64 = 0.05;
 
+/// Master seed of the scene (fixed, so that runs reproduce and compare).
+const SEED: u64 = 20061313;
+
 fn plan(n_fields: u32) -> Plan {
     let o: Vec<String> = [
+        format!("run.seed={SEED}"),
         format!("image.width_px={W}"),
         format!("image.height_px={W}"),
         format!("image.n_images={n_fields}"),
@@ -122,9 +128,10 @@ fn measure(plan: &Plan, renderer: &Renderer, field: u32, lens: bool, acc: &mut A
 }
 
 /// [isolated, blended] m_blend and its error for unlensed and lensed
-/// positions over `n_fields` fields.
-fn run(n_fields: u32) -> [[(f64, f64, usize); 2]; 2] {
-    let plan = plan(n_fields);
+/// positions over `n_fields[0]` fields (unlensed) and `n_fields[1]`
+/// fields (lensed), the same first fields of one scene.
+fn run(n_fields: [u32; 2]) -> [[(f64, f64, usize); 2]; 2] {
+    let plan = plan(n_fields[0].max(n_fields[1]));
     let psf = Arc::new(stepsim_sim::psf::GaussianPsf::round(0.9));
     let renderer = Renderer::new(
         psf,
@@ -133,34 +140,91 @@ fn run(n_fields: u32) -> [[(f64, f64, usize); 2]; 2] {
         283.0,
     );
     let mut out = [[(0.0, 0.0, 0); 2]; 2];
-    for (l, lens) in [false, true].into_iter().enumerate() {
-        let mut acc: Acc = [(0.0, 0.0, 0, 0.0); 2];
-        for f in 0..n_fields {
-            measure(&plan, &renderer, f, lens, &mut acc);
-        }
-        for (c, a) in acc.iter().enumerate() {
-            let n = a.2 as f64;
-            let m = a.0 / a.1 - 1.0;
-            // Error from the scatter of R_image − R_alone over galaxies.
-            let mean_d = (a.0 - a.1) / n;
-            let var = (a.3 / n - mean_d * mean_d).max(0.0) * n / (n - 1.0);
-            let err = (var / n).sqrt() / (a.1 / n);
-            out[l][c] = (m, err, a.2);
-            eprintln!(
-                "{} positions, {} galaxies: m_blend = {m:+.4} ± {err:.4} ({} galaxies, {n_fields} fields)",
-                if lens { "lensed" } else { "unlensed" },
-                if c == 0 { "isolated" } else { "blended" },
-                a.2
-            );
+    let mut acc: [Acc; 2] = [[(0.0, 0.0, 0, 0.0); 2]; 2];
+    // Field by field, both cases, so that a long run reports both as it goes.
+    for f in 0..n_fields[0].max(n_fields[1]) {
+        for (l, lens) in [false, true].into_iter().enumerate() {
+            if f >= n_fields[l] {
+                continue;
+            }
+            measure(&plan, &renderer, f, lens, &mut acc[l]);
+            // Progress of a long run: the figures so far, every 25 fields.
+            if (f + 1) % 25 == 0 || f + 1 == n_fields[l] {
+                out[l] = summary(&acc[l], lens, f + 1);
+            }
         }
     }
     out
 }
 
+/// [isolated, blended] (m_blend, error, galaxies) of the sums `acc` over
+/// `n_fields` fields, also printed.
+fn summary(acc: &Acc, lens: bool, n_fields: u32) -> [(f64, f64, usize); 2] {
+    let mut out = [(0.0, 0.0, 0); 2];
+    for (c, a) in acc.iter().enumerate() {
+        let n = a.2 as f64;
+        let m = a.0 / a.1 - 1.0;
+        // Error from the scatter of R_image − R_alone over galaxies.
+        let mean_d = (a.0 - a.1) / n;
+        let var = (a.3 / n - mean_d * mean_d).max(0.0) * n / (n - 1.0);
+        let err = (var / n).sqrt() / (a.1 / n);
+        out[c] = (m, err, a.2);
+        eprintln!(
+            "{} positions, {} galaxies: m_blend = {m:+.4} ± {err:.4} ({} galaxies, {n_fields} fields)",
+            if lens { "lensed" } else { "unlensed" },
+            if c == 0 { "isolated" } else { "blended" },
+            a.2
+        );
+    }
+    out
+}
+
+/// Field counts [unlensed, lensed] from `STEPSIM_BLEND_FIELDS` ("N" for
+/// both or "U,L"), else 150 each with `slow`, else 3 each.
+fn field_counts(var: Option<&str>, slow: bool) -> Result<[u32; 2], String> {
+    let Some(v) = var else {
+        return Ok(if slow { [150, 150] } else { [3, 3] });
+    };
+    let bad = || format!("STEPSIM_BLEND_FIELDS={v:?}: expected N or UNLENSED,LENSED (counts ≥ 1)");
+    let n: Vec<u32> = v
+        .split(',')
+        .map(|p| p.trim().parse::<u32>().ok().filter(|&n| n > 0))
+        .collect::<Option<_>>()
+        .ok_or_else(bad)?;
+    match n[..] {
+        [a] => Ok([a, a]),
+        [a, b] => Ok([a, b]),
+        _ => Err(bad()),
+    }
+}
+
+#[test]
+fn field_counts_come_from_the_environment() {
+    assert_eq!(field_counts(None, false), Ok([3, 3]));
+    assert_eq!(field_counts(None, true), Ok([150, 150]));
+    assert_eq!(field_counts(Some("40"), false), Ok([40, 40]));
+    assert_eq!(field_counts(Some("500, 2000"), false), Ok([500, 2000]));
+    for bad in ["", "0", "x", "1,2,3", "-4"] {
+        assert!(field_counts(Some(bad), false).is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn the_scene_is_fixed_by_its_seed() {
+    let (a, b) = (plan(3), plan(3));
+    assert_eq!(a.seed(), SEED);
+    let (fa, fb) = (base_field(&a, 2).unwrap(), base_field(&b, 2).unwrap());
+    assert!(!fa.is_empty());
+    assert_eq!(fa, fb);
+}
+
 #[test]
 fn blends_respond_less_than_isolated_galaxies() {
     let slow = std::env::var_os("STEPSIM_SLOW").is_some();
-    let r = run(if slow { 150 } else { 3 });
+    let var = std::env::var("STEPSIM_BLEND_FIELDS").ok();
+    let counts = field_counts(var.as_deref(), slow).unwrap();
+    let slow = slow || counts[0] >= 100;
+    let r = run(counts);
     // Isolated galaxies lose (almost) nothing, lensed or not.
     for per_lens in &r {
         let (m, e, n) = per_lens[0];

@@ -3,7 +3,7 @@
 
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
-use stepsim_sim::config::{Plan, RawConfig};
+use stepsim_sim::config::{Plan, RawConfig, SeedOrigin};
 use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
 use stepsim_sim::stats::median;
 
@@ -35,15 +35,30 @@ pub struct Args {
     scratch: Option<PathBuf>,
 }
 
-/// Runs the benchmark and prints a table.
-pub fn run(args: &Args) -> anyhow::Result<()> {
-    let plan = match &args.config {
-        Some(path) => Plan::load(path, &args.overrides)?,
+/// Master seed of a benchmark whose config gives none, so that runs draw
+/// the same scene and their timings compare.
+pub const BENCH_SEED: u64 = 20060101;
+
+/// The plan to time: `config` (or the built-in STEP1 preset) with
+/// `overrides`; without a `run.seed` the seed is [`BENCH_SEED`], not a
+/// fresh one.
+fn bench_plan(config: Option<&Path>, overrides: &[String]) -> anyhow::Result<Plan> {
+    let plan = match config {
+        Some(path) => Plan::load(path, overrides)?,
         None => {
             let source = Path::new("<built-in STEP1 preset>");
-            Plan::new(RawConfig::parse("{}", source, &args.overrides)?, source)?
+            Plan::new(RawConfig::parse("{}", source, overrides)?, source)?
         }
     };
+    Ok(match plan.seed_origin {
+        SeedOrigin::Drawn => plan.with_seed(BENCH_SEED),
+        SeedOrigin::Config => plan,
+    })
+}
+
+/// Runs the benchmark and prints a table.
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let plan = bench_plan(args.config.as_deref(), &args.overrides)?;
     let Some(psf_index) = plan.raw.psfs.iter().position(|p| p.name == args.psf) else {
         let names: Vec<&str> = plan.raw.psfs.iter().map(|p| p.name.as_str()).collect();
         bail!(
@@ -93,9 +108,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let img = &plan.raw.image;
     println!(
-        "image {} × {} px, PSF {}, {} galaxies, {} stars, {} repeats, {} threads",
+        "image {} × {} px, seed {}, PSF {}, {} galaxies, {} stars, {} repeats, {} threads",
         img.width_px,
         img.height_px,
+        plan.seed(),
         args.psf,
         runs[0].n_galaxies,
         runs[0].n_stars,
@@ -139,4 +155,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         None => println!("peak memory (VmHWM): unavailable"),
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_benchmark_without_a_seed_uses_the_fixed_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = dir.path().join("c.json");
+        std::fs::write(&cfg, "{}").unwrap();
+        for config in [None, Some(cfg.as_path())] {
+            assert_eq!(bench_plan(config, &[]).unwrap().seed(), BENCH_SEED);
+            let given = bench_plan(config, &["run.seed=7".into()]).unwrap();
+            assert_eq!(given.seed(), 7);
+        }
+    }
 }
