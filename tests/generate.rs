@@ -6,6 +6,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+mod common;
+use common::files;
+
 /// 2 PSFs × 2 shears × 2 images of 128², with secrets that are easy to grep.
 const CONFIG: &str = r#"{
   "run": {"name": "runNameSecret", "seed": 8675309},
@@ -54,26 +57,6 @@ fn generate(dir: &Path, out: &str, extra: &[&str]) -> Output {
     let o = stepsim(&args, dir);
     assert!(o.status.success(), "generate {extra:?} failed");
     o
-}
-
-/// Every file under `root` (relative path -> bytes).
-fn files(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else {
-                out.insert(
-                    p.strip_prefix(root).unwrap().into(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(root, root, &mut out);
-    out
 }
 
 /// The files that must be identical between runs: public/ and private/

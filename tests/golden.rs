@@ -19,6 +19,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use stepsim_sim::seed::{SeedKey, Stream};
 
+mod common;
+use common::files;
+
 fn golden(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/golden")
@@ -110,19 +113,6 @@ fn first_draws_of_every_distribution_are_pinned() {
     check("draws.txt", &out);
 }
 
-fn hash_tree(root: &Path, dir: &Path, out: &mut BTreeMap<String, String>) {
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() {
-            hash_tree(root, &p, out);
-        } else {
-            let rel = p.strip_prefix(root).unwrap().to_string_lossy().into_owned();
-            let bytes = std::fs::read(&p).unwrap();
-            out.insert(rel, stepsim_sim::blind::sha256_hex(&bytes));
-        }
-    }
-}
-
 #[test]
 fn a_small_run_has_the_pinned_bytes() {
     let dir = tempfile::tempdir().unwrap();
@@ -142,8 +132,15 @@ fn a_small_run_has_the_pinned_bytes() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let mut hashes = BTreeMap::new();
-    hash_tree(&run, &run, &mut hashes);
+    let hashes: BTreeMap<String, String> = files(&run)
+        .into_iter()
+        .map(|(rel, bytes)| {
+            (
+                rel.to_string_lossy().into_owned(),
+                stepsim_sim::blind::sha256_hex(&bytes),
+            )
+        })
+        .collect();
     // What the run writes about itself (sidecars, the resolved config, the
     // key) follows from the rest; the bytes that matter are listed.
     let text: String = hashes

@@ -3,9 +3,11 @@
 //! never leaves a manifest listing a missing image, and `score` refuses ids
 //! of another run.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
+
+mod common;
+use common::files;
 
 fn stepsim(args: &[&str], dir: &Path) -> Output {
     let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
@@ -52,26 +54,6 @@ fn setup() -> tempfile::TempDir {
     std::fs::write(dir.path().join("x.json"), X).unwrap();
     std::fs::write(dir.path().join("y.json"), y_config()).unwrap();
     dir
-}
-
-/// Every file under `root` (relative path -> bytes).
-fn files(root: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
-    fn walk(root: &Path, dir: &Path, out: &mut BTreeMap<PathBuf, Vec<u8>>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(root, &p, out);
-            } else {
-                out.insert(
-                    p.strip_prefix(root).unwrap().into(),
-                    std::fs::read(&p).unwrap(),
-                );
-            }
-        }
-    }
-    let mut out = BTreeMap::new();
-    walk(root, root, &mut out);
-    out
 }
 
 #[test]
