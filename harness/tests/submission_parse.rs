@@ -5,35 +5,10 @@ use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use stepsim_harness::HarnessError;
 use stepsim_harness::submission::{parse_file, read_submission};
-use stepsim_harness::truth_set::ImageIndex;
-use stepsim_sim::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
 use stepsim_sim::seed::SimRng;
 
-fn index() -> ImageIndex {
-    let ds = Datasets {
-        format: DATASETS_FORMAT.into(),
-        width_px: 100,
-        height_px: 80,
-        pixel_scale_arcsec: 0.2,
-        datasets: vec![DatasetEntry {
-            dataset: "dA".into(),
-            psf_id: 0,
-            psf: "none".into(),
-            g1: 0.01,
-            g2: 0.0,
-            images: ["imA", "imB"]
-                .iter()
-                .enumerate()
-                .map(|(k, i)| DatasetImage {
-                    image: (*i).into(),
-                    field: k as u32,
-                    rotated: false,
-                })
-                .collect(),
-        }],
-    };
-    ImageIndex::new(&ds, Path::new("datasets.json")).unwrap()
-}
+mod common;
+use common::index;
 
 const GOOD: &str = "# image x y e1 e2 weight flags\n\
                     imA 10.5 20.25 0.01 -0.02 2.0 0\n\
