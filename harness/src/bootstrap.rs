@@ -15,7 +15,7 @@ use crate::metrics::{DatasetMeta, ImageStats, score_tables, score_tables_with};
 use crate::report::{BootstrapCi, Summary};
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
-use stepsim_sim::seed::{SimRng, splitmix64};
+use stepsim_contract::seed::{SimRng, splitmix64};
 
 /// Default number of resamples.
 pub const DEFAULT_RESAMPLES: usize = 200;

@@ -12,8 +12,8 @@ use crate::isolation::ISOLATION_FLUX_FRACTION;
 use crate::matching::match_nearest;
 use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
 use crate::submission::SubRow;
-use stepsim_sim::run_layout::Datasets;
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::run_layout::Datasets;
+use stepsim_contract::truth::TruthRow;
 
 /// Edges of the true-magnitude bins (I, Vega); the outer bins are open.
 pub const MAG_EDGES: [f64; 8] = [

@@ -1,11 +1,11 @@
 //! Plots like the paper's Figures 2–5, written by our own small plotter as
 //! SVG (with titles, axis labels and tick labels); the PNG is that same SVG
-//! rasterised with its text by [`stepsim_sim::io::png::svg_to_png`] (resvg
+//! rasterised with its text by [`stepsim_figure::png::svg_to_png`] (resvg
 //! and a bundled font: no system font is needed, CI installs nothing).
 
 use crate::report::Report;
 use std::fmt::Write as _;
-use stepsim_sim::picture::xml_escape;
+use stepsim_figure::picture::xml_escape;
 
 /// Palette: white, black, light grey, blue, red, green, orange, mid grey.
 pub const PALETTE: [[u8; 3]; 8] = [
@@ -320,9 +320,9 @@ impl Figure {
 
     /// The figure as PNG: the very SVG of [`Figure::to_svg`] rasterised,
     /// titles, labels and tick values included (resvg with the bundled
-    /// DejaVu Sans; see [`stepsim_sim::io::png`]).
-    pub fn to_png(&self) -> Result<Vec<u8>, stepsim_sim::io::png::SvgError> {
-        stepsim_sim::io::png::svg_to_png(&self.to_svg())
+    /// DejaVu Sans; see [`stepsim_figure::png`]).
+    pub fn to_png(&self) -> Result<Vec<u8>, stepsim_figure::png::SvgError> {
+        stepsim_figure::png::svg_to_png(&self.to_svg())
     }
 }
 
@@ -541,7 +541,7 @@ pub fn fig5(r: &Report) -> Figure {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stepsim_sim::io::png::decode;
+    use stepsim_figure::png::decode;
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {
@@ -640,8 +640,8 @@ mod tests {
         bare.push_str(rest);
         assert!(svg.matches("<text").count() >= 8, "title, labels, ticks");
         let with = decode(&fig.to_png().unwrap()).unwrap();
-        let without = decode(&stepsim_sim::io::png::svg_to_png(&bare).unwrap()).unwrap();
-        let dark = |d: &stepsim_sim::io::png::Decoded, y0: usize, y1: usize| {
+        let without = decode(&stepsim_figure::png::svg_to_png(&bare).unwrap()).unwrap();
+        let dark = |d: &stepsim_figure::png::Decoded, y0: usize, y1: usize| {
             (y0..y1)
                 .flat_map(|y| (0..d.width).map(move |x| (x, y)))
                 .filter(|&(x, y)| d.pixel(x, y)[0] < 100)

@@ -664,7 +664,7 @@ fn parse_fits(
             "the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
         ));
     }
-    let f = stepsim_sim::io::fits::open_fits(path)?;
+    let f = stepsim_contract::io::fits::open_fits(path)?;
     let mut t = Table::first_table(f, path, data.len() as u64)?;
     let names: Vec<String> = t.columns.iter().map(|c| c.name.clone()).collect();
     let lay = layout(path, None, &names, fixed)?;

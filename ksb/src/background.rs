@@ -9,8 +9,8 @@
 //! median of the meshes' clipped σ (the sky of a STEP image is uniform).
 
 use crate::image::Image;
+use crate::stats::median;
 use rayon::prelude::*;
-use stepsim_sim::stats::median;
 
 /// The background of an image.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,7 +151,7 @@ impl Background {
 mod tests {
     use super::*;
     use crate::draw::{add_sky_and_noise, covariance, draw_gaussian_sampled};
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]
     fn recovers_sky_and_noise_under_sources() {

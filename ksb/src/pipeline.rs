@@ -404,7 +404,7 @@ mod tests {
     use crate::draw::{
         SceneSpec, add_sky_and_noise, covariance, draw_gaussian_sampled, synthetic_scene,
     };
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     const SAT_E: f64 = 65535.0 * 4.0;
 

@@ -110,7 +110,7 @@ pub fn fit_clipped(
                 .filter(|(_, k)| **k)
                 .map(|(r, _)| r.abs())
                 .collect();
-            let mad = stepsim_sim::stats::median(&mut abs_kept).unwrap_or(0.0);
+            let mad = crate::stats::median(&mut abs_kept).unwrap_or(0.0);
             let scale = vals.iter().fold(0.0f64, |a, v| a.max(v.abs()));
             let sigma = (1.4826 * mad).max(1e-12 * (1.0 + scale));
             for (i, r) in res.iter().enumerate() {

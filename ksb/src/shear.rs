@@ -112,7 +112,7 @@ impl PgammaFit {
                 .filter(|(_, k)| **k)
                 .map(|(r, _)| r.abs())
                 .collect();
-            let sigma = (1.4826 * stepsim_sim::stats::median(&mut abs)?).max(1e-12);
+            let sigma = (1.4826 * crate::stats::median(&mut abs)?).max(1e-12);
             let new_keep: Vec<bool> = res.iter().map(|r| r.abs() <= 3.0 * sigma).collect();
             if new_keep == keep {
                 break;

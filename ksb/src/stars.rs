@@ -202,9 +202,9 @@ pub fn refine_locus(ln: &[f64], mode: f64, params: &KsbParams) -> Option<(f64, f
         if near.len() < params.psf_min_stars {
             return None;
         }
-        let c = stepsim_sim::stats::median(&mut near)?;
+        let c = crate::stats::median(&mut near)?;
         let mut dev: Vec<f64> = near.iter().map(|v| (v - c).abs()).collect();
-        let w = (1.4826 * stepsim_sim::stats::median(&mut dev)?).max(params.locus_width_floor);
+        let w = (1.4826 * crate::stats::median(&mut dev)?).max(params.locus_width_floor);
         if w > params.locus_max_width {
             return None;
         }
@@ -229,7 +229,7 @@ mod tests {
     use super::*;
     use crate::draw::uniform;
     use rand::RngExt;
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]
     fn injected_stellar_locus_is_found_and_separated() {

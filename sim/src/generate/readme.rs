@@ -5,21 +5,9 @@ use crate::config::{Compression, Plan, SampleFormat};
 use crate::noise::Detector;
 use std::fmt::Write as _;
 
-/// The submission format of SPEC §6, as told to participants. The scoring
-/// harness owns the canonical text; this paragraph says the same in short.
-pub const SUBMISSION_FORMAT: &str = "\
-## Submission format
-
-A submission is one table with one row per object you measured, either a
-whitespace-separated ASCII file whose first line is a `#` header naming the
-columns, a CSV file with a header line, or a FITS binary table. Columns:
-`image` (the image id of `manifest.json`), `x`, `y` (FITS pixel coordinates of
-the object), `e1`, `e2` (your estimate of the object's shear γ̂), and
-optionally `weight` (default 1). A directory holding one such table per image,
-named `<image-id>.<ext>`, is accepted too. Extra columns are ignored. Rows with
-an unknown image, NaN, a position off the image or a duplicate are refused, so
-check your file before sending it.
-";
+/// The submission format of SPEC §6, as told to participants: the one copy,
+/// [`stepsim_contract::SUBMISSION_FORMAT_MD`].
+pub const SUBMISSION_FORMAT: &str = stepsim_contract::SUBMISSION_FORMAT_MD;
 
 /// The participants' README of a run. `submission_format` is the paragraph
 /// describing the submission format (see [`SUBMISSION_FORMAT`]).
