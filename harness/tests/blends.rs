@@ -16,7 +16,8 @@
 use std::path::Path;
 use std::sync::Arc;
 use stepsim_harness::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
-use stepsim_sim::config::{Plan, RawConfig};
+use stepsim_sim::config::RawConfig;
+use stepsim_sim::plan::Plan;
 use stepsim_sim::population::{base_field, lensed, rotated, sheared};
 use stepsim_sim::render::{Accuracy, Renderer, draw_image};
 
@@ -74,7 +75,7 @@ type Acc = [(f64, f64, usize, f64); 2];
 
 fn measure(plan: &Plan, renderer: &Renderer, field: u32, lens: bool, acc: &mut Acc) {
     let base = base_field(plan, field).unwrap();
-    let r_px = ISOLATION_RADIUS_ARCSEC / plan.raw.image.pixel_scale_arcsec;
+    let r_px = ISOLATION_RADIUS_ARCSEC / plan.image().pixel_scale_arcsec;
     let iso = isolated(&base, r_px, ISOLATION_FLUX_FRACTION);
     let twin = rotated(&base);
     // Per galaxy id: (view, χ1 in the image, χ1 alone); view = 2·twin + (g > 0).
@@ -135,7 +136,7 @@ fn run(n_fields: [u32; 2]) -> [[(f64, f64, usize); 2]; 2] {
     let psf = Arc::new(stepsim_sim::psf::GaussianPsf::round(0.9));
     let renderer = Renderer::new(
         psf,
-        plan.raw.image.pixel_scale_arcsec,
+        plan.image().pixel_scale_arcsec,
         Accuracy::default(),
         283.0,
     );

@@ -23,7 +23,7 @@
 //! Without the key the ids are unrelated random strings; with it, the
 //! organiser can recompute them. Since the key derives from `run.seed`, a real
 //! challenge needs a secret seed: a config without one gets a seed drawn from
-//! the operating system (`config::Plan::new`).
+//! the operating system (`plan::Plan::new`).
 
 use crate::seed::{SeedKey, Stream};
 use rand::RngExt;

@@ -15,6 +15,7 @@
 pub mod devaucouleurs;
 pub mod exponential;
 pub mod galaxy;
+pub mod sersic;
 pub mod transform;
 
 pub use devaucouleurs::DeVaucouleurs;

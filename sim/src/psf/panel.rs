@@ -203,6 +203,68 @@ pub fn caption(width: usize, height: usize, text: &str) -> Picture {
     }
 }
 
+/// The picture of a PSF set (`psf_cores.png`): the cores (±1.6″, linear,
+/// contours at 3 %, 25 %, 90 % of the peak), each core minus the first
+/// PSF's (both at unit peak; red brighter, blue fainter, full colour at
+/// ±5 %), and the wings (±15″, log stretch down to 1e-6, contours at
+/// 3e-5 … 0.25 of the peak), one column per PSF, with captions. `cores` are
+/// 256² images at p/8 and `wings` 512² images at p/2
+/// ([`crate::psf::image`]) for pixel scale `pixel_scale_arcsec` = p.
+pub fn psf_set(
+    cores: &[&[f64]],
+    wings: &[&[f64]],
+    names: &[&str],
+    pixel_scale_arcsec: f64,
+) -> Picture {
+    let p = pixel_scale_arcsec;
+    let half_core = (1.6 / (p / 8.0)).round() as usize;
+    let half_wing = (15.0 / (p / 2.0)).round() as usize;
+    let top = row(
+        cores,
+        names,
+        256,
+        half_core,
+        2,
+        Stretch::Linear,
+        &[0.03, 0.25, 0.9],
+    );
+    let zoom = (top.width / (cores.len() * 2 * half_wing.min(256))).max(1);
+    let bottom = row(
+        wings,
+        names,
+        512,
+        half_wing,
+        zoom,
+        Stretch::Log { floor: 1e-6 },
+        &[3e-5, 3e-4, 3e-3, 0.03, 0.25],
+    );
+    let middle = difference_row(cores, names, cores[0], 256, half_core, 2, 0.05);
+    let w = top.width;
+    stack(&[
+        caption(
+            w,
+            30,
+            "cores ±1.6″, linear; contours at 3 %, 25 %, 90 % of the peak",
+        ),
+        top,
+        caption(
+            w,
+            30,
+            &format!(
+                "core minus {}'s, both at unit peak: red brighter, blue fainter (±5 %)",
+                names[0]
+            ),
+        ),
+        middle,
+        caption(
+            w,
+            30,
+            "wings ±15″, log stretch to 1e-6; contours at 3e-5 … 0.25 of the peak",
+        ),
+        bottom,
+    ])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -221,7 +221,7 @@ fn step1(name: &str) -> Arc<dyn Psf> {
         .into_iter()
         .find(|p| p.name == name)
         .unwrap();
-    build(&raw, &RawTelescope::default(), 0.206).unwrap()
+    build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap()
 }
 
 /// Checks normalisation and returns the report.
@@ -437,7 +437,7 @@ fn other_targets_can_be_asked_for() {
             angle_deg: 30.0,
         },
     };
-    let psf = build(&raw, &RawTelescope::default(), 0.206).unwrap();
+    let psf = build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap();
     let r = report("c", psf.as_ref(), 0.206).unwrap();
     assert!((r.fwhm_arcsec - 1.1).abs() < 0.02, "{}", r.fwhm_arcsec);
     assert!((r.chi_abs - 0.03).abs() < 0.004, "{}", r.chi_abs);
