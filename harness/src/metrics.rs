@@ -705,6 +705,7 @@ pub fn summarize(psfs: &[PsfReport]) -> Summary {
         sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
         m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
         m_isolated_mean: mean_of(psfs.iter().map(|p| p.m_isolated)),
+        sigma_c_isolated: pooled(|p| p.c1_isolated, |p| p.c2_isolated),
         q_c: q_c(psfs),
         pct_chance_match: None,
         bootstrap: None,
