@@ -10,7 +10,7 @@
 
 use crate::image::Image;
 use rayon::prelude::*;
-use stepsim_sim::stats::median;
+use stepsim_numerics::stats::median;
 
 /// The background of an image.
 #[derive(Debug, Clone, PartialEq)]

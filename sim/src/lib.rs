@@ -37,6 +37,8 @@ pub mod render;
 pub mod run_layout;
 pub mod seed;
 pub mod shear;
-pub mod stats;
+/// The shared statistics, now in `stepsim-numerics` (re-exported while
+/// sim's own modules still name them `crate::stats`).
+pub use stepsim_numerics::stats;
 pub mod truth;
 pub mod wcs;

@@ -150,15 +150,8 @@ impl DeVaucouleurs {
 
     /// Solves P(8, b) = ½ by bisection (the slow twin of [`Self::B`]).
     pub fn solve_b() -> f64 {
-        let (mut lo, mut hi) = (7.0_f64, 8.0_f64);
-        for _ in 0..200 {
-            let mid = 0.5 * (lo + hi);
-            if lower_gamma_p8(mid) < 0.5 {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
+        let (lo, hi) = stepsim_numerics::roots::Bisection::halvings(200)
+            .run(7.0, 8.0, |b| lower_gamma_p8(b) >= 0.5);
         0.5 * (lo + hi)
     }
 
