@@ -169,13 +169,19 @@ impl Frame {
 impl Figure {
     /// Image size in pixels.
     pub fn size(&self) -> (usize, usize) {
-        let cols = self.cols.max(1);
+        let cols = self.columns();
         let rows = self.charts.len().div_ceil(cols).max(1);
         (cols * self.panel_px.0, rows * self.panel_px.1)
     }
 
+    /// Columns used: at most `cols`, and no more than there are charts (an
+    /// empty column left a blank third of Fig. 2 for two PSFs).
+    fn columns(&self) -> usize {
+        self.cols.clamp(1, self.charts.len().max(1))
+    }
+
     fn frames(&self) -> Vec<Frame> {
-        let cols = self.cols.max(1);
+        let cols = self.columns();
         self.charts
             .iter()
             .enumerate()
@@ -450,7 +456,7 @@ pub fn fig3(reports: &[&Report]) -> Figure {
         cols: 1,
         panel_px: (520, 400),
         charts: vec![Chart {
-            title: "calibration bias ⟨m⟩ against PSF residual σc".into(),
+            title: "calibration bias ⟨m⟩ against PSF residual σc (shaded: |⟨m⟩| < 7 %)".into(),
             x_label: "σc".into(),
             y_label: "⟨m⟩".into(),
             items,
@@ -478,7 +484,7 @@ pub fn fig4(r: &Report) -> Figure {
         panel_px: (520, 400),
         charts: vec![Chart {
             title: format!("{}: selection bias against uncontaminated m", r.submission),
-            x_label: "m uncontaminated".into(),
+            x_label: "m uncontaminated (blue: per PSF, red: mean, grey: 1:1)".into(),
             y_label: "m selc".into(),
             items: vec![
                 Item::Line {
@@ -530,7 +536,10 @@ pub fn fig5(r: &Report) -> Figure {
         cols: 1,
         panel_px: (520, 400),
         charts: vec![Chart {
-            title: format!("{}: shear residual against magnitude", r.submission),
+            title: format!(
+                "{}: shear residual against magnitude (dashed: all)",
+                r.submission
+            ),
             x_label: "I magnitude (true)".into(),
             y_label: "γ1 − γ1 true".into(),
             items,
@@ -579,6 +588,26 @@ mod tests {
             tick_labels(&ticks(0.0, 1.0)),
             ["0", "0.2", "0.4", "0.6", "0.8", "1.0"]
         );
+    }
+
+    #[test]
+    fn a_figure_has_no_empty_columns() {
+        let chart = |t: &str| Chart {
+            title: t.into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            items: vec![],
+        };
+        let fig = |n: usize| Figure {
+            cols: 3,
+            panel_px: (420, 320),
+            charts: (0..n).map(|i| chart(&i.to_string())).collect(),
+        };
+        // Two PSFs: two panels wide, not three with a blank one.
+        assert_eq!(fig(2).size(), (840, 320));
+        assert_eq!(fig(3).size(), (1260, 320));
+        assert_eq!(fig(4).size(), (1260, 640));
+        assert_eq!(fig(0).size(), (420, 320));
     }
 
     #[test]

@@ -9,8 +9,8 @@
 //! median of the meshes' clipped σ (the sky of a STEP image is uniform).
 
 use crate::image::Image;
-use crate::stats::median;
 use rayon::prelude::*;
+use stepsim_numerics::stats::median;
 
 /// The background of an image.
 #[derive(Debug, Clone, PartialEq)]

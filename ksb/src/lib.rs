@@ -50,7 +50,6 @@ pub mod run;
 pub mod segment;
 pub mod shear;
 pub mod stars;
-mod stats;
 
 pub use error::KsbError;
 pub use image::Image;

@@ -35,7 +35,9 @@ pub mod products;
 pub mod profile;
 pub mod psf;
 pub mod render;
-pub mod stats;
+/// The shared statistics, now in `stepsim-numerics` (re-exported while
+/// sim's own modules still name them `crate::stats`).
+pub use stepsim_numerics::stats;
 pub mod wcs;
 
 // The on-disk contract and the pictures live in their own crates, so that

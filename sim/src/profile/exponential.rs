@@ -56,13 +56,8 @@ mod tests {
 
     /// Composite Simpson integral of f(r) 2πr dr on [0, r].
     fn simpson_enclosed(r: f64, n: usize) -> f64 {
-        let h = r / n as f64;
         let g = |x: f64| Exponential.density(x) * 2.0 * PI * x;
-        let mut s = g(0.0) + g(r);
-        for i in 1..n {
-            s += g(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-        }
-        s * h / 3.0
+        stepsim_numerics::quad::simpson(g, 0.0, r, n)
     }
 
     #[test]

@@ -16,6 +16,9 @@
 //! (see [`crate::shear::Moments::of_ellipse`]). The truth tables' combined
 //! ellipticities use these moments (`population`).
 
+use stepsim_numerics::quad::simpson;
+use stepsim_numerics::roots::Bisection;
+
 /// Regularised lower incomplete gamma P(k, x) for integer k ≥ 1:
 /// 1 − e^(−x) Σ_{j<k} x^j / j!.
 pub fn gamma_p_integer(k: u32, x: f64) -> f64 {
@@ -31,15 +34,9 @@ pub fn gamma_p_integer(k: u32, x: f64) -> f64 {
 /// b_n of a Sérsic profile with integer n: the root of P(2n, b) = 1/2,
 /// found by bisection to machine precision.
 pub fn sersic_b(n: u32) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 4.0 * f64::from(n) + 10.0);
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if gamma_p_integer(2 * n, mid) < 0.5 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
+    let (lo, hi) = Bisection::halvings(200).run(0.0, 4.0 * f64::from(n) + 10.0, |b| {
+        gamma_p_integer(2 * n, b) >= 0.5
+    });
     0.5 * (lo + hi)
 }
 
@@ -61,22 +58,8 @@ pub fn devaucouleurs_r2_over_re2() -> f64 {
 /// `profile(r)` by direct Simpson integration of ∫ r³ I dr / ∫ r I dr on
 /// [0, r_max] with `n` intervals.
 pub fn r2_by_integration(profile: impl Fn(f64) -> f64, r_max: f64, n: usize) -> f64 {
-    let h = r_max / n as f64;
-    let (mut num, mut den) = (0.0, 0.0);
-    for i in 0..=n {
-        let r = i as f64 * h;
-        let w = if i == 0 || i == n {
-            1.0
-        } else if i % 2 == 1 {
-            4.0
-        } else {
-            2.0
-        };
-        let f = profile(r);
-        num += w * r * r * r * f;
-        den += w * r * f;
-    }
-    num / den
+    let num = simpson(|r| r * r * r * profile(r), 0.0, r_max, n);
+    num / simpson(|r| r * profile(r), 0.0, r_max, n)
 }
 
 #[cfg(test)]

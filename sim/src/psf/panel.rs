@@ -187,9 +187,12 @@ pub fn stack(pictures: &[Picture]) -> Picture {
 }
 
 /// A strip of `height` dark pixels carrying one line of text (a caption
-/// above a row of tiles).
+/// above a row of tiles), its font made smaller (not below 8 px) when the
+/// line would not fit the width: DejaVu Sans averages under 0.6 em a
+/// character (a long caption was cut off at the right edge).
 pub fn caption(width: usize, height: usize, text: &str) -> Picture {
-    let size = (height as f64 * 0.6).max(8.0);
+    let fit = (width as f64 - 12.0) / (CHAR_EM * text.chars().count().max(1) as f64);
+    let size = (height as f64 * 0.6).min(fit).max(8.0);
     Picture {
         width,
         height,
@@ -264,10 +267,25 @@ pub fn psf_set(
         bottom,
     ])
 }
+/// Average advance of a DejaVu Sans character, in em (an upper estimate).
+const CHAR_EM: f64 = 0.6;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_caption_is_set_smaller_to_fit_the_width() {
+        let short = caption(600, 30, "cores");
+        assert_eq!(short.labels[0].size, 18.0);
+        let text = "core minus none's, both at unit peak: red brighter, blue fainter (±5 %)";
+        let long = caption(600, 30, text);
+        let size = long.labels[0].size;
+        assert!(
+            size < 18.0 && size * CHAR_EM * text.chars().count() as f64 <= 588.0,
+            "{size}"
+        );
+    }
 
     #[test]
     fn tiles_contours_and_orientation() {
