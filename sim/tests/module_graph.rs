@@ -67,7 +67,7 @@ fn crate_paths(code: &str) -> BTreeSet<String> {
     while let Some(i) = rest.find("crate::") {
         let before = rest[..i].chars().next_back();
         rest = &rest[i + "crate::".len()..];
-        if before.is_some_and(|c| c.is_alphanumeric() || c == '_') {
+        if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '$') {
             continue; // e.g. `$crate::` or `mycrate::`
         }
         if let Some(group) = rest.strip_prefix('{') {
