@@ -144,13 +144,12 @@ struct Acc {
 
 impl Acc {
     fn add(&mut self, s: &Sums) {
-        for c in 0..2 {
-            let t = &mut self.total[c];
-            t.0 += s[c].0;
-            t.1 += s[c].1;
-            t.2 += s[c].2;
-            t.3 += s[c].3;
-            self.per_field[c].push((s[c].0, s[c].1));
+        for ((t, field), sc) in self.total.iter_mut().zip(&mut self.per_field).zip(s) {
+            t.0 += sc.0;
+            t.1 += sc.1;
+            t.2 += sc.2;
+            t.3 += sc.3;
+            field.push((sc.0, sc.1));
         }
     }
 }

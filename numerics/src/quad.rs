@@ -1,6 +1,6 @@
-//! Composite Simpson's rule: ∫ₐᵇ f ≈ h/3 [f(a) + 4 f(a+h) + 2 f(a+2h) + …
-//! + 4 f(b−h) + f(b)] with h = (b − a)/n (exact for cubics; error
-//! O(h⁴ f⁗)).
+//! Composite Simpson's rule: ∫ₐᵇ f ≈ h/3 [f(a) + 4 f(a+h) + 2 f(a+2h) +
+//! … + 4 f(b−h) + f(b)] with h = (b − a)/n (exact for cubics; error of
+//! order h⁴ f⁗).
 
 /// ∫ₐᵇ f(x) dx by composite Simpson's rule with `n` intervals (`n` even and
 /// at least 2; an odd `n` is raised by one). The sum runs f(a) + f(b)
