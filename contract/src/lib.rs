@@ -31,3 +31,9 @@ pub mod truth;
 /// `stepsim score --help` and written into the participants' README. The
 /// one copy of this text.
 pub const SUBMISSION_FORMAT_MD: &str = include_str!("submission_format.md");
+
+/// Largest |e1| or |e2| a submission may carry (SPEC §6). A shear estimate
+/// beyond it can only be a failed measurement; the scorer refuses it, which
+/// keeps every sum of the metrics finite and every printed number short, and
+/// the reference pipeline writes such an estimate as 0 with weight 0.
+pub const MAX_ABS_SHEAR: f64 = 1e6;

@@ -104,10 +104,7 @@ pub struct FileRows {
     pub uncompressed_bytes: u64,
 }
 
-/// Largest |e1| or |e2| accepted. A shear estimate beyond it can only be a
-/// failed measurement; refusing it keeps every sum of the metrics finite and
-/// every printed number short.
-pub const MAX_ABS_SHEAR: f64 = 1e6;
+pub use stepsim_contract::MAX_ABS_SHEAR;
 
 /// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`].
 pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, HarnessError> {
