@@ -58,18 +58,26 @@ pub fn resample_summaries(
     (0..n)
         .into_par_iter()
         .map(|b| {
-            let mut rng = SimRng::seed_from_u64(splitmix64(seed ^ splitmix64(b as u64)));
-            let mut sample = Vec::with_capacity(stats.len());
-            for draw in 0..fields.len() {
-                let k = rng.random_range(0..fields.len());
-                sample.extend(by_field[k].iter().map(|s| ImageStats {
-                    field: draw as u32,
-                    ..(*s).clone()
-                }));
-            }
+            let sample = resample(&by_field, b, seed);
             score_tables_with(meta, &sample, area_arcmin2, &models).summary
         })
         .collect()
+}
+
+/// Resample `b`: as many base fields as `by_field` holds (each with all its
+/// images in every dataset), drawn with replacement by the generator keyed
+/// by (seed, b); the k-th draw becomes field k.
+fn resample(by_field: &[Vec<&ImageStats>], b: usize, seed: u64) -> Vec<ImageStats> {
+    let mut rng = SimRng::seed_from_u64(splitmix64(seed ^ splitmix64(b as u64)));
+    let mut sample = Vec::new();
+    for draw in 0..by_field.len() {
+        let k = rng.random_range(0..by_field.len());
+        sample.extend(by_field[k].iter().map(|s| ImageStats {
+            field: draw as u32,
+            ..(*s).clone()
+        }));
+    }
+    sample
 }
 
 /// Bootstrap intervals of every summary figure.
@@ -106,6 +114,7 @@ pub fn bootstrap(
 mod tests {
     use super::*;
     use crate::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+    use crate::metrics::Scores;
     use crate::synthetic::{SynthSpec, make_run};
     use std::collections::HashSet;
 
@@ -189,6 +198,85 @@ mod tests {
             "half-width {half} vs 1.96 × {err}"
         );
     }
+
+    /// The images of `stats` grouped by base field, as `resample_summaries`
+    /// groups them.
+    fn by_field(stats: &[ImageStats]) -> Vec<Vec<&ImageStats>> {
+        let mut fields: Vec<u32> = stats.iter().map(|s| s.field).collect();
+        fields.sort_unstable();
+        fields.dedup();
+        fields
+            .iter()
+            .map(|f| stats.iter().filter(|s| s.field == *f).collect())
+            .collect()
+    }
+
+    /// A shape-noise run with a quadratic term `q` in the response,
+    /// measured as e = e_true + q g1²: (meta, stats).
+    fn quadratic_case(q: f64, n_fields: u32) -> (Vec<DatasetMeta>, Vec<ImageStats>) {
+        let mut spec = SynthSpec::small(n_fields);
+        spec.shape_noise = true;
+        spec.psfs.truncate(1);
+        let run = make_run(&spec);
+        let ds = run.datasets.datasets.clone();
+        let rows = run.submission(&|t, d| {
+            let g = ds[d].g1;
+            (!t.is_star()).then_some((t.e1 + q * g * g, t.e2, 1.0))
+        });
+        (run.meta(), run.stats(&rows, 1.0))
+    }
+
+    #[test]
+    fn every_resample_keeps_the_fit_model_of_the_full_data() {
+        // The defect (issue #13): each resample chose linear or quadratic
+        // for itself, so ⟨m⟩'s interval mixed two estimators (−0.194…+0.048
+        // around −0.155 on one submission). A quadratic term near the 2σ
+        // threshold of the choice reproduces it: left free, the resamples
+        // split between the models.
+        let (meta, stats) = quadratic_case(QUAD, 8);
+        let full = score_tables(&meta, &stats, 1.0);
+        let full_linear = full.models[0].1.g1_linear;
+        let groups = by_field(&stats);
+        let n = 200;
+        let free: Vec<Scores> = (0..n)
+            .map(|b| score_tables(&meta, &resample(&groups, b, 7), 1.0))
+            .collect();
+        let switched: Vec<bool> = free
+            .iter()
+            .map(|s| s.models[0].1.g1_linear != full_linear)
+            .collect();
+        let n_switched = switched.iter().filter(|&&x| x).count();
+        assert!(
+            (20..=180).contains(&n_switched),
+            "the case must sit on the threshold: {n_switched} of {n} resamples switch"
+        );
+        // Fixed: a resample's m is the free one exactly where the free
+        // choice agrees with the full data, and differs where it does not.
+        let fixed = resample_summaries(&meta, &stats, 1.0, n, 7);
+        for (b, ((f, s), sw)) in free.iter().zip(&fixed).zip(&switched).enumerate() {
+            let (mf, ms) = (f.summary.m_mean.unwrap(), s.m_mean.unwrap());
+            if *sw {
+                assert!(mf != ms, "resample {b}: the model was not kept");
+            } else {
+                assert_eq!(mf, ms, "resample {b}");
+            }
+        }
+        // The interval of the free choice is the wider, mixed one.
+        let width = |v: Vec<f64>| {
+            let [lo, hi] = percentile_interval(&mut v.clone(), CONFIDENCE).unwrap();
+            hi - lo
+        };
+        let w_free = width(free.iter().map(|s| s.summary.m_mean.unwrap()).collect());
+        let w_fixed = width(fixed.iter().map(|s| s.m_mean.unwrap()).collect());
+        eprintln!(
+            "{n_switched} switched; widths free {w_free:.4}, fixed {w_fixed:.4}; full linear {full_linear}"
+        );
+        assert!(w_free > 1.1 * w_fixed, "free {w_free} vs fixed {w_fixed}");
+    }
+
+    /// Near the threshold: the full data keep the line; a third of the
+    /// resamples, left free, take the parabola.
+    const QUAD: f64 = 0.025;
 
     #[test]
     fn percentile_interval_uses_nearest_rank() {
