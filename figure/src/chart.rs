@@ -75,8 +75,9 @@ pub struct Chart {
     pub y_label: String,
     /// What is drawn, in order.
     pub items: Vec<Item>,
-    /// Legend entries (text, colour), listed in the panel's top-left
-    /// corner, each after a short line of its colour; none: no legend.
+    /// Legend entries (text, colour), each after a short line of its
+    /// colour, in the corner of the panel that covers the fewest data
+    /// (top-left first); none: no legend.
     pub legend: Vec<(String, Colour)>,
 }
 
@@ -98,7 +99,7 @@ pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
     if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
         return vec![lo];
     }
-    let raw = (hi - lo) / 5.0;
+    let raw = (hi - lo) / 7.0;
     let mag = 10f64.powf(raw.log10().floor());
     let step = [1.0, 2.0, 5.0, 10.0]
         .iter()
@@ -170,6 +171,62 @@ impl Frame {
             x.clamp(self.xr[0], self.xr[1]),
             y.clamp(self.yr[0], self.yr[1]),
         )
+    }
+}
+
+impl Frame {
+    /// Where the legend's first swatch starts: the corner (top-left,
+    /// top-right, bottom-left, bottom-right) whose legend box covers the
+    /// fewest drawn points and line samples, the first of equals.
+    fn legend_origin(&self, c: &Chart) -> (f64, f64) {
+        let chars = c
+            .legend
+            .iter()
+            .map(|(t, _)| t.chars().count())
+            .max()
+            .unwrap_or(0);
+        // 11-px DejaVu Sans: about 0.6 em a character.
+        let (bw, bh) = (
+            33.0 + 6.6 * chars as f64,
+            8.0 + 15.0 * c.legend.len() as f64,
+        );
+        let mut marks: Vec<(f64, f64)> = Vec::new();
+        for it in &c.items {
+            match it {
+                Item::Points { pts, .. } => {
+                    marks.extend(pts.iter().map(|&(x, y, _)| self.px(x, y)));
+                }
+                Item::Line { pts, .. } => {
+                    for w in pts.windows(2) {
+                        let (a, b) = (self.px(w[0].0, w[0].1), self.px(w[1].0, w[1].1));
+                        marks.extend((0..=20).map(|k| {
+                            let t = f64::from(k) / 20.0;
+                            (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
+                        }));
+                    }
+                }
+                Item::Band { .. } => {}
+            }
+        }
+        let corners = [
+            (self.ox, self.oy),
+            (self.ox + self.w - bw, self.oy),
+            (self.ox, self.oy + self.h - bh),
+            (self.ox + self.w - bw, self.oy + self.h - bh),
+        ];
+        let covered = |(x0, y0): (f64, f64)| {
+            marks
+                .iter()
+                .filter(|&&(x, y)| x >= x0 && x <= x0 + bw && y >= y0 && y <= y0 + bh)
+                .count()
+        };
+        let mut best = corners[0];
+        for &c in &corners[1..] {
+            if covered(c) < covered(best) {
+                best = c;
+            }
+        }
+        (best.0 + 8.0, best.1 + 16.0)
     }
 }
 
@@ -311,8 +368,9 @@ impl Figure {
                     label
                 );
             }
+            let (lx, ly) = f.legend_origin(c);
             for (k, (text, colour)) in c.legend.iter().enumerate() {
-                let (x, y) = (f.ox + 8.0, f.oy + 16.0 + 15.0 * k as f64);
+                let (x, y) = (lx, ly + 15.0 * k as f64);
                 let _ = writeln!(
                     s,
                     "<line x1=\"{x:.1}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"{}\" stroke-width=\"2.5\"/>\
@@ -567,5 +625,36 @@ mod tests {
             [255, 255, 255, 255],
             "no legend, no swatch"
         );
+    }
+
+    #[test]
+    fn the_legend_goes_to_the_corner_with_the_fewest_data() {
+        // A line falling from the top-left corner to the bottom-right: the
+        // top-left and bottom-right corners are taken, the top-right is free.
+        let chart = Chart {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            items: vec![Item::Line {
+                pts: vec![(0.0, 1.0), (1.0, 0.0)],
+                colour: BLUE,
+                dashed: false,
+            }],
+            legend: vec![("disk h".into(), BLUE), ("bulge r_e".into(), RED)],
+        };
+        let fig = Figure {
+            cols: 1,
+            panel_px: (400, 300),
+            charts: vec![chart.clone()],
+        };
+        let f = &fig.frames()[0];
+        let (x, y) = f.legend_origin(&chart);
+        assert!(x > f.ox + f.w / 2.0 && y < f.oy + f.h / 2.0, "({x}, {y})");
+        // Nothing drawn: top-left.
+        let empty = Chart {
+            items: vec![],
+            ..chart
+        };
+        assert_eq!(f.legend_origin(&empty), (f.ox + 8.0, f.oy + 16.0));
     }
 }
