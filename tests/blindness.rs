@@ -5,26 +5,14 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 mod common;
-use common::files;
-
-fn stepsim(args: &[&str], dir: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .args(args)
-        .current_dir(dir)
-        .env("CI", "1")
-        .output()
-        .unwrap();
-    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
-    out
-}
+use common::{files, run};
 
 fn generate(dir: &Path, config: &str, out: &str, extra: &[&str]) -> String {
     let mut args = vec!["generate", "--config", config, "--out", out];
     args.extend_from_slice(extra);
-    let o = stepsim(&args, dir);
+    let o = run(&args, dir);
     assert!(
         o.status.success(),
         "generate {config} {out} {extra:?} failed"

@@ -2,19 +2,23 @@
 //! refusals.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use stepsim_sim::io::{skymaker, truth};
 
-fn stepsim(args: &[&str], cfg: &Path, out: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .arg("catalog")
-        .arg("--config")
-        .arg(cfg)
-        .arg("--out")
-        .arg(out)
-        .args(args)
-        .output()
-        .unwrap()
+mod common;
+use common::{run_with, stepsim};
+
+/// `stepsim catalog --config CFG --out OUT ARGS`.
+fn catalog(args: &[&str], cfg: &Path, out: &Path) -> Output {
+    run_with(
+        stepsim()
+            .arg("catalog")
+            .arg("--config")
+            .arg(cfg)
+            .arg("--out")
+            .arg(out)
+            .args(args),
+    )
 }
 
 fn mini() -> PathBuf {
@@ -34,7 +38,7 @@ fn files(dir: &Path) -> Vec<String> {
 fn mini_preset_writes_truth_tables_and_lists() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("cat");
-    let o = stepsim(&[], &mini(), &out);
+    let o = catalog(&[], &mini(), &out);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(
         files(&out),
@@ -81,7 +85,7 @@ fn same_seed_same_bytes_other_seed_other_bytes() {
         (&b, vec!["--set", "run.seed=20060101"]),
         (&c, vec!["--set", "run.seed=5"]),
     ] {
-        let o = stepsim(&extra, &mini(), out);
+        let o = catalog(&extra, &mini(), out);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     }
     for name in files(&a) {
@@ -107,7 +111,7 @@ fn without_a_seed_each_run_draws_one_and_records_it() {
     );
     let one = ["--set", "image.n_images=1"];
     for out in [&a, &b] {
-        let o = stepsim(&one, &mini(), out);
+        let o = catalog(&one, &mini(), out);
         let e = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success() && e.contains("drew one"), "{e}");
     }
@@ -117,7 +121,7 @@ fn without_a_seed_each_run_draws_one_and_records_it() {
     let cfg: serde_json::Value =
         serde_json::from_slice(&std::fs::read(a.join("config.json")).unwrap()).unwrap();
     assert!(cfg["run"]["seed"].is_u64());
-    let o = stepsim(&[], &a.join("config.json"), &c);
+    let o = catalog(&[], &a.join("config.json"), &c);
     assert!(o.status.success());
     assert!(field(&a) == field(&c));
 }
@@ -126,7 +130,7 @@ fn without_a_seed_each_run_draws_one_and_records_it() {
 fn rotated_pairs_write_twins() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("cat");
-    let o = stepsim(
+    let o = catalog(
         &[
             "--set",
             "population.rotated_pairs=true",
@@ -151,7 +155,7 @@ fn rotated_pairs_write_twins() {
 fn skymaker_lists_are_read_back_as_the_source() {
     let dir = tempfile::tempdir().unwrap();
     let first = dir.path().join("first");
-    assert!(stepsim(&[], &mini(), &first).status.success());
+    assert!(catalog(&[], &mini(), &first).status.success());
     let cfg = dir.path().join("list.json");
     std::fs::write(
         &cfg,
@@ -161,7 +165,7 @@ fn skymaker_lists_are_read_back_as_the_source() {
     )
     .unwrap();
     let second = dir.path().join("second");
-    let o = stepsim(&[], &cfg, &second);
+    let o = catalog(&[], &cfg, &second);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for f in ["field_000.list", "field_001.list"] {
         assert_eq!(
@@ -217,7 +221,7 @@ fn bad_configs_exit_1_naming_the_problem_and_write_nothing() {
         let cfg = dir.path().join(name);
         std::fs::write(&cfg, text).unwrap();
         let out = dir.path().join(format!("out-{name}"));
-        let o = stepsim(&[], &cfg, &out);
+        let o = catalog(&[], &cfg, &out);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{name}: {err}");
         assert!(err.contains(needle), "{name}: expected {needle:?} in {err}");
@@ -225,7 +229,7 @@ fn bad_configs_exit_1_naming_the_problem_and_write_nothing() {
     }
     // A bad --set override is refused the same way.
     let out = dir.path().join("out-set");
-    let o = stepsim(&["--set", "population.stars.slope=x"], &mini(), &out);
+    let o = catalog(&["--set", "population.stars.slope=x"], &mini(), &out);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("population.stars.slope"));
     assert!(!out.exists());

@@ -1,10 +1,7 @@
 //! End-to-end checks of `stepsim config`: exit codes and messages.
 
-use std::process::Command;
-
-fn stepsim() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stepsim"))
-}
+mod common;
+use common::stepsim;
 
 #[test]
 fn resolved_config_is_printed_with_overrides() {

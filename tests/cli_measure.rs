@@ -2,12 +2,10 @@
 //! format, thread-count independence, and refused input.
 
 use std::path::Path;
-use std::process::Command;
 use stepsim_ksb::draw::{SceneSpec, synthetic_scene, write_public_run};
 
-fn stepsim() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stepsim"))
-}
+mod common;
+use common::stepsim;
 
 /// Writes a public half with two 512² synthetic images (ADU, gain 4).
 fn public_run(dir: &Path) {

@@ -4,10 +4,10 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 mod common;
-use common::files;
+use common::{files, run, stderr};
 
 /// 2 PSFs × 2 shears × 2 images of 128², with secrets that are easy to grep.
 const CONFIG: &str = r#"{
@@ -34,17 +34,6 @@ const SECRETS: &[&str] = &[
     "gaussian",
 ];
 
-fn stepsim(args: &[&str], dir: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .args(args)
-        .current_dir(dir)
-        .env("CI", "1")
-        .output()
-        .unwrap();
-    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
-    out
-}
-
 fn setup() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("c.json"), CONFIG).unwrap();
@@ -54,7 +43,7 @@ fn setup() -> tempfile::TempDir {
 fn generate(dir: &Path, out: &str, extra: &[&str]) -> Output {
     let mut args = vec!["generate", "--config", "c.json", "--out", out];
     args.extend_from_slice(extra);
-    let o = stepsim(&args, dir);
+    let o = run(&args, dir);
     assert!(o.status.success(), "generate {extra:?} failed");
     o
 }
@@ -97,17 +86,13 @@ fn image_files(run: &Path) -> BTreeMap<(usize, u64, bool), String> {
     out
 }
 
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
 #[test]
 fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
     let dir = setup();
     let d = dir.path();
     generate(d, "whole", &[]);
     generate(d, "sh", &["--shard", "1/2"]);
-    let o = stepsim(
+    let o = run(
         &["generate", "--config", "c.json", "--out", "sh", "--finish"],
         d,
     );
@@ -130,7 +115,7 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
     let mut bad = good.clone();
     *bad.last_mut().unwrap() ^= 1;
     std::fs::write(&path, &bad).unwrap();
-    let o = stepsim(
+    let o = run(
         &["generate", "--config", "c.json", "--out", "sh", "--finish"],
         d,
     );
@@ -148,7 +133,7 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
     );
     assert_eq!(release(&d.join("sh")), release(&d.join("whole")));
     // --finish of a directory without a run, and with --shard: refused.
-    let o = stepsim(
+    let o = run(
         &[
             "generate", "--config", "c.json", "--out", "none", "--finish",
         ],
@@ -157,7 +142,7 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("no run to finish"), "{}", stderr(&o));
     assert!(!d.join("none").exists());
-    let o = stepsim(
+    let o = run(
         &[
             "generate", "--config", "c.json", "--out", "sh", "--finish", "--shard", "1/2",
         ],
@@ -170,7 +155,7 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
 fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
     let dir = setup();
     let d = dir.path();
-    let o = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+    let o = common::stepsim()
         .args([
             "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
         ])
@@ -188,7 +173,7 @@ fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
     );
     assert!(!d.join("a").exists());
     // Array 0-1: task 1 is shard 2/2.
-    let o = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+    let o = common::stepsim()
         .args([
             "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
         ])
@@ -428,7 +413,7 @@ fn refused_input_exits_1_and_writes_nothing() {
         ),
         ("generate --config missing.json --out x", "missing.json"),
     ];
-    let run = |line: &str| stepsim(&line.split(' ').collect::<Vec<_>>(), d);
+    let run = |line: &str| run(&line.split(' ').collect::<Vec<_>>(), d);
     for (line, needle) in cases {
         let o = run(line);
         assert_eq!(o.status.code(), Some(1), "{line}");
@@ -463,10 +448,9 @@ fn killed_run_leaves_no_truncated_file_and_resumes_identically() {
     generate(d, "ref", &big);
     let mut args = vec!["generate", "--config", "c.json", "--out", "run"];
     args.extend_from_slice(&big);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+    let mut child = common::stepsim()
         .args(&args)
         .current_dir(d)
-        .env("CI", "1")
         .stderr(std::process::Stdio::null())
         .spawn()
         .unwrap();

@@ -117,14 +117,13 @@ fn first_draws_of_every_distribution_are_pinned() {
 fn a_small_run_has_the_pinned_bytes() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stepsim"))
+    let out = common::stepsim()
         .arg("generate")
         .arg("--config")
         .arg(golden("config.json"))
         .arg("--out")
         .arg(&run)
         .args(["--threads", "2"])
-        .env("CI", "1")
         .output()
         .unwrap();
     assert!(

@@ -3,16 +3,11 @@
 //! `stepsim_sim::psf::tests`; here a small config keeps the run short.)
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 use stepsim_sim::io::psf_fits::{read_image_hdu, read_psf_fits};
 
-fn stepsim() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stepsim"))
-}
-
-fn run(args: &[&str]) -> Output {
-    stepsim().args(args).output().unwrap()
-}
+mod common;
+use common::run;
 
 /// Writes `config` to `dir/c.json` and runs `stepsim psf` on it into
 /// `dir/out`, with `extra` arguments.
@@ -28,7 +23,7 @@ fn run_psf(dir: &Path, config: &str, extra: &[&str]) -> Output {
         out_dir.to_str().unwrap(),
     ];
     args.extend_from_slice(extra);
-    run(&args)
+    run(&args, dir)
 }
 
 /// `psf_report.json` of a run of [`run_psf`] in `dir`, which must have

@@ -4,35 +4,15 @@
 //! of another run.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 mod common;
-use common::files;
-
-fn stepsim(args: &[&str], dir: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .args(args)
-        .current_dir(dir)
-        .env("CI", "1")
-        .output()
-        .unwrap();
-    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
-    out
-}
+use common::{files, ok, run, stderr};
 
 fn generate(dir: &Path, config: &str, out: &str, extra: &[&str]) -> Output {
     let mut args = vec!["generate", "--config", config, "--out", out];
     args.extend_from_slice(extra);
-    stepsim(&args, dir)
-}
-
-fn ok(o: Output) -> String {
-    assert!(o.status.success(), "{}", stderr(&o));
-    stderr(&o)
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    run(&args, dir)
 }
 
 /// 2 PSFs × 2 shears × 2 small images.
@@ -97,7 +77,7 @@ fn a_directory_holds_one_run_even_without_its_config() {
         "{e}"
     );
     // With its own config back the first run is whole again.
-    let e = ok(generate(d, "x.json", "run", &[]));
+    let e = stderr(&ok(generate(d, "x.json", "run", &[])));
     assert!(e.contains("0 images written, 8 already"), "{e}");
     assert!(files(&d.join("run")) == before);
 }
@@ -163,10 +143,9 @@ fn concurrent_runs_of_different_configs_cannot_both_succeed() {
     for round in 0..3 {
         let out = format!("run{round}");
         let spawn = |config: &str| {
-            Command::new(env!("CARGO_BIN_EXE_stepsim"))
+            common::stepsim()
                 .args(["generate", "--config", config, "--out", &out])
                 .current_dir(d)
-                .env("CI", "1")
                 .stderr(std::process::Stdio::piped())
                 .spawn()
                 .unwrap()
@@ -190,7 +169,7 @@ fn concurrent_runs_of_different_configs_cannot_both_succeed() {
         } else {
             "y.json"
         };
-        let e = ok(generate(d, winner, &out, &[]));
+        let e = stderr(&ok(generate(d, winner, &out, &[])));
         assert!(e.contains("0 images written, 8 already"), "{e}");
     }
 }
@@ -225,12 +204,12 @@ fn a_manifest_never_lists_a_missing_image() {
     let bytes = std::fs::read(&image).unwrap();
     std::fs::remove_file(&image).unwrap();
     // Shard 2 does not own it: it makes nothing but removes the manifest.
-    let e = ok(generate(d, "x.json", "run", &["--shard", "2/2"]));
+    let e = stderr(&ok(generate(d, "x.json", "run", &["--shard", "2/2"])));
     assert!(e.contains("removed the manifest"), "{e}");
     assert!(!manifest_path.exists());
     assert!(!image.exists());
     // The whole run makes it again, and the manifest comes back.
-    let e = ok(generate(d, "x.json", "run", &[]));
+    let e = stderr(&ok(generate(d, "x.json", "run", &[])));
     assert!(e.contains("1 images written, 7 already"), "{e}");
     assert!(std::fs::read(&image).unwrap() == bytes);
     let again: serde_json::Value =
@@ -277,7 +256,7 @@ fn score_refuses_ids_of_another_run() {
         assert_ne!(a["image"], b["image"]);
         assert_ne!(a["dataset"], b["dataset"]);
     }
-    let o = stepsim(
+    let o = run(
         &[
             "score",
             "--truth",

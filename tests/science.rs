@@ -22,21 +22,9 @@
 //! CI on purpose. Measured numbers: docs/baseline.md.
 
 use std::path::Path;
-use std::process::Command;
 
-fn stepsim(args: &[&str], dir: &Path) {
-    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .args(args)
-        .current_dir(dir)
-        .env("CI", "1")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "stepsim {args:?} failed:\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+mod common;
+use common::run_ok;
 
 #[test]
 fn generate_measure_score_recovers_the_shear() {
@@ -44,9 +32,9 @@ fn generate_measure_score_recovers_the_shear() {
     let d = dir.path();
     let config = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/e2e-small.json");
     let config = config.to_str().unwrap();
-    stepsim(&["generate", "--config", config, "--out", "run"], d);
-    stepsim(&["measure", "--run", "run/public", "--out", "sub.txt"], d);
-    stepsim(
+    run_ok(&["generate", "--config", config, "--out", "run"], d);
+    run_ok(&["measure", "--run", "run/public", "--out", "sub.txt"], d);
+    run_ok(
         &[
             "score",
             "--truth",

@@ -4,16 +4,17 @@
 //! without --force.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
 
+mod common;
+use common::fits_table::{doubles, fits_table, text, zeros};
+use common::{run, run_with, stderr};
+
+/// `stepsim ARGS` with arguments of mixed types (strings and paths).
 fn stepsim(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
-    for a in args {
-        c.arg(a);
-    }
-    c.output().unwrap()
+    run(args, Path::new("."))
 }
 
 struct Fixture {
@@ -72,14 +73,12 @@ impl Fixture {
         for e in extra {
             args.push(e);
         }
-        let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
-        for a in args {
-            c.arg(a);
-        }
+        let mut c = common::stepsim();
+        c.args(args);
         if let Some(t) = threads {
             c.env("RAYON_NUM_THREADS", t);
         }
-        c.output().unwrap()
+        run_with(&mut c)
     }
 }
 
@@ -87,10 +86,6 @@ fn keys(v: &serde_json::Value) -> Vec<String> {
     let mut k: Vec<String> = v.as_object().unwrap().keys().cloned().collect();
     k.sort();
     k
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 #[test]
@@ -450,72 +445,29 @@ fn score_refuses_when_any_file_it_writes_exists() {
     assert_eq!(written, want);
 }
 
-/// A FITS file with the submission's columns and an extra complex column
-/// (`M`), written byte by byte (fitsio cannot write complex columns).
+/// A FITS table with the submission's columns and an extra complex column
+/// `SPIN` (`M`); with `e1_tform_complex`, `E1` is complex too (fitsio cannot
+/// write complex columns, so the table is written byte by byte).
 fn fits_with_complex_column(rows: &[(String, f64, f64)], e1_tform_complex: bool) -> Vec<u8> {
-    let card = |o: &mut Vec<u8>, s: &str| {
-        let mut c = s.as_bytes().to_vec();
-        c.resize(80, b' ');
-        o.extend(c);
-    };
-    let pad = |o: &mut Vec<u8>, f: u8| {
-        while o.len() % 2880 != 0 {
-            o.push(f);
+    let ids: Vec<&str> = rows.iter().map(|r| r.0.as_str()).collect();
+    let col = |f: fn(&(String, f64, f64)) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
+    let e1 = if e1_tform_complex {
+        let mut c = zeros("E1", "M", 16, rows.len());
+        for r in &mut c.rows {
+            r[..8].copy_from_slice(&0.01f64.to_be_bytes());
         }
+        c
+    } else {
+        doubles("E1", &vec![0.01; rows.len()])
     };
-    let mut o = Vec::new();
-    for c in [
-        "SIMPLE  =                    T",
-        "BITPIX  =                    8",
-        "NAXIS   =                    0",
-        "END",
-    ] {
-        card(&mut o, c);
-    }
-    pad(&mut o, b' ');
-    let e1 = if e1_tform_complex { "M" } else { "D" };
-    let width = 16 + 8 * 4 + if e1_tform_complex { 8 } else { 0 } + 16;
-    for c in [
-        "XTENSION= 'BINTABLE'".to_owned(),
-        "BITPIX  =                    8".into(),
-        "NAXIS   =                    2".into(),
-        format!("NAXIS1  = {width:>20}"),
-        format!("NAXIS2  = {:>20}", rows.len()),
-        "PCOUNT  =                    0".into(),
-        "GCOUNT  =                    1".into(),
-        "TFIELDS =                    6".into(),
-        "TTYPE1  = 'IMAGE'".into(),
-        "TFORM1  = '16A'".into(),
-        "TTYPE2  = 'X'".into(),
-        "TFORM2  = 'D'".into(),
-        "TTYPE3  = 'Y'".into(),
-        "TFORM3  = 'D'".into(),
-        "TTYPE4  = 'E1'".into(),
-        format!("TFORM4  = '{e1}'"),
-        "TTYPE5  = 'E2'".into(),
-        "TFORM5  = 'D'".into(),
-        "TTYPE6  = 'SPIN'".into(),
-        "TFORM6  = 'M'".into(),
-        "END".into(),
-    ] {
-        card(&mut o, &c);
-    }
-    pad(&mut o, b' ');
-    for (im, x, y) in rows {
-        let mut id = im.as_bytes().to_vec();
-        id.resize(16, b' ');
-        o.extend(id);
-        o.extend(x.to_be_bytes());
-        o.extend(y.to_be_bytes());
-        o.extend(0.01f64.to_be_bytes());
-        if e1_tform_complex {
-            o.extend(0.0f64.to_be_bytes());
-        }
-        o.extend(0.0f64.to_be_bytes());
-        o.extend([0u8; 16]);
-    }
-    pad(&mut o, 0);
-    o
+    fits_table(&[
+        text("IMAGE", &ids),
+        doubles("X", &col(|r| r.1)),
+        doubles("Y", &col(|r| r.2)),
+        e1,
+        doubles("E2", &vec![0.0; rows.len()]),
+        zeros("SPIN", "M", 16, rows.len()),
+    ])
 }
 
 #[test]

@@ -2,12 +2,15 @@
 //! report.json, and not report.md (or a plot) found alone in `--out`.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
 
+mod common;
+use common::{run_with, stepsim};
+
 fn score(dir: &Path, out: &str, force: bool) -> Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
+    let mut c = stepsim();
     c.args([
         "score",
         "--truth",
@@ -21,7 +24,7 @@ fn score(dir: &Path, out: &str, force: bool) -> Output {
     if force {
         c.arg("--force");
     }
-    c.output().unwrap()
+    run_with(&mut c)
 }
 
 #[test]

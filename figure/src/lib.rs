@@ -4,11 +4,14 @@
 //! harness (the score figures), so that the scorer draws its figures without
 //! linking the simulator:
 //!
+//! * [`chart`]: the workspace's one plotter (axes, ticks, labels, legend,
+//!   points with error bars, lines, bands), SVG and PNG.
 //! * [`picture`]: a raster picture with text labels.
 //! * [`png`]: SVG figures rasterised with their text by `resvg` and the
 //!   bundled DejaVu Sans font; pictures with their labels; a PNG decoder for
 //!   tests and checks.
 #![deny(missing_docs)]
 
+pub mod chart;
 pub mod picture;
 pub mod png;

@@ -5,10 +5,9 @@
 
 use crate::error::HarnessError;
 use crate::input::{MAX_REPORT_BYTES, read_regular_file};
-use crate::markdown::{TABLE5_HEADER, escape, show_number, table5_cells};
+use crate::markdown::{TABLE5_COLUMNS, escape, show_number, table, table5_cells};
 use crate::report::{Report, Summary};
 use serde::Serialize;
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Format tag of `leaderboard.json`.
@@ -143,22 +142,21 @@ pub fn rank(reports: &[(PathBuf, Report)]) -> Leaderboard {
 pub fn leaderboard_markdown(reports: &[(PathBuf, Report)], board: &Leaderboard) -> String {
     let mut o =
         String::from("# Leaderboard\n\nRanked by Q_c (larger is better); see docs/scoring.md.\n\n");
-    let _ = writeln!(o, "| rank | submission {TABLE5_HEADER}");
-    let _ = writeln!(o, "|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-    for e in &board.entries {
+    let header: Vec<&str> = ["rank", "submission"]
+        .into_iter()
+        .chain(TABLE5_COLUMNS)
+        .collect();
+    let rows = board.entries.iter().filter_map(|e| {
         let r = reports
             .iter()
-            .find(|(p, r)| *p == e.report && r.submission == e.submission)
-            .map(|x| &x.1);
-        if let Some(r) = r {
-            let _ = writeln!(
-                o,
-                "| {} | {} {}",
-                e.rank,
-                escape(&e.submission),
-                table5_cells(r)
-            );
-        }
-    }
+            .find(|(p, r)| *p == e.report && r.submission == e.submission)?;
+        Some(
+            [e.rank.to_string(), escape(&e.submission)]
+                .into_iter()
+                .chain(table5_cells(&r.1))
+                .collect::<Vec<_>>(),
+        )
+    });
+    table(&mut o, &header, "rlrrrrrrrr", rows);
     o
 }

@@ -64,15 +64,62 @@ pub fn pm(v: Option<f64>, e: Option<f64>, d: usize) -> String {
     }
 }
 
-/// The Table 5 header (leaderboard and report share it).
-pub const TABLE5_HEADER: &str =
-    "| ⟨m⟩ | σ_c | ⟨q⟩ | ⟨m_uncontaminated⟩ | ⟨m_selc⟩ | σ_c selc | ⟨m_weight⟩ | Q_c |";
+/// Appends a Markdown table to `out`: the header row, the alignment row
+/// (one letter per column: `l` left, `r` right, `c` centred) and one line per
+/// row. Cells are written as given: escape participant text first
+/// ([`escape`]). Every table of the report and the leaderboard is written by
+/// this one function.
+pub fn table<R: AsRef<[String]>>(
+    out: &mut String,
+    header: &[&str],
+    align: &str,
+    rows: impl IntoIterator<Item = R>,
+) {
+    debug_assert_eq!(
+        header.len(),
+        align.chars().count(),
+        "one alignment per column"
+    );
+    let line = |out: &mut String, cells: &mut dyn Iterator<Item = &str>| {
+        out.push('|');
+        for c in cells {
+            out.push(' ');
+            out.push_str(c);
+            out.push_str(" |");
+        }
+        out.push('\n');
+    };
+    line(out, &mut header.iter().copied());
+    out.push('|');
+    for a in align.chars() {
+        out.push_str(match a {
+            'r' => "---:|",
+            'c' => ":-:|",
+            _ => "---|",
+        });
+    }
+    out.push('\n');
+    for r in rows {
+        line(out, &mut r.as_ref().iter().map(String::as_str));
+    }
+}
+
+/// The Table 5 columns (leaderboard and report share them).
+pub const TABLE5_COLUMNS: [&str; 8] = [
+    "⟨m⟩",
+    "σ_c",
+    "⟨q⟩",
+    "⟨m_uncontaminated⟩",
+    "⟨m_selc⟩",
+    "σ_c selc",
+    "⟨m_weight⟩",
+    "Q_c",
+];
 
 /// The Table 5 cells of one report (without the leading name cell).
-pub fn table5_cells(r: &Report) -> String {
+pub fn table5_cells(r: &Report) -> Vec<String> {
     let s = &r.summary;
-    format!(
-        "| {} | {} | {} | {} | {} | {} | {} | {} |",
+    vec![
         num(s.m_mean, 4),
         num(s.sigma_c, 5),
         num(s.q_mean, 3),
@@ -80,32 +127,33 @@ pub fn table5_cells(r: &Report) -> String {
         num(s.m_selc_mean, 4),
         num(s.sigma_c_selc, 5),
         num(s.m_weight_mean, 4),
-        num(s.q_c, 1)
-    )
+        num(s.q_c, 1),
+    ]
 }
 
 fn binned(out: &mut String, title: &str, unit: &str, b: &Binned) {
     let _ = writeln!(out, "\n## {title}\n");
-    let _ = writeln!(
-        out,
-        "| bin ({unit}) | galaxies | γ1 − γ1_true | γ2 − γ2_true |"
-    );
-    let _ = writeln!(out, "|---|---:|---:|---:|");
-    for bin in b.bins.iter().chain(std::iter::once(&b.all)) {
+    let unit = format!("bin ({unit})");
+    let rows = b.bins.iter().chain(std::iter::once(&b.all)).map(|bin| {
         let label = match (bin.lo, bin.hi) {
             (None, None) => "all".to_owned(),
             (None, Some(h)) => format!("< {}", show_number(h)),
             (Some(l), None) => format!("≥ {}", show_number(l)),
             (Some(l), Some(h)) => format!("{} – {}", show_number(l), show_number(h)),
         };
-        let _ = writeln!(
-            out,
-            "| {label} | {} | {} | {} |",
-            bin.n_objects,
+        vec![
+            label,
+            bin.n_objects.to_string(),
             pm(bin.g1_residual, bin.g1_residual_err, 5),
-            pm(bin.g2_residual, bin.g2_residual_err, 5)
-        );
-    }
+            pm(bin.g2_residual, bin.g2_residual_err, 5),
+        ]
+    });
+    table(
+        out,
+        &[&unit, "galaxies", "γ1 − γ1_true", "γ2 − γ2_true"],
+        "lrrr",
+        rows,
+    );
 }
 
 /// Below this many base fields the report warns that its bootstrap interval
@@ -142,19 +190,22 @@ pub fn report_markdown(r: &Report) -> String {
         o,
         "\n## Table 5: calibration, PSF residuals, non-linearity\n"
     );
-    let _ = writeln!(o, "| submission {TABLE5_HEADER}");
-    let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let _ = writeln!(o, "| {} {}", escape(&r.submission), table5_cells(r));
+    let mut rows = vec![
+        std::iter::once(escape(&r.submission))
+            .chain(table5_cells(r))
+            .collect::<Vec<_>>(),
+    ];
     if let Some(b) = &r.summary.bootstrap {
         let ci = |v: Option<[f64; 2]>, d: usize| match v {
             Some([a, b]) => format!("[{}, {}]", fixed(a, d), fixed(b, d)),
             None => "—".into(),
         };
-        let _ = writeln!(
-            o,
-            "| {:.0} % interval ({} resamples of base fields) | {} | {} | {} | {} | {} | {} | {} | {} |",
-            100.0 * b.confidence,
-            b.n_resamples,
+        rows.push(vec![
+            format!(
+                "{:.0} % interval ({} resamples of base fields)",
+                100.0 * b.confidence,
+                b.n_resamples
+            ),
             ci(b.m_mean, 4),
             ci(b.sigma_c, 5),
             ci(b.q_mean, 3),
@@ -162,8 +213,14 @@ pub fn report_markdown(r: &Report) -> String {
             ci(b.m_selc_mean, 4),
             ci(b.sigma_c_selc, 5),
             ci(b.m_weight_mean, 4),
-            ci(b.q_c, 1)
-        );
+            ci(b.q_c, 1),
+        ]);
+    }
+    let header: Vec<&str> = std::iter::once("submission")
+        .chain(TABLE5_COLUMNS)
+        .collect();
+    table(&mut o, &header, "lrrrrrrrr", &rows);
+    if let Some(b) = &r.summary.bootstrap {
         let fields = r.datasets.iter().map(|d| d.n_images).max().unwrap_or(0);
         if fields < FEW_BASE_FIELDS {
             let _ = writeln!(
@@ -176,48 +233,57 @@ pub fn report_markdown(r: &Report) -> String {
         }
     }
     let _ = writeln!(o, "\n## Fits per PSF\n");
-    let _ = writeln!(
-        o,
-        "| PSF | m | q | c1 | c2 | linear | m_uncontaminated | m_selc | c1_selc | c2_selc | m_weight | c1_weight |"
+    table(
+        &mut o,
+        &[
+            "PSF",
+            "m",
+            "q",
+            "c1",
+            "c2",
+            "linear",
+            "m_uncontaminated",
+            "m_selc",
+            "c1_selc",
+            "c2_selc",
+            "m_weight",
+            "c1_weight",
+        ],
+        "lrrrrcrrrrrr",
+        r.psfs.iter().map(|p| {
+            vec![
+                escape(&p.psf),
+                pm(p.m, p.m_err, 4),
+                pm(p.q, p.q_err, 3),
+                pm(p.c1, p.c1_err, 5),
+                pm(p.c2, p.c2_err, 5),
+                (if p.linear { "yes" } else { "no" }).into(),
+                pm(p.m_uncontaminated, p.m_uncontaminated_err, 4),
+                pm(p.m_selc, p.m_selc_err, 4),
+                pm(p.c1_selc, p.c1_selc_err, 5),
+                pm(p.c2_selc, p.c2_selc_err, 5),
+                pm(p.m_weight, p.m_weight_err, 4),
+                pm(p.c1_weight, p.c1_weight_err, 5),
+            ]
+        }),
     );
-    let _ = writeln!(
-        o,
-        "|---|---:|---:|---:|---:|:-:|---:|---:|---:|---:|---:|---:|"
-    );
-    for p in &r.psfs {
-        let _ = writeln!(
-            o,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            escape(&p.psf),
-            pm(p.m, p.m_err, 4),
-            pm(p.q, p.q_err, 3),
-            pm(p.c1, p.c1_err, 5),
-            pm(p.c2, p.c2_err, 5),
-            if p.linear { "yes" } else { "no" },
-            pm(p.m_uncontaminated, p.m_uncontaminated_err, 4),
-            pm(p.m_selc, p.m_selc_err, 4),
-            pm(p.c1_selc, p.c1_selc_err, 5),
-            pm(p.c2_selc, p.c2_selc_err, 5),
-            pm(p.m_weight, p.m_weight_err, 4),
-            pm(p.c1_weight, p.c1_weight_err, 5)
-        );
-    }
     let _ = writeln!(
         o,
         "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
     );
-    let _ = writeln!(o, "| PSF | m_isolated | c1_isolated | c2_isolated |");
-    let _ = writeln!(o, "|---|---:|---:|---:|");
-    for p in &r.psfs {
-        let _ = writeln!(
-            o,
-            "| {} | {} | {} | {} |",
-            escape(&p.psf),
-            pm(p.m_isolated, p.m_isolated_err, 4),
-            pm(p.c1_isolated, p.c1_isolated_err, 5),
-            pm(p.c2_isolated, p.c2_isolated_err, 5)
-        );
-    }
+    table(
+        &mut o,
+        &["PSF", "m_isolated", "c1_isolated", "c2_isolated"],
+        "lrrr",
+        r.psfs.iter().map(|p| {
+            vec![
+                escape(&p.psf),
+                pm(p.m_isolated, p.m_isolated_err, 4),
+                pm(p.c1_isolated, p.c1_isolated_err, 5),
+                pm(p.c2_isolated, p.c2_isolated_err, 5),
+            ]
+        }),
+    );
     let iso_ci = |v: Option<[f64; 2]>, d: usize| match (&r.summary.bootstrap, v) {
         (Some(b), Some([lo, hi])) => format!(
             " ({:.0} % interval [{}, {}])",
@@ -240,37 +306,50 @@ pub fn report_markdown(r: &Report) -> String {
         o,
         "\n## Table 4: number density, contamination, signal-to-noise\n"
     );
-    let _ = writeln!(
-        o,
-        "| dataset | PSF | γ1_true | γ2_true | images | objects | Ngals /arcmin² | % stars | % false | % chance | % stars′ | % false′ | γ1 | γ2 | SNR | S/N_s | S/N_s′ |"
+    table(
+        &mut o,
+        &[
+            "dataset",
+            "PSF",
+            "γ1_true",
+            "γ2_true",
+            "images",
+            "objects",
+            "Ngals /arcmin²",
+            "% stars",
+            "% false",
+            "% chance",
+            "% stars′",
+            "% false′",
+            "γ1",
+            "γ2",
+            "SNR",
+            "S/N_s",
+            "S/N_s′",
+        ],
+        "llrrrrrrrrrrrrrrr",
+        r.datasets.iter().map(|d| {
+            vec![
+                escape(&d.dataset),
+                escape(&d.psf),
+                show_number(d.g1_true),
+                show_number(d.g2_true),
+                d.n_images.to_string(),
+                d.n_objects.to_string(),
+                fixed(d.ngal_per_arcmin2, 1),
+                fixed(d.pct_stars, 2),
+                fixed(d.pct_false, 2),
+                num(d.pct_chance_match, 2),
+                num(d.pct_stars_weighted, 2),
+                num(d.pct_false_weighted, 2),
+                pm(d.g1, d.g1_err, 5),
+                pm(d.g2, d.g2_err, 5),
+                num(d.snr, 1),
+                num(d.sn_shot, 1),
+                num(d.sn_shot_weighted, 1),
+            ]
+        }),
     );
-    let _ = writeln!(
-        o,
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-    );
-    for d in &r.datasets {
-        let _ = writeln!(
-            o,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            escape(&d.dataset),
-            escape(&d.psf),
-            show_number(d.g1_true),
-            show_number(d.g2_true),
-            d.n_images,
-            d.n_objects,
-            fixed(d.ngal_per_arcmin2, 1),
-            fixed(d.pct_stars, 2),
-            fixed(d.pct_false, 2),
-            num(d.pct_chance_match, 2),
-            num(d.pct_stars_weighted, 2),
-            num(d.pct_false_weighted, 2),
-            pm(d.g1, d.g1_err, 5),
-            pm(d.g2, d.g2_err, 5),
-            num(d.snr, 1),
-            num(d.sn_shot, 1),
-            num(d.sn_shot_weighted, 1)
-        );
-    }
     binned(
         &mut o,
         "Residual by true magnitude",
@@ -298,6 +377,24 @@ pub fn report_markdown(r: &Report) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_table_has_a_header_an_alignment_row_and_one_line_per_row() {
+        let mut o = String::new();
+        table(
+            &mut o,
+            &["name", "value", "ok"],
+            "lrc",
+            [
+                vec!["a".to_owned(), "1".into(), "yes".into()],
+                vec![escape("b|c"), "2".into(), "no".into()],
+            ],
+        );
+        assert_eq!(
+            o,
+            "| name | value | ok |\n|---|---:|:-:|\n| a | 1 | yes |\n| b\\|c | 2 | no |\n"
+        );
+    }
 
     #[test]
     fn distinct_resamples_are_multisets() {

@@ -8,12 +8,11 @@
 //! Draws base fields 0..4 of the STEP1 defaults (4096² pixels of 0.206″
 //! plus 10″ margins, I ≤ 26: ≈ 830 arcmin²), prints a Markdown table of the
 //! differential counts, median sizes and redshifts per 0.5-mag bin, and
-//! writes `population-counts.svg` and `population-sizes.svg` into the
-//! directory given (hand-written SVG, no dependencies).
+//! writes `population-counts` and `population-sizes` as SVG and PNG into
+//! the directory given (drawn by `stepsim_figure::chart`).
 
-use std::fmt::Write as _;
 use std::path::Path;
-use stepsim_sim::config::RawConfig;
+use stepsim_figure::chart::{BLUE, Chart, Colour, Figure, GREY, Item, ORANGE, RED};
 use stepsim_sim::plan::Plan;
 use stepsim_sim::population::base_field;
 use stepsim_sim::truth::TruthRow;
@@ -39,8 +38,7 @@ struct Bin {
 
 fn main() {
     let out = std::env::args().nth(1).unwrap_or_else(|| "docs".into());
-    let raw = RawConfig::parse("{}", Path::new("defaults"), &["run.seed=20060101".into()]).unwrap();
-    let plan = Plan::new(raw, Path::new("defaults")).unwrap();
+    let plan = Plan::from_json("{}", Path::new("defaults"), &["run.seed=20060101"]).unwrap();
     let area1 = plan.placement_area().area_arcmin2;
     let area = area1 * f64::from(FIELDS);
     let mut rows: Vec<TruthRow> = Vec::new();
@@ -118,13 +116,13 @@ fn main() {
     }
     let dir = Path::new(&out);
     std::fs::create_dir_all(dir).unwrap();
-    let counts = svg_plot(
+    let counts = plot(
         "Differential counts, I (Vega)",
         "log10 N / arcmin² / mag",
         &[
             (
                 "galaxies",
-                "#1f77b4",
+                BLUE,
                 bins.iter()
                     .filter(|b| b.n_gal > 0.0)
                     .map(|b| (b.mag, b.n_gal.log10()))
@@ -132,14 +130,14 @@ fn main() {
             ),
             (
                 "stars",
-                "#d62728",
+                RED,
                 bins.iter()
                     .filter(|b| b.n_star > 0.0)
                     .map(|b| (b.mag, b.n_star.log10()))
                     .collect(),
             ),
             // Reference line of slope 0.34 through the model at I = 22.
-            ("slope 0.34", "#7f7f7f", {
+            ("slope 0.34", GREY, {
                 let at22 = bins
                     .iter()
                     .find(|b| (b.mag - 22.25).abs() < 1e-9)
@@ -149,14 +147,14 @@ fn main() {
             }),
         ],
     );
-    std::fs::write(dir.join("population-counts.svg"), counts).unwrap();
-    let sizes = svg_plot(
+    write_figure(dir, "population-counts", &counts);
+    let sizes = plot(
         "Median sizes against I (Vega)",
         "log10 size / arcsec",
         &[
             (
                 "disk h",
-                "#1f77b4",
+                BLUE,
                 bins.iter()
                     .filter(|b| b.disk_h > 0.0)
                     .map(|b| (b.mag, b.disk_h.log10()))
@@ -164,7 +162,7 @@ fn main() {
             ),
             (
                 "bulge r_e",
-                "#ff7f0e",
+                ORANGE,
                 bins.iter()
                     .filter(|b| b.bulge_re > 0.0)
                     .map(|b| (b.mag, b.bulge_re.log10()))
@@ -172,107 +170,45 @@ fn main() {
             ),
         ],
     );
-    std::fs::write(dir.join("population-sizes.svg"), sizes).unwrap();
+    write_figure(dir, "population-sizes", &sizes);
 }
 
 /// One plotted line: name, colour, points.
-type Series<'a> = (&'a str, &'a str, Vec<(f64, f64)>);
+type Series<'a> = (&'a str, Colour, Vec<(f64, f64)>);
 
-/// A minimal line plot as SVG text.
-fn svg_plot(title: &str, ylabel: &str, series: &[Series]) -> String {
-    let (w, h, l, r, t, b) = (640.0, 420.0, 70.0, 20.0, 40.0, 50.0);
-    let ys: Vec<f64> = series
-        .iter()
-        .flat_map(|s| s.2.iter().map(|p| p.1))
-        .collect();
-    let (x0, x1) = (17.0, 26.0);
-    let y0 = (ys.iter().copied().fold(f64::INFINITY, f64::min) * 2.0).floor() / 2.0;
-    let y1 = (ys.iter().copied().fold(f64::NEG_INFINITY, f64::max) * 2.0).ceil() / 2.0;
-    let px = |x: f64| l + (x - x0) / (x1 - x0) * (w - l - r);
-    let py = |y: f64| h - b - (y - y0) / (y1 - y0) * (h - t - b);
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12">"#
-    );
-    let _ = writeln!(s, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-    let _ = writeln!(
-        s,
-        r#"<text x="{}" y="22" text-anchor="middle" font-size="15">{title}</text>"#,
-        w / 2.0
-    );
-    let _ = writeln!(
-        s,
-        r#"<rect x="{l}" y="{t}" width="{}" height="{}" fill="none" stroke="black"/>"#,
-        w - l - r,
-        h - t - b
-    );
-    let mut x = x0;
-    while x <= x1 + 1e-9 {
-        let _ = writeln!(
-            s,
-            r#"<line x1="{0}" y1="{1}" x2="{0}" y2="{2}" stroke="black"/><text x="{0}" y="{3}" text-anchor="middle">{4}</text>"#,
-            px(x),
-            h - b,
-            h - b + 5.0,
-            h - b + 18.0,
-            x
-        );
-        x += 1.0;
+/// Lines with markers against I magnitude, one legend entry each, by the
+/// workspace's plotter.
+fn plot(title: &str, y_label: &str, series: &[Series]) -> Figure {
+    let mut items = Vec::new();
+    for (_, colour, pts) in series {
+        items.push(Item::Line {
+            pts: pts.clone(),
+            colour: *colour,
+            dashed: false,
+        });
+        items.push(Item::Points {
+            pts: pts.iter().map(|&(x, y)| (x, y, None)).collect(),
+            colour: *colour,
+        });
     }
-    let mut y = y0;
-    while y <= y1 + 1e-9 {
-        let _ = writeln!(
-            s,
-            r#"<line x1="{0}" y1="{1}" x2="{2}" y2="{1}" stroke="lightgray"/><text x="{3}" y="{4}" text-anchor="end">{5:.1}</text>"#,
-            l,
-            py(y),
-            w - r,
-            l - 6.0,
-            py(y) + 4.0,
-            y
-        );
-        y += 0.5;
+    Figure {
+        cols: 1,
+        panel_px: (640, 420),
+        charts: vec![Chart {
+            title: title.into(),
+            x_label: "I magnitude (Vega)".into(),
+            y_label: y_label.into(),
+            items,
+            legend: series
+                .iter()
+                .map(|(name, colour, _)| ((*name).to_owned(), *colour))
+                .collect(),
+        }],
     }
-    let _ = writeln!(
-        s,
-        r#"<text x="{}" y="{}" text-anchor="middle">I (Vega)</text>"#,
-        (l + w - r) / 2.0,
-        h - 12.0
-    );
-    let _ = writeln!(
-        s,
-        r#"<text x="16" y="{0}" text-anchor="middle" transform="rotate(-90 16 {0})">{ylabel}</text>"#,
-        (t + h - b) / 2.0
-    );
-    for (i, (name, colour, pts)) in series.iter().enumerate() {
-        let path: Vec<String> = pts
-            .iter()
-            .map(|p| format!("{:.1},{:.1}", px(p.0), py(p.1)))
-            .collect();
-        let _ = writeln!(
-            s,
-            r#"<polyline fill="none" stroke="{colour}" stroke-width="2" points="{}"/>"#,
-            path.join(" ")
-        );
-        for p in pts {
-            let _ = writeln!(
-                s,
-                r#"<circle cx="{:.1}" cy="{:.1}" r="2.5" fill="{colour}"/>"#,
-                px(p.0),
-                py(p.1)
-            );
-        }
-        let ly = t + 18.0 + 16.0 * i as f64;
-        let _ = writeln!(
-            s,
-            r#"<line x1="{}" y1="{ly}" x2="{}" y2="{ly}" stroke="{colour}" stroke-width="2"/><text x="{}" y="{}">{name}</text>"#,
-            l + 12.0,
-            l + 36.0,
-            l + 42.0,
-            ly + 4.0
-        );
-    }
-    s.push_str("</svg>\n");
-    s
+}
+
+/// Writes `stem.svg` and `stem.png` (the PNG drawn from the very SVG).
+fn write_figure(dir: &Path, stem: &str, fig: &Figure) {
+    std::fs::write(dir.join(format!("{stem}.svg")), fig.to_svg()).unwrap();
+    std::fs::write(dir.join(format!("{stem}.png")), fig.to_png().unwrap()).unwrap();
 }

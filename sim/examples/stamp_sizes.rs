@@ -7,13 +7,11 @@
 //! ```
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::config::RawConfig;
 use stepsim_sim::plan::Plan;
 use stepsim_sim::psf::{GaussianPsf, Psf};
 use stepsim_sim::render::{Accuracy, Method, Renderer, StageTimes};
 fn main() {
-    let raw = RawConfig::parse("{}", Path::new("t"), &["run.seed=20060101".into()]).unwrap();
-    let plan = Plan::new(raw, Path::new("t")).unwrap();
+    let plan = Plan::from_json("{}", Path::new("t"), &["run.seed=20060101"]).unwrap();
     let rows = stepsim_sim::population::sheared(
         &stepsim_sim::population::base_field(&plan, 0).unwrap(),
         0.1,

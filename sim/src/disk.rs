@@ -164,13 +164,10 @@ pub fn check(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::RawConfig;
     use std::path::Path;
 
     fn plan(json: &str, overrides: &[&str]) -> Plan {
-        let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-        let raw = RawConfig::parse(json, Path::new("t.json"), &o).unwrap();
-        Plan::new(raw, Path::new("t.json")).unwrap()
+        Plan::from_json(json, Path::new("t.json"), overrides).unwrap()
     }
 
     #[test]

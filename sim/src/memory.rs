@@ -408,13 +408,10 @@ pub fn measure_estimate(width: u32, height: u32, images: usize, threads: usize) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::RawConfig;
     use std::path::Path;
 
     fn plan(overrides: &[&str]) -> Plan {
-        let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-        let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
-        Plan::new(raw, Path::new("t.json")).unwrap()
+        Plan::from_json("{}", Path::new("t.json"), overrides).unwrap()
     }
 
     #[test]

@@ -184,6 +184,14 @@ impl Plan {
         Self::new(RawConfig::load(path, overrides)?, path)
     }
 
+    /// A plan from JSON text and `--set` overrides, as if the text were the
+    /// file `source` (relative input paths resolve against its directory):
+    /// for tests, examples and benchmarks that make a config in code.
+    pub fn from_json(json: &str, source: &Path, overrides: &[&str]) -> Result<Self, PlanError> {
+        let overrides: Vec<String> = overrides.iter().map(|s| (*s).to_owned()).collect();
+        Self::new(RawConfig::parse(json, source, &overrides)?, source)
+    }
+
     /// The same plan with master seed `seed` (the origin is kept: adopting
     /// the seed of an existing run does not make it public).
     pub fn with_seed(&self, seed: u64) -> Self {

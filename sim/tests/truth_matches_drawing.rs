@@ -10,7 +10,6 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::config::RawConfig;
 use stepsim_sim::plan::Plan;
 use stepsim_sim::psf::GaussianPsf;
 use stepsim_sim::render::{Accuracy, Renderer};
@@ -37,17 +36,16 @@ fn pixel_moments(data: &[f64], n: usize) -> [f64; 3] {
 
 #[test]
 fn drawn_population_galaxies_have_their_truth_ellipticity() {
-    let raw = RawConfig::parse(
+    let plan = Plan::from_json(
         "{}",
         Path::new("t.json"),
         &[
-            "run.seed=20060101".into(),
-            "image.width_px=1024".into(),
-            "image.height_px=1024".into(),
+            "run.seed=20060101",
+            "image.width_px=1024",
+            "image.height_px=1024",
         ],
     )
     .unwrap();
-    let plan = Plan::new(raw, Path::new("t.json")).unwrap();
     let base = stepsim_sim::population::base_field(&plan, 0).unwrap();
     let (g1, g2) = (0.05, -0.03);
     let rows = stepsim_sim::population::sheared(&base, g1, g2);

@@ -9,12 +9,10 @@ use std::path::Path;
 /// The defaults with a fixed seed (so that the tests are reproducible), then
 /// `overrides`.
 fn plan_with(overrides: &[&str]) -> Plan {
-    let o: Vec<String> = std::iter::once("run.seed=20060101")
+    let o: Vec<&str> = std::iter::once("run.seed=20060101")
         .chain(overrides.iter().copied())
-        .map(|s| s.to_string())
         .collect();
-    let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
-    Plan::new(raw, Path::new("t.json")).unwrap()
+    Plan::from_json("{}", Path::new("t.json"), &o).unwrap()
 }
 
 /// A wide field (8192² pixels of 0.206″ plus margin, ≈ 800 arcmin²) down to
