@@ -83,17 +83,8 @@ fn write_field(
 ) -> anyhow::Result<()> {
     let stem = format!("field_{field:03}{}", if rotated { "_rot" } else { "" });
     let im = &plan.raw.image;
-    let keywords = vec![
-        (
-            "FIELD".to_string(),
-            f64::from(field),
-            "base field".to_string(),
-        ),
-        (
-            "ROTATED".to_string(),
-            if rotated { 1.0 } else { 0.0 },
-            "1 for the 90-degree rotated twin".to_string(),
-        ),
+    let mut keywords = stepsim_sim::generate::pipeline::field_keywords(field, rotated);
+    keywords.extend([
         (
             "PIXSCALE".to_string(),
             im.pixel_scale_arcsec,
@@ -109,7 +100,7 @@ fn write_field(
             f64::from(im.height_px),
             "image height".to_string(),
         ),
-    ];
+    ]);
     truth::write_truth_fits(&out.join(format!("{stem}.fits")), rows, &keywords)?;
     truth::write_truth_csv(&out.join(format!("{stem}.csv")), rows)?;
     skymaker::write_list(
