@@ -18,8 +18,8 @@
 //! * **small files**: sidecars, manifest, datasets, config, README (4 KiB
 //!   per image, 64 KiB for the run).
 
-use crate::config::Plan;
 use crate::memory::{MemoryEstimate, Part};
+use crate::plan::Plan;
 
 /// FITS files grow in blocks of this many bytes.
 pub const FITS_BLOCK_BYTES: u64 = 2880;
@@ -42,7 +42,7 @@ pub fn fits_file_bytes(data_bytes: u64) -> u64 {
 /// Images the run makes (every field, its rotated twin if any, every
 /// dataset).
 pub fn images_in_run(plan: &Plan) -> u64 {
-    let per_field = plan.datasets.len() as u64 * (1 + u64::from(plan.raw.population.rotated_pairs));
+    let per_field = plan.datasets().len() as u64 * (1 + u64::from(plan.population().rotated_pairs));
     u64::from(plan.n_fields()) * per_field
 }
 
@@ -53,8 +53,8 @@ pub fn truth_row_bytes() -> u64 {
 
 /// What `stepsim generate` writes for the whole run, by file kind.
 pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
-    let img = &plan.raw.image;
-    let out = &plan.raw.output;
+    let img = &plan.image();
+    let out = &plan.output();
     let n = images_in_run(plan);
     let pixels = u64::from(img.width_px) * u64::from(img.height_px);
     let image = fits_file_bytes(pixels.saturating_mul(4));
@@ -99,7 +99,7 @@ pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
         let side = DEFAULT_SIZE_PX as u64;
         let fine = side * DEFAULT_OVERSAMPLE as u64;
         let one = fits_file_bytes(8 * side * side) + fits_file_bytes(8 * fine * fine);
-        let k = plan.raw.psfs.len() as u64;
+        let k = plan.psfs().len() as u64;
         parts.push(Part {
             what: format!("{k} PSF file{}", if k == 1 { "" } else { "s" }),
             bytes: one.saturating_mul(k),

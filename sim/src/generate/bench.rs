@@ -10,16 +10,15 @@
 
 use super::pipeline::{Context, Lap, make_image};
 use super::{GenerateError, Made, RunPaths};
-use crate::config::Plan;
-use crate::noise::Detector;
-use crate::render::{Accuracy, Renderer};
+use crate::plan::Plan;
+use crate::render::Renderer;
 use std::path::Path;
 
 pub use super::pipeline::{StageTimes, process_cpu_s};
 
 /// Makes image `field` (not the rotated twin) of the dataset with PSF
 /// `psf_index` and the last shear of the plan, exactly as `generate` makes
-/// it (the same [`make_image`], the same noise key, truth table, checksums
+/// it (the same `pipeline::make_image`, the same noise key, truth table, checksums
 /// and sidecar), into the run directory `scratch` (created; its files are
 /// overwritten), and times every stage. The base field and the PSF are
 /// drawn and built here, each once per call, and timed as `population_s`
@@ -31,12 +30,11 @@ pub fn run_once(
     field: u32,
     scratch: &Path,
 ) -> Result<StageTimes, GenerateError> {
-    let raw = &plan.raw;
-    let (w, h) = (raw.image.width_px, raw.image.height_px);
-    let pixel_scale = raw.image.pixel_scale_arcsec;
-    let last_shear = raw.shears.len() - 1;
+    let (w, h) = (plan.image().width_px, plan.image().height_px);
+    let pixel_scale = plan.pixel_scale_arcsec();
+    let last_shear = plan.shears().len() - 1;
     let dataset = plan
-        .datasets
+        .datasets()
         .iter()
         .find(|d| d.psf == psf_index && d.shear == last_shear)
         .expect("every PSF has a dataset with every shear");
@@ -57,21 +55,14 @@ pub fn run_once(
         .map_err(|source| GenerateError::Population { field, source })?;
     t.population_s = lap.lap().0;
 
-    let det = Detector::new(&raw.instrument, pixel_scale);
-    let psf_raw = &raw.psfs[psf_index];
-    let psf = crate::psf::build(psf_raw, &raw.telescope, pixel_scale).map_err(|source| {
-        GenerateError::Psf {
+    let det = plan.detector();
+    let psf =
+        crate::psf::build(&plan.psf_spec(psf_index)).map_err(|source| GenerateError::Psf {
             index: psf_index,
-            name: psf_raw.name.clone(),
+            name: plan.psfs()[psf_index].name.clone(),
             source,
-        }
-    })?;
-    let renderer = Renderer::new(
-        psf,
-        pixel_scale,
-        Accuracy::from_config(&raw.render),
-        det.sky_sigma_e(),
-    );
+        })?;
+    let renderer = Renderer::new(psf, pixel_scale, plan.accuracy(), det.sky_sigma_e());
     // The split method's image kernel belongs to the PSF stage too.
     if let Some(split) = renderer.split() {
         split.convolver(w as usize, h as usize);
@@ -132,9 +123,9 @@ mod tests {
         let quiet = |_: super::super::Event| {};
         super::super::generate(&plan, run.path(), &Default::default(), &quiet).unwrap();
         let key = super::super::blinding_key(&plan);
-        let last = plan.raw.shears.len() - 1;
+        let last = plan.shears().len() - 1;
         let d = plan
-            .datasets
+            .datasets()
             .iter()
             .find(|d| d.psf == 1 && d.shear == last)
             .unwrap();

@@ -45,10 +45,10 @@ pub use readme::{SUBMISSION_FORMAT, participants_readme};
 pub use shard::{AutoShardError, BadShard, SLURM_ARRAY_VARS, Shard};
 
 use crate::blind::{BlindingKey, sha256_hex};
-use crate::config::Plan;
 use crate::io::{IoError, write_bytes_atomically};
-use crate::noise::{self, Detector};
-use crate::render::{Accuracy, Renderer};
+use crate::noise::Detector;
+use crate::plan::Plan;
+use crate::render::Renderer;
 use crate::run_layout::{
     DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
     Manifest, ManifestImage,
@@ -232,20 +232,20 @@ pub fn config_sha256(plan: &Plan) -> String {
 
 /// Every image of a plan in canonical order, with its opaque ids.
 pub fn jobs(plan: &Plan, key: &BlindingKey) -> Result<Vec<Job>, GenerateError> {
-    let rotations: &[bool] = if plan.raw.population.rotated_pairs {
+    let rotations: &[bool] = if plan.population().rotated_pairs {
         &[false, true]
     } else {
         &[false]
     };
     let dataset_ids: Vec<String> = plan
-        .datasets
+        .datasets()
         .iter()
         .map(|d| key.dataset_id(d.index))
         .collect();
     let mut out = Vec::new();
     for field in 0..plan.n_fields() {
         for &rotated in rotations {
-            for d in &plan.datasets {
+            for d in plan.datasets() {
                 out.push(Job {
                     order: out.len(),
                     field,
@@ -521,7 +521,7 @@ fn find_pending<'a>(
         .par_iter()
         .map(|j| integrity::read_sidecar(paths, j, config_sha256))
         .collect::<Result<_, _>>()?;
-    let want_model = plan.raw.output.write_model;
+    let want_model = plan.output().write_model;
     let mine: Vec<&Job> = all.iter().filter(|j| shard.owns(j.order)).collect();
     let done: Vec<bool> = mine
         .par_iter()
@@ -571,24 +571,24 @@ fn build_psfs(
     work: &Work,
     progress: &(dyn Fn(Event) + Sync),
 ) -> Result<Psfs, GenerateError> {
-    let ds = &plan.datasets;
+    let ds = plan.datasets();
     let mut needed: Vec<usize> = work
         .pending
         .iter()
         .map(|j| ds[j.dataset as usize].psf)
         .collect();
-    if plan.raw.output.write_psf {
+    if plan.output().write_psf {
         for j in &work.mine {
             let p = ds[j.dataset as usize].psf;
-            if !paths.psf(&plan.raw.psfs[p].name).exists() {
+            if !paths.psf(&plan.psfs()[p].name).exists() {
                 needed.push(p);
             }
         }
     }
     needed.sort_unstable();
     needed.dedup();
-    let pixel_scale = plan.raw.image.pixel_scale_arcsec;
-    let det = Detector::new(&plan.raw.instrument, pixel_scale);
+    let pixel_scale = plan.pixel_scale_arcsec();
+    let det = plan.detector();
     let mut out = Psfs {
         renderers: BTreeMap::new(),
         built: Vec::new(),
@@ -598,16 +598,13 @@ fn build_psfs(
         total: needed.len(),
     });
     for &p in &needed {
-        let raw = &plan.raw.psfs[p];
-        let psf = crate::psf::build(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
-            GenerateError::Psf {
-                index: p,
-                name: raw.name.clone(),
-                source,
-            }
+        let raw = &plan.psfs()[p];
+        let psf = crate::psf::build(&plan.psf_spec(p)).map_err(|source| GenerateError::Psf {
+            index: p,
+            name: raw.name.clone(),
+            source,
         })?;
-        let accuracy = Accuracy::from_config(&plan.raw.render);
-        let renderer = Renderer::new(psf.clone(), pixel_scale, accuracy, det.sky_sigma_e());
+        let renderer = Renderer::new(psf.clone(), pixel_scale, plan.accuracy(), det.sky_sigma_e());
         out.renderers.insert(p, renderer);
         out.built.push((p, psf));
         progress(Event::PsfBuilt {
@@ -667,7 +664,7 @@ fn make_images(
                     (Some(twin), true) => twin,
                     _ => &base,
                 };
-                let renderer = &psfs.renderers[&plan.datasets[job.dataset as usize].psf];
+                let renderer = &psfs.renderers[&plan.datasets()[job.dataset as usize].psf];
                 let mut lap = pipeline::Lap::start(false);
                 let mut times = pipeline::StageTimes::default();
                 pipeline::make_image(&cx, job, rows, renderer, &mut lap, &mut times)?;
@@ -776,7 +773,7 @@ pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
     let all = jobs(plan, &key)?;
     integrity::refuse_foreign_files(plan, &paths, &all)?;
     integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))?;
-    let want_model = plan.raw.output.write_model;
+    let want_model = plan.output().write_model;
     let ok: Vec<bool> = all
         .par_iter()
         .map(|j| verify(&paths, j, want_model, &config_sha256))
@@ -913,15 +910,15 @@ fn write_shared(
         &paths.public().join("README.md"),
         participants_readme(plan, para).as_bytes(),
     )?;
-    if plan.raw.output.write_psf {
+    if plan.output().write_psf {
         for (p, psf) in psfs {
-            let raw = &plan.raw.psfs[*p];
+            let raw = &plan.psfs()[*p];
             write_psf_file(
                 &paths.psf(&raw.name),
                 psf,
                 raw,
-                plan.raw.image.pixel_scale_arcsec,
-                plan.raw.render.max_stamp_px as usize,
+                plan.pixel_scale_arcsec(),
+                plan.render().max_stamp_px as usize,
             )?;
         }
     }
@@ -942,15 +939,15 @@ fn write_psf_file(
     use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
     let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
-    write_psf(
-        path,
+    let drawn = crate::psf::draw_for_file(
         &raw.name,
         psf.as_ref(),
         pixel_scale_arcsec,
         renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
         DEFAULT_OVERSAMPLE,
-        Some(&report),
-    )
+        Some(report),
+    );
+    write_psf(path, &drawn)
 }
 
 /// The private files every process of a run writes identically:
@@ -968,14 +965,14 @@ fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str
 
 /// `private/datasets.json` of a run.
 pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
-    let img = &plan.raw.image;
+    let img = &plan.image();
     Datasets {
         format: DATASETS_FORMAT.into(),
         width_px: img.width_px,
         height_px: img.height_px,
         pixel_scale_arcsec: img.pixel_scale_arcsec,
         datasets: plan
-            .datasets
+            .datasets()
             .iter()
             .map(|d| {
                 let images: Vec<&Job> = all.iter().filter(|j| j.dataset == d.index).collect();
@@ -985,7 +982,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
                         .map(|j| j.dataset_id.clone())
                         .unwrap_or_default(),
                     psf_id: d.psf as u32,
-                    psf: plan.raw.psfs[d.psf].name.clone(),
+                    psf: plan.psfs()[d.psf].name.clone(),
                     g1: d.g1,
                     g2: d.g2,
                     images: images
@@ -1004,7 +1001,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
 
 /// The public instrument facts of a plan.
 pub fn instrument_facts(plan: &Plan) -> InstrumentFacts {
-    let (img, ins) = (&plan.raw.image, &plan.raw.instrument);
+    let (img, ins) = (&plan.image(), &plan.instrument());
     InstrumentFacts {
         width_px: img.width_px,
         height_px: img.height_px,
@@ -1170,7 +1167,7 @@ mod tests {
             .unwrap()
         };
         let (flat, lensed) = (truth(0), truth(1));
-        let (cx, cy) = crate::population::lensing_centre(&p);
+        let (cx, cy) = p.lensing_centre();
         let mut moved = 0;
         for r in &lensed {
             let Some(f) = flat.iter().find(|f| f.id == r.id) else {
@@ -1202,7 +1199,7 @@ mod tests {
         let paths = RunPaths {
             root: dir.path().into(),
         };
-        let det = Detector::new(&p.raw.instrument, p.raw.image.pixel_scale_arcsec);
+        let det = p.detector();
         let sky_adu = det.sky_e_per_px / det.gain_e_per_adu;
         for j in &js {
             let img = crate::io::image_fits::read_image_fits(&paths.image(j)).unwrap();
@@ -1241,34 +1238,28 @@ mod tests {
             .into_iter()
             .find(|j| j.field == 1 && j.rotated && j.dataset == 3)
             .unwrap();
-        let d = &p.datasets[3];
+        let d = &p.datasets()[3];
         assert_eq!((d.psf, d.g1, d.g2), (1, 0.04, -0.02));
         let rows = crate::population::sheared(
             &crate::population::rotated(&crate::population::base_field(&p, 1).unwrap()),
             d.g1,
             d.g2,
         );
-        let raw = &p.raw;
-        let scale = raw.image.pixel_scale_arcsec;
-        let det = Detector::new(&raw.instrument, scale);
-        let psf = crate::psf::build(&raw.psfs[1], &raw.telescope, scale).unwrap();
-        let r = Renderer::new(
-            psf,
-            scale,
-            Accuracy::from_config(&raw.render),
-            det.sky_sigma_e(),
-        );
-        let (w, h) = (raw.image.width_px, raw.image.height_px);
+        let scale = p.pixel_scale_arcsec();
+        let det = p.detector();
+        let psf = crate::psf::build(&p.psf_spec(1)).unwrap();
+        let r = Renderer::new(psf, scale, p.accuracy(), det.sky_sigma_e());
+        let (w, h) = (p.image().width_px, p.image().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
-        let pixels = noise::realise_reference(&model, w as usize, &det, Some(noise_key));
+        let pixels = crate::noise::realise_reference(&model, w as usize, &det, Some(noise_key));
         let by_hand = dir.path().join("by_hand.fits");
         write_image_fits(
             &by_hand,
             &pixels,
             w,
             h,
-            &ImageHeader::new(&raw.image, &raw.instrument, 1),
+            &ImageHeader::new(p.image(), p.instrument(), 1),
             SampleFormat::Float32,
             crate::config::Compression::None,
         )

@@ -7,7 +7,7 @@
 //!    ([`draw_model`]);
 //! 3. pixels: sky, photon and read noise ([`crate::noise::realise`]) keyed
 //!    by the job ([`super::Job::noise_key`]);
-//! 4. files: the public image, the truth table ([`truth_keywords`]), the
+//! 4. files: the public image, the truth table ([`crate::io::truth_header::truth_keywords`]), the
 //!    optional model, and last the sidecar with their SHA-256.
 //!
 //! Every stage's wall time goes to a [`StageTimes`] (and process CPU time
@@ -15,11 +15,13 @@
 
 use super::{GenerateError, Job, Made, RunPaths, Sidecar};
 use crate::blind::sha256_hex;
-use crate::config::{Plan, SampleFormat};
+use crate::config::SampleFormat;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
-use crate::io::truth::{Keyword, write_truth_fits};
+use crate::io::truth::write_truth_fits;
+use crate::io::truth_header::truth_keywords;
 use crate::io::{IoError, write_bytes_atomically};
 use crate::noise::{self, Detector};
+use crate::plan::Plan;
 use crate::render::{Canvas, RenderError, Renderer};
 use crate::truth::TruthRow;
 use std::path::Path;
@@ -114,9 +116,9 @@ impl Lap {
 /// rotated twin when `job.rotated`) sheared by the dataset's shear, and
 /// lensed too with `population.lens_positions`.
 pub fn dataset_rows(plan: &Plan, job: &Job, base: &[TruthRow]) -> Vec<TruthRow> {
-    let d = &plan.datasets[job.dataset as usize];
+    let d = &plan.datasets()[job.dataset as usize];
     let rows = crate::population::sheared(base, d.g1, d.g2);
-    if plan.raw.population.lens_positions {
+    if plan.population().lens_positions {
         crate::population::lensed(plan, job.field, &rows, d.g1, d.g2)
     } else {
         rows
@@ -151,30 +153,6 @@ pub fn draw_model(
     Ok(model)
 }
 
-/// The keywords naming a base field in a truth table's header: `FIELD`
-/// and `ROTATED` (the one place they are built; `stepsim catalog` writes
-/// them too).
-pub fn field_keywords(field: u32, rotated: bool) -> Vec<Keyword> {
-    vec![
-        ("FIELD".to_string(), f64::from(field), "base field".into()),
-        (
-            "ROTATED".to_string(),
-            f64::from(u8::from(rotated)),
-            "1: 90-degree rotated twin".into(),
-        ),
-    ]
-}
-
-/// The header keywords of a run's truth table: [`field_keywords`], the PSF
-/// index and the applied shear.
-pub fn truth_keywords(field: u32, rotated: bool, psf: usize, g1: f64, g2: f64) -> Vec<Keyword> {
-    let mut k = field_keywords(field, rotated);
-    k.push(("PSF_ID".to_string(), psf as f64, "index in psfs".into()));
-    k.push(("G1".to_string(), g1, "applied reduced shear".into()));
-    k.push(("G2".to_string(), g2, "applied reduced shear".into()));
-    k
-}
-
 /// What every image of a run shares.
 pub(crate) struct Context<'a> {
     pub plan: &'a Plan,
@@ -194,9 +172,9 @@ pub(crate) fn make_image(
     t: &mut StageTimes,
 ) -> Result<(), GenerateError> {
     let (plan, paths, det) = (cx.plan, cx.paths, cx.det);
-    let raw = &plan.raw;
-    let d = &plan.datasets[job.dataset as usize];
-    let (w, h) = (raw.image.width_px, raw.image.height_px);
+    let d = &plan.datasets()[job.dataset as usize];
+    let (w, h) = (plan.image().width_px, plan.image().height_px);
+    let output = plan.output();
     let rows = dataset_rows(plan, job, base);
     t.population_s += lap.lap().0;
 
@@ -206,13 +184,13 @@ pub(crate) fn make_image(
     };
     let model = draw_model(renderer, &rows, w, h, lap, t).map_err(render_err)?;
 
-    let noise_key = raw.output.noise.then(|| job.noise_key(plan.seed()));
+    let noise_key = output.noise.then(|| job.noise_key(plan.seed()));
     let pixels = noise::realise(&model, w as usize, det, noise_key);
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
-    let header = ImageHeader::new(&raw.image, &raw.instrument, job.field);
+    let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
     let image_path = paths.image(job);
-    let format = (raw.output.format, raw.output.compression);
+    let format = (output.format, output.compression);
     write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
     drop(pixels);
     t.write_s = lap.lap().0;
@@ -222,7 +200,7 @@ pub(crate) fn make_image(
     write_truth_fits(&truth_path, &rows, &keywords)?;
     t.truth_s = lap.lap().0;
 
-    let model_sha256 = if raw.output.write_model {
+    let model_sha256 = if output.write_model {
         let adu: Vec<f32> = model
             .iter()
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
