@@ -74,6 +74,7 @@ pub struct ImageMeasurement {
 }
 
 /// Per-detection intermediate result.
+#[derive(Debug, Clone)]
 struct Candidate {
     x: f64,
     y: f64,
@@ -94,13 +95,40 @@ pub fn measure_image(
 
 /// Measures one image with the star selection `stars` when given (e.g.
 /// found on the pooled candidates of all images that share the PSF), or,
-/// with `None`, the image's own ([`select_stars`]).
+/// with `None`, the image's own ([`select_stars`]): [`detect_image`] then
+/// [`Detections::finish`].
 pub fn measure_image_with(
     img: &Image,
     info: &ImageInfo,
     params: &KsbParams,
     stars: Option<StarSelection>,
 ) -> Result<ImageMeasurement, KsbError> {
+    let (dets, sub) = detect_image(img, info, params)?;
+    Ok(dets.finish(&sub, info, params, stars))
+}
+
+/// The first half of measuring an image: its background, detections,
+/// windowed centroids and KSB moments, and the star candidates they give.
+/// Small (no pixels): a run keeps these of every image of a dataset while
+/// it pools the star candidates, then finishes each image with the pooled
+/// locus without detecting or measuring its objects again.
+#[derive(Debug, Clone)]
+pub struct Detections {
+    bg: Background,
+    cands: Vec<Candidate>,
+    sizemag: Vec<SizeMag>,
+    width: usize,
+    height: usize,
+    timings: Vec<(&'static str, f64)>,
+}
+
+/// Background, detection, centroids and moments of one image (electrons,
+/// sky included): the [`Detections`] and the background-subtracted image.
+pub fn detect_image(
+    img: &Image,
+    info: &ImageInfo,
+    params: &KsbParams,
+) -> Result<(Detections, Image), KsbError> {
     params.validate()?;
     let mut timings = Vec::new();
     let mut t0 = Instant::now();
@@ -108,7 +136,6 @@ pub fn measure_image_with(
         timings.push((name, t.elapsed().as_secs_f64()));
         *t = Instant::now();
     };
-
     let mut bg = Background::estimate(img, params.background_mesh_px, params.background_clip_sigma);
     let sub = bg.subtract(img);
     if bg.rms.is_nan() || bg.rms <= 0.0 {
@@ -200,129 +227,179 @@ pub fn measure_image_with(
             clean: c.flags & flags::NOT_FOR_PSF == 0 && c.shape.is_some(),
         })
         .collect();
-    let selection = stars.or_else(|| select_stars(&sizemag, params));
-    let locus = selection.map(|s| s.locus);
-    let star: Vec<bool> = sizemag
-        .iter()
-        .map(|o| selection.is_some_and(|s| s.is_star(o, params)))
-        .collect();
-    let psf_stars: Vec<(f64, f64)> = cands
-        .iter()
-        .zip(&sizemag)
-        .filter(|(_, o)| selection.is_some_and(|s| s.is_psf_star(o, params)))
-        .map(|(c, _)| (c.x, c.y))
-        .collect();
-    lap("stars", &mut t0);
+    Ok((
+        Detections {
+            bg,
+            cands,
+            sizemag,
+            width: img.width,
+            height: img.height,
+            timings,
+        },
+        sub,
+    ))
+}
 
-    let model = locus.and_then(|l| {
-        let rg_hi = cands
+impl Detections {
+    /// Size, S/N and cleanliness of every detection, in detection order
+    /// (the input of the star selection).
+    pub fn star_candidates(&self) -> &[SizeMag] {
+        &self.sizemag
+    }
+
+    /// Subtracts this image's background from `img` (the same image the
+    /// detections were made on, read again).
+    pub fn subtract_background(&self, img: &Image) -> Image {
+        self.bg.subtract(img)
+    }
+
+    /// The second half: star selection (`stars`, or the image's own),
+    /// PSF model on `sub` (the background-subtracted image), shear
+    /// estimates, cuts and weights.
+    pub fn finish(
+        self,
+        sub: &Image,
+        info: &ImageInfo,
+        params: &KsbParams,
+        stars: Option<StarSelection>,
+    ) -> ImageMeasurement {
+        let Detections {
+            bg,
+            cands,
+            sizemag,
+            width,
+            height,
+            mut timings,
+        } = self;
+        let mut t0 = Instant::now();
+        let mut lap = |name: &'static str, t: &mut Instant| {
+            timings.push((name, t.elapsed().as_secs_f64()));
+            *t = Instant::now();
+        };
+        let selection = stars.or_else(|| select_stars(&sizemag, params));
+        let locus = selection.map(|s| s.locus);
+        let star: Vec<bool> = sizemag
+            .iter()
+            .map(|o| selection.is_some_and(|s| s.is_star(o, params)))
+            .collect();
+        let psf_stars: Vec<(f64, f64)> = cands
+            .iter()
+            .zip(&sizemag)
+            .filter(|(_, o)| selection.is_some_and(|s| s.is_psf_star(o, params)))
+            .map(|(c, _)| (c.x, c.y))
+            .collect();
+        lap("stars", &mut t0);
+
+        let model = locus.and_then(|l| {
+            let rg_hi = cands
+                .iter()
+                .zip(&star)
+                .filter(|(c, s)| !**s && c.flags & flags::NOT_FOR_PSF == 0)
+                .map(|(c, _)| c.rg)
+                .fold(l.rg_star, f64::max)
+                .min(params.rg_max_px);
+            PsfModel::build(
+                sub,
+                &psf_stars,
+                l.rg_star / params.scale_step,
+                rg_hi,
+                params,
+            )
+        });
+        lap("psf model", &mut t0);
+
+        // Shear estimates with each galaxy's own P^γ.
+        let mut rows: Vec<(
+            MeasuredObject,
+            Option<(KsbShape, crate::psf_model::PsfCorrection)>,
+        )> = cands
             .iter()
             .zip(&star)
-            .filter(|(c, s)| !**s && c.flags & flags::NOT_FOR_PSF == 0)
-            .map(|(c, _)| c.rg)
-            .fold(l.rg_star, f64::max)
-            .min(params.rg_max_px);
-        PsfModel::build(
-            &sub,
-            &psf_stars,
-            l.rg_star / params.scale_step,
-            rg_hi,
-            params,
-        )
-    });
-    lap("psf model", &mut t0);
-
-    // Shear estimates with each galaxy's own P^γ.
-    let mut rows: Vec<(
-        MeasuredObject,
-        Option<(KsbShape, crate::psf_model::PsfCorrection)>,
-    )> = cands
-        .iter()
-        .zip(&star)
-        .filter(|(_, s)| !**s)
-        .map(|(c, _)| {
-            let mut f = c.flags;
-            let sn = c.shape.map_or(0.0, |s| s.sn);
-            let mag = c.shape.filter(|s| s.flux_e > 0.0).map_or(f64::NAN, |s| {
-                info.zeropoint_eff_mag - 2.5 * s.flux_e.log10()
-            });
-            if let Some(l) = locus {
-                if c.rg <= params.size_min_factor * l.rg_star {
-                    f |= flags::SMALL;
+            .filter(|(_, s)| !**s)
+            .map(|(c, _)| {
+                let mut f = c.flags;
+                let sn = c.shape.map_or(0.0, |s| s.sn);
+                let mag = c.shape.filter(|s| s.flux_e > 0.0).map_or(f64::NAN, |s| {
+                    info.zeropoint_eff_mag - 2.5 * s.flux_e.log10()
+                });
+                if let Some(l) = locus {
+                    if c.rg <= params.size_min_factor * l.rg_star {
+                        f |= flags::SMALL;
+                    }
                 }
+                if sn < params.min_sn {
+                    f |= flags::LOW_SN;
+                }
+                let obj = MeasuredObject {
+                    x: c.x + 1.0,
+                    y: c.y + 1.0,
+                    e1: 0.0,
+                    e2: 0.0,
+                    weight: 0.0,
+                    flags: f,
+                    rg_px: c.rg,
+                    sn,
+                    mag,
+                    pgamma: f64::NAN,
+                };
+                match (&model, c.shape) {
+                    (Some(m), Some(s)) => (obj, Some((s, m.at(c.x, c.y, s.sigma_w)))),
+                    (None, _) => (
+                        MeasuredObject {
+                            flags: f | flags::NO_PSF,
+                            ..obj
+                        },
+                        None,
+                    ),
+                    (_, None) => (obj, None),
+                }
+            })
+            .collect();
+        let fit = match (params.pgamma_mode, locus) {
+            (PgammaMode::FitSize, Some(l)) => {
+                let pts: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter(|(o, _)| o.flags == 0)
+                    .filter_map(|(o, sc)| sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c))))
+                    .collect();
+                PgammaFit::fit(&pts, l.rg_star)
             }
-            if sn < params.min_sn {
-                f |= flags::LOW_SN;
-            }
-            let obj = MeasuredObject {
-                x: c.x + 1.0,
-                y: c.y + 1.0,
-                e1: 0.0,
-                e2: 0.0,
-                weight: 0.0,
-                flags: f,
-                rg_px: c.rg,
-                sn,
-                mag,
-                pgamma: f64::NAN,
-            };
-            match (&model, c.shape) {
-                (Some(m), Some(s)) => (obj, Some((s, m.at(c.x, c.y, s.sigma_w)))),
-                (None, _) => (
-                    MeasuredObject {
-                        flags: f | flags::NO_PSF,
-                        ..obj
-                    },
-                    None,
-                ),
-                (_, None) => (obj, None),
-            }
-        })
-        .collect();
-    let fit = match (params.pgamma_mode, locus) {
-        (PgammaMode::FitSize, Some(l)) => {
-            let pts: Vec<(f64, f64)> = rows
-                .iter()
-                .filter(|(o, _)| o.flags == 0)
-                .filter_map(|(o, sc)| sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c))))
-                .collect();
-            PgammaFit::fit(&pts, l.rg_star)
-        }
-        _ => None,
-    };
-    for (o, sc) in &mut rows {
-        let Some((s, c)) = sc else { continue };
-        let est: ShearEstimate = match &fit {
-            Some(fit) => estimate_with(s, c, fit.eval(o.rg_px)),
-            None => estimate(s, c),
+            _ => None,
         };
-        o.pgamma = est.pgamma;
-        if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
-            o.flags |= flags::PGAMMA;
+        for (o, sc) in &mut rows {
+            let Some((s, c)) = sc else { continue };
+            let est: ShearEstimate = match &fit {
+                Some(fit) => estimate_with(s, c, fit.eval(o.rg_px)),
+                None => estimate(s, c),
+            };
+            o.pgamma = est.pgamma;
+            if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
+                o.flags |= flags::PGAMMA;
+            }
+            set_shear(o, est.gamma, params.max_shear);
+            if o.flags == 0 {
+                o.weight = weight(est.sigma_gamma, params.sigma_int);
+            }
         }
-        set_shear(o, est.gamma, params.max_shear);
-        if o.flags == 0 {
-            o.weight = weight(est.sigma_gamma, params.sigma_int);
+        let (w, h) = (width as f64, height as f64);
+        let mut objects: Vec<MeasuredObject> = rows
+            .into_iter()
+            .map(|r| r.0)
+            .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
+            .collect();
+        objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+        lap("shear", &mut t0);
+        ImageMeasurement {
+            objects,
+            n_detections: cands.len(),
+            n_stars: psf_stars.len(),
+            locus,
+            star_candidates: sizemag,
+            psf_order: model.as_ref().map(PsfModel::order),
+            background_rms_e: bg.rms,
+            timings,
         }
     }
-    let (w, h) = (img.width as f64, img.height as f64);
-    let mut objects: Vec<MeasuredObject> = rows
-        .into_iter()
-        .map(|r| r.0)
-        .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
-        .collect();
-    objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-    lap("shear", &mut t0);
-    Ok(ImageMeasurement {
-        objects,
-        n_detections: cands.len(),
-        n_stars: psf_stars.len(),
-        locus,
-        star_candidates: sizemag,
-        psf_order: model.as_ref().map(PsfModel::order),
-        background_rms_e: bg.rms,
-        timings,
-    })
 }
 
 /// Two detections whose windowed centroids converged to within 1 px are

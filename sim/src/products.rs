@@ -190,17 +190,12 @@ fn write_field(
     let stem = format!("field_{field:03}{}", if rotated { "_rot" } else { "" });
     let im = plan.image();
     let keyword = |k: &str, v: f64, c: &str| (k.to_string(), v, c.to_string());
-    let keywords = vec![
-        keyword("FIELD", f64::from(field), "base field"),
-        keyword(
-            "ROTATED",
-            if rotated { 1.0 } else { 0.0 },
-            "1 for the 90-degree rotated twin",
-        ),
+    let mut keywords = crate::io::truth_header::field_keywords(field, rotated);
+    keywords.extend([
         keyword("PIXSCALE", im.pixel_scale_arcsec, "arcsec per pixel"),
         keyword("NAXIS1IM", f64::from(im.width_px), "image width"),
         keyword("NAXIS2IM", f64::from(im.height_px), "image height"),
-    ];
+    ]);
     truth::write_truth_fits(&out.join(format!("{stem}.fits")), rows, &keywords)?;
     truth::write_truth_csv(&out.join(format!("{stem}.csv")), rows)?;
     skymaker::write_list(&out.join(format!("{stem}.list")), rows, t_types)

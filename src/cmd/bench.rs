@@ -30,10 +30,16 @@ pub struct Args {
     /// core are used).
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = super::threads_arg)]
     threads: usize,
-    /// Directory for the scratch image (default: the system temp dir);
-    /// the file is removed afterwards.
+    /// Directory for the scratch run (default: the system temp dir); it is
+    /// removed afterwards.
     #[arg(long, value_name = "DIR")]
     scratch: Option<PathBuf>,
+    /// Render the objects of this SkyMaker list (as `stepsim catalog`
+    /// writes it) instead of a drawn population: the same as
+    /// `--set 'population.source={"skymaker_list":{"path":"FILE"}}'`, for
+    /// comparing with another renderer on the same objects.
+    #[arg(long, value_name = "FILE")]
+    list: Option<PathBuf>,
 }
 
 /// Master seed of a benchmark whose config gives none, so that runs draw
@@ -59,7 +65,11 @@ fn bench_plan(config: Option<&Path>, overrides: &[String]) -> anyhow::Result<Pla
 
 /// Runs the benchmark and prints a table.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let plan = bench_plan(args.config.as_deref(), &args.overrides)?;
+    let mut overrides = args.overrides.clone();
+    if let Some(list) = &args.list {
+        overrides.push(list_override(list)?);
+    }
+    let plan = bench_plan(args.config.as_deref(), &overrides)?;
     let Some(psf_index) = plan.psfs().iter().position(|p| p.name == args.psf) else {
         let names: Vec<&str> = plan.psfs().iter().map(|p| p.name.as_str()).collect();
         bail!(
@@ -86,11 +96,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     )?;
     let pool = super::thread_pool(threads)?;
     let dir = args.scratch.clone().unwrap_or_else(std::env::temp_dir);
-    let scratch = dir.join(format!("stepsim-bench-{}.fits", std::process::id()));
+    let scratch = dir.join(format!("stepsim-bench-{}", std::process::id()));
     let mut runs: Vec<StageTimes> = Vec::new();
     for i in 0..args.repeats {
         let t = pool.install(|| run_once(&plan, psf_index, args.field, &scratch));
-        let _ = std::fs::remove_file(&scratch);
+        let _ = std::fs::remove_dir_all(&scratch);
         let t = t.with_context(|| format!("repeat {}", i + 1))?;
         eprintln!(
             "stepsim bench: repeat {} of {}: {:.3} s",
@@ -121,15 +131,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     println!("| stage | median s | min s | max s |");
     println!("|---|---|---|---|");
-    let rows: [(&str, Stage); 8] = [
-        ("population", |t| t.population_s),
+    let rows: [(&str, Stage); 12] = [
+        ("population (base field + shear)", |t| t.population_s),
         ("psf", |t| t.psf_s),
         ("galaxies", |t| t.galaxies_s),
         ("stars", |t| t.stars_s),
         ("convolve (PSF wings, split method)", |t| t.convolve_s),
         ("noise", |t| t.noise_s),
-        ("write", |t| t.write_s),
+        ("write image", |t| t.write_s),
+        ("truth table", |t| t.truth_s),
+        ("model file", |t| t.model_s),
+        ("checksums + sidecar", |t| t.checksum_s),
         ("total", |t| t.total_s()),
+        ("total without population and psf", |t| {
+            t.total_s() - t.population_s - t.psf_s
+        }),
     ];
     for (name, f) in rows {
         let (m, lo, hi) = stage(f);
@@ -151,11 +167,25 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         total_cpu * 1e6 / n_gal,
         total_cpu
     );
+    let (noise_cpu, _, _) = stage(|t| t.noise_cpu_s);
+    println!("noise CPU s: {noise_cpu:.3}");
     match peak_memory_bytes() {
         Some(b) => println!("peak memory (VmHWM): {:.1} MiB", b as f64 / 1048576.0),
         None => println!("peak memory (VmHWM): unavailable"),
     }
     Ok(())
+}
+
+/// The `--set` that makes the population the SkyMaker list `path` (made
+/// absolute, so that it does not depend on the config's directory).
+fn list_override(path: &Path) -> anyhow::Result<String> {
+    let abs = std::path::absolute(path)
+        .with_context(|| format!("--list {}: cannot resolve the path", path.display()))?;
+    let Some(text) = abs.to_str() else {
+        bail!("--list {}: the path is not valid UTF-8", path.display());
+    };
+    let json = serde_json::json!({ "skymaker_list": { "path": text } });
+    Ok(format!("population.source={json}"))
 }
 
 #[cfg(test)]
@@ -172,5 +202,17 @@ mod tests {
             let given = bench_plan(config, &["run.seed=7".into()]).unwrap();
             assert_eq!(given.seed(), 7);
         }
+    }
+
+    #[test]
+    fn a_list_becomes_the_population_source() {
+        let dir = tempfile::tempdir().unwrap();
+        let list = dir.path().join("f.list");
+        std::fs::write(&list, "100 10.0 12.0 20.0\n").unwrap();
+        let set = list_override(&list).unwrap();
+        let plan = bench_plan(None, &[set, "image.n_images=1".into()]).unwrap();
+        let rows = stepsim_sim::population::base_field(&plan, 0).unwrap();
+        assert_eq!(rows.len(), 1);
+        assert!(rows[0].is_star() && (rows[0].x, rows[0].y) == (10.0, 12.0));
     }
 }

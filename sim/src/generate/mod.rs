@@ -34,6 +34,7 @@
 pub mod bench;
 pub mod claim;
 pub mod integrity;
+pub mod pipeline;
 mod readme;
 mod shard;
 pub mod times;
@@ -44,18 +45,15 @@ pub use readme::{SUBMISSION_FORMAT, participants_readme};
 pub use shard::{AutoShardError, BadShard, SLURM_ARRAY_VARS, Shard};
 
 use crate::blind::{BlindingKey, sha256_hex};
-use crate::config::SampleFormat;
-use crate::io::image_fits::{ImageHeader, write_image_fits};
-use crate::io::{IoError, truth::write_truth_fits, write_bytes_atomically};
-use crate::noise::{self, Detector};
+use crate::io::{IoError, write_bytes_atomically};
+use crate::noise::Detector;
 use crate::plan::Plan;
-use crate::render::{Renderer, try_draw_image};
+use crate::render::Renderer;
 use crate::run_layout::{
     DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
     Manifest, ManifestImage,
 };
 use crate::seed::{SeedKey, Stream};
-use crate::truth::TruthRow;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -435,34 +433,102 @@ pub fn generate(
     let config_sha256 = config_sha256(plan);
     let key = blinding_key(plan);
     let all = jobs(plan, &key)?;
-    let checked = integrity::refuse_foreign_files(plan, &paths, &all).and_then(|()| {
-        integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))
-    });
-    if let Err(e) = checked {
-        // Leave the directory as it was found: a claim made just now is undone.
-        if claim.created {
-            let _ = std::fs::remove_file(paths.config());
-        }
-        return Err(e);
-    }
-    // Temporaries left by a killed run are junk (never finished files): remove
-    // them so that they can't reach a release; a live shard's stay.
+    refuse_foreign_or_undo_claim(plan, &paths, &key, &all, claim.created)?;
     let removed_tmp = crate::io::remove_stale_temporaries(out);
+    let work = find_pending(plan, &paths, &all, options.shard, &config_sha256)?;
+    make_dataset_dirs(&paths, &all)?;
+    let psfs = build_psfs(plan, &paths, &work, progress)?;
+    progress(Event::Start {
+        pending: work.pending.len(),
+        done: work.mine.len() - work.pending.len(),
+    });
+    let shared = || write_shared(plan, &paths, &key, &all, options, &psfs.built);
+    make_images(
+        plan,
+        &paths,
+        &work.pending,
+        &psfs,
+        &config_sha256,
+        shared,
+        progress,
+    )?;
+    let (finished, manifest_written, marker) = conclude(
+        plan,
+        &paths,
+        &all,
+        &work.mine,
+        options.shard,
+        &config_sha256,
+    )?;
+    let mut stray_tmp = Vec::new();
+    find_tmp(out, &mut stray_tmp);
+    stray_tmp.sort();
+    Ok(Summary {
+        seed: claim.seed,
+        removed_manifest: work.removed_manifest,
+        total: all.len(),
+        in_shard: work.mine.len(),
+        written: work.pending.len(),
+        skipped: work.mine.len() - work.pending.len(),
+        finished,
+        manifest_written,
+        marker,
+        removed_tmp,
+        stray_tmp,
+    })
+}
 
-    // Resume: read every sidecar (refusing foreign ones), verify this shard's
-    // images against theirs (read only).
+/// Refuses files and shared contents another run left in the directory; a
+/// claim made just now is undone, leaving the directory as it was found.
+fn refuse_foreign_or_undo_claim(
+    plan: &Plan,
+    paths: &RunPaths,
+    key: &BlindingKey,
+    all: &[Job],
+    claimed_now: bool,
+) -> Result<(), GenerateError> {
+    let checked = integrity::refuse_foreign_files(plan, paths, all).and_then(|()| {
+        integrity::refuse_other_contents(&paths.private(), &private_shared(plan, key, all))
+    });
+    if checked.is_err() && claimed_now {
+        let _ = std::fs::remove_file(paths.config());
+    }
+    checked
+}
+
+/// This process's share of a run and what is left of it.
+struct Work<'a> {
+    /// The images of this shard.
+    mine: Vec<&'a Job>,
+    /// Those not found finished and verified.
+    pending: Vec<&'a Job>,
+    /// True when a stale manifest was removed.
+    removed_manifest: bool,
+}
+
+/// Resume: reads every sidecar (refusing foreign ones), verifies this
+/// shard's images against theirs (read only), and removes a manifest that
+/// would list an image missing or damaged (other shards' images count as
+/// finished when their sidecar and file exist).
+fn find_pending<'a>(
+    plan: &Plan,
+    paths: &RunPaths,
+    all: &'a [Job],
+    shard: Shard,
+    config_sha256: &str,
+) -> Result<Work<'a>, GenerateError> {
     let sides: Vec<Option<Sidecar>> = all
         .par_iter()
-        .map(|j| integrity::read_sidecar(&paths, j, &config_sha256))
+        .map(|j| integrity::read_sidecar(paths, j, config_sha256))
         .collect::<Result<_, _>>()?;
     let want_model = plan.output().write_model;
-    let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
+    let mine: Vec<&Job> = all.iter().filter(|j| shard.owns(j.order)).collect();
     let done: Vec<bool> = mine
         .par_iter()
         .map(|j| {
             sides[j.order]
                 .as_ref()
-                .is_some_and(|s| verify_files(&paths, j, s, want_model))
+                .is_some_and(|s| verify_files(paths, j, s, want_model))
         })
         .collect();
     let pending: Vec<&Job> = mine
@@ -471,8 +537,6 @@ pub fn generate(
         .filter(|(_, d)| !**d)
         .map(|(j, _)| *j)
         .collect();
-    // A manifest must never list an image that is missing or damaged: other
-    // shards' images count as finished when their sidecar and file exist.
     let unfinished = !pending.is_empty()
         || all
             .iter()
@@ -482,61 +546,101 @@ pub fn generate(
     if removed_manifest {
         std::fs::remove_file(&manifest_path).map_err(|e| IoError::os(&manifest_path, e))?;
     }
-    make_dataset_dirs(&paths, &all)?;
+    Ok(Work {
+        mine,
+        pending,
+        removed_manifest,
+    })
+}
 
-    // PSFs: built once, only those this process needs.
-    let ds = &plan.datasets();
-    let mut psf_needed: Vec<usize> = pending.iter().map(|j| ds[j.dataset as usize].psf).collect();
+/// The PSFs of a process, each built once, and their renderers.
+struct Psfs {
+    /// Renderer of each PSF index built.
+    renderers: BTreeMap<usize, Renderer>,
+    /// (PSF index, PSF) in the order built.
+    built: Vec<(usize, Arc<dyn crate::psf::Psf>)>,
+    /// The detector of every image.
+    det: Detector,
+}
+
+/// Builds the PSFs this process needs: those of its pending images, and
+/// those whose `private/psf/` file is missing (`output.write_psf`).
+fn build_psfs(
+    plan: &Plan,
+    paths: &RunPaths,
+    work: &Work,
+    progress: &(dyn Fn(Event) + Sync),
+) -> Result<Psfs, GenerateError> {
+    let ds = plan.datasets();
+    let mut needed: Vec<usize> = work
+        .pending
+        .iter()
+        .map(|j| ds[j.dataset as usize].psf)
+        .collect();
     if plan.output().write_psf {
-        for j in &mine {
+        for j in &work.mine {
             let p = ds[j.dataset as usize].psf;
             if !paths.psf(&plan.psfs()[p].name).exists() {
-                psf_needed.push(p);
+                needed.push(p);
             }
         }
     }
-    psf_needed.sort_unstable();
-    psf_needed.dedup();
+    needed.sort_unstable();
+    needed.dedup();
     let pixel_scale = plan.pixel_scale_arcsec();
     let det = plan.detector();
-    let mut renderers: BTreeMap<usize, Renderer> = BTreeMap::new();
-    let mut built = Vec::new();
+    let mut out = Psfs {
+        renderers: BTreeMap::new(),
+        built: Vec::new(),
+        det,
+    };
     progress(Event::PsfsStart {
-        total: psf_needed.len(),
+        total: needed.len(),
     });
-    for &p in &psf_needed {
+    for &p in &needed {
         let raw = &plan.psfs()[p];
         let psf = crate::psf::build(&plan.psf_spec(p)).map_err(|source| GenerateError::Psf {
             index: p,
             name: raw.name.clone(),
             source,
         })?;
-        renderers.insert(
-            p,
-            Renderer::new(psf.clone(), pixel_scale, plan.accuracy(), det.sky_sigma_e()),
-        );
-        built.push((p, psf));
+        let renderer = Renderer::new(psf.clone(), pixel_scale, plan.accuracy(), det.sky_sigma_e());
+        out.renderers.insert(p, renderer);
+        out.built.push((p, psf));
         progress(Event::PsfBuilt {
             name: raw.name.clone(),
-            done: built.len(),
-            total: psf_needed.len(),
+            done: out.built.len(),
+            total: needed.len(),
         });
     }
+    Ok(out)
+}
 
-    progress(Event::Start {
-        pending: pending.len(),
-        done: mine.len() - pending.len(),
-    });
-
-    // Field by field: the base field is drawn once for all its images. Within
-    // a field, images are written in the order of their opaque ids (keyed by
-    // the blinding secret), so that no write order follows the datasets.
+/// Makes the pending images field by field: each base field (and its
+/// rotated twin) is drawn once for all the datasets' images of the field.
+/// Within a field, images are written in the order of their opaque ids
+/// (keyed by the blinding secret), so that no write order follows the
+/// datasets. `write_shared` runs once, after the first base field is drawn
+/// (or at the end when nothing is pending).
+fn make_images(
+    plan: &Plan,
+    paths: &RunPaths,
+    pending: &[&Job],
+    psfs: &Psfs,
+    config_sha256: &str,
+    write_shared: impl Fn() -> Result<(), GenerateError>,
+    progress: &(dyn Fn(Event) + Sync),
+) -> Result<(), GenerateError> {
     let mut by_field: BTreeMap<u32, Vec<&Job>> = BTreeMap::new();
-    for j in &pending {
+    for j in pending {
         by_field.entry(j.field).or_default().push(j);
     }
-    let made = Made {
-        config_sha256: &config_sha256,
+    let made = Made { config_sha256 };
+    let cx = pipeline::Context {
+        plan,
+        paths,
+        det: &psfs.det,
+        made: &made,
     };
     let mut shared_written = false;
     for (&field, field_jobs) in &mut by_field {
@@ -544,63 +648,61 @@ pub fn generate(
         let base = crate::population::base_field(plan, field)
             .map_err(|source| GenerateError::Population { field, source })?;
         if !shared_written {
-            write_shared(plan, &paths, &key, &all, options, &built)?;
+            write_shared()?;
             shared_written = true;
         }
-        let twin = if field_jobs.iter().any(|j| j.rotated) {
-            Some(crate::population::rotated(&base))
-        } else {
-            None
-        };
+        let twin = field_jobs
+            .iter()
+            .any(|j| j.rotated)
+            .then(|| crate::population::rotated(&base));
         // At most one image per thread in flight (a thread waiting inside an
         // image's own parallel loop could otherwise steal further images and
         // hold all their buffers at once).
         for chunk in field_jobs.chunks(rayon::current_num_threads().max(1)) {
             chunk.par_iter().try_for_each(|job| {
-                let rows = if job.rotated {
-                    twin.as_deref().expect("twin drawn")
-                } else {
-                    &base
+                let rows = match (&twin, job.rotated) {
+                    (Some(twin), true) => twin,
+                    _ => &base,
                 };
-                let renderer = &renderers[&ds[job.dataset as usize].psf];
-                make_image(plan, &paths, job, rows, renderer, &det, &made)?;
+                let renderer = &psfs.renderers[&plan.datasets()[job.dataset as usize].psf];
+                let mut lap = pipeline::Lap::start(false);
+                let mut times = pipeline::StageTimes::default();
+                pipeline::make_image(&cx, job, rows, renderer, &mut lap, &mut times)?;
                 progress(Event::ImageWritten);
                 Ok::<(), GenerateError>(())
             })?;
         }
     }
     if !shared_written {
-        write_shared(plan, &paths, &key, &all, options, &built)?;
+        write_shared()?;
     }
+    Ok(())
+}
 
-    let (finished, manifest_written, marker) = if options.shard.n > 1 {
-        let marker = write_marker(&paths, options.shard, &mine, &config_sha256)?;
+/// Completion: a shard of several writes its done-marker, a whole run its
+/// manifest when every image is finished; then `public/` gets the run's time
+/// stamp. Returns (images finished, manifest written, marker).
+fn conclude(
+    plan: &Plan,
+    paths: &RunPaths,
+    all: &[Job],
+    mine: &[&Job],
+    shard: Shard,
+    config_sha256: &str,
+) -> Result<(usize, bool, Option<PathBuf>), GenerateError> {
+    let out = if shard.n > 1 {
+        let marker = write_marker(paths, shard, mine, config_sha256)?;
         (
-            count_finished(&paths, &all, &config_sha256)?,
+            count_finished(paths, all, config_sha256)?,
             false,
             Some(marker),
         )
     } else {
-        let (finished, written) = write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+        let (finished, written) = write_manifest_if_complete(plan, paths, all, config_sha256)?;
         (finished, written, None)
     };
     times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
-    let mut stray_tmp = Vec::new();
-    find_tmp(out, &mut stray_tmp);
-    stray_tmp.sort();
-    Ok(Summary {
-        seed: claim.seed,
-        removed_manifest,
-        total: all.len(),
-        in_shard: mine.len(),
-        written: pending.len(),
-        skipped: mine.len() - pending.len(),
-        finished,
-        manifest_written,
-        marker,
-        removed_tmp,
-        stray_tmp,
-    })
+    Ok(out)
 }
 
 /// Writes the done-marker of `shard` (atomically) and returns its path.
@@ -741,8 +843,8 @@ fn marker_names(paths: &RunPaths) -> Result<Vec<String>, IoError> {
 }
 
 /// What made an image's files (recorded in its sidecar).
-struct Made<'a> {
-    config_sha256: &'a str,
+pub(crate) struct Made<'a> {
+    pub(crate) config_sha256: &'a str,
 }
 
 /// Creates `public/<dataset-id>/` for every dataset, in the order of the ids
@@ -783,96 +885,6 @@ fn verify_files(paths: &RunPaths, job: &Job, side: &Sidecar, want_model: bool) -
             (None, false) => true,
             _ => false,
         }
-}
-
-/// Makes one image and its private files; the sidecar is written last.
-fn make_image(
-    plan: &Plan,
-    paths: &RunPaths,
-    job: &Job,
-    base: &[TruthRow],
-    renderer: &Renderer,
-    det: &Detector,
-    made: &Made,
-) -> Result<(), GenerateError> {
-    let d = &plan.datasets()[job.dataset as usize];
-    let (w, h) = (plan.image().width_px, plan.image().height_px);
-    let mut rows = crate::population::sheared(base, d.g1, d.g2);
-    if plan.population().lens_positions {
-        rows = crate::population::lensed(plan, job.field, &rows, d.g1, d.g2);
-    }
-    let model = try_draw_image(renderer, &rows, w, h).map_err(|source| GenerateError::Render {
-        field: job.field,
-        source,
-    })?;
-    let noise_key = plan.output().noise.then(|| job.noise_key(plan.seed()));
-    let pixels = noise::realise(&model, w as usize, det, noise_key);
-    let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
-    let image_path = paths.image(job);
-    write_image_fits(
-        &image_path,
-        &pixels,
-        w,
-        h,
-        &header,
-        plan.output().format,
-        plan.output().compression,
-    )?;
-    drop(pixels);
-    let truth_path = paths.truth(job);
-    let keywords = [
-        (
-            "FIELD".to_string(),
-            f64::from(job.field),
-            "base field".into(),
-        ),
-        (
-            "ROTATED".to_string(),
-            f64::from(u8::from(job.rotated)),
-            "1: 90-degree rotated twin".into(),
-        ),
-        ("PSF_ID".to_string(), d.psf as f64, "index in psfs".into()),
-        ("G1".to_string(), d.g1, "applied reduced shear".into()),
-        ("G2".to_string(), d.g2, "applied reduced shear".into()),
-    ];
-    write_truth_fits(&truth_path, &rows, &keywords)?;
-    let model_sha256 = if plan.output().write_model {
-        let adu: Vec<f32> = model
-            .iter()
-            .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
-            .collect();
-        let path = paths.model(job);
-        write_image_fits(
-            &path,
-            &adu,
-            w,
-            h,
-            &header,
-            SampleFormat::Float32,
-            crate::config::Compression::None,
-        )?;
-        Some(file_sha256(&path)?)
-    } else {
-        None
-    };
-    let side = Sidecar {
-        image: job.image_id.clone(),
-        dataset: job.dataset_id.clone(),
-        file: job.public_file(),
-        sha256: file_sha256(&image_path)?,
-        truth_sha256: file_sha256(&truth_path)?,
-        model_sha256,
-        config_sha256: made.config_sha256.to_string(),
-        output_version: OUTPUT_VERSION,
-    };
-    let text = serde_json::to_string_pretty(&side).expect("sidecar serialises") + "\n";
-    write_bytes_atomically(&paths.sidecar(job), text.as_bytes())?;
-    Ok(())
-}
-
-fn file_sha256(path: &Path) -> Result<String, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
-    Ok(sha256_hex(&bytes))
 }
 
 /// The files every shard writes identically: datasets, blinding key,
@@ -1057,7 +1069,9 @@ fn find_tmp(dir: &Path, out: &mut Vec<PathBuf>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::RawConfig;
+    use crate::config::{RawConfig, SampleFormat};
+    use crate::io::image_fits::{ImageHeader, write_image_fits};
+    use crate::render::try_draw_image;
 
     fn plan(overrides: &[&str]) -> Plan {
         let mut o: Vec<String> = [
@@ -1238,7 +1252,7 @@ mod tests {
         let (w, h) = (p.image().width_px, p.image().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
-        let pixels = noise::realise_reference(&model, w as usize, &det, Some(noise_key));
+        let pixels = crate::noise::realise_reference(&model, w as usize, &det, Some(noise_key));
         let by_hand = dir.path().join("by_hand.fits");
         write_image_fits(
             &by_hand,

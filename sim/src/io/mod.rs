@@ -11,6 +11,7 @@
 pub mod image_fits;
 pub mod psf_fits;
 pub mod skymaker;
+pub mod truth_header;
 
 pub use stepsim_contract::io::{
     IoError, fits, remove_stale_temporaries, temporary_name, temporary_owner, truth,
