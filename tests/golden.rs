@@ -17,7 +17,6 @@ use rand::RngExt;
 use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use stepsim_sim::noise::poisson::{PoissonSampler, poisson_exact};
 use stepsim_sim::seed::{SeedKey, Stream};
 
 mod common;
@@ -108,28 +107,6 @@ fn first_draws_of_every_distribution_are_pinned() {
             &format!("poisson({lambda})"),
             (0..4)
                 .map(|_| format!("{:?}", p.sample(&mut rng)))
-                .collect(),
-        );
-    }
-    // The image noise's own Poisson sampler (docs/noise.md): direct
-    // methods at a faint pixel, a bright one and a bright core, and through
-    // the sky table at the STEP1 sky.
-    for lambda in [0.7, 12.0, 3.0e6] {
-        let mut rng = key(6).rng();
-        line(
-            &format!("noise_poisson({lambda})"),
-            (0..4)
-                .map(|_| format!("{:?}", poisson_exact(lambda, &mut rng)))
-                .collect(),
-        );
-    }
-    let sky = PoissonSampler::new(80_174.6);
-    for lambda in [80_174.6, 80_190.0] {
-        let mut rng = key(7).rng();
-        line(
-            &format!("noise_poisson_sky({lambda})"),
-            (0..4)
-                .map(|_| format!("{:?}", sky.sample(lambda, &mut rng)))
                 .collect(),
         );
     }

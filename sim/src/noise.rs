@@ -21,17 +21,12 @@
 //! slow, obvious sequential twin (one pixel at a time, a fresh distribution
 //! per pixel) that the fast [`realise`] is tested against, bit for bit.
 //!
-//! Photon counts come from [`poisson::PoissonSampler`]: exact Poisson
-//! variates, fast at the sky level (an alias table of Poisson(sky − 1 e⁻)
-//! plus a small exact remainder). Measured statistics are in `docs/noise.md`.
-
-pub mod poisson;
+//! Measured statistics are in `docs/noise.md`.
 
 use crate::config::RawInstrument;
 use crate::seed::{SeedKey, SimRng};
-use poisson::PoissonSampler;
 use rand::RngExt;
-use rand_distr::{Distribution, Normal, StandardNormal};
+use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
 use rayon::prelude::*;
 
 /// Rows per noise block (each block has its own generator). Part of the
@@ -110,36 +105,39 @@ pub fn realise(model_e: &[f32], width: usize, det: &Detector, noise: Option<Seed
     );
     let mut out = vec![0f32; model_e.len()];
     let chunk = BLOCK_ROWS * width;
-    let sampler = noise.map(|_| PoissonSampler::new(det.sky_e_per_px));
     out.par_chunks_mut(chunk)
         .zip(model_e.par_chunks(chunk))
         .enumerate()
-        .for_each(|(block, (dst, src))| match (noise, &sampler) {
-            (Some(key), Some(sampler)) => {
-                noisy_block(dst, src, det, sampler, &mut block_key(key, block).rng())
-            }
-            _ => {
+        .for_each(|(block, (dst, src))| match noise {
+            None => {
                 for (d, &m) in dst.iter_mut().zip(src) {
                     *d = to_adu(expected_e(m, det.sky_e_per_px), det);
                 }
             }
+            Some(key) => noisy_block(dst, src, det, &mut block_key(key, block).rng()),
         });
     out
 }
 
-/// Fast path of one block: one sampler for the image, `e^−(λ − λ₀)` reused
-/// while the remainder repeats (every empty sky pixel has the same mean).
-fn noisy_block(
-    dst: &mut [f32],
-    src: &[f32],
-    det: &Detector,
-    sampler: &PoissonSampler,
-    rng: &mut SimRng,
-) {
-    let mut last = (f64::NAN, 0.0);
+/// Fast path of one block: reuses the Poisson distribution while the mean
+/// stays the same (every empty sky pixel has the same mean).
+fn noisy_block(dst: &mut [f32], src: &[f32], det: &Detector, rng: &mut SimRng) {
+    let mut last: Option<(f64, Poisson<f64>)> = None;
     for (d, &m) in dst.iter_mut().zip(src) {
         let lambda = expected_e(m, det.sky_e_per_px);
-        let mut e = sampler.sample_cached(lambda, &mut last, rng);
+        let mut e = if lambda > 0.0 {
+            let dist = match &last {
+                Some((l, dist)) if *l == lambda => *dist,
+                _ => {
+                    let dist = poisson(lambda);
+                    last = Some((lambda, dist));
+                    dist
+                }
+            };
+            rng.sample(dist)
+        } else {
+            0.0
+        };
         if det.read_noise_e > 0.0 {
             let n: f64 = rng.sample(StandardNormal);
             e += det.read_noise_e * n;
@@ -148,10 +146,15 @@ fn noisy_block(
     }
 }
 
+fn poisson(lambda: f64) -> Poisson<f64> {
+    // λ is finite and > 0 here; beyond MAX_LAMBDA (1.8e19 e⁻, far above any
+    // saturation level) the count is clipped anyway.
+    Poisson::new(lambda.min(Poisson::<f64>::MAX_LAMBDA)).expect("0 < λ ≤ MAX_LAMBDA")
+}
+
 /// The slow, obvious twin of [`realise`]: one thread, blocks in order, pixels
-/// in order, a fresh Poisson sampler and Normal distribution for every
-/// pixel, no cached exponentials. Kept as the reference that [`realise`]
-/// must match bit for bit.
+/// in order, a fresh Poisson and Normal distribution for every pixel. Kept as
+/// the reference that [`realise`] must match bit for bit.
 pub fn realise_reference(
     model_e: &[f32],
     width: usize,
@@ -166,7 +169,11 @@ pub fn realise_reference(
             let e = match rng.as_mut() {
                 None => lambda,
                 Some(rng) => {
-                    let photons = PoissonSampler::new(det.sky_e_per_px).sample(lambda, rng);
+                    let photons = if lambda > 0.0 {
+                        Poisson::new(lambda).unwrap().sample(rng)
+                    } else {
+                        0.0
+                    };
                     let read = if det.read_noise_e > 0.0 {
                         Normal::new(0.0, det.read_noise_e).unwrap().sample(rng)
                     } else {
