@@ -2,32 +2,11 @@
 //! extended syntax (`[1]`, `(2)`, a leading `!`) are read as the files they
 //! name.
 
+mod common;
+
+use common::index;
 use std::path::Path;
 use stepsim_harness::submission::parse_file;
-use stepsim_harness::truth_set::ImageIndex;
-use stepsim_sim::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
-
-fn index() -> ImageIndex {
-    let ds = Datasets {
-        format: DATASETS_FORMAT.into(),
-        width_px: 100,
-        height_px: 80,
-        pixel_scale_arcsec: 0.2,
-        datasets: vec![DatasetEntry {
-            dataset: "dA".into(),
-            psf_id: 0,
-            psf: "none".into(),
-            g1: 0.01,
-            g2: 0.0,
-            images: vec![DatasetImage {
-                image: "imA".into(),
-                field: 0,
-                rotated: false,
-            }],
-        }],
-    };
-    ImageIndex::new(&ds, Path::new("datasets.json")).unwrap()
-}
 
 fn write_table(path: &Path, x: &[f64]) {
     use fitsio::tables::{ColumnDataType, ColumnDescription};

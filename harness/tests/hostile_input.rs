@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{Col, doubles, fits_table, good_table, index, text, zeros};
+use common::{Col, card, doubles, empty_primary, fits_table, good_table, index, pad, text, zeros};
 use std::path::Path;
 use stepsim_harness::submission::{parse_file, read_submission, read_submission_limited};
 
@@ -398,26 +398,7 @@ fn a_fits_file_whose_name_is_not_utf8_is_refused_not_a_panic() {
 /// An ASCII table extension (XTENSION = 'TABLE'), `image_tform` for the
 /// image column.
 fn ascii_table(image_tform: &str) -> Vec<u8> {
-    let card = |o: &mut Vec<u8>, s: &str| {
-        let mut c = s.as_bytes().to_vec();
-        c.resize(80, b' ');
-        o.extend(c);
-    };
-    let pad = |o: &mut Vec<u8>, f: u8| {
-        while o.len() % 2880 != 0 {
-            o.push(f);
-        }
-    };
-    let mut o = Vec::new();
-    for c in [
-        "SIMPLE  =                    T",
-        "BITPIX  =                    8",
-        "NAXIS   =                    0",
-        "END",
-    ] {
-        card(&mut o, c);
-    }
-    pad(&mut o, b' ');
+    let mut o = empty_primary();
     let rows = [
         "imA     1.0     5.0     0.1     0.0     ",
         "imB     2.0     5.0     0.2     0.0     ",

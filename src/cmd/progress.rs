@@ -27,6 +27,26 @@ pub fn images_line(done: usize, total: usize, elapsed: Duration) -> String {
     )
 }
 
+/// "building N PSFs" (singular for one).
+pub fn psfs_message(total: usize) -> String {
+    format!("building {total} PSF{}", if total == 1 { "" } else { "s" })
+}
+
+/// The bar's template once `done` images are written: no time left is
+/// shown before the first image is finished (indicatif's estimate would
+/// read "eta 0s" from no rate at all).
+pub fn bar_template(done: u64) -> &'static str {
+    if done == 0 {
+        "{spinner} {pos}/{len} images [{elapsed_precise}, estimating time left] {wide_bar}"
+    } else {
+        "{spinner} {pos}/{len} images [{elapsed_precise}, eta {eta}] {wide_bar}"
+    }
+}
+
+fn bar_style(done: u64) -> indicatif::ProgressStyle {
+    indicatif::ProgressStyle::with_template(bar_template(done)).expect("valid template")
+}
+
 /// Tells the user about events, on a bar or in log lines.
 pub struct Progress {
     bar: Option<indicatif::ProgressBar>,
@@ -71,13 +91,10 @@ impl Progress {
         let mut st = self.state.lock().unwrap_or_else(|p| p.into_inner());
         match (e, &self.bar) {
             (Event::PsfsStart { total }, Some(bar)) if total > 0 => {
-                bar.set_message(format!("building {total} PSFs"));
+                bar.set_message(psfs_message(total));
             }
             (Event::PsfsStart { total }, None) if total > 0 => {
-                eprintln!(
-                    "stepsim: building {total} PSF{}",
-                    if total == 1 { "" } else { "s" }
-                );
+                eprintln!("stepsim: {}", psfs_message(total));
             }
             (Event::PsfsStart { .. }, _) => {}
             (Event::PsfBuilt { name, done, total }, Some(bar)) => {
@@ -92,12 +109,7 @@ impl Progress {
                 st.images_started = Instant::now();
                 st.last_line = st.images_started;
                 if let Some(bar) = bar {
-                    bar.set_style(
-                        indicatif::ProgressStyle::with_template(
-                            "{spinner} {pos}/{len} images [{elapsed_precise}, eta {eta}] {wide_bar}",
-                        )
-                        .expect("valid template"),
-                    );
+                    bar.set_style(bar_style(0));
                     bar.set_length(pending as u64);
                     // The time spent on PSFs is not the images' rate.
                     bar.reset();
@@ -107,6 +119,9 @@ impl Progress {
             }
             (Event::ImageWritten, Some(bar)) => {
                 st.written += 1;
+                if st.written == 1 {
+                    bar.set_style(bar_style(1));
+                }
                 bar.inc(1);
             }
             (Event::ImageWritten, None) => {
@@ -135,6 +150,15 @@ impl Progress {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_bar_shows_no_time_left_before_the_first_image_and_one_psf_is_singular() {
+        assert!(!bar_template(0).contains("{eta}"));
+        assert!(bar_template(0).contains("estimating time left"));
+        assert!(bar_template(1).contains("eta {eta}"));
+        assert_eq!(psfs_message(1), "building 1 PSF");
+        assert_eq!(psfs_message(6), "building 6 PSFs");
+    }
 
     #[test]
     fn image_lines_give_share_elapsed_and_time_left_from_the_rate() {

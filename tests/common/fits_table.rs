@@ -55,25 +55,23 @@ pub fn zeros(name: &'static str, tform: &str, width: usize, n: usize) -> Col {
     }
 }
 
-fn card(out: &mut Vec<u8>, s: &str) {
+/// Appends one 80-character header card.
+pub fn card(out: &mut Vec<u8>, s: &str) {
     let mut c = s.as_bytes().to_vec();
     c.resize(80, b' ');
     out.extend(c);
 }
 
-fn pad(out: &mut Vec<u8>, fill: u8) {
+/// Pads to the next 2880-byte block with `fill` (blanks after a header,
+/// zeros after binary data).
+pub fn pad(out: &mut Vec<u8>, fill: u8) {
     while out.len() % 2880 != 0 {
         out.push(fill);
     }
 }
 
-/// A FITS file: an empty primary HDU and one BINTABLE extension.
-pub fn fits_table(cols: &[Col]) -> Vec<u8> {
-    let n = cols.first().map_or(0, |c| c.rows.len());
-    let width: usize = cols
-        .iter()
-        .map(|c| c.rows.first().map_or(0, Vec::len))
-        .sum();
+/// An empty primary HDU, the start of every table file.
+pub fn empty_primary() -> Vec<u8> {
     let mut out = Vec::new();
     for c in [
         "SIMPLE  =                    T",
@@ -85,6 +83,17 @@ pub fn fits_table(cols: &[Col]) -> Vec<u8> {
         card(&mut out, c);
     }
     pad(&mut out, b' ');
+    out
+}
+
+/// A FITS file: an empty primary HDU and one BINTABLE extension.
+pub fn fits_table(cols: &[Col]) -> Vec<u8> {
+    let n = cols.first().map_or(0, |c| c.rows.len());
+    let width: usize = cols
+        .iter()
+        .map(|c| c.rows.first().map_or(0, Vec::len))
+        .sum();
+    let mut out = empty_primary();
     card(&mut out, "XTENSION= 'BINTABLE'");
     card(&mut out, "BITPIX  =                    8");
     card(&mut out, "NAXIS   =                    2");
