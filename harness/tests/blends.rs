@@ -17,7 +17,6 @@ use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 use stepsim_harness::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
-use stepsim_sim::config::RawConfig;
 use stepsim_sim::plan::Plan;
 use stepsim_sim::population::{base_field, lensed, rotated, sheared};
 use stepsim_sim::render::{Accuracy, Renderer, Stamp, draw_image};
@@ -44,8 +43,8 @@ fn plan(n_fields: u32) -> Plan {
         "psfs=[{\"name\":\"g\",\"model\":\"gaussian\",\"fwhm_arcsec\":0.9}]".into(),
     ]
     .into();
-    let raw = RawConfig::parse("{}", Path::new("blends.json"), &o).unwrap();
-    Plan::new(raw, Path::new("blends.json")).unwrap()
+    let o: Vec<&str> = o.iter().map(String::as_str).collect();
+    Plan::from_json("{}", Path::new("blends.json"), &o).unwrap()
 }
 
 /// χ1 of the adaptive moments in the window about (x, y) (FITS pixels) of

@@ -19,7 +19,7 @@ fn main() {
     );
     let p = plan.pixel_scale_arcsec();
     let det = plan.detector();
-    let coma = stepsim_sim::psf::build(&plan.psf_spec(1)).unwrap();
+    let coma = plan.psf(1).unwrap();
     let split_of_coma = Renderer::new(coma.clone(), p, plan.accuracy(), det.sky_sigma_e());
     let split = split_of_coma.split().expect("default method splits");
     println!(

@@ -27,11 +27,11 @@ use crate::io::IoError;
 use crate::io::psf_fits::read_psf_fits;
 use crate::io::skymaker::{ListError, ListObject, read_list};
 use crate::noise::{Detector, sky_e_per_pixel};
-use crate::psf::{PsfFileImage, PsfSpec};
+use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
 use crate::render::Accuracy;
 use crate::wcs::TanWcs;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// Why a config could not become a plan.
 #[derive(Debug, thiserror::Error)]
@@ -100,6 +100,9 @@ pub struct Plan {
     lists: Option<Arc<Vec<Vec<ListObject>>>>,
     /// One entry per PSF: the file's image for `fits` models.
     psf_images: Vec<Option<Arc<PsfFileImage>>>,
+    /// One slot per PSF, filled the first time [`Plan::psf`] builds it;
+    /// shared by the plan's clones.
+    psfs: Arc<Vec<OnceLock<Arc<dyn Psf>>>>,
 }
 
 impl Plan {
@@ -175,6 +178,7 @@ impl Plan {
             datasets,
             seed_origin,
             lists,
+            psfs: Arc::new(psf_images.iter().map(|_| OnceLock::new()).collect()),
             psf_images,
         })
     }
@@ -350,6 +354,19 @@ impl Plan {
         }
     }
 
+    /// PSF `index`, built from [`Plan::psf_spec`] the first time it is asked
+    /// for and then handed out again: the plan owns its PSFs, so a process
+    /// builds each once (two threads asking at once may both build it; the
+    /// first kept is handed out, and both are the same PSF).
+    pub fn psf(&self, index: usize) -> Result<Arc<dyn Psf>, PsfError> {
+        let slot = &self.psfs[index];
+        if let Some(p) = slot.get() {
+            return Ok(p.clone());
+        }
+        let built = crate::psf::build(&self.psf_spec(index))?;
+        Ok(slot.get_or_init(|| built).clone())
+    }
+
     /// [`Plan::psf_spec`] of every PSF, in config order.
     pub fn psf_specs(&self) -> Vec<PsfSpec> {
         (0..self.config.psfs.len())
@@ -425,6 +442,32 @@ mod tests {
         assert_eq!(plan.datasets()[7].psf, 1);
         assert_eq!(plan.datasets()[7].shear, 2);
         assert_eq!(plan.datasets()[7].g1, 0.01);
+    }
+
+    #[test]
+    fn the_plan_owns_its_psfs_and_nothing_else_caches_them() {
+        let plan = Plan::from_json(
+            "{}",
+            Path::new("t.json"),
+            &[r#"psfs=[{"name":"g","model":"gaussian","fwhm_arcsec":0.9},{"name":"m","model":"moffat","fwhm_arcsec":0.8,"beta":3.0}]"#],
+        )
+        .unwrap();
+        let a = plan.psf(1).unwrap();
+        // Asked again, or by a clone of the plan: the same PSF, not a rebuild.
+        assert!(Arc::ptr_eq(&a, &plan.psf(1).unwrap()));
+        assert!(Arc::ptr_eq(&a, &plan.with_seed(7).psf(1).unwrap()));
+        assert!(!Arc::ptr_eq(&a, &plan.psf(0).unwrap()));
+        // No hidden process-wide cache: building from the spec makes a new
+        // PSF each time (equal in value).
+        let (b, c) = (
+            crate::psf::build(&plan.psf_spec(1)).unwrap(),
+            crate::psf::build(&plan.psf_spec(1)).unwrap(),
+        );
+        assert!(!Arc::ptr_eq(&b, &c) && !Arc::ptr_eq(&a, &b));
+        assert_eq!(format!("{b:?}"), format!("{c:?}"));
+        // Another plan of the same config owns its own.
+        let other = Plan::from_json("{}", Path::new("t.json"), &[r#"psfs=[{"name":"g","model":"gaussian","fwhm_arcsec":0.9},{"name":"m","model":"moffat","fwhm_arcsec":0.8,"beta":3.0}]"#]).unwrap();
+        assert!(!Arc::ptr_eq(&a, &other.psf(1).unwrap()));
     }
 
     #[test]

@@ -85,7 +85,7 @@ pub fn write_psf_set(
     let one = |index: usize| -> Result<DonePsf, ProductError> {
         let start = std::time::Instant::now();
         let name = &plan.psfs()[index].name;
-        let built = psf::build(&plan.psf_spec(index))?;
+        let built = plan.psf(index)?;
         let report = psf::report(name, built.as_ref(), p)?;
         on_built(&report, start.elapsed().as_secs_f64());
         let n = options

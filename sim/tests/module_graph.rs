@@ -289,3 +289,74 @@ fn paths_are_read_from_code_not_from_prose() {
     let found: Vec<String> = crate_paths(&code).into_iter().collect();
     assert_eq!(found, ["config", "io", "plan", "seed", "wcs"]);
 }
+
+/// The modules of sim that may touch files: the edges of ARCHITECTURE.md's
+/// invariant ("sim does no file I/O in its numerical core").
+const FILE_EDGES: [&str; 5] = ["io", "generate", "config", "products", "disk"];
+
+/// What in code reads or writes files (or the file system's tree).
+const FILE_IO: [&str; 6] = ["std::fs", "fs::", "File::", "fitsio", "OpenOptions", "read_dir"];
+
+/// The file-I/O words in the non-test code of `source` (everything from the
+/// first `#[cfg(test)]` on is test code, as is a file named `tests.rs`).
+fn file_io_in(source: &str) -> Vec<&'static str> {
+    let code = code_only(source);
+    let code = code.split("#[cfg(test)]").next().unwrap_or("");
+    FILE_IO.into_iter().filter(|w| code.contains(w)).collect()
+}
+
+/// "file: words" for each file of sim's sources outside `edges` whose
+/// non-test code touches files.
+fn file_io_outside(edges: &[&str]) -> (usize, Vec<String>) {
+    let src = sim_src();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut offenders = Vec::new();
+    let mut checked = 0;
+    for f in &files {
+        let rel = f.strip_prefix(&src).unwrap();
+        let top = rel.components().next().unwrap().as_os_str().to_string_lossy();
+        let top = top.trim_end_matches(".rs");
+        if edges.contains(&top) || f.file_name().is_some_and(|n| n == "tests.rs") {
+            continue;
+        }
+        checked += 1;
+        let found = file_io_in(&std::fs::read_to_string(f).unwrap());
+        if !found.is_empty() {
+            offenders.push(format!("{} uses {found:?}", rel.display()));
+        }
+    }
+    (checked, offenders)
+}
+
+#[test]
+fn only_the_edge_modules_touch_files() {
+    let (checked, offenders) = file_io_outside(&FILE_EDGES);
+    assert!(checked > 20, "{checked} files checked");
+    assert!(
+        offenders.is_empty(),
+        "file I/O outside sim's edge modules {FILE_EDGES:?}:\n{}",
+        offenders.join("\n")
+    );
+    // The check sees the edges' own I/O when they are not excused.
+    let (_, io) = file_io_outside(&["generate", "config", "products", "disk"]);
+    assert!(io.iter().any(|o| o.starts_with("io")), "{io:?}");
+}
+
+#[test]
+fn the_file_io_check_sees_code_and_not_prose_or_tests() {
+    assert_eq!(
+        file_io_in("fn f() { let t = std::fs::read(p); }"),
+        ["std::fs", "fs::"]
+    );
+    assert_eq!(
+        file_io_in("fn f() { fitsio::FitsFile::open(p); }"),
+        ["File::", "fitsio"]
+    );
+    assert!(file_io_in("//! reads no file: std::fs is for io/\nfn f() {}").is_empty());
+    assert!(file_io_in("fn f() { let s = \"std::fs\"; }").is_empty());
+    assert!(
+        file_io_in("fn f() {}\n#[cfg(test)]\nmod tests { fn g() { std::fs::write(p, b); } }")
+            .is_empty()
+    );
+}

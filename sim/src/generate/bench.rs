@@ -57,7 +57,7 @@ pub fn run_once(
 
     let det = plan.detector();
     let psf =
-        crate::psf::build(&plan.psf_spec(psf_index)).map_err(|source| GenerateError::Psf {
+        plan.psf(psf_index).map_err(|source| GenerateError::Psf {
             index: psf_index,
             name: plan.psfs()[psf_index].name.clone(),
             source,

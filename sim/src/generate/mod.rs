@@ -599,7 +599,7 @@ fn build_psfs(
     });
     for &p in &needed {
         let raw = &plan.psfs()[p];
-        let psf = crate::psf::build(&plan.psf_spec(p)).map_err(|source| GenerateError::Psf {
+        let psf = plan.psf(p).map_err(|source| GenerateError::Psf {
             index: p,
             name: raw.name.clone(),
             source,
@@ -1247,7 +1247,7 @@ mod tests {
         );
         let scale = p.pixel_scale_arcsec();
         let det = p.detector();
-        let psf = crate::psf::build(&p.psf_spec(1)).unwrap();
+        let psf = p.psf(1).unwrap();
         let r = Renderer::new(psf, scale, p.accuracy(), det.sky_sigma_e());
         let (w, h) = (p.image().width_px, p.image().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();

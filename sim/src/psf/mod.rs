@@ -39,8 +39,7 @@ pub use sampled::SampledPsf;
 
 use crate::config::{Aberration, RawPsf, RawPsfModel, RawTelescope};
 use num_complex::Complex32;
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::Arc;
 
 /// Frequency grid of an `n × n` stamp with pixel scale `pixel_scale_arcsec`,
 /// in the half-plane layout of a real 2-D FFT: `n` rows (v index) of
@@ -265,28 +264,15 @@ impl PsfSpec {
     }
 }
 
-/// Builds the PSF of `spec` (default accuracy). Results are cached per
-/// process, keyed by the inputs, so asking again for the same PSF is free.
+/// Builds the PSF of `spec` (default accuracy). Nothing is cached here: a
+/// run's PSFs are owned, built once, by its plan (`Plan::psf`).
 pub fn build(spec: &PsfSpec) -> Result<Arc<dyn Psf>, PsfError> {
     build_with(spec, &PsfAccuracy::default())
 }
 
-type Cache = Mutex<HashMap<String, Arc<dyn Psf>>>;
-
 /// [`build`] with explicit accuracy settings.
 pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
-    static CACHE: OnceLock<Cache> = OnceLock::new();
-    let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-    let key = format!("{spec:?}|{accuracy:?}");
-    if let Some(p) = cache.lock().expect("psf build cache").get(&key) {
-        return Ok(p.clone());
-    }
-    let built = build_uncached(spec, accuracy)?;
-    cache
-        .lock()
-        .expect("psf build cache")
-        .insert(key, built.clone());
-    Ok(built)
+    build_uncached(spec, accuracy)
 }
 
 fn build_uncached(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
