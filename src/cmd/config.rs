@@ -16,12 +16,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     println!("{}", super::as_given(&plan).to_json());
     eprintln!(
-        "stepsim: {}: {} PSFs × {} shears = {} datasets of {} images each",
+        "stepsim: {}: {} PSFs × {} shears = {} datasets of {} base fields each",
         args.config.config.display(),
         plan.raw.psfs.len(),
         plan.raw.shears.len(),
         plan.datasets.len(),
-        plan.n_fields()
+        plan.datasets[0].fields.len()
     );
     match plan.seed_origin {
         SeedOrigin::Config => eprintln!(

@@ -12,11 +12,13 @@
 //! be (`--set image.n_images=4`, `--set run.name="x"`) and taken as a string
 //! otherwise (`--set run.name=x`).
 
+mod challenge;
 mod image;
 mod population;
 mod psf;
 mod render;
 
+pub use challenge::{Part, RawChallenge};
 pub use image::{RawImage, RawInstrument, RawTelescope};
 pub use population::{
     Cosmology, Flattening, GalaxyType, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Sizes,
@@ -25,6 +27,7 @@ pub use population::{
 pub use psf::{Aberration, RawPsf, RawPsfModel};
 pub use render::{Compression, RawOutput, RawRender, RenderMethod, SampleFormat};
 
+use crate::seed::{SeedKey, Stream};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -133,6 +136,10 @@ pub struct RawConfig {
     pub render: RawRender,
     /// What gets written.
     pub output: RawOutput,
+    /// The held-out part of a challenge run (left out of the resolved
+    /// config when it is the default, so older runs keep their bytes).
+    #[serde(skip_serializing_if = "RawChallenge::is_default")]
+    pub challenge: RawChallenge,
 }
 
 impl Default for RawConfig {
@@ -147,6 +154,7 @@ impl Default for RawConfig {
             shears: RawShear::step1_set(),
             render: RawRender::default(),
             output: RawOutput::default(),
+            challenge: RawChallenge::default(),
         }
     }
 }
@@ -234,7 +242,7 @@ impl RawConfig {
                 column: e.column(),
                 message: strip_position(&e.to_string()),
             })?;
-        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        let defaults = shape_defaults();
         check_shape(&value, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
             path: path.into(),
             line: line_of_key(text, &key),
@@ -259,7 +267,7 @@ impl RawConfig {
         for arg in overrides {
             apply_override(&mut tree, arg)?;
         }
-        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        let defaults = shape_defaults();
         check_shape(&tree, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
             path: PathBuf::from("--set"),
             key,
@@ -278,6 +286,19 @@ impl RawConfig {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("config serialises")
     }
+}
+
+/// The default config as a JSON tree, with every section present (also
+/// those left out of the resolved config when default), for [`check_shape`].
+fn shape_defaults() -> serde_json::Value {
+    let mut tree = serde_json::to_value(RawConfig::default()).expect("config serialises");
+    if let serde_json::Value::Object(map) = &mut tree {
+        map.insert(
+            "challenge".into(),
+            serde_json::to_value(RawChallenge::default()).expect("config serialises"),
+        );
+    }
+    tree
 }
 
 /// Finds where `value` holds something other than an object where the
@@ -397,15 +418,22 @@ pub fn apply_override(tree: &mut serde_json::Value, arg: &str) -> Result<(), Con
     unreachable!("loop returns on the last part")
 }
 
-/// One dataset: a PSF and a shear. Its index `id` is stable: `psf * n_shears + shear`.
+/// One dataset: a PSF and a shear. Its index `id` is stable: `psf * n_shears + shear`
+/// for the public part; held-out datasets (a `challenge` section) follow as
+/// `n_psfs * n_shears + psf * n_shears + slot`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dataset {
     /// Index in [`Plan::datasets`].
     pub index: u32,
     /// Index of the PSF in [`RawConfig::psfs`].
     pub psf: usize,
-    /// Index of the shear in [`RawConfig::shears`].
+    /// Index of the shear in [`RawConfig::shears`] (for a held-out dataset:
+    /// its slot, 0..n_shears; its shear is drawn, not configured).
     pub shear: usize,
+    /// Which part of the challenge it belongs to.
+    pub part: Part,
+    /// Its base fields, ascending (every field unless the run holds some out).
+    pub fields: Vec<u32>,
     /// Applied g1.
     pub g1: f64,
     /// Applied g2.
@@ -442,6 +470,9 @@ impl Plan {
         raw.population.validate().map_err(|(k, m)| invalid(&k, m))?;
         raw.render.validate().map_err(|(k, m)| invalid(&k, m))?;
         raw.output.validate().map_err(|(k, m)| invalid(&k, m))?;
+        raw.challenge
+            .validate(raw.image.n_images)
+            .map_err(|(k, m)| invalid(&k, m))?;
         if raw.psfs.is_empty() {
             return Err(invalid("psfs", "at least one PSF is needed".into()));
         }
@@ -475,17 +506,7 @@ impl Plan {
                 SeedOrigin::Drawn
             }
         };
-        let n_shears = raw.shears.len();
-        let datasets = (0..raw.psfs.len())
-            .flat_map(|p| (0..n_shears).map(move |s| (p, s)))
-            .map(|(psf, shear)| Dataset {
-                index: (psf * n_shears + shear) as u32,
-                psf,
-                shear,
-                g1: raw.shears[shear].g1,
-                g2: raw.shears[shear].g2,
-            })
-            .collect();
+        let datasets = challenge_datasets(&raw);
         Ok(Self {
             raw,
             source: source.into(),
@@ -499,6 +520,7 @@ impl Plan {
     pub fn with_seed(&self, seed: u64) -> Self {
         let mut p = self.clone();
         p.raw.run.seed = Some(seed);
+        p.datasets = challenge_datasets(&p.raw);
         p
     }
 
@@ -512,10 +534,91 @@ impl Plan {
         self.raw.image.n_images
     }
 
+    /// Number of images in the run (every dataset's fields, twins included).
+    pub fn n_images_in_run(&self) -> u64 {
+        let twins = 1 + u64::from(self.raw.population.rotated_pairs);
+        self.datasets
+            .iter()
+            .map(|d| d.fields.len() as u64)
+            .sum::<u64>()
+            * twins
+    }
+
     /// Master seed ([`Plan::new`] always sets one).
     pub fn seed(&self) -> u64 {
         self.raw.run.seed.unwrap_or_default()
     }
+}
+
+/// The datasets of a validated config with its seed set: PSF × shear on
+/// the public fields, then (with `challenge.holdout_fields`) PSF × slot on
+/// the held-out fields with drawn shears.
+fn challenge_datasets(raw: &RawConfig) -> Vec<Dataset> {
+    let seed = raw.run.seed.unwrap_or_default();
+    let n_fields = raw.image.n_images;
+    let n_shears = raw.shears.len();
+    let n_psfs = raw.psfs.len();
+    let held = holdout_fields(seed, n_fields, raw.challenge.holdout_fields);
+    let public: Vec<u32> = (0..n_fields).filter(|f| !held.contains(f)).collect();
+    let pairs = || (0..n_psfs).flat_map(move |p| (0..n_shears).map(move |s| (p, s)));
+    let mut out: Vec<Dataset> = pairs()
+        .map(|(psf, shear)| Dataset {
+            index: (psf * n_shears + shear) as u32,
+            psf,
+            shear,
+            part: Part::Public,
+            fields: public.clone(),
+            g1: raw.shears[shear].g1,
+            g2: raw.shears[shear].g2,
+        })
+        .collect();
+    if !held.is_empty() {
+        let g_max = raw.challenge.holdout_g_max;
+        out.extend(pairs().map(|(psf, slot)| {
+            let index = (n_psfs * n_shears + psf * n_shears + slot) as u32;
+            let (g1, g2) = holdout_shear(seed, index, g_max);
+            Dataset {
+                index,
+                psf,
+                shear: slot,
+                part: Part::Holdout,
+                fields: held.clone(),
+                g1,
+                g2,
+            }
+        }));
+    }
+    out
+}
+
+/// The base fields held out: `n_held` of `0..n_fields`, chosen by a keyed
+/// order (stream [`Stream::Holdout`] per field), not by position, so that
+/// nothing about a field's index tells its part. Ascending.
+pub fn holdout_fields(seed: u64, n_fields: u32, n_held: u32) -> Vec<u32> {
+    let mut order: Vec<(u64, u32)> = (0..n_fields)
+        .map(|f| (SeedKey::base(seed, f, Stream::Holdout).seed(), f))
+        .collect();
+    order.sort_unstable();
+    let mut held: Vec<u32> = order
+        .into_iter()
+        .take(n_held as usize)
+        .map(|(_, f)| f)
+        .collect();
+    held.sort_unstable();
+    held
+}
+
+/// The shear of held-out dataset `index`: uniform in the disc |g| ≤ `g_max`
+/// (radius g_max·√u, angle 2πv), from the keyed stream
+/// `SeedKey::image(seed, 0, index, Stream::Holdout)`.
+pub fn holdout_shear(seed: u64, index: u32, g_max: f64) -> (f64, f64) {
+    use rand::RngExt;
+    let mut rng = SeedKey::image(seed, 0, index, Stream::Holdout).rng();
+    let u: f64 = rng.random();
+    let v: f64 = rng.random();
+    let r = g_max * u.sqrt();
+    let phi = std::f64::consts::TAU * v;
+    (r * phi.cos(), r * phi.sin())
 }
 
 /// The sky alone must stay below the clip level, or every pixel of every

@@ -28,7 +28,8 @@ pub fn participants_readme(plan: &Plan, submission_format: &str) -> String {
     let ins = &r.instrument;
     let img = &r.image;
     let det = Detector::new(ins, img.pixel_scale_arcsec);
-    let n_per = plan.n_fields() * if r.population.rotated_pairs { 2 } else { 1 };
+    let n_per =
+        plan.datasets[0].fields.len() as u32 * if r.population.rotated_pairs { 2 } else { 1 };
     let magzero = ins.zp_eff() - 2.5 * ins.gain_e_per_adu.log10();
     let pixels = match (r.output.format, r.output.compression) {
         (SampleFormat::Float32, _) => "32-bit floats (BITPIX −32)".to_string(),
