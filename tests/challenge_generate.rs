@@ -5,7 +5,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Command, Output};
-use stepsim_sim::config::{Part, Plan, RawConfig, holdout_fields, holdout_shear};
+use stepsim_sim::config::{Part, RawConfig};
+use stepsim_sim::plan::{Plan, holdout_fields, holdout_shear};
 
 fn stepsim(args: &[&str], dir: &Path) -> Output {
     let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
@@ -247,9 +248,9 @@ fn a_plan_splits_fields_and_adopting_a_seed_redraws_the_split() {
     raw.challenge.holdout_fields = 3;
     raw.run.seed = Some(5);
     let plan = Plan::new(raw, Path::new("t.json")).unwrap();
-    assert_eq!(plan.datasets.len(), 60);
+    assert_eq!(plan.datasets().len(), 60);
     assert_eq!(plan.n_images_in_run(), 60 * 3, "no twins by default");
-    let held = &plan.datasets[30];
+    let held = &plan.datasets()[30];
     assert_eq!(
         (held.part, held.index, held.psf, held.shear),
         (Part::Holdout, 30, 0, 0)
@@ -257,14 +258,14 @@ fn a_plan_splits_fields_and_adopting_a_seed_redraws_the_split() {
     assert_eq!(held.fields, holdout_fields(5, 6, 3));
     assert_eq!((held.g1, held.g2), holdout_shear(5, 30, 0.1));
     assert!(
-        plan.datasets[..30]
+        plan.datasets()[..30]
             .iter()
             .all(|d| d.part == Part::Public && d.fields.len() == 3)
     );
     let other = plan.with_seed(6);
-    assert_eq!(other.datasets[30].fields, holdout_fields(6, 6, 3));
+    assert_eq!(other.datasets()[30].fields, holdout_fields(6, 6, 3));
     assert_eq!(
-        (other.datasets[30].g1, other.datasets[30].g2),
+        (other.datasets()[30].g1, other.datasets()[30].g2),
         holdout_shear(6, 30, 0.1)
     );
 }

@@ -1,7 +1,7 @@
 //! Every preset in configs/ loads, validates and describes what its name says.
 
 use std::path::Path;
-use stepsim_sim::config::Plan;
+use stepsim_sim::plan::Plan;
 
 fn load(name: &str) -> Plan {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -35,7 +35,7 @@ fn the_step1_presets_carry_no_seed() {
         let raw = stepsim_sim::config::RawConfig::load(&path, &[]).unwrap();
         assert_eq!(raw.run.seed, None, "{name}");
         assert_eq!(
-            load(name).seed_origin,
+            load(name).seed_origin(),
             stepsim_sim::config::SeedOrigin::Drawn
         );
     }
@@ -44,34 +44,31 @@ fn the_step1_presets_carry_no_seed() {
 #[test]
 fn step1_is_the_paper_design() {
     let p = load("step1.json");
-    let r = &p.raw;
-    assert_eq!(
-        (r.image.width_px, r.image.height_px, r.image.n_images),
-        (4096, 4096, 64)
-    );
-    assert_eq!(r.image.pixel_scale_arcsec, 0.206);
-    assert_eq!(r.psfs.len(), 6);
-    let g1: Vec<f64> = r.shears.iter().map(|s| s.g1).collect();
+    let im = p.image();
+    assert_eq!((im.width_px, im.height_px, im.n_images), (4096, 4096, 64));
+    assert_eq!(im.pixel_scale_arcsec, 0.206);
+    assert_eq!(p.psfs().len(), 6);
+    let g1: Vec<f64> = p.shears().iter().map(|s| s.g1).collect();
     assert_eq!(g1, [0.0, 0.005, 0.01, 0.05, 0.1]);
-    assert!(r.shears.iter().all(|s| s.g2 == 0.0));
-    assert_eq!(p.datasets.len(), 30);
-    assert_eq!(r.instrument.sky_mag_arcsec2, 19.2);
+    assert!(p.shears().iter().all(|s| s.g2 == 0.0));
+    assert_eq!(p.datasets().len(), 30);
+    assert_eq!(p.instrument().sky_mag_arcsec2, 19.2);
     // STEP1 sheared shapes only: positions are not lensed (κ = 0).
-    assert!(!r.population.lens_positions);
-    assert!(!load("step1-mini.json").raw.population.lens_positions);
+    assert!(!p.population().lens_positions);
+    assert!(!load("step1-mini.json").population().lens_positions);
 }
 
 #[test]
 fn mini_has_the_same_datasets_on_small_images() {
     let full = load("step1.json");
     let mini = load("step1-mini.json");
-    assert_eq!(mini.datasets, full.datasets);
-    assert_eq!(mini.raw.psfs, full.raw.psfs);
+    assert_eq!(mini.datasets(), full.datasets());
+    assert_eq!(mini.psfs(), full.psfs());
     assert_eq!(
         (
-            mini.raw.image.width_px,
-            mini.raw.image.height_px,
-            mini.raw.image.n_images
+            mini.image().width_px,
+            mini.image().height_px,
+            mini.image().n_images
         ),
         (1024, 1024, 2)
     );

@@ -15,7 +15,7 @@ use crate::metrics::{DatasetMeta, ImageStats, score_tables, score_tables_with};
 use crate::report::{BootstrapCi, Summary};
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
-use stepsim_sim::seed::{SimRng, splitmix64};
+use stepsim_contract::seed::{SimRng, splitmix64};
 
 /// Default number of resamples.
 pub const DEFAULT_RESAMPLES: usize = 200;
@@ -97,12 +97,98 @@ pub fn bootstrap(
         sigma_c_selc: ci(|s| s.sigma_c_selc),
         m_weight_mean: ci(|s| s.m_weight_mean),
         q_c: ci(|s| s.q_c),
+        m_isolated_mean: ci(|s| s.m_isolated_mean),
+        sigma_c_isolated: ci(|s| s.sigma_c_isolated),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+    use crate::synthetic::{SynthSpec, make_run};
+    use std::collections::HashSet;
+
+    /// Isolated galaxies measured with m = `M_ISO` and c1 = (p − 1)·10⁻³
+    /// on PSF p, galaxies with a bright neighbour with m = −0.2; with
+    /// `noise` each galaxy's own sheared ellipticity is measured (shape
+    /// noise), else the applied shear itself. Returns the bootstrap
+    /// intervals, the full-data summary and the mean m_isolated error.
+    fn isolated_case(noise: bool, n_fields: u32) -> (BootstrapCi, Summary, f64) {
+        let mut spec = SynthSpec::small(n_fields);
+        spec.shape_noise = noise;
+        spec.psfs.truncate(3);
+        let run = make_run(&spec);
+        let r_px = ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let mut iso = HashSet::new();
+        for t in &run.truth {
+            for (row, ok) in t.iter().zip(isolated(t, r_px, ISOLATION_FLUX_FRACTION)) {
+                if ok {
+                    iso.insert((row.x.to_bits(), row.y.to_bits()));
+                }
+            }
+        }
+        let ds = run.datasets.datasets.clone();
+        let rows = run.submission(&|t, d| {
+            let e = if noise {
+                (t.e1, t.e2)
+            } else {
+                (ds[d].g1, ds[d].g2)
+            };
+            let c1 = (f64::from(ds[d].psf_id) - 1.0) * 1e-3;
+            if t.is_star() {
+                None
+            } else if iso.contains(&(t.x.to_bits(), t.y.to_bits())) {
+                Some(((1.0 + M_ISO) * e.0 + c1, (1.0 + M_ISO) * e.1, 1.0))
+            } else {
+                Some((0.8 * e.0, 0.8 * e.1, 1.0))
+            }
+        });
+        let (meta, stats) = (run.meta(), run.stats(&rows, 1.0));
+        let full = crate::metrics::score_tables(&meta, &stats, 1.0);
+        let err = full
+            .psfs
+            .iter()
+            .map(|p| p.m_isolated_err.unwrap())
+            .sum::<f64>()
+            / full.psfs.len() as f64;
+        (bootstrap(&meta, &stats, 1.0, 200, 7), full.summary, err)
+    }
+
+    const M_ISO: f64 = 0.03;
+
+    #[test]
+    fn isolated_galaxy_intervals_hold_the_known_answer() {
+        // Without shape noise every resample measures the isolated
+        // galaxies' m and the spread of their c exactly.
+        let (ci, s, _) = isolated_case(false, 6);
+        // Pooled {c1, c2} = {−1, 0, 1}·10⁻³ and three zeros.
+        let sigma_c = (2e-6_f64 / 6.0).sqrt();
+        let [lo, hi] = ci.m_isolated_mean.unwrap();
+        assert!(
+            (lo - M_ISO).abs() < 1e-9 && (hi - M_ISO).abs() < 1e-9,
+            "[{lo}, {hi}]"
+        );
+        let [lo, hi] = ci.sigma_c_isolated.unwrap();
+        assert!(
+            (lo - sigma_c).abs() < 1e-9 && (hi - sigma_c).abs() < 1e-9,
+            "[{lo}, {hi}]"
+        );
+        assert!((s.sigma_c_isolated.unwrap() - sigma_c).abs() < 1e-12);
+        // The paper's m mixes in the blends: its interval is elsewhere.
+        assert!(ci.m_mean.unwrap()[1] < 0.0, "{:?}", ci.m_mean);
+        // With shape noise the interval holds the truth and is as wide as
+        // the paired errors say (±1.96σ).
+        let (ci, s, err) = isolated_case(true, 24);
+        let [lo, hi] = ci.m_isolated_mean.unwrap();
+        assert!(lo < M_ISO && M_ISO < hi, "[{lo}, {hi}]");
+        assert!(lo < s.m_isolated_mean.unwrap() && s.m_isolated_mean.unwrap() < hi);
+        let half = (hi - lo) / 2.0;
+        assert!(
+            half > 0.5 * 1.96 * err && half < 2.0 * 1.96 * err,
+            "half-width {half} vs 1.96 × {err}"
+        );
+    }
 
     #[test]
     fn percentile_interval_uses_nearest_rank() {

@@ -4,7 +4,7 @@
 
 use std::fmt;
 use std::path::PathBuf;
-use stepsim_sim::io::IoError;
+use stepsim_contract::io::IoError;
 
 /// Where in a submission a problem sits.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -19,48 +19,6 @@ pub struct PolyFit {
     pub err: Vec<Option<f64>>,
 }
 
-/// Solves the symmetric positive system M a = b and returns (a, M⁻¹) by
-/// Gauss–Jordan elimination with partial pivoting; `None` when singular.
-fn solve_inverse(m: &[Vec<f64>], b: &[f64]) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
-    let p = b.len();
-    let mut a: Vec<Vec<f64>> = (0..p)
-        .map(|i| {
-            let mut row = m[i].clone();
-            row.extend((0..p).map(|j| if i == j { 1.0 } else { 0.0 }));
-            row.push(b[i]);
-            row
-        })
-        .collect();
-    // Singularity is judged per column, relative to its own diagonal: the
-    // weights of different points may span many decades.
-    let diag: Vec<f64> = (0..p).map(|i| m[i][i].abs()).collect();
-    for col in 0..p {
-        let piv = (col..p).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if a[piv][col].abs() <= diag[col] * 1e-13 || !a[piv][col].is_finite() {
-            return None;
-        }
-        a.swap(col, piv);
-        let d = a[col][col];
-        for v in a[col].iter_mut() {
-            *v /= d;
-        }
-        for r in 0..p {
-            if r != col {
-                let f = a[r][col];
-                if f != 0.0 {
-                    let pivot_row = a[col].clone();
-                    for (v, pv) in a[r].iter_mut().zip(&pivot_row) {
-                        *v -= f * pv;
-                    }
-                }
-            }
-        }
-    }
-    let sol = a.iter().map(|r| r[2 * p]).collect();
-    let inv = a.iter().map(|r| r[p..2 * p].to_vec()).collect();
-    Some((sol, inv))
-}
-
 /// Fits y = Σ_{k<p} a_k x^k by weighted least squares with per-point errors
 /// `sigma` (see the module doc for the error rule). `None` when there are
 /// fewer points than parameters or the design is singular.
@@ -93,7 +51,8 @@ pub fn fit_poly(x: &[f64], y: &[f64], sigma: &[Option<f64>], p: usize) -> Option
             }
         }
     }
-    let (coef, inv) = solve_inverse(&m, &b)?;
+    let flat: Vec<f64> = m.concat();
+    let (coef, inv) = stepsim_numerics::linalg::solve_spd_with_inverse(&flat, &b)?;
     let s2 = if weighted {
         Some(1.0)
     } else if n > p {
@@ -108,7 +67,7 @@ pub fn fit_poly(x: &[f64], y: &[f64], sigma: &[Option<f64>], p: usize) -> Option
         None
     };
     let err = (0..p)
-        .map(|k| s2.map(|s2| (s2 * inv[k][k]).max(0.0).sqrt()))
+        .map(|k| s2.map(|s2| (s2 * inv[k * p + k]).max(0.0).sqrt()))
         .collect();
     Some(PolyFit { coef, err })
 }

@@ -9,7 +9,7 @@
 //! [`isolated`] sweeps the objects sorted by x; [`isolated_brute`] is its
 //! slow, obvious reference.
 
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::truth::TruthRow;
 
 /// Default radius within which a neighbour counts (arcsec).
 pub const ISOLATION_RADIUS_ARCSEC: f64 = 3.0;
@@ -66,8 +66,8 @@ pub fn isolated(truth: &[TruthRow], radius_px: f64, fraction: f64) -> Vec<bool> 
 mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
-    use stepsim_sim::seed::SimRng;
-    use stepsim_sim::truth::{KIND_GALAXY, KIND_STAR};
+    use stepsim_contract::seed::SimRng;
+    use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR};
 
     fn row(x: f64, y: f64, mag: f64, kind: i32) -> TruthRow {
         TruthRow {

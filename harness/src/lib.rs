@@ -46,6 +46,6 @@ pub use error::HarnessError;
 pub use pipeline::{ScoreOptions, score, write_outputs};
 pub use report::Report;
 
-/// How to submit and what the score means, in Markdown: shown by
-/// `stepsim score --help` and meant for the participants' README.
-pub const SUBMISSION_FORMAT_MD: &str = include_str!("submission_format.md");
+/// How to submit and what the score means, in Markdown (the one copy lives
+/// in `stepsim-contract`).
+pub use stepsim_contract::SUBMISSION_FORMAT_MD;

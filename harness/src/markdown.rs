@@ -218,6 +218,24 @@ pub fn report_markdown(r: &Report) -> String {
             pm(p.c2_isolated, p.c2_isolated_err, 5)
         );
     }
+    let iso_ci = |v: Option<[f64; 2]>, d: usize| match (&r.summary.bootstrap, v) {
+        (Some(b), Some([lo, hi])) => format!(
+            " ({:.0} % interval [{}, {}])",
+            100.0 * b.confidence,
+            fixed(lo, d),
+            fixed(hi, d)
+        ),
+        _ => String::new(),
+    };
+    let b = r.summary.bootstrap.as_ref();
+    let _ = writeln!(
+        o,
+        "\n⟨m_isolated⟩ = {}{}; σ_c of the isolated galaxies = {}{}.",
+        num(r.summary.m_isolated_mean, 4),
+        iso_ci(b.and_then(|b| b.m_isolated_mean), 4),
+        num(r.summary.sigma_c_isolated, 5),
+        iso_ci(b.and_then(|b| b.sigma_c_isolated), 5)
+    );
     let _ = writeln!(
         o,
         "\n## Table 4: number density, contamination, signal-to-noise\n"
@@ -330,6 +348,8 @@ mod tests {
             sigma_c_selc: None,
             m_weight_mean: None,
             q_c: None,
+            m_isolated_mean: None,
+            sigma_c_isolated: None,
         });
         for d in &mut r.datasets {
             d.n_images = 2;
@@ -347,6 +367,42 @@ mod tests {
             d.n_images = FEW_BASE_FIELDS;
         }
         assert!(!report_markdown(&r).contains("Caveat"));
+    }
+
+    #[test]
+    fn isolated_galaxy_figures_carry_their_bootstrap_intervals() {
+        let mut r: Report =
+            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+        r.summary.m_isolated_mean = Some(-0.0123);
+        r.summary.sigma_c_isolated = Some(0.00234);
+        let without = report_markdown(&r);
+        assert!(
+            without.contains("⟨m_isolated⟩ = -0.0123; σ_c of the isolated galaxies = 0.00234."),
+            "{without}"
+        );
+        r.summary.bootstrap = Some(crate::report::BootstrapCi {
+            n_resamples: 200,
+            seed: 1,
+            confidence: 0.95,
+            m_mean: None,
+            q_mean: None,
+            sigma_c: None,
+            m_uncontaminated_mean: None,
+            m_selc_mean: None,
+            sigma_c_selc: None,
+            m_weight_mean: None,
+            q_c: None,
+            m_isolated_mean: Some([-0.05, 0.02]),
+            sigma_c_isolated: Some([0.001, 0.004]),
+        });
+        let md = report_markdown(&r);
+        assert!(
+            md.contains(
+                "⟨m_isolated⟩ = -0.0123 (95 % interval [-0.0500, 0.0200]); \
+                 σ_c of the isolated galaxies = 0.00234 (95 % interval [0.00100, 0.00400])."
+            ),
+            "{md}"
+        );
     }
 
     #[test]

@@ -114,7 +114,7 @@ pub fn match_nearest(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) 
 mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
-    use stepsim_sim::seed::SimRng;
+    use stepsim_contract::seed::SimRng;
 
     #[test]
     fn grid_matcher_equals_brute_force_on_random_fields() {

@@ -12,8 +12,8 @@ use crate::isolation::ISOLATION_FLUX_FRACTION;
 use crate::matching::match_nearest;
 use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
 use crate::submission::SubRow;
-use stepsim_sim::run_layout::Datasets;
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::run_layout::Datasets;
+use stepsim_contract::truth::TruthRow;
 
 /// Edges of the true-magnitude bins (I, Vega); the outer bins are open.
 pub const MAG_EDGES: [f64; 8] = [
@@ -705,6 +705,7 @@ pub fn summarize(psfs: &[PsfReport]) -> Summary {
         sigma_c_selc: pooled(|p| p.c1_selc, |p| p.c2_selc),
         m_weight_mean: mean_of(psfs.iter().map(|p| p.m_weight)),
         m_isolated_mean: mean_of(psfs.iter().map(|p| p.m_isolated)),
+        sigma_c_isolated: pooled(|p| p.c1_isolated, |p| p.c2_isolated),
         q_c: q_c(psfs),
         pct_chance_match: None,
         bootstrap: None,

@@ -16,8 +16,8 @@ use crate::pipeline::{Prepared, ScoreOptions, build_report, match_images, prepar
 use crate::report::{Report, Summary};
 use crate::truth_set::{ImageIndex, TruthSet};
 use serde::{Deserialize, Serialize};
-use stepsim_sim::run_layout::Datasets;
-pub use stepsim_sim::run_layout::Part;
+use stepsim_contract::run_layout::Datasets;
+pub use stepsim_contract::run_layout::Part;
 
 /// The datasets of `part` in a run's `datasets.json` (in file order).
 pub fn part_datasets(datasets: &Datasets, part: Part) -> Datasets {

@@ -249,7 +249,7 @@ pub fn write_outputs(
     files.push((json_path, json.into_bytes()));
     let mut written = Vec::new();
     for (path, bytes) in files {
-        stepsim_sim::io::write_bytes_atomically(&path, &bytes)?;
+        stepsim_contract::io::write_bytes_atomically(&path, &bytes)?;
         written.push(path);
     }
     Ok(written)

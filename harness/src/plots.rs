@@ -1,11 +1,11 @@
 //! Plots like the paper's Figures 2–5, written by our own small plotter as
 //! SVG (with titles, axis labels and tick labels); the PNG is that same SVG
-//! rasterised with its text by [`stepsim_sim::io::png::svg_to_png`] (resvg
+//! rasterised with its text by [`stepsim_figure::png::svg_to_png`] (resvg
 //! and a bundled font: no system font is needed, CI installs nothing).
 
 use crate::report::Report;
 use std::fmt::Write as _;
-use stepsim_sim::picture::xml_escape;
+use stepsim_figure::picture::xml_escape;
 
 /// Palette: white, black, light grey, blue, red, green, orange, mid grey.
 pub const PALETTE: [[u8; 3]; 8] = [
@@ -169,13 +169,19 @@ impl Frame {
 impl Figure {
     /// Image size in pixels.
     pub fn size(&self) -> (usize, usize) {
-        let cols = self.cols.max(1);
+        let cols = self.columns();
         let rows = self.charts.len().div_ceil(cols).max(1);
         (cols * self.panel_px.0, rows * self.panel_px.1)
     }
 
+    /// Columns used: at most `cols`, and no more than there are charts (an
+    /// empty column left a blank third of Fig. 2 for two PSFs).
+    fn columns(&self) -> usize {
+        self.cols.clamp(1, self.charts.len().max(1))
+    }
+
     fn frames(&self) -> Vec<Frame> {
-        let cols = self.cols.max(1);
+        let cols = self.columns();
         self.charts
             .iter()
             .enumerate()
@@ -320,9 +326,9 @@ impl Figure {
 
     /// The figure as PNG: the very SVG of [`Figure::to_svg`] rasterised,
     /// titles, labels and tick values included (resvg with the bundled
-    /// DejaVu Sans; see [`stepsim_sim::io::png`]).
-    pub fn to_png(&self) -> Result<Vec<u8>, stepsim_sim::io::png::SvgError> {
-        stepsim_sim::io::png::svg_to_png(&self.to_svg())
+    /// DejaVu Sans; see [`stepsim_figure::png`]).
+    pub fn to_png(&self) -> Result<Vec<u8>, stepsim_figure::png::SvgError> {
+        stepsim_figure::png::svg_to_png(&self.to_svg())
     }
 }
 
@@ -450,7 +456,7 @@ pub fn fig3(reports: &[&Report]) -> Figure {
         cols: 1,
         panel_px: (520, 400),
         charts: vec![Chart {
-            title: "calibration bias ⟨m⟩ against PSF residual σc".into(),
+            title: "calibration bias ⟨m⟩ against PSF residual σc (shaded: |⟨m⟩| < 7 %)".into(),
             x_label: "σc".into(),
             y_label: "⟨m⟩".into(),
             items,
@@ -478,7 +484,7 @@ pub fn fig4(r: &Report) -> Figure {
         panel_px: (520, 400),
         charts: vec![Chart {
             title: format!("{}: selection bias against uncontaminated m", r.submission),
-            x_label: "m uncontaminated".into(),
+            x_label: "m uncontaminated (blue: per PSF, red: mean, grey: 1:1)".into(),
             y_label: "m selc".into(),
             items: vec![
                 Item::Line {
@@ -530,7 +536,10 @@ pub fn fig5(r: &Report) -> Figure {
         cols: 1,
         panel_px: (520, 400),
         charts: vec![Chart {
-            title: format!("{}: shear residual against magnitude", r.submission),
+            title: format!(
+                "{}: shear residual against magnitude (dashed: all)",
+                r.submission
+            ),
             x_label: "I magnitude (true)".into(),
             y_label: "γ1 − γ1 true".into(),
             items,
@@ -541,7 +550,7 @@ pub fn fig5(r: &Report) -> Figure {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stepsim_sim::io::png::decode;
+    use stepsim_figure::png::decode;
 
     #[test]
     fn ticks_are_round_and_cover_the_range() {
@@ -579,6 +588,26 @@ mod tests {
             tick_labels(&ticks(0.0, 1.0)),
             ["0", "0.2", "0.4", "0.6", "0.8", "1.0"]
         );
+    }
+
+    #[test]
+    fn a_figure_has_no_empty_columns() {
+        let chart = |t: &str| Chart {
+            title: t.into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            items: vec![],
+        };
+        let fig = |n: usize| Figure {
+            cols: 3,
+            panel_px: (420, 320),
+            charts: (0..n).map(|i| chart(&i.to_string())).collect(),
+        };
+        // Two PSFs: two panels wide, not three with a blank one.
+        assert_eq!(fig(2).size(), (840, 320));
+        assert_eq!(fig(3).size(), (1260, 320));
+        assert_eq!(fig(4).size(), (1260, 640));
+        assert_eq!(fig(0).size(), (420, 320));
     }
 
     #[test]
@@ -640,8 +669,8 @@ mod tests {
         bare.push_str(rest);
         assert!(svg.matches("<text").count() >= 8, "title, labels, ticks");
         let with = decode(&fig.to_png().unwrap()).unwrap();
-        let without = decode(&stepsim_sim::io::png::svg_to_png(&bare).unwrap()).unwrap();
-        let dark = |d: &stepsim_sim::io::png::Decoded, y0: usize, y1: usize| {
+        let without = decode(&stepsim_figure::png::svg_to_png(&bare).unwrap()).unwrap();
+        let dark = |d: &stepsim_figure::png::Decoded, y0: usize, y1: usize| {
             (y0..y1)
                 .flat_map(|y| (0..d.width).map(move |x| (x, y)))
                 .filter(|&(x, y)| d.pixel(x, y)[0] < 100)

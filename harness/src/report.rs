@@ -184,6 +184,9 @@ pub struct Summary {
     /// ⟨m_isolated⟩.
     #[serde(default)]
     pub m_isolated_mean: Option<f64>,
+    /// Population std of the pooled {c1_isolated(p), c2_isolated(p)}.
+    #[serde(default)]
+    pub sigma_c_isolated: Option<f64>,
     /// GREAT3-style quality factor Q_c.
     pub q_c: Option<f64>,
     /// Mean over datasets of `pct_chance_match`.
@@ -219,6 +222,13 @@ pub struct BootstrapCi {
     pub m_weight_mean: Option<[f64; 2]>,
     /// See `m_mean`.
     pub q_c: Option<[f64; 2]>,
+    /// See `m_mean` (isolated galaxies; absent from reports written before
+    /// the key existed).
+    #[serde(default)]
+    pub m_isolated_mean: Option<[f64; 2]>,
+    /// See `m_isolated_mean`.
+    #[serde(default)]
+    pub sigma_c_isolated: Option<[f64; 2]>,
 }
 
 /// Residuals in bins of a true galaxy property.

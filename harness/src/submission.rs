@@ -10,9 +10,11 @@
 //! * **Whitespace ASCII**: the first non-blank line is the header, `#`
 //!   followed by the column names (`# image x y e1 e2 weight`); later lines
 //!   starting with `#` are comments; fields are separated by blanks or tabs.
-//! * **CSV**: the first non-blank line is a comma-separated header
-//!   (`image,x,y,e1,e2,weight`; a leading `#` is tolerated); fields may be
-//!   wrapped in double quotes; no embedded commas.
+//! * **CSV** (read with the `csv` crate, one record per line): the first
+//!   non-blank line is a comma-separated header (`image,x,y,e1,e2,weight`;
+//!   a leading `#` is tolerated); blanks around fields are ignored; fields
+//!   may be wrapped in double quotes, and a quoted field may hold commas
+//!   (`"a,b"`) and doubled quotes (`""` for `"`), but not line breaks.
 //!
 //! Text is UTF-8 (a leading byte-order mark is skipped); lines end with LF,
 //! CR LF or a lone CR.
@@ -102,10 +104,7 @@ pub struct FileRows {
     pub uncompressed_bytes: u64,
 }
 
-/// Largest |e1| or |e2| accepted. A shear estimate beyond it can only be a
-/// failed measurement; refusing it keeps every sum of the metrics finite and
-/// every printed number short.
-pub const MAX_ABS_SHEAR: f64 = 1e6;
+pub use stepsim_contract::MAX_ABS_SHEAR;
 
 /// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`].
 pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, HarnessError> {
@@ -509,7 +508,8 @@ fn parse_text(
 ) -> Result<FileRows, HarnessError> {
     let mut header: Option<(Layout, usize, bool)> = None; // layout, n columns, csv?
     let mut rows = Vec::new();
-    let mut fields: Vec<&str> = Vec::new();
+    let mut record = csv::StringRecord::new();
+    let csv_reader = csv_line_reader();
     if bytes.starts_with(&[0xff, 0xfe]) || bytes.starts_with(&[0xfe, 0xff]) {
         return Err(HarnessError::submission(
             path,
@@ -557,9 +557,8 @@ fn parse_text(
                 ));
             }
             let names: Vec<String> = if csv {
-                body.split(',')
-                    .map(|s| unquote(s.trim()).to_owned())
-                    .collect()
+                csv_fields(&csv_reader, body, &mut record);
+                record.iter().map(|s| unquote(s).to_owned()).collect()
             } else {
                 body.split_whitespace().map(str::to_owned).collect()
             };
@@ -570,12 +569,12 @@ fn parse_text(
         if !*csv && text.starts_with('#') {
             continue;
         }
-        fields.clear();
-        if *csv {
-            fields.extend(text.split(',').map(|s| unquote(s.trim())));
+        let fields: Vec<&str> = if *csv {
+            csv_fields(&csv_reader, text, &mut record);
+            record.iter().map(unquote).collect()
         } else {
-            fields.extend(text.split_whitespace());
-        }
+            text.split_whitespace().collect()
+        };
         if fields.len() != *ncol {
             return Err(HarnessError::submission(
                 path,
@@ -643,6 +642,30 @@ impl<'a> Iterator for Lines<'a> {
     }
 }
 
+/// The `csv` crate's reader for one line of a CSV submission: no header,
+/// any number of fields (counted by the caller, who names the line), each
+/// trimmed of blanks; a field in double quotes may hold commas, and `""`
+/// inside it stands for one quote.
+fn csv_line_reader() -> csv::ReaderBuilder {
+    let mut b = csv::ReaderBuilder::new();
+    b.has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .buffer_capacity(256);
+    b
+}
+
+/// Reads the fields of one CSV line into `record` (none when the line
+/// holds no record).
+fn csv_fields(reader: &csv::ReaderBuilder, line: &str, record: &mut csv::StringRecord) {
+    let mut rd = reader.from_reader(line.as_bytes());
+    if !matches!(rd.read_record(record), Ok(true)) {
+        record.clear();
+    }
+}
+
+/// A field still wrapped in double quotes after the CSV reader (quotes
+/// after leading blanks are not CSV quotes) loses them, as it always has.
 fn unquote(s: &str) -> &str {
     s.strip_prefix('"')
         .and_then(|t| t.strip_suffix('"'))
@@ -664,7 +687,7 @@ fn parse_fits(
             "the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
         ));
     }
-    let f = stepsim_sim::io::fits::open_fits(path)?;
+    let f = stepsim_contract::io::fits::open_fits(path)?;
     let mut t = Table::first_table(f, path, data.len() as u64)?;
     let names: Vec<String> = t.columns.iter().map(|c| c.name.clone()).collect();
     let lay = layout(path, None, &names, fixed)?;

@@ -14,9 +14,9 @@ use crate::submission::SubRow;
 use crate::truth_set::ImageIndex;
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
-use stepsim_sim::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
-use stepsim_sim::seed::{SimRng, splitmix64};
-use stepsim_sim::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
+use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
+use stepsim_contract::seed::{SimRng, splitmix64};
+use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
 
 /// What to build.
 #[derive(Debug, Clone)]
@@ -271,11 +271,11 @@ impl SynthRun {
     /// `RUN/private`).
     pub fn write(&self, dir: &Path) -> Result<(), HarnessError> {
         let json = serde_json::to_string_pretty(&self.datasets).unwrap_or_default();
-        stepsim_sim::io::write_bytes_atomically(&dir.join("datasets.json"), json.as_bytes())?;
+        stepsim_contract::io::write_bytes_atomically(&dir.join("datasets.json"), json.as_bytes())?;
         let index = self.index();
         for (info, rows) in index.images.iter().zip(&self.truth) {
             let path = dir.join("truth").join(format!("{}.fits", info.image));
-            stepsim_sim::io::truth::write_truth_fits(&path, rows, &[])?;
+            stepsim_contract::io::truth::write_truth_fits(&path, rows, &[])?;
         }
         Ok(())
     }

@@ -5,8 +5,8 @@ use crate::error::HarnessError;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use stepsim_sim::run_layout::{DATASETS_FORMAT, Datasets};
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::run_layout::{DATASETS_FORMAT, Datasets};
+use stepsim_contract::truth::TruthRow;
 
 /// One image of the run, flattened out of the datasets (dataset order, then
 /// the order of `images` in `datasets.json`).
@@ -151,18 +151,18 @@ pub const SCORING_COLUMNS: [&str; 8] = [
 
 /// Reads only the [`SCORING_COLUMNS`] of a truth table (the other fields of
 /// each row stay at their default). About 3.5 × faster than
-/// `stepsim_sim::io::truth::read_truth_fits` on a 32-column table, whose
+/// `stepsim_contract::io::truth::read_truth_fits` on a 32-column table, whose
 /// complete rows the scoring does not need. Errors name the file and column.
 pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> {
-    use stepsim_sim::io::IoError;
-    use stepsim_sim::io::truth::TRUTH_EXTNAME;
+    use stepsim_contract::io::IoError;
+    use stepsim_contract::io::truth::TRUTH_EXTNAME;
     let fe = |e: fitsio::errors::Error| {
         HarnessError::from(IoError::format(
             path,
             crate::fits_table::fitsio_sentence(&e),
         ))
     };
-    let mut f = stepsim_sim::io::fits::open_fits(path)?;
+    let mut f = stepsim_contract::io::fits::open_fits(path)?;
     let hdu = f.hdu(TRUTH_EXTNAME).map_err(fe)?;
     let col = |f: &mut fitsio::FitsFile, name: &str| -> Result<Vec<f64>, HarnessError> {
         hdu.read_col(f, name).map_err(|e| {
@@ -252,7 +252,7 @@ mod tests {
                 ..Default::default()
             })
             .collect();
-        stepsim_sim::io::truth::write_truth_fits(&p, &rows, &[]).unwrap();
+        stepsim_contract::io::truth::write_truth_fits(&p, &rows, &[]).unwrap();
         let got = read_scoring_columns(&p).unwrap();
         for (a, b) in got.iter().zip(&rows) {
             assert_eq!(

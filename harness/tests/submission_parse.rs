@@ -49,6 +49,39 @@ fn csv_with_quotes_crlf_and_default_weight() {
     assert!(fr.ignored_columns.is_empty());
 }
 
+#[test]
+fn csv_quoted_fields_may_hold_commas_and_quotes() {
+    let idx = index();
+    let text = "image,x,y,e1,e2,\"note, free text\"\n\
+                \"imA\",1,2,0.1,0.2,\"near a star, blended\"\n\
+                imB, 3 ,4,0,0,\"say \"\"hi\"\", twice\"\n";
+    let fr = parse_file(Path::new("s.csv"), text.as_bytes(), &idx, None).unwrap();
+    assert_eq!(fr.rows.len(), 2);
+    assert_eq!(
+        (fr.rows[0].0, fr.rows[0].1.x, fr.rows[0].1.e2),
+        (0, 1.0, 0.2)
+    );
+    assert_eq!(
+        (fr.rows[1].0, fr.rows[1].1.x, fr.rows[1].1.line),
+        (1, 3.0, 3)
+    );
+    assert_eq!(fr.ignored_columns, ["note, free text"]);
+    // A comma inside quotes is one field: a number with a decimal comma is
+    // refused as a number, naming line and column.
+    let err = parse_file(
+        Path::new("s.csv"),
+        b"image,x,y,e1,e2\nimA,\"1,5\",2,0,0\n",
+        &idx,
+        None,
+    )
+    .unwrap_err()
+    .to_string();
+    assert_eq!(
+        err, "s.csv: line 2, column `x`: cannot read `1,5` as a number",
+        "{err}"
+    );
+}
+
 fn write_fits(path: &Path, images: &[&str], x: &[f64], e1: &[f64]) {
     use fitsio::tables::{ColumnDataType, ColumnDescription};
     let _ = std::fs::remove_file(path);

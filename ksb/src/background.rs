@@ -10,7 +10,7 @@
 
 use crate::image::Image;
 use rayon::prelude::*;
-use stepsim_sim::stats::median;
+use stepsim_numerics::stats::median;
 
 /// The background of an image.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,7 +151,7 @@ impl Background {
 mod tests {
     use super::*;
     use crate::draw::{add_sky_and_noise, covariance, draw_gaussian_sampled};
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]
     fn recovers_sky_and_noise_under_sources() {

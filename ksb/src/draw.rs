@@ -3,19 +3,21 @@
 //!
 //! Shapes follow SPEC §1: an elliptical Gaussian of geometric-mean width σ
 //! and ellipticity e (eq. 1 type, |e| = (1−β)/(1+β)) has covariance
-//! C = σ² A_e⁻², where A_e = (1−|e|²)^(−1/2) [[1−e₁, −e₂], [−e₂, 1+e₁]] maps
-//! the ellipse onto a circle; a shear g maps C to A_g⁻¹ C A_g⁻ᵀ.
+//! C = σ² A_e⁻², where A_e is the shear matrix of
+//! [`stepsim_contract::shear::shear_matrix`] at g = e (it maps the ellipse
+//! onto a circle); a shear g maps C to A_g⁻¹ C A_g⁻ᵀ. Both take A⁻¹ from
+//! [`stepsim_contract::shear::inverse_shear_matrix`].
 
 use crate::image::Image;
 use crate::linalg::{Mat2, mul};
 use rand::RngExt;
-use stepsim_sim::seed::SeedKey;
+use stepsim_contract::seed::SeedKey;
+use stepsim_contract::shear::inverse_shear_matrix;
 
 /// Covariance (pixels²) of an elliptical Gaussian of geometric-mean σ (px)
 /// and eq. 1 ellipticity `e`.
 pub fn covariance(sigma: f64, e: [f64; 2]) -> Mat2 {
-    let n = (1.0 - e[0] * e[0] - e[1] * e[1]).sqrt();
-    let ainv = [[(1.0 + e[0]) / n, e[1] / n], [e[1] / n, (1.0 - e[0]) / n]];
+    let ainv = inverse_shear_matrix(e[0], e[1]);
     let m = mul(&ainv, &ainv);
     [
         [sigma * sigma * m[0][0], sigma * sigma * m[0][1]],
@@ -25,8 +27,7 @@ pub fn covariance(sigma: f64, e: [f64; 2]) -> Mat2 {
 
 /// The covariance of the object sheared by reduced shear `g` (SPEC §1).
 pub fn shear_covariance(cov: &Mat2, g: [f64; 2]) -> Mat2 {
-    let n = (1.0 - g[0] * g[0] - g[1] * g[1]).sqrt();
-    let ainv = [[(1.0 + g[0]) / n, g[1] / n], [g[1] / n, (1.0 - g[0]) / n]];
+    let ainv = inverse_shear_matrix(g[0], g[1]);
     mul(&mul(&ainv, cov), &ainv)
 }
 
@@ -119,7 +120,7 @@ pub fn add_sky_and_noise(img: &mut Image, sky_e: f64, read_noise_e: f64, key: Se
 }
 
 /// Uniform random number in `[lo, hi)` (helper for synthetic scenes).
-pub fn uniform(rng: &mut stepsim_sim::seed::SimRng, lo: f64, hi: f64) -> f64 {
+pub fn uniform(rng: &mut stepsim_contract::seed::SimRng, lo: f64, hi: f64) -> f64 {
     lo + (hi - lo) * rng.random::<f64>()
 }
 
@@ -245,7 +246,7 @@ pub struct SceneObject {
 
 /// Draws the scene: returns its objects and the image (electrons, sky in).
 pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
-    use stepsim_sim::seed::Stream;
+    use stepsim_contract::seed::Stream;
     let mut rng = SeedKey::base(spec.seed, 0, Stream::Test).rng();
     let (w, h) = (spec.width as f64, spec.height as f64);
     let mut objects = Vec::new();
@@ -338,7 +339,7 @@ pub fn write_public_run(
     dir: &std::path::Path,
     images: &[(&str, &str, &Image)],
 ) -> Result<(), crate::KsbError> {
-    use stepsim_sim::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
+    use stepsim_contract::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
     let gain: f64 = 4.0;
     let mut entries = Vec::new();
     for (dataset, id, img) in images {
@@ -372,6 +373,6 @@ pub fn write_public_run(
         images: entries,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
-    stepsim_sim::io::write_bytes_atomically(&dir.join("manifest.json"), text.as_bytes())?;
+    stepsim_contract::io::write_bytes_atomically(&dir.join("manifest.json"), text.as_bytes())?;
     Ok(())
 }

@@ -17,7 +17,7 @@ pub enum KsbError {
     },
     /// File-level I/O problem (names the file).
     #[error(transparent)]
-    Io(#[from] stepsim_sim::io::IoError),
+    Io(#[from] stepsim_contract::io::IoError),
     /// The manifest does not parse or does not describe the images.
     #[error("{path}: {message}")]
     Manifest {

@@ -147,7 +147,7 @@ pub fn smooth_reference(img: &Image, sigma: f64) -> Image {
 mod tests {
     use super::*;
     use rand::RngExt;
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]
     fn separable_smoothing_equals_direct_convolution() {

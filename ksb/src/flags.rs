@@ -12,7 +12,7 @@
 //! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |
 //! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `min_sn` |
 //! | 8 | 256 | `PGAMMA` | ½Tr P^γ < `min_pgamma` |
-//! | 9 | 512 | `BIG_SHEAR` | |γ̂| ≥ `max_shear` |
+//! | 9 | 512 | `BIG_SHEAR` | |γ̂| ≥ `max_shear` (written as 0 beyond the submission range, `stepsim_contract::MAX_ABS_SHEAR`) |
 //! | 10 | 1024 | `NO_PSF` | too few stars for a PSF model on this image |
 
 /// Footprint on the border or window beyond the image.

@@ -5,10 +5,10 @@ use crate::image::Image;
 use crate::pipeline::MeasuredObject;
 use std::fmt::Write as _;
 use std::path::Path;
-use stepsim_sim::io::fits::{Primary, create_fits, finish_fits};
-use stepsim_sim::io::image_fits::read_image_fits;
-use stepsim_sim::io::{IoError, write_atomically};
-use stepsim_sim::run_layout::{MANIFEST_FORMAT, Manifest};
+use stepsim_contract::io::fits::{Primary, create_fits, finish_fits};
+use stepsim_contract::io::image::read_image_fits;
+use stepsim_contract::io::{IoError, write_atomically};
+use stepsim_contract::run_layout::{MANIFEST_FORMAT, Manifest};
 
 /// Reads and checks `manifest.json`.
 pub fn read_manifest(path: &Path) -> Result<Manifest, KsbError> {

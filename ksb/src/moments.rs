@@ -408,7 +408,7 @@ mod tests {
     use super::*;
     use crate::draw::{covariance, draw_gaussian_sampled, shear_covariance};
     use rand::RngExt;
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol

@@ -300,16 +300,7 @@ pub fn measure_image_with(
         if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
             o.flags |= flags::PGAMMA;
         }
-        let g = est.gamma;
-        if g[0].is_finite() && g[1].is_finite() {
-            o.e1 = g[0];
-            o.e2 = g[1];
-            if g[0].hypot(g[1]) >= params.max_shear {
-                o.flags |= flags::BIG_SHEAR;
-            }
-        } else {
-            o.flags |= flags::MOMENTS;
-        }
+        set_shear(o, est.gamma, params.max_shear);
         if o.flags == 0 {
             o.weight = weight(est.sigma_gamma, params.sigma_int);
         }
@@ -398,13 +389,31 @@ fn flag_close_pairs(cands: &mut [Candidate], d: f64) {
     }
 }
 
+/// Puts a shear estimate into a row: a non-finite one flags `MOMENTS`; one
+/// with |γ̂| ≥ `max_shear` flags `BIG_SHEAR`; one beyond what a submission
+/// may carry ([`stepsim_contract::MAX_ABS_SHEAR`]) is also written as 0, so
+/// that `stepsim score` reads every catalogue `measure` writes.
+fn set_shear(o: &mut MeasuredObject, g: [f64; 2], max_shear: f64) {
+    if !(g[0].is_finite() && g[1].is_finite()) {
+        o.flags |= flags::MOMENTS;
+        return;
+    }
+    if g[0].hypot(g[1]) >= max_shear {
+        o.flags |= flags::BIG_SHEAR;
+    }
+    if g[0].abs().max(g[1].abs()) <= stepsim_contract::MAX_ABS_SHEAR {
+        o.e1 = g[0];
+        o.e2 = g[1];
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::draw::{
         SceneSpec, add_sky_and_noise, covariance, draw_gaussian_sampled, synthetic_scene,
     };
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     const SAT_E: f64 = 65535.0 * 4.0;
 
@@ -413,6 +422,36 @@ mod tests {
             zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
             saturation_e: Some(SAT_E - 2.0),
         }
+    }
+
+    #[test]
+    fn a_diverged_shear_estimate_is_written_as_zero_with_a_flag() {
+        // Found on the full STEP1 run: γ̂ = (−1.07e6, −8.1e5) was written as
+        // measured, and `stepsim score` refused the catalogue.
+        let blank = MeasuredObject {
+            x: 1.0,
+            y: 1.0,
+            e1: 0.0,
+            e2: 0.0,
+            weight: 0.0,
+            flags: 0,
+            rg_px: 2.0,
+            sn: 30.0,
+            mag: 22.0,
+            pgamma: 0.5,
+        };
+        let mut o = blank;
+        set_shear(&mut o, [-1_074_421.584263, -813_513.174783], 1.0);
+        assert_eq!((o.e1, o.e2, o.flags), (0.0, 0.0, flags::BIG_SHEAR));
+        let mut o = blank;
+        set_shear(&mut o, [3.0, -0.5], 1.0);
+        assert_eq!((o.e1, o.e2, o.flags), (3.0, -0.5, flags::BIG_SHEAR));
+        let mut o = blank;
+        set_shear(&mut o, [0.1, -0.2], 1.0);
+        assert_eq!((o.e1, o.e2, o.flags), (0.1, -0.2, 0));
+        let mut o = blank;
+        set_shear(&mut o, [f64::NAN, 0.2], 1.0);
+        assert_eq!((o.e1, o.e2, o.flags), (0.0, 0.0, flags::MOMENTS));
     }
 
     #[test]

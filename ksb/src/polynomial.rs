@@ -5,7 +5,7 @@
 //! coordinates u = (x − x₀)/s, v = (y − y₀)/s (s = half the larger image
 //! side), so the normal equations stay well conditioned.
 
-use crate::linalg::solve_spd;
+use stepsim_numerics::fit::Clip;
 
 /// Number of coefficients of an order-`n` polynomial in two variables.
 pub fn n_terms(order: usize) -> usize {
@@ -66,11 +66,12 @@ impl Poly2 {
 }
 
 /// Least-squares fit of several quantities at the same points, with joint
-/// κσ clipping: a point is dropped when any quantity's residual exceeds κ
-/// robust σ (1.4826 × median absolute residual) of that quantity; repeated
-/// until nothing changes (at most 10 passes). The order is lowered until
-/// there are `per_term` kept points per coefficient. Returns the fits and
-/// the kept mask, or `None` with fewer than `min_points` points.
+/// κσ clipping under the workspace's one rule
+/// ([`stepsim_numerics::fit`]: a point is dropped for good when any
+/// quantity's residual exceeds κ robust σ (1.4826 × median absolute
+/// residual) of that quantity; at most 10 passes). The order is lowered
+/// until there are `per_term` kept points per coefficient. Returns the fits
+/// and the kept mask, or `None` with fewer than `min_points` points.
 pub fn fit_clipped(
     frame: FieldFrame,
     xy: &[(f64, f64)],
@@ -80,79 +81,31 @@ pub fn fit_clipped(
     per_term: f64,
     min_points: usize,
 ) -> Option<(Vec<Poly2>, Vec<bool>)> {
-    let n = xy.len();
-    let mut keep = vec![true; n];
-    let mut fits = Vec::new();
-    for _ in 0..10 {
-        let kept = keep.iter().filter(|k| **k).count();
-        if kept < min_points.max(1) {
-            return None;
-        }
+    let order_of = |terms: usize| (0..).find(|&o| n_terms(o) >= terms).unwrap_or(0);
+    let terms_for = |kept: usize| {
         let mut order = max_order;
         while order > 0 && (kept as f64) < per_term * n_terms(order) as f64 {
             order -= 1;
         }
-        fits.clear();
-        for vals in values {
-            fits.push(fit_once(frame, xy, vals, &keep, order)?);
-        }
-        let mut changed = false;
-        let mut new_keep = keep.clone();
-        for (f, vals) in fits.iter().zip(values) {
-            let res: Vec<f64> = xy
-                .iter()
-                .zip(vals)
-                .map(|(p, v)| v - f.eval(p.0, p.1))
-                .collect();
-            let mut abs_kept: Vec<f64> = res
-                .iter()
-                .zip(&keep)
-                .filter(|(_, k)| **k)
-                .map(|(r, _)| r.abs())
-                .collect();
-            let mad = stepsim_sim::stats::median(&mut abs_kept).unwrap_or(0.0);
-            let scale = vals.iter().fold(0.0f64, |a, v| a.max(v.abs()));
-            let sigma = (1.4826 * mad).max(1e-12 * (1.0 + scale));
-            for (i, r) in res.iter().enumerate() {
-                if keep[i] && r.abs() > kappa * sigma {
-                    new_keep[i] = false;
-                    changed = true;
-                }
-            }
-        }
-        if !changed {
-            break;
-        }
-        keep = new_keep;
-    }
-    Some((fits, keep))
-}
-
-fn fit_once(
-    frame: FieldFrame,
-    xy: &[(f64, f64)],
-    vals: &[f64],
-    keep: &[bool],
-    order: usize,
-) -> Option<Poly2> {
-    let m = n_terms(order);
-    let mut ata = vec![0.0; m * m];
-    let mut atb = vec![0.0; m];
-    let mut b = Vec::with_capacity(m);
-    for ((p, v), k) in xy.iter().zip(vals).zip(keep) {
-        if !*k {
-            continue;
-        }
-        frame.basis(order, p.0, p.1, &mut b);
-        for i in 0..m {
-            atb[i] += b[i] * v;
-            for j in 0..m {
-                ata[i * m + j] += b[i] * b[j];
-            }
-        }
-    }
-    let coef = solve_spd(&ata, &atb)?;
-    Some(Poly2 { order, frame, coef })
+        n_terms(order)
+    };
+    let basis = |i: usize, terms: usize, out: &mut Vec<f64>| {
+        frame.basis(order_of(terms), xy[i].0, xy[i].1, out);
+    };
+    let values: Vec<&[f64]> = values.iter().map(Vec::as_slice).collect();
+    let clip = Clip {
+        kappa,
+        max_passes: 10,
+        min_points,
+    };
+    let fit = stepsim_numerics::fit::fit_clipped(&values, basis, terms_for, clip)?;
+    let order = order_of(fit.terms);
+    let fits = fit
+        .coef
+        .into_iter()
+        .map(|coef| Poly2 { order, frame, coef })
+        .collect();
+    Some((fits, fit.keep))
 }
 
 #[cfg(test)]

@@ -100,17 +100,17 @@ pub fn measure_shard(
     let text = with_manifest_line(&text, &manifest_sha256(&manifest_path)?);
     let path = part_path(out, k, n);
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| stepsim_sim::io::IoError::os(dir, e))?;
+        std::fs::create_dir_all(dir).map_err(|e| stepsim_contract::io::IoError::os(dir, e))?;
     }
-    stepsim_sim::io::write_bytes_atomically(&path, text.as_bytes())?;
+    stepsim_contract::io::write_bytes_atomically(&path, text.as_bytes())?;
     Ok(summaries(&images, &measured))
 }
 
 const MANIFEST_LINE: &str = "# manifest-sha256 ";
 
 fn manifest_sha256(path: &Path) -> Result<String, KsbError> {
-    let bytes = std::fs::read(path).map_err(|e| stepsim_sim::io::IoError::os(path, e))?;
-    Ok(stepsim_sim::blind::sha256_hex(&bytes))
+    let bytes = std::fs::read(path).map_err(|e| stepsim_contract::io::IoError::os(path, e))?;
+    Ok(stepsim_contract::digest::sha256_hex(&bytes))
 }
 
 fn with_manifest_line(submission: &str, sha: &str) -> String {
@@ -160,7 +160,7 @@ pub fn join_parts(public_dir: &Path, out: &Path, n: u32) -> Result<(u32, usize),
     for block in blocks.values() {
         text.push_str(block);
     }
-    stepsim_sim::io::write_bytes_atomically(out, text.as_bytes())?;
+    stepsim_contract::io::write_bytes_atomically(out, text.as_bytes())?;
     Ok((n, manifest.images.len()))
 }
 
@@ -202,7 +202,7 @@ pub fn parts_count(out: &Path) -> Result<u32, KsbError> {
 }
 
 fn rows<'a>(
-    images: &'a [stepsim_sim::run_layout::ManifestImage],
+    images: &'a [stepsim_contract::run_layout::ManifestImage],
     measured: &'a [ImageMeasurement],
 ) -> impl Iterator<Item = (&'a str, &'a crate::pipeline::MeasuredObject)> {
     images
@@ -212,7 +212,7 @@ fn rows<'a>(
 }
 
 fn summaries(
-    images: &[stepsim_sim::run_layout::ManifestImage],
+    images: &[stepsim_contract::run_layout::ManifestImage],
     measured: &[ImageMeasurement],
 ) -> Vec<ImageSummary> {
     images
@@ -238,7 +238,7 @@ fn measure_datasets(
     keep: impl Fn(&str) -> bool,
 ) -> Result<
     (
-        Vec<stepsim_sim::run_layout::ManifestImage>,
+        Vec<stepsim_contract::run_layout::ManifestImage>,
         Vec<ImageMeasurement>,
     ),
     KsbError,
@@ -259,7 +259,7 @@ fn measure_datasets(
             threads,
             message: e.to_string(),
         })?;
-    let mut images: Vec<stepsim_sim::run_layout::ManifestImage> = manifest
+    let mut images: Vec<stepsim_contract::run_layout::ManifestImage> = manifest
         .images
         .iter()
         .filter(|im| keep(&im.dataset))
@@ -267,7 +267,7 @@ fn measure_datasets(
         .collect();
     images.sort_by(|a, b| a.image.cmp(&b.image));
     let read =
-        |im: &stepsim_sim::run_layout::ManifestImage| -> Result<crate::image::Image, KsbError> {
+        |im: &stepsim_contract::run_layout::ManifestImage| -> Result<crate::image::Image, KsbError> {
             let path = public_dir.join(&im.file);
             let img = read_fits_image(&path)?;
             if img.width != inst.width_px as usize || img.height != inst.height_px as usize {

@@ -15,11 +15,13 @@
 //! Optionally ([`crate::params::PgammaMode::FitSize`]) P^γ is replaced by a
 //! smooth fit against size: a cubic polynomial in t = ln(r_g / r_g*) fitted
 //! to the good galaxies of the image by least squares with 3σ clipping
-//! (as HH and MB fit ½Tr P^γ(r_g)).
+//! (as HH and MB fit ½Tr P^γ(r_g)), under the workspace's one clipping rule
+//! ([`stepsim_numerics::fit`]: a clipped galaxy stays out).
 
 use crate::linalg::{half_trace, mul_vec};
 use crate::moments::KsbShape;
 use crate::psf_model::PsfCorrection;
+use stepsim_numerics::fit::{Clip, fit_clipped};
 
 /// A galaxy's shear estimate.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,43 +87,18 @@ impl PgammaFit {
             ts.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         );
         let degree = if points.len() >= 60 { 3 } else { 1 };
-        let m = degree + 1;
-        let mut keep = vec![true; points.len()];
-        let mut coef = vec![0.0; m];
-        for _ in 0..10 {
-            let mut ata = vec![0.0; m * m];
-            let mut atb = vec![0.0; m];
-            for ((t, p), k) in ts.iter().zip(points).zip(&keep) {
-                if !*k {
-                    continue;
-                }
-                let b: Vec<f64> = (0..m).map(|i| t.powi(i as i32)).collect();
-                for i in 0..m {
-                    atb[i] += b[i] * p.1;
-                    for j in 0..m {
-                        ata[i * m + j] += b[i] * b[j];
-                    }
-                }
-            }
-            coef = crate::linalg::solve_spd(&ata, &atb)?;
-            let eval = |t: f64| (0..m).map(|i| coef[i] * t.powi(i as i32)).sum::<f64>();
-            let res: Vec<f64> = ts.iter().zip(points).map(|(t, p)| p.1 - eval(*t)).collect();
-            let mut abs: Vec<f64> = res
-                .iter()
-                .zip(&keep)
-                .filter(|(_, k)| **k)
-                .map(|(r, _)| r.abs())
-                .collect();
-            let sigma = (1.4826 * stepsim_sim::stats::median(&mut abs)?).max(1e-12);
-            let new_keep: Vec<bool> = res.iter().map(|r| r.abs() <= 3.0 * sigma).collect();
-            if new_keep == keep {
-                break;
-            }
-            keep = new_keep;
-            if keep.iter().filter(|k| **k).count() < 20 {
-                return None;
-            }
-        }
+        let values: Vec<f64> = points.iter().map(|p| p.1).collect();
+        let powers = |i: usize, m: usize, out: &mut Vec<f64>| {
+            out.clear();
+            out.extend((0..m).map(|k| ts[i].powi(k as i32)));
+        };
+        let clip = Clip {
+            kappa: 3.0,
+            max_passes: 10,
+            min_points: 20,
+        };
+        let fit = fit_clipped(&[&values], powers, |_| degree + 1, clip)?;
+        let coef = fit.coef.into_iter().next()?;
         Some(Self {
             rg_star,
             coef,

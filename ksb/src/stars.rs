@@ -35,6 +35,7 @@
 //! locus.
 
 use crate::params::KsbParams;
+use stepsim_numerics::robust::mad_sigma;
 
 /// The stellar locus.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -202,9 +203,8 @@ pub fn refine_locus(ln: &[f64], mode: f64, params: &KsbParams) -> Option<(f64, f
         if near.len() < params.psf_min_stars {
             return None;
         }
-        let c = stepsim_sim::stats::median(&mut near)?;
-        let mut dev: Vec<f64> = near.iter().map(|v| (v - c).abs()).collect();
-        let w = (1.4826 * stepsim_sim::stats::median(&mut dev)?).max(params.locus_width_floor);
+        let c = stepsim_numerics::stats::median(&mut near)?;
+        let w = mad_sigma(near.iter().map(|v| v - c))?.max(params.locus_width_floor);
         if w > params.locus_max_width {
             return None;
         }
@@ -229,7 +229,7 @@ mod tests {
     use super::*;
     use crate::draw::uniform;
     use rand::RngExt;
-    use stepsim_sim::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]
     fn injected_stellar_locus_is_found_and_separated() {

@@ -13,8 +13,9 @@
 
 use std::fmt::Write as _;
 use std::path::Path;
-use stepsim_sim::config::{Plan, RawConfig};
-use stepsim_sim::population::{base_field, placement_area};
+use stepsim_sim::config::RawConfig;
+use stepsim_sim::plan::Plan;
+use stepsim_sim::population::base_field;
 use stepsim_sim::truth::TruthRow;
 
 const FIELDS: u32 = 4;
@@ -40,7 +41,7 @@ fn main() {
     let out = std::env::args().nth(1).unwrap_or_else(|| "docs".into());
     let raw = RawConfig::parse("{}", Path::new("defaults"), &["run.seed=20060101".into()]).unwrap();
     let plan = Plan::new(raw, Path::new("defaults")).unwrap();
-    let (area1, _, _) = placement_area(&plan);
+    let area1 = plan.placement_area().area_arcmin2;
     let area = area1 * f64::from(FIELDS);
     let mut rows: Vec<TruthRow> = Vec::new();
     for f in 0..FIELDS {

@@ -7,7 +7,8 @@
 //! ```
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::config::{Plan, RawConfig};
+use stepsim_sim::config::RawConfig;
+use stepsim_sim::plan::Plan;
 use stepsim_sim::psf::{GaussianPsf, Psf};
 use stepsim_sim::render::{Accuracy, Method, Renderer, StageTimes};
 fn main() {
@@ -18,15 +19,10 @@ fn main() {
         0.1,
         0.0,
     );
-    let p = 0.206;
-    let det = stepsim_sim::noise::Detector::new(&plan.raw.instrument, p);
-    let coma = stepsim_sim::psf::build(&plan.raw.psfs[1], &plan.raw.telescope, p).unwrap();
-    let split_of_coma = Renderer::new(
-        coma.clone(),
-        p,
-        Accuracy::from_config(&plan.raw.render),
-        det.sky_sigma_e(),
-    );
+    let p = plan.pixel_scale_arcsec();
+    let det = plan.detector();
+    let coma = stepsim_sim::psf::build(&plan.psf_spec(1)).unwrap();
+    let split_of_coma = Renderer::new(coma.clone(), p, plan.accuracy(), det.sky_sigma_e());
     let split = split_of_coma.split().expect("default method splits");
     println!(
         "split coma: σ_L {:.3}″, margin {} px, tile {} px",
@@ -52,7 +48,7 @@ fn main() {
             p,
             Accuracy {
                 method: Method::Stamp,
-                ..Accuracy::from_config(&plan.raw.render)
+                ..plan.accuracy()
             },
             det.sky_sigma_e(),
         );

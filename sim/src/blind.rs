@@ -23,7 +23,7 @@
 //! Without the key the ids are unrelated random strings; with it, the
 //! organiser can recompute them. Since the key derives from `run.seed`, a real
 //! challenge needs a secret seed: a config without one gets a seed drawn from
-//! the operating system (`config::Plan::new`).
+//! the operating system (`plan::Plan::new`).
 
 use crate::seed::{SeedKey, Stream};
 use rand::RngExt;
@@ -117,20 +117,7 @@ impl BlindingKey {
     }
 }
 
-/// Lower-case hex of bytes.
-pub fn hex(bytes: &[u8]) -> String {
-    use std::fmt::Write as _;
-    let mut s = String::with_capacity(bytes.len() * 2);
-    for b in bytes {
-        let _ = write!(s, "{b:02x}");
-    }
-    s
-}
-
-/// Hex SHA-256 of bytes.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    hex(&Sha256::digest(bytes))
-}
+pub use stepsim_contract::digest::{hex, sha256_hex};
 
 #[cfg(test)]
 mod tests {

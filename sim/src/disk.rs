@@ -18,8 +18,8 @@
 //! * **small files**: sidecars, manifest, datasets, config, README (4 KiB
 //!   per image, 64 KiB for the run).
 
-use crate::config::Plan;
 use crate::memory::{MemoryEstimate, Part};
+use crate::plan::Plan;
 
 /// FITS files grow in blocks of this many bytes.
 pub const FITS_BLOCK_BYTES: u64 = 2880;
@@ -52,8 +52,8 @@ pub fn truth_row_bytes() -> u64 {
 
 /// What `stepsim generate` writes for the whole run, by file kind.
 pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
-    let img = &plan.raw.image;
-    let out = &plan.raw.output;
+    let img = &plan.image();
+    let out = &plan.output();
     let n = images_in_run(plan);
     let pixels = u64::from(img.width_px) * u64::from(img.height_px);
     let image = fits_file_bytes(pixels.saturating_mul(4));
@@ -98,7 +98,7 @@ pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
         let side = DEFAULT_SIZE_PX as u64;
         let fine = side * DEFAULT_OVERSAMPLE as u64;
         let one = fits_file_bytes(8 * side * side) + fits_file_bytes(8 * fine * fine);
-        let k = plan.raw.psfs.len() as u64;
+        let k = plan.psfs().len() as u64;
         parts.push(Part {
             what: format!("{k} PSF file{}", if k == 1 { "" } else { "s" }),
             bytes: one.saturating_mul(k),

@@ -29,14 +29,19 @@ pub mod io;
 pub mod memory;
 pub mod moments;
 pub mod noise;
-pub mod picture;
+pub mod plan;
 pub mod population;
+pub mod products;
 pub mod profile;
 pub mod psf;
 pub mod render;
-pub mod run_layout;
-pub mod seed;
-pub mod shear;
-pub mod stats;
-pub mod truth;
+/// The shared statistics, now in `stepsim-numerics` (re-exported while
+/// sim's own modules still name them `crate::stats`).
+pub use stepsim_numerics::stats;
 pub mod wcs;
+
+// The on-disk contract and the pictures live in their own crates, so that
+// the scorer and the reference pipeline read a run without linking the
+// simulator; they are re-exported under their old paths.
+pub use stepsim_contract::{run_layout, seed, shear, truth};
+pub use stepsim_figure::picture;

@@ -22,7 +22,8 @@
 //! it is for the optical PSFs; for narrow PSFs the estimate is high.
 //! Measured against peak RSS in BENCHMARKS.md.
 
-use crate::config::{Compression, Plan, RenderMethod, SampleFormat};
+use crate::config::{Compression, RenderMethod, SampleFormat};
+use crate::plan::Plan;
 use crate::truth::TruthRow;
 use std::fmt;
 
@@ -171,8 +172,8 @@ fn f32_bytes(px: f64) -> f64 {
 /// Margin (pixels) the split method's canvas can carry: at most half the
 /// largest stamp (what the optical PSFs reach).
 fn margin_px(plan: &Plan) -> f64 {
-    match plan.raw.render.method {
-        RenderMethod::Split => (plan.raw.render.max_stamp_px / 2).max(4) as f64,
+    match plan.render().method {
+        RenderMethod::Split => (plan.render().max_stamp_px / 2).max(4) as f64,
         RenderMethod::Stamp => 0.0,
     }
 }
@@ -186,13 +187,13 @@ fn tile_px(m: f64, side: f64) -> f64 {
 /// Peak bytes of one image of the plan in flight (one worker).
 pub fn image_bytes(plan: &Plan) -> f64 {
     let (w, h) = (
-        f64::from(plan.raw.image.width_px),
-        f64::from(plan.raw.image.height_px),
+        f64::from(plan.image().width_px),
+        f64::from(plan.image().height_px),
     );
     let m = margin_px(plan);
     let px = w * h;
     let canvas = f32_bytes((w + 2.0 * m) * (h + 2.0 * m));
-    let out = &plan.raw.output;
+    let out = &plan.output();
     let copies =
         2.0 + f64::from(u8::from(
             out.format == SampleFormat::Int32 || out.compression == Compression::Rice,
@@ -211,13 +212,13 @@ pub fn image_bytes(plan: &Plan) -> f64 {
 
 /// Expected objects (galaxies + stars) of one base field.
 pub fn objects_per_field(plan: &Plan) -> f64 {
-    let (area, _, _) = crate::population::placement_area(plan);
-    let galaxies = match plan.raw.population.source {
+    let area = plan.placement_area().area_arcmin2;
+    let galaxies = match plan.population().source {
         crate::config::Source::Stuff => crate::population::model(plan).density_per_arcmin2(),
-        // A list's size is its own; it is read (and bounded) in preflight.
+        // A list's size is its own (read by the plan).
         crate::config::Source::SkymakerList { .. } => 0.0,
     };
-    (galaxies + plan.raw.population.stars.density_per_arcmin2) * area
+    (galaxies + plan.population().stars.density_per_arcmin2) * area
 }
 
 /// Bytes of the population: base field, twin, one sheared copy per image
@@ -225,7 +226,7 @@ pub fn objects_per_field(plan: &Plan) -> f64 {
 pub fn population_bytes(plan: &Plan, images_in_flight: usize) -> f64 {
     let row = std::mem::size_of::<TruthRow>() as f64;
     let copies =
-        1.0 + f64::from(u8::from(plan.raw.population.rotated_pairs)) + images_in_flight as f64;
+        1.0 + f64::from(u8::from(plan.population().rotated_pairs)) + images_in_flight as f64;
     objects_per_field(plan) * row * copies + STAMP_BYTES as f64
 }
 
@@ -233,7 +234,7 @@ pub fn population_bytes(plan: &Plan, images_in_flight: usize) -> f64 {
 /// method), plus the transient grids of building an optical PSF.
 pub fn psf_bytes(plan: &Plan, psfs: &[usize]) -> f64 {
     let m = margin_px(plan);
-    let side = f64::from(plan.raw.image.width_px.max(plan.raw.image.height_px));
+    let side = f64::from(plan.image().width_px.max(plan.image().height_px));
     let kernel = if m > 0.0 {
         let n = tile_px(m, side);
         8.0 * n * (n / 2.0 + 1.0)
@@ -242,7 +243,7 @@ pub fn psf_bytes(plan: &Plan, psfs: &[usize]) -> f64 {
     };
     let optical = psfs.iter().any(|&i| {
         matches!(
-            plan.raw.psfs.get(i).map(|p| &p.model),
+            plan.psfs().get(i).map(|p| &p.model),
             Some(crate::config::RawPsfModel::Optical { .. })
         )
     });
@@ -253,7 +254,7 @@ pub fn psf_bytes(plan: &Plan, psfs: &[usize]) -> f64 {
     } else {
         0.0
     };
-    kernel * psfs.len() as f64 + build.max(report_bytes(plan.raw.image.pixel_scale_arcsec))
+    kernel * psfs.len() as f64 + build.max(report_bytes(plan.image().pixel_scale_arcsec))
 }
 
 fn to_bytes(x: f64) -> u64 {
@@ -268,9 +269,9 @@ fn to_bytes(x: f64) -> u64 {
 /// image per worker in flight.
 pub fn generate_estimate(plan: &Plan, threads: usize) -> MemoryEstimate {
     // Images are made field by field, at most one per worker.
-    let per_field = plan.datasets.len() * (1 + usize::from(plan.raw.population.rotated_pairs));
+    let per_field = plan.datasets().len() * (1 + usize::from(plan.population().rotated_pairs));
     let t = threads.max(1).min(per_field.max(1));
-    let all: Vec<usize> = (0..plan.raw.psfs.len()).collect();
+    let all: Vec<usize> = (0..plan.psfs().len()).collect();
     run_estimate(plan, t, &all)
 }
 
@@ -281,7 +282,7 @@ pub fn bench_estimate(plan: &Plan, psf: usize) -> MemoryEstimate {
 }
 
 fn run_estimate(plan: &Plan, images: usize, psfs: &[usize]) -> MemoryEstimate {
-    let img = &plan.raw.image;
+    let img = &plan.image();
     MemoryEstimate {
         parts: vec![
             Part {
@@ -349,8 +350,7 @@ pub fn psf_estimate(
 ) -> MemoryEstimate {
     let fine = (size_px * oversample) as f64;
     let optical = plan
-        .raw
-        .psfs
+        .psfs()
         .iter()
         .any(|p| matches!(p.model, crate::config::RawPsfModel::Optical { .. }));
     let build = if optical {
@@ -358,8 +358,7 @@ pub fn psf_estimate(
     } else {
         0.0
     };
-    let per =
-        fine * fine * (8.0 + 16.0) + build.max(report_bytes(plan.raw.image.pixel_scale_arcsec));
+    let per = fine * fine * (8.0 + 16.0) + build.max(report_bytes(plan.image().pixel_scale_arcsec));
     MemoryEstimate {
         parts: vec![
             Part {
@@ -494,7 +493,7 @@ mod tests {
             "population.stars.density_per_arcmin2=100",
             "population.galaxies.mag_faint=17.0001",
         ]);
-        let (area, _, _) = crate::population::placement_area(&p);
+        let area = p.placement_area().area_arcmin2;
         let n = objects_per_field(&p);
         assert!(
             (n - 100.0 * area).abs() < 0.01 * n,

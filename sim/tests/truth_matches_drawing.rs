@@ -10,7 +10,8 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::config::{Plan, RawConfig};
+use stepsim_sim::config::RawConfig;
+use stepsim_sim::plan::Plan;
 use stepsim_sim::psf::GaussianPsf;
 use stepsim_sim::render::{Accuracy, Renderer};
 
@@ -70,7 +71,7 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
         chosen.len()
     );
 
-    let p = plan.raw.image.pixel_scale_arcsec;
+    let p = plan.image().pixel_scale_arcsec;
     let psf = Arc::new(GaussianPsf::round(0.9));
     let sigma_px = psf.sigma_arcsec() / p;
     // No k-space cut: the comparison is with untruncated analytic moments.

@@ -3,8 +3,9 @@
 
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
-use stepsim_sim::config::{Plan, RawConfig, SeedOrigin};
+use stepsim_sim::config::{RawConfig, SeedOrigin};
 use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
+use stepsim_sim::plan::Plan;
 use stepsim_sim::stats::median;
 
 /// Arguments of `stepsim bench`.
@@ -50,7 +51,7 @@ fn bench_plan(config: Option<&Path>, overrides: &[String]) -> anyhow::Result<Pla
             Plan::new(RawConfig::parse("{}", source, overrides)?, source)?
         }
     };
-    Ok(match plan.seed_origin {
+    Ok(match plan.seed_origin() {
         SeedOrigin::Drawn => plan.with_seed(BENCH_SEED),
         SeedOrigin::Config => plan,
     })
@@ -59,8 +60,8 @@ fn bench_plan(config: Option<&Path>, overrides: &[String]) -> anyhow::Result<Pla
 /// Runs the benchmark and prints a table.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = bench_plan(args.config.as_deref(), &args.overrides)?;
-    let Some(psf_index) = plan.raw.psfs.iter().position(|p| p.name == args.psf) else {
-        let names: Vec<&str> = plan.raw.psfs.iter().map(|p| p.name.as_str()).collect();
+    let Some(psf_index) = plan.psfs().iter().position(|p| p.name == args.psf) else {
+        let names: Vec<&str> = plan.psfs().iter().map(|p| p.name.as_str()).collect();
         bail!(
             "--psf {}: no such PSF in the config (have: {})",
             args.psf,
@@ -106,7 +107,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         (median(&mut v).unwrap_or(f64::NAN), lo, hi)
     };
-    let img = &plan.raw.image;
+    let img = &plan.image();
     println!(
         "image {} × {} px, seed {}, PSF {}, {} galaxies, {} stars, {} repeats, {} threads",
         img.width_px,

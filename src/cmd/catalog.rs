@@ -16,12 +16,9 @@
 //! first file is written; every file is written atomically.
 
 use super::ConfigArgs;
-use anyhow::Context as _;
-use std::path::{Path, PathBuf};
-use stepsim_sim::config::{Plan, SeedOrigin};
-use stepsim_sim::io::{skymaker, truth, write_bytes_atomically};
-use stepsim_sim::population;
-use stepsim_sim::truth::TruthRow;
+use std::path::PathBuf;
+use stepsim_sim::config::SeedOrigin;
+use stepsim_sim::products;
 
 /// Arguments of `stepsim catalog`.
 #[derive(Debug, clap::Args)]
@@ -37,85 +34,27 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
-    population::preflight(&plan)?;
+    // The population is refused (with its key) before the memory estimate.
+    stepsim_sim::population::preflight(&plan)?;
     super::check_memory(
         "catalog",
         stepsim_sim::memory::catalog_estimate(&plan),
         "lower population.galaxies.mag_faint, population.stars.density_per_arcmin2, image.margin_arcsec or the image size",
     )?;
-    let config_path = args.out.join("config.json");
-    write_bytes_atomically(&config_path, plan.raw.to_json().as_bytes())?;
-    if plan.seed_origin == SeedOrigin::Drawn {
+    let counts = products::write_catalog(&plan, &args.out)?;
+    if plan.seed_origin() == SeedOrigin::Drawn {
         eprintln!(
             "stepsim: run.seed is not given: drew one from the operating system; it is recorded in {}",
-            config_path.display()
+            args.out.join("config.json").display()
         );
-    }
-    let mut n_gal = 0usize;
-    let mut n_star = 0usize;
-    for field in 0..plan.n_fields() {
-        let rows =
-            population::base_field(&plan, field).with_context(|| format!("base field {field}"))?;
-        n_star += rows.iter().filter(|r| r.is_star()).count();
-        n_gal += rows.iter().filter(|r| !r.is_star()).count();
-        write_field(&plan, &args.out, field, false, &rows)?;
-        if plan.raw.population.rotated_pairs {
-            write_field(&plan, &args.out, field, true, &population::rotated(&rows))?;
-        }
     }
     eprintln!(
         "stepsim: {} base fields: {} galaxies, {} stars ({:.1} galaxies per field) in {}",
-        plan.n_fields(),
-        n_gal,
-        n_star,
-        n_gal as f64 / f64::from(plan.n_fields().max(1)),
+        counts.fields,
+        counts.galaxies,
+        counts.stars,
+        counts.galaxies as f64 / f64::from(counts.fields.max(1)),
         args.out.display()
     );
-    Ok(())
-}
-
-fn write_field(
-    plan: &Plan,
-    out: &Path,
-    field: u32,
-    rotated: bool,
-    rows: &[TruthRow],
-) -> anyhow::Result<()> {
-    let stem = format!("field_{field:03}{}", if rotated { "_rot" } else { "" });
-    let im = &plan.raw.image;
-    let keywords = vec![
-        (
-            "FIELD".to_string(),
-            f64::from(field),
-            "base field".to_string(),
-        ),
-        (
-            "ROTATED".to_string(),
-            if rotated { 1.0 } else { 0.0 },
-            "1 for the 90-degree rotated twin".to_string(),
-        ),
-        (
-            "PIXSCALE".to_string(),
-            im.pixel_scale_arcsec,
-            "arcsec per pixel".to_string(),
-        ),
-        (
-            "NAXIS1IM".to_string(),
-            f64::from(im.width_px),
-            "image width".to_string(),
-        ),
-        (
-            "NAXIS2IM".to_string(),
-            f64::from(im.height_px),
-            "image height".to_string(),
-        ),
-    ];
-    truth::write_truth_fits(&out.join(format!("{stem}.fits")), rows, &keywords)?;
-    truth::write_truth_csv(&out.join(format!("{stem}.csv")), rows)?;
-    skymaker::write_list(
-        &out.join(format!("{stem}.list")),
-        rows,
-        &population::t_types(plan),
-    )?;
     Ok(())
 }

@@ -14,16 +14,16 @@ pub struct Args {
 /// Prints the resolved config, or refuses it with the key and reason.
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
-    println!("{}", super::as_given(&plan).to_json());
+    println!("{}", plan.config_json_as_given());
     eprintln!(
         "stepsim: {}: {} PSFs × {} shears = {} datasets of {} base fields each",
         args.config.config.display(),
-        plan.raw.psfs.len(),
-        plan.raw.shears.len(),
-        plan.datasets.len(),
-        plan.datasets[0].fields.len()
+        plan.psfs().len(),
+        plan.shears().len(),
+        plan.datasets().len(),
+        plan.datasets()[0].fields.len()
     );
-    match plan.seed_origin {
+    match plan.seed_origin() {
         SeedOrigin::Config => eprintln!(
             "stepsim: run.seed is given: a release made with it is only as blind as the seed is secret"
         ),

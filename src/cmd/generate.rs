@@ -36,10 +36,10 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
-    if plan.seed_origin == SeedOrigin::Config {
+    if plan.seed_origin() == SeedOrigin::Config {
         eprintln!(
             "stepsim: warning: run.seed is given ({}): this release is only as blind as that seed is secret; leave run.seed out for a real challenge (a secret seed is then drawn and recorded only in RUN/private/config.json)",
-            plan.source.display()
+            plan.source().display()
         );
     }
     let threads = super::threads(args.threads);
@@ -129,7 +129,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 /// `--finish`: verify every image and write the manifest.
-fn finish(args: &Args, plan: &stepsim_sim::config::Plan, threads: usize) -> anyhow::Result<()> {
+fn finish(args: &Args, plan: &stepsim_sim::plan::Plan, threads: usize) -> anyhow::Result<()> {
     let pool = super::thread_pool(threads)?;
     match pool.install(|| generate::finish(plan, &args.out)) {
         Ok(f) => {

@@ -191,7 +191,7 @@ pub fn bytes_under(dir: &std::path::Path) -> u64 {
 
 /// Refuses a `generate` whose files would not fit on the file system of
 /// `out` (before anything is written).
-pub fn check_disk(plan: &stepsim_sim::config::Plan, out: &std::path::Path) -> anyhow::Result<()> {
+pub fn check_disk(plan: &stepsim_sim::plan::Plan, out: &std::path::Path) -> anyhow::Result<()> {
     let free = free_disk(out)?;
     stepsim_sim::disk::check(
         &out.display().to_string(),
@@ -226,22 +226,10 @@ pub struct ConfigArgs {
     pub overrides: Vec<String>,
 }
 
-/// The resolved config as the user gave it: with the seed when the config
-/// (or a `--set`) gave one, without it when [`Plan::new`] drew it.
-///
-/// [`Plan::new`]: stepsim_sim::config::Plan::new
-pub fn as_given(plan: &stepsim_sim::config::Plan) -> stepsim_sim::config::RawConfig {
-    let mut raw = plan.raw.clone();
-    if plan.seed_origin == stepsim_sim::config::SeedOrigin::Drawn {
-        raw.run.seed = None;
-    }
-    raw
-}
-
 impl ConfigArgs {
     /// Loads and validates the config with its overrides.
-    pub fn plan(&self) -> anyhow::Result<stepsim_sim::config::Plan> {
-        Ok(stepsim_sim::config::Plan::load(
+    pub fn plan(&self) -> anyhow::Result<stepsim_sim::plan::Plan> {
+        Ok(stepsim_sim::plan::Plan::load(
             &self.config,
             &self.overrides,
         )?)

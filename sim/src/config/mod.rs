@@ -4,8 +4,9 @@
 //!    wrote: syntax (with line and column), unknown keys and wrong types (with
 //!    the key's dotted path). Every section has STEP1 defaults, so a file
 //!    only needs what differs.
-//! 2. [`Plan`] is the validated run: ranges checked with the offending key
-//!    named, datasets enumerated (PSF × shear), seeds fixed.
+//! 2. [`RawConfig::validate`] checks ranges with the offending key named;
+//!    [`crate::plan::Plan`] then resolves the run: datasets enumerated
+//!    (PSF × shear), seed fixed, input files read.
 //!
 //! Overrides from the command line (`--set key.path=value`) are applied to the
 //! JSON tree between the two steps; the value is parsed as JSON when it can
@@ -27,7 +28,6 @@ pub use population::{
 pub use psf::{Aberration, RawPsf, RawPsfModel};
 pub use render::{Compression, RawOutput, RawRender, RenderMethod, SampleFormat};
 
-use crate::seed::{SeedKey, Stream};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -166,7 +166,7 @@ pub struct RawRun {
     /// A name for humans (appears in the private half only).
     pub name: String,
     /// Master seed: every random stream derives from it (see [`crate::seed`]).
-    /// Absent (the default, and the presets): [`Plan::new`] draws one from
+    /// Absent (the default, and the presets): [`crate::plan::Plan::new`] draws one from
     /// the operating system, so that a release is blind; the resolved config
     /// (`RUN/private/config.json`) records it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -418,66 +418,34 @@ pub fn apply_override(tree: &mut serde_json::Value, arg: &str) -> Result<(), Con
     unreachable!("loop returns on the last part")
 }
 
-/// One dataset: a PSF and a shear. Its index `id` is stable: `psf * n_shears + shear`
-/// for the public part; held-out datasets (a `challenge` section) follow as
-/// `n_psfs * n_shears + psf * n_shears + slot`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Dataset {
-    /// Index in [`Plan::datasets`].
-    pub index: u32,
-    /// Index of the PSF in [`RawConfig::psfs`].
-    pub psf: usize,
-    /// Index of the shear in [`RawConfig::shears`] (for a held-out dataset:
-    /// its slot, 0..n_shears; its shear is drawn, not configured).
-    pub shear: usize,
-    /// Which part of the challenge it belongs to.
-    pub part: Part,
-    /// Its base fields, ascending (every field unless the run holds some out).
-    pub fields: Vec<u32>,
-    /// Applied g1.
-    pub g1: f64,
-    /// Applied g2.
-    pub g2: f64,
-}
-
-/// A validated run: the raw config plus everything derived from it.
-#[derive(Debug, Clone)]
-pub struct Plan {
-    /// The config it came from (after overrides and defaults).
-    pub raw: RawConfig,
-    /// Where it came from (for messages).
-    pub source: PathBuf,
-    /// Every PSF × shear pair, PSF-major.
-    pub datasets: Vec<Dataset>,
-    /// Whether `raw.run.seed` was given or drawn by [`Plan::new`].
-    pub seed_origin: SeedOrigin,
-}
-
-impl Plan {
-    /// Validates a raw config. A config without `run.seed` gets one drawn
-    /// from the operating system ([`draw_seed`]; [`SeedOrigin::Drawn`]), so
-    /// `raw.run.seed` is always set in a plan.
-    pub fn new(mut raw: RawConfig, source: &Path) -> Result<Self, ConfigError> {
+impl RawConfig {
+    /// Checks every range of the config (what [`crate::plan::Plan::new`]
+    /// refuses before resolving anything); the error names `source` and the
+    /// offending key.
+    pub fn validate(&self, source: &Path) -> Result<(), ConfigError> {
         let invalid = |key: &str, message: String| ConfigError::Invalid {
             path: source.into(),
             key: key.into(),
             message,
         };
-        raw.image.validate().map_err(|(k, m)| invalid(&k, m))?;
-        raw.instrument.validate().map_err(|(k, m)| invalid(&k, m))?;
-        check_sky_below_saturation(&raw).map_err(|(k, m)| invalid(&k, m))?;
-        raw.telescope.validate().map_err(|(k, m)| invalid(&k, m))?;
-        raw.population.validate().map_err(|(k, m)| invalid(&k, m))?;
-        raw.render.validate().map_err(|(k, m)| invalid(&k, m))?;
-        raw.output.validate().map_err(|(k, m)| invalid(&k, m))?;
-        raw.challenge
-            .validate(raw.image.n_images)
+        self.image.validate().map_err(|(k, m)| invalid(&k, m))?;
+        self.instrument
+            .validate()
             .map_err(|(k, m)| invalid(&k, m))?;
-        if raw.psfs.is_empty() {
+        self.telescope.validate().map_err(|(k, m)| invalid(&k, m))?;
+        self.population
+            .validate()
+            .map_err(|(k, m)| invalid(&k, m))?;
+        self.render.validate().map_err(|(k, m)| invalid(&k, m))?;
+        self.output.validate().map_err(|(k, m)| invalid(&k, m))?;
+        self.challenge
+            .validate(self.image.n_images)
+            .map_err(|(k, m)| invalid(&k, m))?;
+        if self.psfs.is_empty() {
             return Err(invalid("psfs", "at least one PSF is needed".into()));
         }
         let mut names = std::collections::HashSet::new();
-        for (i, p) in raw.psfs.iter().enumerate() {
+        for (i, p) in self.psfs.iter().enumerate() {
             p.validate()
                 .map_err(|(k, m)| invalid(&format!("psfs.{i}.{k}"), m))?;
             if !names.insert(p.name.clone()) {
@@ -487,10 +455,10 @@ impl Plan {
                 ));
             }
         }
-        if raw.shears.is_empty() {
+        if self.shears.is_empty() {
             return Err(invalid("shears", "at least one shear is needed".into()));
         }
-        for (i, s) in raw.shears.iter().enumerate() {
+        for (i, s) in self.shears.iter().enumerate() {
             let g = s.g1.hypot(s.g2);
             if !s.g1.is_finite() || !s.g2.is_finite() || g >= 1.0 {
                 return Err(invalid(
@@ -499,144 +467,8 @@ impl Plan {
                 ));
             }
         }
-        let seed_origin = match raw.run.seed {
-            Some(_) => SeedOrigin::Config,
-            None => {
-                raw.run.seed = Some(draw_seed()?);
-                SeedOrigin::Drawn
-            }
-        };
-        let datasets = challenge_datasets(&raw);
-        Ok(Self {
-            raw,
-            source: source.into(),
-            datasets,
-            seed_origin,
-        })
+        Ok(())
     }
-
-    /// The same plan with master seed `seed` (the origin is kept: adopting
-    /// the seed of an existing run does not make it public).
-    pub fn with_seed(&self, seed: u64) -> Self {
-        let mut p = self.clone();
-        p.raw.run.seed = Some(seed);
-        p.datasets = challenge_datasets(&p.raw);
-        p
-    }
-
-    /// Loads, overrides and validates a config file in one go.
-    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, ConfigError> {
-        Self::new(RawConfig::load(path, overrides)?, path)
-    }
-
-    /// Number of base fields (images per dataset).
-    pub fn n_fields(&self) -> u32 {
-        self.raw.image.n_images
-    }
-
-    /// Number of images in the run (every dataset's fields, twins included).
-    pub fn n_images_in_run(&self) -> u64 {
-        let twins = 1 + u64::from(self.raw.population.rotated_pairs);
-        self.datasets
-            .iter()
-            .map(|d| d.fields.len() as u64)
-            .sum::<u64>()
-            * twins
-    }
-
-    /// Master seed ([`Plan::new`] always sets one).
-    pub fn seed(&self) -> u64 {
-        self.raw.run.seed.unwrap_or_default()
-    }
-}
-
-/// The datasets of a validated config with its seed set: PSF × shear on
-/// the public fields, then (with `challenge.holdout_fields`) PSF × slot on
-/// the held-out fields with drawn shears.
-fn challenge_datasets(raw: &RawConfig) -> Vec<Dataset> {
-    let seed = raw.run.seed.unwrap_or_default();
-    let n_fields = raw.image.n_images;
-    let n_shears = raw.shears.len();
-    let n_psfs = raw.psfs.len();
-    let held = holdout_fields(seed, n_fields, raw.challenge.holdout_fields);
-    let public: Vec<u32> = (0..n_fields).filter(|f| !held.contains(f)).collect();
-    let pairs = || (0..n_psfs).flat_map(move |p| (0..n_shears).map(move |s| (p, s)));
-    let mut out: Vec<Dataset> = pairs()
-        .map(|(psf, shear)| Dataset {
-            index: (psf * n_shears + shear) as u32,
-            psf,
-            shear,
-            part: Part::Public,
-            fields: public.clone(),
-            g1: raw.shears[shear].g1,
-            g2: raw.shears[shear].g2,
-        })
-        .collect();
-    if !held.is_empty() {
-        let g_max = raw.challenge.holdout_g_max;
-        out.extend(pairs().map(|(psf, slot)| {
-            let index = (n_psfs * n_shears + psf * n_shears + slot) as u32;
-            let (g1, g2) = holdout_shear(seed, index, g_max);
-            Dataset {
-                index,
-                psf,
-                shear: slot,
-                part: Part::Holdout,
-                fields: held.clone(),
-                g1,
-                g2,
-            }
-        }));
-    }
-    out
-}
-
-/// The base fields held out: `n_held` of `0..n_fields`, chosen by a keyed
-/// order (stream [`Stream::Holdout`] per field), not by position, so that
-/// nothing about a field's index tells its part. Ascending.
-pub fn holdout_fields(seed: u64, n_fields: u32, n_held: u32) -> Vec<u32> {
-    let mut order: Vec<(u64, u32)> = (0..n_fields)
-        .map(|f| (SeedKey::base(seed, f, Stream::Holdout).seed(), f))
-        .collect();
-    order.sort_unstable();
-    let mut held: Vec<u32> = order
-        .into_iter()
-        .take(n_held as usize)
-        .map(|(_, f)| f)
-        .collect();
-    held.sort_unstable();
-    held
-}
-
-/// The shear of held-out dataset `index`: uniform in the disc |g| ≤ `g_max`
-/// (radius g_max·√u, angle 2πv), from the keyed stream
-/// `SeedKey::image(seed, 0, index, Stream::Holdout)`.
-pub fn holdout_shear(seed: u64, index: u32, g_max: f64) -> (f64, f64) {
-    use rand::RngExt;
-    let mut rng = SeedKey::image(seed, 0, index, Stream::Holdout).rng();
-    let u: f64 = rng.random();
-    let v: f64 = rng.random();
-    let r = g_max * u.sqrt();
-    let phi = std::f64::consts::TAU * v;
-    (r * phi.cos(), r * phi.sin())
-}
-
-/// The sky alone must stay below the clip level, or every pixel of every
-/// image is the saturation value (a blank image).
-fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), (String, String)> {
-    let ins = &raw.instrument;
-    let sky_adu =
-        crate::noise::sky_e_per_pixel(ins, raw.image.pixel_scale_arcsec) / ins.gain_e_per_adu;
-    if sky_adu.is_finite() && sky_adu < ins.saturation_adu {
-        return Ok(());
-    }
-    Err((
-        "instrument".into(),
-        format!(
-            "the sky alone gives {sky_adu:.4e} ADU per pixel, at or above instrument.saturation_adu = {}: every pixel would be clipped (a blank image); lower instrument.exposure_s or image.pixel_scale_arcsec, or raise instrument.sky_mag_arcsec2 or instrument.gain_e_per_adu",
-            ins.saturation_adu
-        ),
-    ))
 }
 
 /// Checks that `value` lies in `[lo, hi]`; the error names `key`.
@@ -688,17 +520,6 @@ mod tests {
     }
 
     #[test]
-    fn empty_object_gives_step1_defaults() {
-        let raw = parse("{}").unwrap();
-        assert_eq!(raw, RawConfig::default());
-        let plan = Plan::new(raw, Path::new("test.json")).unwrap();
-        assert_eq!(plan.datasets.len(), 30);
-        assert_eq!(plan.datasets[7].psf, 1);
-        assert_eq!(plan.datasets[7].shear, 2);
-        assert_eq!(plan.datasets[7].g1, 0.01);
-    }
-
-    #[test]
     fn unknown_key_is_named_with_its_path_and_line() {
         let err = parse("{\n  \"image\": {\n    \"widht_px\": 10\n  }\n}").unwrap_err();
         let msg = err.to_string();
@@ -746,21 +567,6 @@ mod tests {
     }
 
     #[test]
-    fn out_of_range_values_name_the_key() {
-        let raw = RawConfig::parse("{}", Path::new("t.json"), &["shears.0.g1=1.5".into()]).unwrap();
-        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
-        assert!(err.contains("shears.0"), "{err}");
-        let raw = RawConfig::parse(
-            "{}",
-            Path::new("t.json"),
-            &["image.pixel_scale_arcsec=-1".into()],
-        )
-        .unwrap();
-        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
-        assert!(err.contains("image.pixel_scale_arcsec"), "{err}");
-    }
-
-    #[test]
     fn arrays_are_never_read_by_position() {
         // serde would map these onto the structs field by field.
         let err = parse("[{}, {}, {}, {}]").unwrap_err();
@@ -789,33 +595,6 @@ mod tests {
         assert_eq!(short_number(1e-9), "1e-9");
         assert_eq!(short_number(-0.5), "-0.5");
         assert_eq!(short_number(f64::NAN), "NaN");
-    }
-
-    #[test]
-    fn a_config_without_seed_gets_a_fresh_one_and_records_it() {
-        let raw = parse("{}").unwrap();
-        assert_eq!(raw.run.seed, None);
-        assert!(!raw.to_json().contains("seed"), "no seed key when absent");
-        let a = Plan::new(raw.clone(), Path::new("t.json")).unwrap();
-        let b = Plan::new(raw, Path::new("t.json")).unwrap();
-        assert_eq!(
-            (a.seed_origin, b.seed_origin),
-            (SeedOrigin::Drawn, SeedOrigin::Drawn)
-        );
-        assert_eq!(a.raw.run.seed, Some(a.seed()));
-        // 64 bits from the OS: two draws agreeing would be a broken source.
-        assert_ne!(a.seed(), b.seed());
-        assert!(a.raw.to_json().contains(&format!("\"seed\": {}", a.seed())));
-        // The resolved JSON gives the same seed back, now as given.
-        let again = Plan::new(parse(&a.raw.to_json()).unwrap(), Path::new("c.json")).unwrap();
-        assert_eq!(
-            (again.seed(), again.seed_origin),
-            (a.seed(), SeedOrigin::Config)
-        );
-        let given = parse("{\"run\": {\"seed\": 7}}").unwrap();
-        let p = Plan::new(given, Path::new("t.json")).unwrap();
-        assert_eq!((p.seed(), p.seed_origin), (7, SeedOrigin::Config));
-        assert_eq!(p.with_seed(9).seed(), 9);
     }
 
     #[test]

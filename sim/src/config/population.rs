@@ -312,7 +312,7 @@ impl RawPopulation {
         check_positive("population.galaxies.flattening.sigma", f.sigma)?;
         check_range("population.galaxies.flattening.mean", f.mean, -10.0, 10.0)?;
         // Resampling must terminate quickly: demand a 0.1 % acceptance rate.
-        let cdf = crate::population::stats::normal_cdf;
+        let cdf = crate::stats::normal_cdf;
         let accept = cdf((f.max - f.mean) / f.sigma) - cdf((f.min - f.mean) / f.sigma);
         if accept < 1e-3 {
             return Err((

@@ -7,10 +7,10 @@
 //! (clock ticks, 10 ms) around each stage.
 
 use super::GenerateError;
-use crate::config::Plan;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
-use crate::noise::{self, Detector};
-use crate::render::{Accuracy, Canvas, Renderer};
+use crate::noise;
+use crate::plan::Plan;
+use crate::render::{Canvas, Renderer};
 use crate::seed::{SeedKey, Stream};
 use std::path::Path;
 use std::time::Instant;
@@ -67,10 +67,9 @@ pub fn run_once(
     field: u32,
     scratch: &Path,
 ) -> Result<StageTimes, GenerateError> {
-    let raw = &plan.raw;
-    let (w, h) = (raw.image.width_px, raw.image.height_px);
-    let pixel_scale = raw.image.pixel_scale_arcsec;
-    let shear = raw.shears.last().expect("validated plan has shears");
+    let (w, h) = (plan.image().width_px, plan.image().height_px);
+    let pixel_scale = plan.pixel_scale_arcsec();
+    let shear = plan.shears().last().expect("validated plan has shears");
     let mut t = StageTimes::default();
     let cpu_start = process_cpu_s();
 
@@ -84,21 +83,14 @@ pub fn run_once(
     t.n_stars = stars.len();
 
     let clock = Instant::now();
-    let det = Detector::new(&raw.instrument, pixel_scale);
-    let psf_raw = &raw.psfs[psf_index];
-    let psf = crate::psf::build(psf_raw, &raw.telescope, pixel_scale).map_err(|source| {
-        GenerateError::Psf {
+    let det = plan.detector();
+    let psf =
+        crate::psf::build(&plan.psf_spec(psf_index)).map_err(|source| GenerateError::Psf {
             index: psf_index,
-            name: psf_raw.name.clone(),
+            name: plan.psfs()[psf_index].name.clone(),
             source,
-        }
-    })?;
-    let renderer = Renderer::new(
-        psf,
-        pixel_scale,
-        Accuracy::from_config(&raw.render),
-        det.sky_sigma_e(),
-    );
+        })?;
+    let renderer = Renderer::new(psf, pixel_scale, plan.accuracy(), det.sky_sigma_e());
     // The split method's image kernel belongs to the PSF stage too.
     if let Some(split) = renderer.split() {
         split.convolver(w as usize, h as usize);
@@ -133,15 +125,15 @@ pub fn run_once(
     drop(model);
 
     let clock = Instant::now();
-    let header = ImageHeader::new(&raw.image, &raw.instrument, field);
+    let header = ImageHeader::new(plan.image(), plan.instrument(), field);
     write_image_fits(
         scratch,
         &pixels,
         w,
         h,
         &header,
-        raw.output.format,
-        raw.output.compression,
+        plan.output().format,
+        plan.output().compression,
     )?;
     t.write_s = clock.elapsed().as_secs_f64();
     t.total_cpu_s = process_cpu_s() - cpu_start;

@@ -13,8 +13,9 @@
 //! the seed it drew is then dropped.
 
 use super::GenerateError;
-use crate::config::{Plan, RawConfig, SeedOrigin};
+use crate::config::{RawConfig, SeedOrigin};
 use crate::io::IoError;
+use crate::plan::Plan;
 use std::path::{Path, PathBuf};
 
 /// How the run's seed was chosen.
@@ -43,7 +44,7 @@ pub struct Claim {
 
 /// The resolved config as written to `private/config.json`.
 pub fn config_json(plan: &Plan) -> String {
-    format!("{}\n", plan.raw.to_json())
+    format!("{}\n", plan.config_json())
 }
 
 /// Claims `out` for `plan`, or joins the run already there if it has the
@@ -52,7 +53,7 @@ pub fn claim(plan: &Plan, out: &Path) -> Result<Claim, GenerateError> {
     let path = out.join("private").join("config.json");
     let mine = config_json(plan);
     let created = create_new(&path, mine.as_bytes())?;
-    let given = match plan.seed_origin {
+    let given = match plan.seed_origin() {
         SeedOrigin::Config => SeedUse::Given,
         SeedOrigin::Drawn => SeedUse::Drawn,
     };
@@ -74,7 +75,7 @@ pub fn claim(plan: &Plan, out: &Path) -> Result<Claim, GenerateError> {
         });
     }
     let different = || GenerateError::DifferentRun { path: path.clone() };
-    if plan.seed_origin != SeedOrigin::Drawn {
+    if plan.seed_origin() != SeedOrigin::Drawn {
         return Err(different());
     }
     let theirs = RawConfig::parse(&existing, &path, &[]).map_err(|_| different())?;

@@ -10,8 +10,8 @@
 //! [`crate::io::remove_stale_temporaries`].
 
 use super::{GenerateError, Job, RunPaths, Sidecar};
-use crate::config::Plan;
 use crate::io::IoError;
+use crate::plan::Plan;
 use std::collections::HashSet;
 use std::path::Path;
 
@@ -62,8 +62,7 @@ pub fn refuse_foreign_files(
         }
     }
     let psfs: HashSet<String> = plan
-        .raw
-        .psfs
+        .psfs()
         .iter()
         .map(|p| format!("{}.fits", p.name))
         .collect();

@@ -44,11 +44,12 @@ pub use readme::{SUBMISSION_FORMAT, participants_readme};
 pub use shard::{AutoShardError, BadShard, SLURM_ARRAY_VARS, Shard};
 
 use crate::blind::{BlindingKey, sha256_hex};
-use crate::config::{Plan, SampleFormat};
+use crate::config::SampleFormat;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
 use crate::io::{IoError, truth::write_truth_fits, write_bytes_atomically};
 use crate::noise::{self, Detector};
-use crate::render::{Accuracy, Renderer, try_draw_image};
+use crate::plan::Plan;
+use crate::render::{Renderer, try_draw_image};
 use crate::run_layout::{
     DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
     Manifest, ManifestImage,
@@ -233,20 +234,20 @@ pub fn config_sha256(plan: &Plan) -> String {
 
 /// Every image of a plan in canonical order, with its opaque ids.
 pub fn jobs(plan: &Plan, key: &BlindingKey) -> Result<Vec<Job>, GenerateError> {
-    let rotations: &[bool] = if plan.raw.population.rotated_pairs {
+    let rotations: &[bool] = if plan.population().rotated_pairs {
         &[false, true]
     } else {
         &[false]
     };
     let dataset_ids: Vec<String> = plan
-        .datasets
+        .datasets()
         .iter()
         .map(|d| key.dataset_id(d.index))
         .collect();
     let mut out = Vec::new();
     for field in 0..plan.n_fields() {
         for &rotated in rotations {
-            for d in plan.datasets.iter().filter(|d| d.fields.contains(&field)) {
+            for d in plan.datasets().iter().filter(|d| d.fields.contains(&field)) {
                 out.push(Job {
                     order: out.len(),
                     field,
@@ -454,7 +455,7 @@ pub fn generate(
         .par_iter()
         .map(|j| integrity::read_sidecar(&paths, j, &config_sha256))
         .collect::<Result<_, _>>()?;
-    let want_model = plan.raw.output.write_model;
+    let want_model = plan.output().write_model;
     let mine: Vec<&Job> = all.iter().filter(|j| options.shard.owns(j.order)).collect();
     let done: Vec<bool> = mine
         .par_iter()
@@ -484,42 +485,35 @@ pub fn generate(
     make_dataset_dirs(&paths, &all)?;
 
     // PSFs: built once, only those this process needs.
-    let ds = &plan.datasets;
+    let ds = &plan.datasets();
     let mut psf_needed: Vec<usize> = pending.iter().map(|j| ds[j.dataset as usize].psf).collect();
-    if plan.raw.output.write_psf {
+    if plan.output().write_psf {
         for j in &mine {
             let p = ds[j.dataset as usize].psf;
-            if !paths.psf(&plan.raw.psfs[p].name).exists() {
+            if !paths.psf(&plan.psfs()[p].name).exists() {
                 psf_needed.push(p);
             }
         }
     }
     psf_needed.sort_unstable();
     psf_needed.dedup();
-    let pixel_scale = plan.raw.image.pixel_scale_arcsec;
-    let det = Detector::new(&plan.raw.instrument, pixel_scale);
+    let pixel_scale = plan.pixel_scale_arcsec();
+    let det = plan.detector();
     let mut renderers: BTreeMap<usize, Renderer> = BTreeMap::new();
     let mut built = Vec::new();
     progress(Event::PsfsStart {
         total: psf_needed.len(),
     });
     for &p in &psf_needed {
-        let raw = &plan.raw.psfs[p];
-        let psf = crate::psf::build(raw, &plan.raw.telescope, pixel_scale).map_err(|source| {
-            GenerateError::Psf {
-                index: p,
-                name: raw.name.clone(),
-                source,
-            }
+        let raw = &plan.psfs()[p];
+        let psf = crate::psf::build(&plan.psf_spec(p)).map_err(|source| GenerateError::Psf {
+            index: p,
+            name: raw.name.clone(),
+            source,
         })?;
         renderers.insert(
             p,
-            Renderer::new(
-                psf.clone(),
-                pixel_scale,
-                Accuracy::from_config(&plan.raw.render),
-                det.sky_sigma_e(),
-            ),
+            Renderer::new(psf.clone(), pixel_scale, plan.accuracy(), det.sky_sigma_e()),
         );
         built.push((p, psf));
         progress(Event::PsfBuilt {
@@ -677,7 +671,7 @@ pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
     let all = jobs(plan, &key)?;
     integrity::refuse_foreign_files(plan, &paths, &all)?;
     integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))?;
-    let want_model = plan.raw.output.write_model;
+    let want_model = plan.output().write_model;
     let ok: Vec<bool> = all
         .par_iter()
         .map(|j| verify(&paths, j, want_model, &config_sha256))
@@ -801,20 +795,19 @@ fn make_image(
     det: &Detector,
     made: &Made,
 ) -> Result<(), GenerateError> {
-    let raw = &plan.raw;
-    let d = &plan.datasets[job.dataset as usize];
-    let (w, h) = (raw.image.width_px, raw.image.height_px);
+    let d = &plan.datasets()[job.dataset as usize];
+    let (w, h) = (plan.image().width_px, plan.image().height_px);
     let mut rows = crate::population::sheared(base, d.g1, d.g2);
-    if raw.population.lens_positions {
+    if plan.population().lens_positions {
         rows = crate::population::lensed(plan, job.field, &rows, d.g1, d.g2);
     }
     let model = try_draw_image(renderer, &rows, w, h).map_err(|source| GenerateError::Render {
         field: job.field,
         source,
     })?;
-    let noise_key = raw.output.noise.then(|| job.noise_key(plan.seed()));
+    let noise_key = plan.output().noise.then(|| job.noise_key(plan.seed()));
     let pixels = noise::realise(&model, w as usize, det, noise_key);
-    let header = ImageHeader::new(&raw.image, &raw.instrument, job.field);
+    let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
     let image_path = paths.image(job);
     write_image_fits(
         &image_path,
@@ -822,8 +815,8 @@ fn make_image(
         w,
         h,
         &header,
-        raw.output.format,
-        raw.output.compression,
+        plan.output().format,
+        plan.output().compression,
     )?;
     drop(pixels);
     let truth_path = paths.truth(job);
@@ -843,7 +836,7 @@ fn make_image(
         ("G2".to_string(), d.g2, "applied reduced shear".into()),
     ];
     write_truth_fits(&truth_path, &rows, &keywords)?;
-    let model_sha256 = if raw.output.write_model {
+    let model_sha256 = if plan.output().write_model {
         let adu: Vec<f32> = model
             .iter()
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
@@ -905,15 +898,15 @@ fn write_shared(
         &paths.public().join("README.md"),
         participants_readme(plan, para).as_bytes(),
     )?;
-    if plan.raw.output.write_psf {
+    if plan.output().write_psf {
         for (p, psf) in psfs {
-            let raw = &plan.raw.psfs[*p];
+            let raw = &plan.psfs()[*p];
             write_psf_file(
                 &paths.psf(&raw.name),
                 psf,
                 raw,
-                plan.raw.image.pixel_scale_arcsec,
-                plan.raw.render.max_stamp_px as usize,
+                plan.pixel_scale_arcsec(),
+                plan.render().max_stamp_px as usize,
             )?;
         }
     }
@@ -934,15 +927,15 @@ fn write_psf_file(
     use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
     let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
-    write_psf(
-        path,
+    let drawn = crate::psf::draw_for_file(
         &raw.name,
         psf.as_ref(),
         pixel_scale_arcsec,
         renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
         DEFAULT_OVERSAMPLE,
-        Some(&report),
-    )
+        Some(report),
+    );
+    write_psf(path, &drawn)
 }
 
 /// The private files every process of a run writes identically:
@@ -960,14 +953,14 @@ fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str
 
 /// `private/datasets.json` of a run.
 pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
-    let img = &plan.raw.image;
+    let img = &plan.image();
     Datasets {
         format: DATASETS_FORMAT.into(),
         width_px: img.width_px,
         height_px: img.height_px,
         pixel_scale_arcsec: img.pixel_scale_arcsec,
         datasets: plan
-            .datasets
+            .datasets()
             .iter()
             .map(|d| {
                 let images: Vec<&Job> = all.iter().filter(|j| j.dataset == d.index).collect();
@@ -977,7 +970,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
                         .map(|j| j.dataset_id.clone())
                         .unwrap_or_default(),
                     psf_id: d.psf as u32,
-                    psf: plan.raw.psfs[d.psf].name.clone(),
+                    psf: plan.psfs()[d.psf].name.clone(),
                     g1: d.g1,
                     g2: d.g2,
                     images: images
@@ -997,7 +990,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
 
 /// The public instrument facts of a plan.
 pub fn instrument_facts(plan: &Plan) -> InstrumentFacts {
-    let (img, ins) = (&plan.raw.image, &plan.raw.instrument);
+    let (img, ins) = (&plan.image(), &plan.instrument());
     InstrumentFacts {
         width_px: img.width_px,
         height_px: img.height_px,
@@ -1161,7 +1154,7 @@ mod tests {
             .unwrap()
         };
         let (flat, lensed) = (truth(0), truth(1));
-        let (cx, cy) = crate::population::lensing_centre(&p);
+        let (cx, cy) = p.lensing_centre();
         let mut moved = 0;
         for r in &lensed {
             let Some(f) = flat.iter().find(|f| f.id == r.id) else {
@@ -1193,7 +1186,7 @@ mod tests {
         let paths = RunPaths {
             root: dir.path().into(),
         };
-        let det = Detector::new(&p.raw.instrument, p.raw.image.pixel_scale_arcsec);
+        let det = p.detector();
         let sky_adu = det.sky_e_per_px / det.gain_e_per_adu;
         for j in &js {
             let img = crate::io::image_fits::read_image_fits(&paths.image(j)).unwrap();
@@ -1232,24 +1225,18 @@ mod tests {
             .into_iter()
             .find(|j| j.field == 1 && j.rotated && j.dataset == 3)
             .unwrap();
-        let d = &p.datasets[3];
+        let d = &p.datasets()[3];
         assert_eq!((d.psf, d.g1, d.g2), (1, 0.04, -0.02));
         let rows = crate::population::sheared(
             &crate::population::rotated(&crate::population::base_field(&p, 1).unwrap()),
             d.g1,
             d.g2,
         );
-        let raw = &p.raw;
-        let scale = raw.image.pixel_scale_arcsec;
-        let det = Detector::new(&raw.instrument, scale);
-        let psf = crate::psf::build(&raw.psfs[1], &raw.telescope, scale).unwrap();
-        let r = Renderer::new(
-            psf,
-            scale,
-            Accuracy::from_config(&raw.render),
-            det.sky_sigma_e(),
-        );
-        let (w, h) = (raw.image.width_px, raw.image.height_px);
+        let scale = p.pixel_scale_arcsec();
+        let det = p.detector();
+        let psf = crate::psf::build(&p.psf_spec(1)).unwrap();
+        let r = Renderer::new(psf, scale, p.accuracy(), det.sky_sigma_e());
+        let (w, h) = (p.image().width_px, p.image().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
         let pixels = noise::realise_reference(&model, w as usize, &det, Some(noise_key));
@@ -1259,7 +1246,7 @@ mod tests {
             &pixels,
             w,
             h,
-            &ImageHeader::new(&raw.image, &raw.instrument, 1),
+            &ImageHeader::new(p.image(), p.instrument(), 1),
             SampleFormat::Float32,
             crate::config::Compression::None,
         )

@@ -1,37 +1,28 @@
 //! `public/README.md`: what participants are told. It states facts about the
 //! data and the conventions, never a PSF name, shear, seed or run name.
 
-use crate::config::{Compression, Plan, SampleFormat};
-use crate::noise::Detector;
+use crate::config::{Compression, SampleFormat};
+use crate::plan::Plan;
 use std::fmt::Write as _;
 
-/// The submission format of SPEC §6, as told to participants. The scoring
-/// harness owns the canonical text; this paragraph says the same in short.
-pub const SUBMISSION_FORMAT: &str = "\
-## Submission format
-
-A submission is one table with one row per object you measured, either a
-whitespace-separated ASCII file whose first line is a `#` header naming the
-columns, a CSV file with a header line, or a FITS binary table. Columns:
-`image` (the image id of `manifest.json`), `x`, `y` (FITS pixel coordinates of
-the object), `e1`, `e2` (your estimate of the object's shear γ̂), and
-optionally `weight` (default 1). A directory holding one such table per image,
-named `<image-id>.<ext>`, is accepted too. Extra columns are ignored. Rows with
-an unknown image, NaN, a position off the image or a duplicate are refused, so
-check your file before sending it.
-";
+/// The submission format of SPEC §6, as told to participants: the one copy,
+/// [`stepsim_contract::SUBMISSION_FORMAT_MD`].
+pub const SUBMISSION_FORMAT: &str = stepsim_contract::SUBMISSION_FORMAT_MD;
 
 /// The participants' README of a run. `submission_format` is the paragraph
 /// describing the submission format (see [`SUBMISSION_FORMAT`]).
 pub fn participants_readme(plan: &Plan, submission_format: &str) -> String {
-    let r = &plan.raw;
-    let ins = &r.instrument;
-    let img = &r.image;
-    let det = Detector::new(ins, img.pixel_scale_arcsec);
-    let n_per =
-        plan.datasets[0].fields.len() as u32 * if r.population.rotated_pairs { 2 } else { 1 };
+    let ins = plan.instrument();
+    let img = plan.image();
+    let det = plan.detector();
+    let n_per = plan.datasets()[0].fields.len() as u32
+        * if plan.population().rotated_pairs {
+            2
+        } else {
+            1
+        };
     let magzero = ins.zp_eff() - 2.5 * ins.gain_e_per_adu.log10();
-    let pixels = match (r.output.format, r.output.compression) {
+    let pixels = match (plan.output().format, plan.output().compression) {
         (SampleFormat::Float32, _) => "32-bit floats (BITPIX −32)".to_string(),
         (SampleFormat::Int32, Compression::None) => {
             "32-bit integers (BITPIX 32), ADU rounded to the nearest integer".to_string()
@@ -91,7 +82,7 @@ back a catalogue.
 - Position angles are counter-clockwise from the +x axis.
 
 {submission_format}",
-        n_datasets = plan.datasets.len(),
+        n_datasets = plan.datasets().len(),
         width = img.width_px,
         height = img.height_px,
         pixscale = img.pixel_scale_arcsec,

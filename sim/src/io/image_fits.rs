@@ -19,14 +19,15 @@
 //!
 //! Files are written atomically ([`super::write_atomically`]).
 
-use super::fits::{Primary, create_fits, finish_fits, open_fits};
+use super::fits::{Primary, create_fits, finish_fits};
 use super::{IoError, write_atomically};
 use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
 use crate::wcs::TanWcs;
 use fitsio::FitsFile;
-use fitsio::hdu::HduInfo;
 use fitsio::images::{ImageDescription, ImageType};
 use std::path::Path;
+
+pub use stepsim_contract::io::image::{FitsImage, read_image_fits};
 
 /// What goes into the header of an image besides its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -60,17 +61,6 @@ impl ImageHeader {
             pixel_scale_arcsec: image.pixel_scale_arcsec,
         }
     }
-}
-
-/// An image read back from a file.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FitsImage {
-    /// NAXIS1.
-    pub width: u32,
-    /// NAXIS2.
-    pub height: u32,
-    /// Pixels (ADU), row-major.
-    pub pixels: Vec<f32>,
 }
 
 /// The integer written for an ADU value in `int32` output: nearest integer,
@@ -241,31 +231,6 @@ fn delete_key(f: &mut FitsFile, key: &str) -> Result<(), String> {
     } else {
         Err(format!("cannot delete {key}: cfitsio status {status}"))
     }
-}
-
-/// Reads the first non-empty 2-D image of a file (primary HDU, or HDU 1 of
-/// a tile-compressed file) as ADU.
-pub fn read_image_fits(path: &Path) -> Result<FitsImage, IoError> {
-    let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-    let mut f = open_fits(path)?;
-    let n_hdus = f.num_hdus().map_err(fe)?;
-    for i in 0..n_hdus {
-        let hdu = f.hdu(i).map_err(fe)?;
-        if let HduInfo::ImageInfo { shape, .. } = &hdu.info
-            && shape.len() == 2
-            && shape[0] > 0
-            && shape[1] > 0
-        {
-            let (height, width) = (shape[0] as u32, shape[1] as u32);
-            let pixels: Vec<f32> = hdu.read_image(&mut f).map_err(fe)?;
-            return Ok(FitsImage {
-                width,
-                height,
-                pixels,
-            });
-        }
-    }
-    Err(IoError::format(path, "no 2-D image in the file"))
 }
 
 #[cfg(test)]

@@ -112,24 +112,15 @@ pub fn renderer_side_px(
 /// Samples per pixel of the oversampled PSF image written by default.
 pub const DEFAULT_OVERSAMPLE: usize = 4;
 
-/// Renders `psf` and writes `RUN/private/psf/<name>.fits` (or any path):
-/// the pixel-convolved PSF at `pixel_scale_arcsec` on an `n × n` grid and
-/// `oversample` times finer on `(n·oversample)²`, with `report`'s FWHM, χ
-/// and calibration in the headers when given. This is what `stepsim psf`
-/// and the generate step write.
-pub fn write_psf(
-    path: &Path,
-    name: &str,
-    psf: &dyn crate::psf::Psf,
-    pixel_scale_arcsec: f64,
-    n: usize,
-    oversample: usize,
-    report: Option<&crate::psf::PsfReport>,
-) -> Result<(), IoError> {
-    let at_pixel = crate::psf::image(psf, n, pixel_scale_arcsec, 1);
-    let fine = crate::psf::image(psf, n * oversample, pixel_scale_arcsec, oversample);
+/// Writes a drawn PSF ([`crate::psf::draw_for_file`]) to
+/// `RUN/private/psf/<name>.fits` (or any path): the pixel-scale image in the
+/// primary HDU, the fine one in `OVERSAMPLED`, with the report's FWHM, χ and
+/// calibration in the headers when given. This is what `stepsim psf` and the
+/// generate step write.
+pub fn write_psf(path: &Path, drawn: &crate::psf::DrawnPsf) -> Result<(), IoError> {
+    let (n, oversample, p) = (drawn.n, drawn.oversample, drawn.pixel_scale_arcsec);
     let mut keys: Vec<Keyword> = Vec::new();
-    if let Some(r) = report {
+    if let Some(r) = &drawn.report {
         keys.push((
             "FWHM".into(),
             r.fwhm_arcsec,
@@ -148,16 +139,16 @@ pub fn write_psf(
     }
     write_psf_fits(
         path,
-        name,
+        &drawn.name,
         PsfImage {
-            data: &at_pixel,
+            data: &drawn.at_pixel,
             n,
-            scale_arcsec: pixel_scale_arcsec,
+            scale_arcsec: p,
         },
         PsfImage {
-            data: &fine,
+            data: &drawn.oversampled,
             n: n * oversample,
-            scale_arcsec: pixel_scale_arcsec / oversample as f64,
+            scale_arcsec: p / oversample as f64,
         },
         oversample,
         &keys,
@@ -255,12 +246,21 @@ mod tests {
             .into_iter()
             .find(|r| r.name == "none")
             .unwrap();
-        let psf = crate::psf::build(&raw, &crate::config::RawTelescope::default(), p).unwrap();
+        let psf = crate::psf::build(&crate::psf::PsfSpec::new(
+            raw,
+            crate::config::RawTelescope::default(),
+            p,
+        ))
+        .unwrap();
         let n = renderer_side_px(psf.as_ref(), p, 1024);
         assert_eq!(n, 328);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("none.fits");
-        write_psf(&path, "none", psf.as_ref(), p, n, 1, None).unwrap();
+        write_psf(
+            &path,
+            &crate::psf::draw_for_file("none", psf.as_ref(), p, n, 1, None),
+        )
+        .unwrap();
         let (v, nx, ny) = read_psf_fits(&path).unwrap();
         assert_eq!((nx, ny), (328, 328));
         let total: f64 = v.iter().sum();

@@ -8,6 +8,7 @@
 //! element dV/dz/dΩ = D_H D_M² / E(z). Distances in Mpc.
 
 use crate::config::Cosmology;
+use stepsim_numerics::quad::simpson;
 
 /// Speed of light, km/s.
 pub const C_KM_S: f64 = 299_792.458;
@@ -62,19 +63,11 @@ impl Lcdm {
         if z <= 0.0 {
             return 0.0;
         }
-        let n = 256;
-        let umax = z.ln_1p();
-        let h = umax / n as f64;
         let f = |u: f64| {
             let a = u.exp();
             a / self.e(a - 1.0)
         };
-        let mut s = f(0.0) + f(umax);
-        for i in 1..n {
-            let w = if i % 2 == 1 { 4.0 } else { 2.0 };
-            s += w * f(i as f64 * h);
-        }
-        self.hubble_distance_mpc() * s * h / 3.0
+        self.hubble_distance_mpc() * simpson(f, 0.0, z.ln_1p(), 256)
     }
 
     /// Transverse comoving distance D_M (Mpc).
@@ -226,14 +219,7 @@ mod tests {
         // Flat: V_C(z) = 4π/3 D_M³; integrate dV/dz/dΩ over 4π sr.
         let c = flat();
         let z = 2.0;
-        let n = 400;
-        let h = z / n as f64;
-        let mut s = c.dv_dz_dsr_mpc3(0.0) + c.dv_dz_dsr_mpc3(z);
-        for i in 1..n {
-            let w = if i % 2 == 1 { 4.0 } else { 2.0 };
-            s += w * c.dv_dz_dsr_mpc3(i as f64 * h);
-        }
-        let v = 4.0 * std::f64::consts::PI * s * h / 3.0;
+        let v = 4.0 * std::f64::consts::PI * simpson(|z| c.dv_dz_dsr_mpc3(z), 0.0, z, 400);
         let want = 4.0 / 3.0 * std::f64::consts::PI * c.transverse_distance_mpc(z).powi(3);
         assert!((v / want - 1.0).abs() < 1e-8, "{v} vs {want}");
     }

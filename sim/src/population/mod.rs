@@ -19,11 +19,9 @@ pub mod sizes;
 pub mod stars;
 pub mod stuff;
 
-/// The statistics this module used to hold now live in [`crate::stats`].
-pub use crate::stats;
-
-use crate::config::{Plan, Source};
-use crate::io::skymaker::{ListError, ListObject, read_list};
+use crate::config::Source;
+use crate::io::skymaker::ListObject;
+use crate::plan::{Placement, Plan};
 use crate::seed::{SeedKey, Stream};
 use crate::shear::{self, Complex64, Moments};
 use crate::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
@@ -32,7 +30,6 @@ use cosmology::Lcdm;
 use rand::RngExt;
 use rand_distr::{Distribution, Poisson, StandardNormal};
 use shapes::ShapeLaw;
-use std::path::PathBuf;
 use stuff::StuffModel;
 
 /// Most objects one base field may hold (a guard against configs that
@@ -42,9 +39,14 @@ pub const MAX_OBJECTS_PER_FIELD: f64 = 2e6;
 /// An error while making a base field.
 #[derive(Debug, thiserror::Error)]
 pub enum PopulationError {
-    /// A SkyMaker list could not be read.
-    #[error(transparent)]
-    List(#[from] ListError),
+    /// A base field beyond the plan's, asked of a SkyMaker-list source.
+    #[error("no SkyMaker list for base field {field}: the plan has {n_fields} base fields")]
+    NoList {
+        /// The field asked for.
+        field: u32,
+        /// Base fields of the plan.
+        n_fields: u32,
+    },
     /// The config asks for more objects than a field may hold.
     #[error(
         "{what}: {expected:.0} objects expected in one field (limit {MAX_OBJECTS_PER_FIELD:e}); lower `{key}`"
@@ -59,62 +61,44 @@ pub enum PopulationError {
     },
 }
 
-/// Area over which objects are placed (image plus margin), in arcmin², and
-/// the x, y ranges in FITS pixels.
-pub fn placement_area(plan: &Plan) -> (f64, (f64, f64), (f64, f64)) {
-    let im = &plan.raw.image;
-    let m_px = im.margin_arcsec / im.pixel_scale_arcsec;
-    let xr = (0.5 - m_px, f64::from(im.width_px) + 0.5 + m_px);
-    let yr = (0.5 - m_px, f64::from(im.height_px) + 0.5 + m_px);
-    let s = im.pixel_scale_arcsec / 60.0;
-    ((xr.1 - xr.0) * (yr.1 - yr.0) * s * s, xr, yr)
-}
-
-/// Where galaxies are placed: [`placement_area`], widened with
+/// Where galaxies are placed: [`Plan::placement_area`], widened with
 /// `population.lens_positions` so that after lensing by any shear of the plan
 /// the galaxies still cover the image and its margin (the source-plane
 /// rectangle A·(image + margin), A the shear matrix, about the image
 /// centre). Lensing keeps areas, so the density on the image is unchanged.
-pub fn galaxy_placement_area(plan: &Plan) -> (f64, (f64, f64), (f64, f64)) {
-    let (area, xr, yr) = placement_area(plan);
-    if !plan.raw.population.lens_positions {
-        return (area, xr, yr);
+pub fn galaxy_placement_area(plan: &Plan) -> Placement {
+    let whole = plan.placement_area();
+    if !plan.population().lens_positions {
+        return whole;
     }
-    let (cx, cy) = lensing_centre(plan);
+    let (xr, yr) = (whole.x_px, whole.y_px);
+    let (cx, cy) = plan.lensing_centre();
     let (mut hx, mut hy) = (xr.1 - cx, yr.1 - cy);
     let (hx0, hy0) = (hx, hy);
-    for d in &plan.datasets {
+    for d in plan.datasets() {
         let a = crate::shear::shear_matrix(d.g1, d.g2);
         hx = hx.max(a[0][0].abs() * hx0 + a[0][1].abs() * hy0);
         hy = hy.max(a[1][0].abs() * hx0 + a[1][1].abs() * hy0);
     }
-    let s = plan.raw.image.pixel_scale_arcsec / 60.0;
-    (
-        4.0 * hx * hy * s * s,
-        (cx - hx, cx + hx),
-        (cy - hy, cy + hy),
-    )
-}
-
-/// The centre of the image in FITS pixels, ((W + 1)/2, (H + 1)/2): the
-/// point about which `population.lens_positions` lenses positions.
-pub fn lensing_centre(plan: &Plan) -> (f64, f64) {
-    let im = &plan.raw.image;
-    (
-        (f64::from(im.width_px) + 1.0) / 2.0,
-        (f64::from(im.height_px) + 1.0) / 2.0,
-    )
+    let s = plan.pixel_scale_arcsec() / 60.0;
+    Placement {
+        area_arcmin2: 4.0 * hx * hy * s * s,
+        x_px: (cx - hx, cx + hx),
+        y_px: (cy - hy, cy + hy),
+    }
 }
 
 /// The galaxies of `rows` with their positions lensed by (g1, g2) about
-/// [`lensing_centre`] ([`crate::shear::lens_offset`]), sky coordinates
+/// [`Plan::lensing_centre`] ([`crate::shear::lens_offset`]), sky coordinates
 /// recomputed from the field's WCS; stars unchanged. Galaxies that land
-/// beyond the image and its margin ([`placement_area`]) are left out, so
+/// beyond the image and its margin ([`Plan::placement_area`]) are left out, so
 /// every dataset has the density of an unlensed one.
 pub fn lensed(plan: &Plan, field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
-    let (_, xr, yr) = placement_area(plan);
-    let (cx, cy) = lensing_centre(plan);
-    let wcs = TanWcs::for_field(&plan.raw.image, field);
+    let Placement {
+        x_px: xr, y_px: yr, ..
+    } = plan.placement_area();
+    let (cx, cy) = plan.lensing_centre();
+    let wcs = plan.field_wcs(field);
     rows.iter()
         .filter_map(|r| {
             if r.is_star() {
@@ -135,10 +119,10 @@ pub fn lensed(plan: &Plan, field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> V
 
 /// The Stuff model of a plan for the configured galaxy magnitude range.
 pub fn model(plan: &Plan) -> StuffModel {
-    let g = &plan.raw.population.galaxies;
+    let g = &plan.population().galaxies;
     StuffModel::new(
         g,
-        Lcdm::new(&plan.raw.population.cosmology),
+        Lcdm::new(&plan.population().cosmology),
         g.mag_bright,
         g.mag_faint,
     )
@@ -148,34 +132,30 @@ pub fn model(plan: &Plan) -> StuffModel {
 /// sheared columns equal to the intrinsic ones), with unique ids, sorted by
 /// id. Randomness comes only from `SeedKey::base(seed, field, Galaxies)` and
 /// `(…, Stars)`, so every dataset shares the field. With
-/// `population.source = skymaker_list` the field's list is read instead
-/// (`{field}` in the path replaced by the field number; a relative path is
-/// relative to the config file's directory).
+/// `population.source = skymaker_list` the field's list (read by the plan,
+/// [`Plan::skymaker_list`]) is used instead.
 pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
-    let rows = match &plan.raw.population.source {
-        Source::Stuff => {
-            let mut rows = galaxies(plan, field)?;
-            let first_star = rows.len() as i64 + 1;
-            rows.extend(stars_of_field(plan, field, first_star)?);
-            rows
-        }
-        Source::SkymakerList { path } => {
-            let p = list_path(plan, path, field);
-            let objects = read_list(&p)?;
-            from_list(plan, field, &objects)
-        }
-    };
+    if let Source::SkymakerList { .. } = plan.population().source {
+        let objects = plan.skymaker_list(field).ok_or(PopulationError::NoList {
+            field,
+            n_fields: plan.n_fields(),
+        })?;
+        return Ok(from_list(plan, field, objects));
+    }
+    let mut rows = galaxies(plan, field)?;
+    let first_star = rows.len() as i64 + 1;
+    rows.extend(stars_of_field(plan, field, first_star)?);
     Ok(rows)
 }
 
 /// Checks, without drawing anything, that [`base_field`] will succeed for
 /// every field of the plan: the expected object counts are within
-/// [`MAX_OBJECTS_PER_FIELD`], and with a SkyMaker source every list file
-/// exists and parses. Commands call this before writing anything.
+/// [`MAX_OBJECTS_PER_FIELD`] (a SkyMaker source's lists were read and
+/// checked by [`Plan::new`]). Commands call this before writing anything.
 pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
-    match &plan.raw.population.source {
+    match &plan.population().source {
         Source::Stuff => {
-            let (area, _, _) = galaxy_placement_area(plan);
+            let area = galaxy_placement_area(plan).area_arcmin2;
             let expected = model(plan).density_per_arcmin2() * area;
             if expected > MAX_OBJECTS_PER_FIELD {
                 return Err(PopulationError::TooMany {
@@ -184,7 +164,7 @@ pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
                     key: "population.galaxies.mag_faint",
                 });
             }
-            let expected = plan.raw.population.stars.density_per_arcmin2 * area;
+            let expected = plan.population().stars.density_per_arcmin2 * area;
             if expected > MAX_OBJECTS_PER_FIELD {
                 return Err(PopulationError::TooMany {
                     what: "stars",
@@ -193,19 +173,14 @@ pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
                 });
             }
         }
-        Source::SkymakerList { path } => {
-            for field in 0..plan.n_fields() {
-                read_list(&list_path(plan, path, field))?;
-            }
-        }
+        Source::SkymakerList { .. } => {}
     }
     Ok(())
 }
 
 /// de Vaucouleurs T of each Hubble type code (for SkyMaker lists).
 pub fn t_types(plan: &Plan) -> Vec<f64> {
-    plan.raw
-        .population
+    plan.population()
         .galaxies
         .types
         .iter()
@@ -213,20 +188,14 @@ pub fn t_types(plan: &Plan) -> Vec<f64> {
         .collect()
 }
 
-/// The list file of field `field` for the path pattern `pattern`.
-pub fn list_path(plan: &Plan, pattern: &str, field: u32) -> PathBuf {
-    let p = PathBuf::from(pattern.replace("{field}", &field.to_string()));
-    if p.is_relative() {
-        plan.source.parent().map(|d| d.join(&p)).unwrap_or(p)
-    } else {
-        p
-    }
-}
-
 fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
-    let g = &plan.raw.population.galaxies;
+    let g = &plan.population().galaxies;
     let model = model(plan);
-    let (area, xr, yr) = galaxy_placement_area(plan);
+    let Placement {
+        area_arcmin2: area,
+        x_px: xr,
+        y_px: yr,
+    } = galaxy_placement_area(plan);
     let expected = model.density_per_arcmin2() * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {
@@ -238,8 +207,8 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
     let mut rng = SeedKey::base(plan.seed(), field, Stream::Galaxies).rng();
     let n = poisson(&mut rng, expected);
     let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
-    let wcs = TanWcs::for_field(&plan.raw.image, field);
-    let ins = &plan.raw.instrument;
+    let wcs = plan.field_wcs(field);
+    let ins = plan.instrument();
     let sz = &g.sizes;
     let h = model.cosmo.h();
     let mut rows = Vec::with_capacity(n);
@@ -313,8 +282,12 @@ fn stars_of_field(
     field: u32,
     first_id: i64,
 ) -> Result<Vec<TruthRow>, PopulationError> {
-    let s = &plan.raw.population.stars;
-    let (area, xr, yr) = placement_area(plan);
+    let s = &plan.population().stars;
+    let Placement {
+        area_arcmin2: area,
+        x_px: xr,
+        y_px: yr,
+    } = plan.placement_area();
     let expected = s.density_per_arcmin2 * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {
@@ -325,8 +298,8 @@ fn stars_of_field(
     }
     let mut rng = SeedKey::base(plan.seed(), field, Stream::Stars).rng();
     let n = poisson(&mut rng, expected);
-    let wcs = TanWcs::for_field(&plan.raw.image, field);
-    let ins = &plan.raw.instrument;
+    let wcs = plan.field_wcs(field);
+    let ins = plan.instrument();
     Ok((0..n)
         .map(|k| {
             let x = xr.0 + (xr.1 - xr.0) * rng.random::<f64>();
@@ -375,9 +348,9 @@ fn poisson(rng: &mut crate::seed::SimRng, mean: f64) -> usize {
 
 /// Truth rows from a SkyMaker list (ids = 1-based object order in the file).
 pub fn from_list(plan: &Plan, field: u32, objects: &[ListObject]) -> Vec<TruthRow> {
-    let wcs = TanWcs::for_field(&plan.raw.image, field);
-    let ins = &plan.raw.instrument;
-    let types = &plan.raw.population.galaxies.types;
+    let wcs = plan.field_wcs(field);
+    let ins = plan.instrument();
+    let types = &plan.population().galaxies.types;
     objects
         .iter()
         .enumerate()
@@ -457,8 +430,8 @@ fn nearest(values: impl Iterator<Item = f64>, target: f64) -> i32 {
 /// ⟨r²⟩ = 6 h²; see [`sizes`]).
 pub fn component_sigma2(row: &TruthRow) -> (f64, f64) {
     (
-        0.5 * sizes::devaucouleurs_r2_over_re2() * row.bulge_re_arcsec.powi(2),
-        0.5 * sizes::EXP_R2_OVER_H2 * row.disk_h_arcsec.powi(2),
+        0.5 * crate::profile::sersic::devaucouleurs_r2_over_re2() * row.bulge_re_arcsec.powi(2),
+        0.5 * crate::profile::Exponential::MEAN_R2 * row.disk_h_arcsec.powi(2),
     )
 }
 

@@ -194,14 +194,7 @@ impl TypeModel {
         if m2 <= m1 {
             return 0.0;
         }
-        let n = 128;
-        let h = (m2 - m1) / n as f64;
-        let mut s = self.phi(m1, z) + self.phi(m2, z);
-        for i in 1..n {
-            let w = if i % 2 == 1 { 4.0 } else { 2.0 };
-            s += w * self.phi(m1 + i as f64 * h, z);
-        }
-        s * h / 3.0
+        stepsim_numerics::quad::simpson(|m| self.phi(m, z), m1, m2, 128)
     }
 
     /// Maximum of φ(·, z) on [m1, m2]: φ peaks at M* − 2.5 log10(α+1) when

@@ -57,7 +57,7 @@ pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
 #[test]
 fn galaxy_counts_match_the_deep_field_counts() {
     let plan = wide_plan();
-    let (area, _, _) = placement_area(&plan);
+    let area = plan.placement_area().area_arcmin2;
     let gals = galaxies_of(&base_field(&plan, 0).unwrap());
     let mags: Vec<f64> = gals.iter().map(|r| r.mag).collect();
     let slope = count_slope(&mags, 20.0, 24.0);
@@ -114,7 +114,7 @@ fn sizes_decrease_with_magnitude() {
 #[test]
 fn star_counts_have_the_configured_slope_and_density() {
     let plan = plan_with(&["population.stars.density_per_arcmin2=400"]);
-    let (area, _, _) = placement_area(&plan);
+    let area = plan.placement_area().area_arcmin2;
     let rows = base_field(&plan, 0).unwrap();
     let stars: Vec<f64> = rows.iter().filter(|r| r.is_star()).map(|r| r.mag).collect();
     // Poisson mean 400 × area ≈ 80 000: within 5σ.
@@ -122,7 +122,7 @@ fn star_counts_have_the_configured_slope_and_density() {
     assert!((stars.len() as f64 - want).abs() < 5.0 * want.sqrt());
     let slope = count_slope(&stars, 17.0, 25.0);
     assert!((slope - 0.30).abs() < 0.02, "{slope}");
-    let s = &plan.raw.population.stars;
+    let s = &plan.population().stars;
     let d = ks_statistic(&stars, |m| mag_cdf(s, m));
     assert!(ks_p_value(d, stars.len()) > 1e-3, "D = {d}");
 }
@@ -132,9 +132,11 @@ fn base_field_rows_are_consistent() {
     let plan = plan_with(&["image.width_px=2048", "image.height_px=2048"]);
     let rows = base_field(&plan, 3).unwrap();
     assert!(rows.len() > 1000);
-    let (_, xr, yr) = placement_area(&plan);
-    let wcs = TanWcs::for_field(&plan.raw.image, 3);
-    let ins = &plan.raw.instrument;
+    let crate::plan::Placement {
+        x_px: xr, y_px: yr, ..
+    } = plan.placement_area();
+    let wcs = plan.field_wcs(3);
+    let ins = &plan.instrument();
     for (i, r) in rows.iter().enumerate() {
         assert_eq!(r.id, i as i64 + 1);
         assert!(r.x >= xr.0 && r.x <= xr.1 && r.y >= yr.0 && r.y <= yr.1);
@@ -333,7 +335,7 @@ fn whole_galaxy_moments_are_flux_weighted_sums() {
         ..r
     };
     let q = galaxy_moments(&r);
-    let sb = 0.5 * sizes::devaucouleurs_r2_over_re2();
+    let sb = 0.5 * crate::profile::sersic::devaucouleurs_r2_over_re2();
     assert!((q.xx - (0.5 * sb + 1.5)).abs() < 1e-12);
     assert!((q.yy - (0.5 * sb + 0.375)).abs() < 1e-12);
     let mut row = r;
@@ -346,14 +348,7 @@ fn whole_galaxy_moments_are_flux_weighted_sums() {
 fn skymaker_round_trip_through_the_config_source() {
     let dir = tempfile::tempdir().unwrap();
     let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
-    let t_types: Vec<f64> = plan
-        .raw
-        .population
-        .galaxies
-        .types
-        .iter()
-        .map(|t| t.t_type)
-        .collect();
+    let t_types = crate::population::t_types(&plan);
     let mut fields = Vec::new();
     for f in 0..2 {
         let rows = base_field(&plan, f).unwrap();
@@ -366,7 +361,12 @@ fn skymaker_round_trip_through_the_config_source() {
         "population.source={{\"skymaker_list\": {{\"path\": {:?}}}}}",
         pattern.to_str().unwrap()
     );
-    let list_plan = plan_with(&["image.width_px=1024", "image.height_px=1024", &src]);
+    let list_plan = plan_with(&[
+        "image.width_px=1024",
+        "image.height_px=1024",
+        "image.n_images=2",
+        &src,
+    ]);
     for (f, want) in fields.iter().enumerate() {
         let got = base_field(&list_plan, f as u32).unwrap();
         assert_eq!(got.len(), want.len());
@@ -396,9 +396,12 @@ fn skymaker_round_trip_through_the_config_source() {
             assert!((a.e1 - b.e1).abs() < 1e-12 && (a.e2 - b.e2).abs() < 1e-12);
         }
     }
-    // A missing list is an error naming the file.
+    // A field beyond the plan's has no list.
     let err = base_field(&list_plan, 5).unwrap_err().to_string();
-    assert!(err.contains("f5.list"), "{err}");
+    assert_eq!(
+        err,
+        "no SkyMaker list for base field 5: the plan has 2 base fields"
+    );
 }
 
 #[test]
@@ -452,15 +455,17 @@ fn lensed_positions_follow_the_shear_and_keep_the_density() {
     ];
     let lens = plan_with(&[flags.as_slice(), &["population.lens_positions=true"]].concat());
     let flat = plan_with(&flags);
-    assert!(!flat.raw.population.lens_positions);
-    let (a0, xr0, yr0) = placement_area(&lens);
-    let (a1, xr1, yr1) = galaxy_placement_area(&lens);
-    assert_eq!(galaxy_placement_area(&flat), placement_area(&flat));
+    assert!(!flat.population().lens_positions);
+    let whole = lens.placement_area();
+    let (a0, xr0, yr0) = (whole.area_arcmin2, whole.x_px, whole.y_px);
+    let wide = galaxy_placement_area(&lens);
+    let (a1, xr1, yr1) = (wide.area_arcmin2, wide.x_px, wide.y_px);
+    assert_eq!(galaxy_placement_area(&flat), flat.placement_area());
     assert!(
         a1 > 1.09 * a0 && (xr1.0 - xr0.0).abs() < 1e-9 && yr1.0 < yr0.0,
         "{a1} {a0}"
     );
-    let (cx, cy) = lensing_centre(&lens);
+    let (cx, cy) = lens.lensing_centre();
     assert_eq!((cx, cy), (1024.5, 1024.5));
     let base = base_field(&lens, 0).unwrap();
     let (g1, g2) = (0.1, 0.0);
@@ -523,5 +528,64 @@ fn lensed_positions_follow_the_shear_and_keep_the_density() {
             .iter()
             .zip(inside)
             .all(|(a, b)| a.id == b.id && (a.x - b.x).abs() < 1e-9 && (a.y - b.y).abs() < 1e-9)
+    );
+}
+
+/// A config file in `dir` with the given JSON body.
+fn config_in(dir: &Path, body: &str) -> std::path::PathBuf {
+    let path = dir.join("config.json");
+    std::fs::write(&path, body).unwrap();
+    path
+}
+
+#[test]
+fn skymaker_lists_are_found_beside_the_config_and_read_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let small = [
+        "image.width_px=256",
+        "image.height_px=256",
+        "image.n_images=2",
+    ];
+    let drawn = Plan::new(
+        RawConfig::parse(
+            "{\"run\": {\"seed\": 5}}",
+            Path::new("t.json"),
+            &small.map(String::from),
+        )
+        .unwrap(),
+        Path::new("t.json"),
+    )
+    .unwrap();
+    std::fs::create_dir(dir.path().join("lists")).unwrap();
+    let t_types = crate::population::t_types(&drawn);
+    let mut counts = Vec::new();
+    for field in 0..2 {
+        let rows = base_field(&drawn, field).unwrap();
+        let list = dir.path().join(format!("lists/f{field}.list"));
+        crate::io::skymaker::write_list(&list, &rows, &t_types).unwrap();
+        counts.push(rows.len());
+    }
+    // A relative pattern: relative to the config's directory, whatever
+    // the working directory is.
+    let config = config_in(
+        dir.path(),
+        r#"{"run": {"seed": 5}, "image": {"width_px": 256, "height_px": 256, "n_images": 2},
+           "population": {"source": {"skymaker_list": {"path": "lists/f{field}.list"}}}}"#,
+    );
+    let plan = Plan::load(&config, &[]).unwrap();
+    assert_eq!(plan.skymaker_list(0).unwrap().len(), counts[0]);
+    assert_eq!(plan.skymaker_list(1).unwrap().len(), counts[1]);
+    assert!(plan.skymaker_list(2).is_none());
+    // Read once, at plan time: the files are no longer needed.
+    std::fs::remove_dir_all(dir.path().join("lists")).unwrap();
+    let rows = base_field(&plan, 1).unwrap();
+    assert_eq!(rows.len(), counts[1]);
+    // A missing list is refused when the plan is made, naming the key
+    // and the resolved file.
+    let err = Plan::load(&config, &[]).unwrap_err().to_string();
+    assert!(
+        err.contains("key `population.source.path`")
+            && err.contains(&dir.path().join("lists/f0.list").display().to_string()),
+        "{err}"
     );
 }

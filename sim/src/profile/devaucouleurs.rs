@@ -148,18 +148,10 @@ impl DeVaucouleurs {
     /// [`Self::solve_b`] by a test).
     pub const B: f64 = 7.669_249_442_500_7;
 
-    /// Solves P(8, b) = ½ by bisection (the slow twin of [`Self::B`]).
+    /// Solves P(8, b) = ½ by bisection (the slow twin of [`Self::B`]):
+    /// [`super::sersic::sersic_b`] at n = 4.
     pub fn solve_b() -> f64 {
-        let (mut lo, mut hi) = (7.0_f64, 8.0_f64);
-        for _ in 0..200 {
-            let mid = 0.5 * (lo + hi);
-            if lower_gamma_p8(mid) < 0.5 {
-                lo = mid;
-            } else {
-                hi = mid;
-            }
-        }
-        0.5 * (lo + hi)
+        super::sersic::sersic_b(4)
     }
 
     /// f̃ as a function of t = k² (k in cycles per r_e), via the table.

@@ -15,8 +15,12 @@ use std::f64::consts::PI;
 pub struct Exponential;
 
 impl Exponential {
-    /// Half-light radius in units of the scale length.
-    pub const HALF_LIGHT_RADIUS: f64 = 1.678_346_990_016_661_3;
+    /// Half-light radius in units of the scale length (b₁ of
+    /// [`super::sersic::sersic_b`]; the population's disk sizes use it).
+    pub const HALF_LIGHT_RADIUS: f64 = 1.678_346_990_016_661;
+
+    /// ⟨r²⟩ / h² of the untruncated profile: Γ(4) = 6.
+    pub const MEAN_R2: f64 = 6.0;
 
     /// f̃ as a function of t = k² (k in cycles per h): the form used in the
     /// Fourier loop, which has k² from a quadratic form.
@@ -38,7 +42,7 @@ impl RadialProfile for Exponential {
         1.0 - (1.0 + r) * (-r).exp()
     }
     fn mean_r2(&self) -> f64 {
-        6.0
+        Self::MEAN_R2
     }
     fn radius_density_below(&self, level: f64) -> f64 {
         // e^{−r} / 2π = level
@@ -52,13 +56,8 @@ mod tests {
 
     /// Composite Simpson integral of f(r) 2πr dr on [0, r].
     fn simpson_enclosed(r: f64, n: usize) -> f64 {
-        let h = r / n as f64;
         let g = |x: f64| Exponential.density(x) * 2.0 * PI * x;
-        let mut s = g(0.0) + g(r);
-        for i in 1..n {
-            s += g(i as f64 * h) * if i % 2 == 1 { 4.0 } else { 2.0 };
-        }
-        s * h / 3.0
+        stepsim_numerics::quad::simpson(g, 0.0, r, n)
     }
 
     #[test]

@@ -15,6 +15,7 @@
 pub mod devaucouleurs;
 pub mod exponential;
 pub mod galaxy;
+pub mod sersic;
 pub mod transform;
 
 pub use devaucouleurs::DeVaucouleurs;
@@ -56,17 +57,7 @@ pub(crate) fn monotone_root(pred: impl Fn(f64) -> bool) -> f64 {
     while !pred(hi) && hi < 1e12 {
         hi *= 2.0;
     }
-    let mut lo = 0.0;
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if pred(mid) {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-        if hi - lo <= 1e-12 * hi {
-            break;
-        }
-    }
-    hi
+    stepsim_numerics::roots::Bisection::to_relative_width(1e-12)
+        .run(0.0, hi, pred)
+        .1
 }

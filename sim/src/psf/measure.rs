@@ -264,6 +264,49 @@ pub fn contour_radius(img: &[f64], n: usize, level: f64, angle_rad: f64) -> f64 
     r
 }
 
+/// The two images of a PSF file (`RUN/private/psf/<name>.fits`, `stepsim
+/// psf`), drawn: the pixel-convolved PSF at the image pixel scale on an
+/// `n × n` grid and `oversample` times finer on `(n·oversample)²`, with the
+/// measured report for the headers. [`crate::io::psf_fits::write_psf`]
+/// writes it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawnPsf {
+    /// The PSF's name from the config.
+    pub name: String,
+    /// Image pixel scale (arcsec).
+    pub pixel_scale_arcsec: f64,
+    /// Side of the pixel-scale image.
+    pub n: usize,
+    /// The pixel-scale image, row-major, unit sum.
+    pub at_pixel: Vec<f64>,
+    /// Samples per pixel of the fine image.
+    pub oversample: usize,
+    /// The fine image (side `n · oversample`), row-major, unit sum.
+    pub oversampled: Vec<f64>,
+    /// FWHM, χ and calibration for the header, when measured.
+    pub report: Option<PsfReport>,
+}
+
+/// Draws both images of `psf`'s file (see [`DrawnPsf`]).
+pub fn draw_for_file(
+    name: &str,
+    psf: &dyn Psf,
+    pixel_scale_arcsec: f64,
+    n: usize,
+    oversample: usize,
+    report: Option<PsfReport>,
+) -> DrawnPsf {
+    DrawnPsf {
+        name: name.into(),
+        pixel_scale_arcsec,
+        n,
+        at_pixel: image(psf, n, pixel_scale_arcsec, 1),
+        oversample,
+        oversampled: image(psf, n * oversample, pixel_scale_arcsec, oversample),
+        report,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

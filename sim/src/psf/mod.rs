@@ -34,7 +34,7 @@ mod tests;
 
 pub use calibrate::OpticalPsf;
 pub use gaussian::GaussianPsf;
-pub use measure::{PsfReport, image, report};
+pub use measure::{DrawnPsf, PsfReport, draw_for_file, image, report};
 pub use sampled::SampledPsf;
 
 use crate::config::{Aberration, RawPsf, RawPsfModel, RawTelescope};
@@ -206,43 +206,82 @@ pub enum PsfError {
         /// What is wrong.
         message: String,
     },
-    /// Reading a PSF file failed.
-    #[error("psf {name}: {source}")]
-    Io {
-        /// PSF name.
-        name: String,
-        /// The I/O error.
-        source: crate::io::IoError,
-    },
 }
 
-/// Builds the PSF of a config entry, calibrated for `pixel_scale_arcsec`
-/// (default accuracy). Results are cached per process, keyed by the
-/// inputs, so asking again for the same PSF is free.
-pub fn build(
-    psf: &RawPsf,
-    telescope: &RawTelescope,
-    pixel_scale_arcsec: f64,
-) -> Result<Arc<dyn Psf>, PsfError> {
-    build_with(psf, telescope, pixel_scale_arcsec, &PsfAccuracy::default())
+/// A PSF image read from a FITS file by the plan (primary HDU, row-major):
+/// the PSF module never reads files itself.
+#[derive(Clone, PartialEq)]
+pub struct PsfFileImage {
+    /// The file it was read from (resolved against the config's directory).
+    pub path: std::path::PathBuf,
+    /// Row-major values.
+    pub values: Vec<f64>,
+    /// Columns (NAXIS1).
+    pub nx: usize,
+    /// Rows (NAXIS2).
+    pub ny: usize,
+}
+
+impl std::fmt::Debug for PsfFileImage {
+    /// The path, the shape and a digest of the values (not every value).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // FNV-1a over the bits: two different images never share a cache key.
+        let digest = self.values.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, v| {
+            (h ^ v.to_bits()).wrapping_mul(0x0000_0100_0000_01b3)
+        });
+        f.debug_struct("PsfFileImage")
+            .field("path", &self.path)
+            .field("nx", &self.nx)
+            .field("ny", &self.ny)
+            .field("digest", &format_args!("{digest:016x}"))
+            .finish()
+    }
+}
+
+/// Everything one PSF is built from: its config entry, the telescope, the
+/// image pixel scale and, for a `fits` model, the image the plan read
+/// (`crate::plan::Plan::psf_spec` hands these out).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PsfSpec {
+    /// The config entry.
+    pub entry: RawPsf,
+    /// The telescope (optical PSFs).
+    pub telescope: RawTelescope,
+    /// Pixel scale the PSF is calibrated for (arcsec).
+    pub pixel_scale_arcsec: f64,
+    /// The file's image for a `fits` model (`None` for the others).
+    pub image: Option<Arc<PsfFileImage>>,
+}
+
+impl PsfSpec {
+    /// The spec of a model that needs no file (every model but `fits`).
+    pub fn new(entry: RawPsf, telescope: RawTelescope, pixel_scale_arcsec: f64) -> Self {
+        Self {
+            entry,
+            telescope,
+            pixel_scale_arcsec,
+            image: None,
+        }
+    }
+}
+
+/// Builds the PSF of `spec` (default accuracy). Results are cached per
+/// process, keyed by the inputs, so asking again for the same PSF is free.
+pub fn build(spec: &PsfSpec) -> Result<Arc<dyn Psf>, PsfError> {
+    build_with(spec, &PsfAccuracy::default())
 }
 
 type Cache = Mutex<HashMap<String, Arc<dyn Psf>>>;
 
 /// [`build`] with explicit accuracy settings.
-pub fn build_with(
-    psf: &RawPsf,
-    telescope: &RawTelescope,
-    pixel_scale_arcsec: f64,
-    accuracy: &PsfAccuracy,
-) -> Result<Arc<dyn Psf>, PsfError> {
+pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
     static CACHE: OnceLock<Cache> = OnceLock::new();
     let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
-    let key = format!("{psf:?}|{telescope:?}|{pixel_scale_arcsec:e}|{accuracy:?}");
+    let key = format!("{spec:?}|{accuracy:?}");
     if let Some(p) = cache.lock().expect("psf build cache").get(&key) {
         return Ok(p.clone());
     }
-    let built = build_uncached(psf, telescope, pixel_scale_arcsec, accuracy)?;
+    let built = build_uncached(spec, accuracy)?;
     cache
         .lock()
         .expect("psf build cache")
@@ -250,12 +289,9 @@ pub fn build_with(
     Ok(built)
 }
 
-fn build_uncached(
-    psf: &RawPsf,
-    telescope: &RawTelescope,
-    pixel_scale_arcsec: f64,
-    accuracy: &PsfAccuracy,
-) -> Result<Arc<dyn Psf>, PsfError> {
+fn build_uncached(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
+    let (psf, telescope, pixel_scale_arcsec) =
+        (&spec.entry, &spec.telescope, spec.pixel_scale_arcsec);
     match &psf.model {
         RawPsfModel::Gaussian { e1, e2 } => {
             Ok(Arc::new(GaussianPsf::elliptical(psf.fwhm_arcsec, *e1, *e2)))
@@ -270,12 +306,17 @@ fn build_uncached(
             path,
             pixel_scale_arcsec: scale,
         } => {
-            let (values, nx, ny) = crate::io::psf_fits::read_psf_fits(std::path::Path::new(path))
-                .map_err(|source| PsfError::Io {
-                name: psf.name.clone(),
-                source,
-            })?;
-            fits_psf::from_image(&psf.name, path, &values, nx, ny, *scale).map(|p| Arc::new(p) as _)
+            let Some(image) = &spec.image else {
+                return Err(PsfError::BadImage {
+                    name: psf.name.clone(),
+                    path: path.clone(),
+                    message: "the file's image was not read (build FITS PSFs from the plan's spec)"
+                        .into(),
+                });
+            };
+            let shown = image.path.display().to_string();
+            fits_psf::from_image(&psf.name, &shown, &image.values, image.nx, image.ny, *scale)
+                .map(|p| Arc::new(p) as _)
         }
         RawPsfModel::Optical {
             aberration,

@@ -187,9 +187,12 @@ pub fn stack(pictures: &[Picture]) -> Picture {
 }
 
 /// A strip of `height` dark pixels carrying one line of text (a caption
-/// above a row of tiles).
+/// above a row of tiles), its font made smaller (not below 8 px) when the
+/// line would not fit the width: DejaVu Sans averages under 0.6 em a
+/// character (a long caption was cut off at the right edge).
 pub fn caption(width: usize, height: usize, text: &str) -> Picture {
-    let size = (height as f64 * 0.6).max(8.0);
+    let fit = (width as f64 - 12.0) / (CHAR_EM * text.chars().count().max(1) as f64);
+    let size = (height as f64 * 0.6).min(fit).max(8.0);
     Picture {
         width,
         height,
@@ -203,9 +206,86 @@ pub fn caption(width: usize, height: usize, text: &str) -> Picture {
     }
 }
 
+/// The picture of a PSF set (`psf_cores.png`): the cores (±1.6″, linear,
+/// contours at 3 %, 25 %, 90 % of the peak), each core minus the first
+/// PSF's (both at unit peak; red brighter, blue fainter, full colour at
+/// ±5 %), and the wings (±15″, log stretch down to 1e-6, contours at
+/// 3e-5 … 0.25 of the peak), one column per PSF, with captions. `cores` are
+/// 256² images at p/8 and `wings` 512² images at p/2
+/// ([`crate::psf::image`]) for pixel scale `pixel_scale_arcsec` = p.
+pub fn psf_set(
+    cores: &[&[f64]],
+    wings: &[&[f64]],
+    names: &[&str],
+    pixel_scale_arcsec: f64,
+) -> Picture {
+    let p = pixel_scale_arcsec;
+    let half_core = (1.6 / (p / 8.0)).round() as usize;
+    let half_wing = (15.0 / (p / 2.0)).round() as usize;
+    let top = row(
+        cores,
+        names,
+        256,
+        half_core,
+        2,
+        Stretch::Linear,
+        &[0.03, 0.25, 0.9],
+    );
+    let zoom = (top.width / (cores.len() * 2 * half_wing.min(256))).max(1);
+    let bottom = row(
+        wings,
+        names,
+        512,
+        half_wing,
+        zoom,
+        Stretch::Log { floor: 1e-6 },
+        &[3e-5, 3e-4, 3e-3, 0.03, 0.25],
+    );
+    let middle = difference_row(cores, names, cores[0], 256, half_core, 2, 0.05);
+    let w = top.width;
+    stack(&[
+        caption(
+            w,
+            30,
+            "cores ±1.6″, linear; contours at 3 %, 25 %, 90 % of the peak",
+        ),
+        top,
+        caption(
+            w,
+            30,
+            &format!(
+                "core minus {}'s, both at unit peak: red brighter, blue fainter (±5 %)",
+                names[0]
+            ),
+        ),
+        middle,
+        caption(
+            w,
+            30,
+            "wings ±15″, log stretch to 1e-6; contours at 3e-5 … 0.25 of the peak",
+        ),
+        bottom,
+    ])
+}
+/// Average advance of a DejaVu Sans character, in em (an upper estimate).
+const CHAR_EM: f64 = 0.6;
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_long_caption_is_set_smaller_to_fit_the_width() {
+        let short = caption(600, 30, "cores");
+        assert_eq!(short.labels[0].size, 18.0);
+        let text = "core minus none's, both at unit peak: red brighter, blue fainter (±5 %)";
+        let long = caption(600, 30, text);
+        let size = long.labels[0].size;
+        assert!(
+            size < 18.0 && size * CHAR_EM * text.chars().count() as f64 <= 588.0,
+            "{size}"
+        );
+    }
 
     #[test]
     fn tiles_contours_and_orientation() {

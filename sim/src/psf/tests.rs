@@ -50,16 +50,9 @@ fn obstructed_airy_dark_ring_and_encircled_energy_within_1_percent() {
     let lam_d = 0.8e-6 / 3.6 / optical::ARCSEC;
     // Analytic first dark ring: first root of J1(v) − ε J1(εv) beyond 2.
     let f = |v: f64| bessel_j(1, v) - eps * bessel_j(1, eps * v);
-    let (mut a, mut b) = (2.5, 4.5);
+    let (a, b) = (2.5, 4.5);
     assert!(f(a) * f(b) < 0.0);
-    for _ in 0..60 {
-        let m = 0.5 * (a + b);
-        if f(a) * f(m) <= 0.0 {
-            b = m;
-        } else {
-            a = m;
-        }
-    }
+    let (a, b) = stepsim_numerics::roots::Bisection::halvings(60).run(a, b, |m| f(a) * f(m) <= 0.0);
     let v_dark = 0.5 * (a + b);
     // Numerical: I(x, 0) from the OTF, column sums then a 1-D sum.
     let n = otf.n;
@@ -221,7 +214,7 @@ fn step1(name: &str) -> Arc<dyn Psf> {
         .into_iter()
         .find(|p| p.name == name)
         .unwrap();
-    build(&raw, &RawTelescope::default(), 0.206).unwrap()
+    build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap()
 }
 
 /// Checks normalisation and returns the report.
@@ -437,7 +430,7 @@ fn other_targets_can_be_asked_for() {
             angle_deg: 30.0,
         },
     };
-    let psf = build(&raw, &RawTelescope::default(), 0.206).unwrap();
+    let psf = build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap();
     let r = report("c", psf.as_ref(), 0.206).unwrap();
     assert!((r.fwhm_arcsec - 1.1).abs() < 0.02, "{}", r.fwhm_arcsec);
     assert!((r.chi_abs - 0.03).abs() < 0.004, "{}", r.chi_abs);

@@ -410,15 +410,9 @@ fn unit_radius_outside(kind: ProfileKind, outside: f64) -> f64 {
         lo = hi;
         hi *= 2.0;
     }
-    while hi - lo > 1e-6 * hi {
-        let mid = 0.5 * (lo + hi);
-        if p.enclosed(mid) >= target {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    hi
+    stepsim_numerics::roots::Bisection::to_relative_width(1e-6)
+        .run(lo, hi, |r| p.enclosed(r) >= target)
+        .1
 }
 
 #[cfg(test)]

@@ -599,7 +599,12 @@ fn step1_psf(name: &str) -> Arc<dyn Psf> {
         .into_iter()
         .find(|p| p.name == name)
         .unwrap();
-    crate::psf::build(&raw, &crate::config::RawTelescope::default(), P).unwrap()
+    crate::psf::build(&crate::psf::PsfSpec::new(
+        raw,
+        crate::config::RawTelescope::default(),
+        P,
+    ))
+    .unwrap()
 }
 
 /// Max |a − b| over the image, divided by the peak of `b`.

@@ -60,6 +60,15 @@ pub fn shear_matrix(g1: f64, g2: f64) -> [[f64; 2]; 2] {
     [[s * (1.0 - g1), -s * g2], [-s * g2, s * (1.0 + g1)]]
 }
 
+/// The inverse A⁻¹ = (1−|g|²)^(−1/2) [[1+g1, g2], [g2, 1−g1]] of
+/// [`shear_matrix`], row-major: it maps a profile's second-moment tensor to
+/// the sheared one, Q' = A⁻¹ Q A⁻ᵀ (A⁻¹ is symmetric), and a round profile
+/// of unit tensor to one of ellipticity g.
+pub fn inverse_shear_matrix(g1: f64, g2: f64) -> [[f64; 2]; 2] {
+    let n = (1.0 - g1 * g1 - g2 * g2).sqrt();
+    [[(1.0 + g1) / n, g2 / n], [g2 / n, (1.0 - g1) / n]]
+}
+
 /// Where a point at offset `d` from the lensing centre (source plane)
 /// appears through the constant reduced shear g: x = A⁻¹ d, with
 /// A⁻¹ = (1−|g|²)^(−1/2) [[1+g1, g2], [g2, 1−g1]] the inverse of
@@ -187,6 +196,36 @@ mod tests {
         // Positive g1 stretches along x and squeezes along y.
         let x = lens_offset((1.0, 1.0), 0.1, 0.0);
         assert!(x.0 > 1.09 && x.1 < 0.91, "{x:?}");
+    }
+
+    #[test]
+    fn inverse_shear_matrix_inverts_the_shear_matrix_and_shears_tensors() {
+        let mul = |x: [[f64; 2]; 2], y: [[f64; 2]; 2]| {
+            [
+                [
+                    x[0][0] * y[0][0] + x[0][1] * y[1][0],
+                    x[0][0] * y[0][1] + x[0][1] * y[1][1],
+                ],
+                [
+                    x[1][0] * y[0][0] + x[1][1] * y[1][0],
+                    x[1][0] * y[0][1] + x[1][1] * y[1][1],
+                ],
+            ]
+        };
+        for (g1, g2) in [(0.1, 0.0), (0.0, 0.05), (-0.03, 0.07), (0.4, -0.3)] {
+            let inv = inverse_shear_matrix(g1, g2);
+            let one = mul(shear_matrix(g1, g2), inv);
+            for (got, want) in one.iter().flatten().zip([1.0, 0.0, 0.0, 1.0]) {
+                assert!((got - want).abs() < 1e-14, "{g1} {g2}: {one:?}");
+            }
+            // A⁻¹ Q A⁻ᵀ (A⁻¹ is symmetric) is the tensor of `Moments::sheared`.
+            let q = Moments::of_ellipse(2.0, 0.6, 0.4);
+            let r = mul(mul(inv, [[q.xx, q.xy], [q.xy, q.yy]]), inv);
+            let s = q.sheared(g1, g2);
+            for (got, want) in r.iter().flatten().zip([s.xx, s.xy, s.xy, s.yy]) {
+                assert!((got - want).abs() < 1e-13, "{g1} {g2}: {r:?} vs {s:?}");
+            }
+        }
     }
 
     #[test]

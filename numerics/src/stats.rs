@@ -1,6 +1,6 @@
 //! Small statistics shared by every crate of the workspace: the median, the
 //! normal CDF (used to draw the population) and the one-sample
-//! Kolmogorov–Smirnov test (used to validate it).
+//! Kolmogorov–Smirnov test (used to validate it), each with its slow twin.
 
 /// Median of a sample, reordering it (sorted); the mean of the two middle
 /// values for an even count; `None` when empty. NaNs sort after +∞
@@ -45,22 +45,37 @@ pub fn normal_cdf(x: f64) -> f64 {
     0.5 * erfc(-x / std::f64::consts::SQRT_2)
 }
 
-/// Slow reference for [`normal_cdf`]: composite Simpson integration of the
-/// density from −10 to `x` with 20 000 intervals.
+/// Slow reference for [`normal_cdf`]: composite Simpson integration
+/// ([`crate::quad::simpson`]) of the density from −10 to `x` with 20 000
+/// intervals.
 pub fn normal_cdf_by_integration(x: f64) -> f64 {
     let lo = -10.0f64;
     if x <= lo {
         return 0.0;
     }
-    let n = 20_000;
-    let h = (x - lo) / n as f64;
     let pdf = |t: f64| (-0.5 * t * t).exp() / (2.0 * std::f64::consts::PI).sqrt();
-    let mut s = pdf(lo) + pdf(x);
-    for i in 1..n {
-        let w = if i % 2 == 1 { 4.0 } else { 2.0 };
-        s += w * pdf(lo + i as f64 * h);
+    crate::quad::simpson(pdf, lo, x, 20_000)
+}
+
+/// Slow reference for [`median`]: the value (or the mean of the two values)
+/// with as many samples below as above, found by counting for every sample
+/// (O(n²), no sorting).
+pub fn median_by_counting(v: &[f64]) -> Option<f64> {
+    let n = v.len();
+    // The k-th smallest (0-based): a value with fewer than k + 1 samples
+    // below it and at least k + 1 at or below it.
+    let kth = |k: usize| {
+        v.iter().copied().find(|&x| {
+            let below = v.iter().filter(|&&y| y.total_cmp(&x).is_lt()).count();
+            let at_or_below = v.iter().filter(|&&y| y.total_cmp(&x).is_le()).count();
+            below <= k && k < at_or_below
+        })
+    };
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => kth(n / 2),
+        _ => Some(0.5 * (kth(n / 2 - 1)? + kth(n / 2)?)),
     }
-    s * h / 3.0
 }
 
 /// One-sample Kolmogorov–Smirnov statistic D = sup |F_n(x) − F(x)| of
@@ -121,7 +136,7 @@ pub fn kolmogorov_q(lambda: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::seed::{SeedKey, Stream};
+    use crate::test_rng;
     use rand::RngExt;
 
     #[test]
@@ -151,6 +166,20 @@ mod tests {
     }
 
     #[test]
+    fn median_matches_counting() {
+        let mut rng = test_rng(5);
+        for n in 0..40 {
+            // Few distinct values: ties at the middle.
+            let v: Vec<f64> = (0..n)
+                .map(|_| f64::from(rng.random_range(0..7u8)))
+                .collect();
+            assert_eq!(median(&mut v.clone()), median_by_counting(&v), "{v:?}");
+            let v: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
+            assert_eq!(median(&mut v.clone()), median_by_counting(&v), "{v:?}");
+        }
+    }
+
+    #[test]
     fn normal_cdf_matches_integration_and_known_values() {
         for i in -60..=60 {
             let x = i as f64 * 0.1;
@@ -163,7 +192,7 @@ mod tests {
 
     #[test]
     fn ks_statistic_matches_brute_force() {
-        let mut rng = SeedKey::base(3, 0, Stream::Test).rng();
+        let mut rng = test_rng(3);
         let xs: Vec<f64> = (0..500).map(|_| rng.random::<f64>().powi(2)).collect();
         let cdf = |x: f64| x.clamp(0.0, 1.0);
         let (a, b) = (ks_statistic(&xs, cdf), ks_statistic_brute_force(&xs, cdf));
@@ -184,7 +213,7 @@ mod tests {
 
     #[test]
     fn ks_accepts_the_true_law_and_rejects_a_wrong_one() {
-        let mut rng = SeedKey::base(4, 0, Stream::Test).rng();
+        let mut rng = test_rng(4);
         let xs: Vec<f64> = (0..20_000).map(|_| rng.random::<f64>()).collect();
         let p = ks_p_value(ks_statistic(&xs, |x| x.clamp(0.0, 1.0)), xs.len());
         assert!(p > 0.01, "p = {p}");

@@ -7,10 +7,10 @@
 //! Text on a raster picture ([`Picture`]'s labels) is drawn the same way: the
 //! labels become a small SVG of text, rasterised and laid over the pixels.
 
-use super::{IoError, write_bytes_atomically};
 use crate::picture::{Picture, xml_escape};
 use std::path::Path;
 use std::sync::{Arc, OnceLock};
+use stepsim_contract::io::{IoError, write_bytes_atomically};
 
 /// The family name of the bundled font; SVG `font-family="sans-serif"`
 /// resolves to it.

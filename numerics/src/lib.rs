@@ -1,0 +1,32 @@
+//! # stepsim-numerics
+//!
+//! The small numerical tools every stepsim crate shares, one copy each and
+//! each with a slow, obvious twin that a test compares it with:
+//!
+//! | module | tool | slow twin |
+//! | --- | --- | --- |
+//! | [`stats`] | median, erfc, normal CDF, Kolmogorov–Smirnov test | counting median, Maclaurin erfc, integrated density, O(n²) KS |
+//! | [`quad`] | composite Simpson's rule | Richardson's combination of two trapezoid sums |
+//! | [`roots`] | bisection of a monotone predicate | a scan of a fine grid |
+//! | [`robust`] | MAD-σ (1.4826 × median absolute deviation) | the counting median |
+//! | [`linalg`] | symmetric positive-definite solve and inverse (Cholesky) | Cramer's rule with cofactor determinants |
+//! | [`fit`] | linear least squares with κσ clipping (one rule) | the same rule written plainly with the slow twins |
+//!
+//! The crate depends on no other stepsim crate (only `libm`), so that the
+//! simulator, the scorer and the reference pipeline can all use it without
+//! linking one another.
+#![deny(missing_docs)]
+
+pub mod fit;
+pub mod linalg;
+pub mod quad;
+pub mod robust;
+pub mod roots;
+pub mod stats;
+
+/// A generator with a fixed seed for the crate's own tests.
+#[cfg(test)]
+pub(crate) fn test_rng(seed: u64) -> rand_xoshiro::Xoshiro256PlusPlus {
+    use rand::SeedableRng;
+    rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(seed)
+}

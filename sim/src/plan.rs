@@ -1,0 +1,603 @@
+//! The resolved run: the one front door between a config file and the code
+//! that simulates it.
+//!
+//! [`Plan::new`] takes a parsed [`RawConfig`], checks every range
+//! ([`RawConfig::validate`]), fixes the seed (drawn from the operating
+//! system when the config gives none), enumerates the datasets and reads
+//! every input file the config names, each path resolved against the
+//! directory of the config file:
+//!
+//! * the SkyMaker lists of `population.source = skymaker_list` (one per base
+//!   field, `{field}` replaced by the field number);
+//! * the image of every `fits` PSF model.
+//!
+//! After that nothing reads the config again: consumers ask the plan for
+//! ready collaborators ([`Plan::detector`], [`Plan::accuracy`],
+//! [`Plan::field_wcs`], [`Plan::placement_area`], [`Plan::psf_spec`],
+//! [`Plan::skymaker_list`], ...) and for the validated values of a section
+//! ([`Plan::image`], [`Plan::output`], ...). The resolved config's JSON
+//! ([`Plan::config_json`]) is what `RUN/private/config.json` holds; its paths
+//! are kept as written.
+
+use crate::config::{
+    ConfigError, RawConfig, RawImage, RawInstrument, RawOutput, RawPopulation, RawPsf, RawPsfModel,
+    RawRender, RawShear, RawTelescope, SeedOrigin, Source, draw_seed,
+};
+use crate::config::{Part, RawChallenge};
+use crate::io::IoError;
+use crate::io::psf_fits::read_psf_fits;
+use crate::io::skymaker::{ListError, ListObject, read_list};
+use crate::noise::{Detector, sky_e_per_pixel};
+use crate::psf::{PsfFileImage, PsfSpec};
+use crate::render::Accuracy;
+use crate::seed::{SeedKey, Stream};
+use crate::wcs::TanWcs;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Why a config could not become a plan.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    /// The config itself is refused (syntax, key, range).
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// A SkyMaker list named by `population.source.path` is unusable (the
+    /// list error names the file and line).
+    #[error("{config}: key `population.source.path`: {source}")]
+    List {
+        /// The config file.
+        config: PathBuf,
+        /// What is wrong with the list.
+        source: ListError,
+    },
+    /// The image file of a `fits` PSF model is unusable.
+    #[error("{config}: key `psfs.{index}.model.path` (psf {name}): {source}")]
+    PsfFile {
+        /// The config file.
+        config: PathBuf,
+        /// Index of the PSF in the config.
+        index: usize,
+        /// Its name.
+        name: String,
+        /// The read error (names the file).
+        source: IoError,
+    },
+}
+
+/// One dataset: a PSF and a shear. Its index is stable: `psf * n_shears + shear`
+/// for the public part; held-out datasets (a `challenge` section) follow as
+/// `n_psfs * n_shears + psf * n_shears + slot`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dataset {
+    /// Index in [`Plan::datasets`].
+    pub index: u32,
+    /// Index of the PSF in [`Plan::psfs`].
+    pub psf: usize,
+    /// Index of the shear in [`Plan::shears`] (for a held-out dataset: its
+    /// slot, 0..n_shears; its shear is drawn, not configured).
+    pub shear: usize,
+    /// Which part of the challenge it belongs to.
+    pub part: Part,
+    /// Its base fields, ascending (every field unless the run holds some out).
+    pub fields: Vec<u32>,
+    /// Applied g1.
+    pub g1: f64,
+    /// Applied g2.
+    pub g2: f64,
+}
+
+/// Where objects are placed: the image plus its margin.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placement {
+    /// Area in arcmin².
+    pub area_arcmin2: f64,
+    /// x range in FITS pixels.
+    pub x_px: (f64, f64),
+    /// y range in FITS pixels.
+    pub y_px: (f64, f64),
+}
+
+/// A validated, resolved run (see the module docs). Cheap to clone: the
+/// files it read are shared.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    config: RawConfig,
+    source: PathBuf,
+    datasets: Vec<Dataset>,
+    seed_origin: SeedOrigin,
+    /// One list per base field (`skymaker_list` sources only).
+    lists: Option<Arc<Vec<Vec<ListObject>>>>,
+    /// One entry per PSF: the file's image for `fits` models.
+    psf_images: Vec<Option<Arc<PsfFileImage>>>,
+}
+
+impl Plan {
+    /// Validates and resolves a parsed config; `source` is the config file
+    /// (relative input paths are relative to its directory; it names the
+    /// config in messages). A config without `run.seed` gets one drawn from
+    /// the operating system ([`draw_seed`]; [`SeedOrigin::Drawn`]).
+    pub fn new(mut config: RawConfig, source: &Path) -> Result<Self, PlanError> {
+        config.validate(source)?;
+        check_sky_below_saturation(&config).map_err(|(key, message)| ConfigError::Invalid {
+            path: source.into(),
+            key,
+            message,
+        })?;
+        let seed_origin = match config.run.seed {
+            Some(_) => SeedOrigin::Config,
+            None => {
+                config.run.seed = Some(draw_seed().map_err(ConfigError::from)?);
+                SeedOrigin::Drawn
+            }
+        };
+        let datasets = challenge_datasets(&config);
+        let lists = match &config.population.source {
+            Source::Stuff => None,
+            Source::SkymakerList { path } => {
+                let read = (0..config.image.n_images)
+                    .map(|field| read_list(&list_path(source, path, field)))
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(|e| PlanError::List {
+                        config: source.into(),
+                        source: e,
+                    })?;
+                Some(Arc::new(read))
+            }
+        };
+        let psf_images = config
+            .psfs
+            .iter()
+            .enumerate()
+            .map(|(index, p)| match &p.model {
+                RawPsfModel::Fits { path, .. } => {
+                    let path = resolve(source, Path::new(path));
+                    let (values, nx, ny) =
+                        read_psf_fits(&path).map_err(|e| PlanError::PsfFile {
+                            config: source.into(),
+                            index,
+                            name: p.name.clone(),
+                            source: e,
+                        })?;
+                    Ok(Some(Arc::new(PsfFileImage {
+                        path,
+                        values,
+                        nx,
+                        ny,
+                    })))
+                }
+                _ => Ok(None),
+            })
+            .collect::<Result<Vec<_>, PlanError>>()?;
+        Ok(Self {
+            config,
+            source: source.into(),
+            datasets,
+            seed_origin,
+            lists,
+            psf_images,
+        })
+    }
+
+    /// Loads, overrides, validates and resolves a config file in one go.
+    pub fn load(path: &Path, overrides: &[String]) -> Result<Self, PlanError> {
+        Self::new(RawConfig::load(path, overrides)?, path)
+    }
+
+    /// The same plan with master seed `seed` (the origin is kept: adopting
+    /// the seed of an existing run does not make it public).
+    pub fn with_seed(&self, seed: u64) -> Self {
+        let mut p = self.clone();
+        p.config.run.seed = Some(seed);
+        p.datasets = challenge_datasets(&p.config);
+        p
+    }
+
+    /// The config file the plan came from.
+    pub fn source(&self) -> &Path {
+        &self.source
+    }
+
+    /// Every PSF × shear pair, PSF-major.
+    pub fn datasets(&self) -> &[Dataset] {
+        &self.datasets
+    }
+
+    /// Whether the seed was given or drawn by [`Plan::new`].
+    pub fn seed_origin(&self) -> SeedOrigin {
+        self.seed_origin
+    }
+
+    /// Master seed ([`Plan::new`] always sets one).
+    pub fn seed(&self) -> u64 {
+        self.config.run.seed.unwrap_or_default()
+    }
+
+    /// Number of base fields (images per dataset).
+    pub fn n_fields(&self) -> u32 {
+        self.config.image.n_images
+    }
+
+    /// Number of images in the run (every dataset's fields, twins included).
+    pub fn n_images_in_run(&self) -> u64 {
+        let twins = 1 + u64::from(self.config.population.rotated_pairs);
+        self.datasets
+            .iter()
+            .map(|d| d.fields.len() as u64)
+            .sum::<u64>()
+            * twins
+    }
+
+    /// The `challenge` section (held-out fields and their shears' range).
+    pub fn challenge(&self) -> &RawChallenge {
+        &self.config.challenge
+    }
+
+    /// The run's name (`run.name`).
+    pub fn run_name(&self) -> &str {
+        &self.config.run.name
+    }
+
+    /// The resolved config as pretty JSON (defaults, overrides and the seed
+    /// filled in; paths as written): `RUN/private/config.json` holds it.
+    pub fn config_json(&self) -> String {
+        self.config.to_json()
+    }
+
+    /// [`Plan::config_json`] as the user gave it: with the seed when the
+    /// config (or a `--set`) gave one, without it when [`Plan::new`] drew it.
+    pub fn config_json_as_given(&self) -> String {
+        let mut c = self.config.clone();
+        if self.seed_origin == SeedOrigin::Drawn {
+            c.run.seed = None;
+        }
+        c.to_json()
+    }
+
+    /// Image geometry and the base fields' placement on the sky.
+    pub fn image(&self) -> &RawImage {
+        &self.config.image
+    }
+
+    /// Image pixel scale (arcsec).
+    pub fn pixel_scale_arcsec(&self) -> f64 {
+        self.config.image.pixel_scale_arcsec
+    }
+
+    /// Detector, sky and exposure.
+    pub fn instrument(&self) -> &RawInstrument {
+        &self.config.instrument
+    }
+
+    /// The telescope the optical PSFs are computed for.
+    pub fn telescope(&self) -> &RawTelescope {
+        &self.config.telescope
+    }
+
+    /// The galaxy and star population settings.
+    pub fn population(&self) -> &RawPopulation {
+        &self.config.population
+    }
+
+    /// The renderer's settings.
+    pub fn render(&self) -> &RawRender {
+        &self.config.render
+    }
+
+    /// What gets written.
+    pub fn output(&self) -> &RawOutput {
+        &self.config.output
+    }
+
+    /// The PSF entries, in config order (dataset `psf` indices point here).
+    pub fn psfs(&self) -> &[RawPsf] {
+        &self.config.psfs
+    }
+
+    /// The PSF names, in config order.
+    pub fn psf_names(&self) -> Vec<&str> {
+        self.config.psfs.iter().map(|p| p.name.as_str()).collect()
+    }
+
+    /// The applied shears (dataset `shear` indices point here).
+    pub fn shears(&self) -> &[RawShear] {
+        &self.config.shears
+    }
+
+    /// The detector of every image: the instrument at the image pixel scale.
+    pub fn detector(&self) -> Detector {
+        Detector::new(&self.config.instrument, self.pixel_scale_arcsec())
+    }
+
+    /// The renderer's tolerances (the `render` section).
+    pub fn accuracy(&self) -> Accuracy {
+        Accuracy::from_config(&self.config.render)
+    }
+
+    /// The TAN WCS of base field `field`.
+    pub fn field_wcs(&self, field: u32) -> TanWcs {
+        TanWcs::for_field(&self.config.image, field)
+    }
+
+    /// Where objects are placed: the image plus `image.margin_arcsec` on
+    /// every side.
+    pub fn placement_area(&self) -> Placement {
+        let im = &self.config.image;
+        let m_px = im.margin_arcsec / im.pixel_scale_arcsec;
+        let x_px = (0.5 - m_px, f64::from(im.width_px) + 0.5 + m_px);
+        let y_px = (0.5 - m_px, f64::from(im.height_px) + 0.5 + m_px);
+        let s = im.pixel_scale_arcsec / 60.0;
+        Placement {
+            area_arcmin2: (x_px.1 - x_px.0) * (y_px.1 - y_px.0) * s * s,
+            x_px,
+            y_px,
+        }
+    }
+
+    /// The centre of the image in FITS pixels, ((W + 1)/2, (H + 1)/2): the
+    /// point about which `population.lens_positions` lenses positions.
+    pub fn lensing_centre(&self) -> (f64, f64) {
+        let im = &self.config.image;
+        (
+            (f64::from(im.width_px) + 1.0) / 2.0,
+            (f64::from(im.height_px) + 1.0) / 2.0,
+        )
+    }
+
+    /// Everything PSF `index` is built from ([`crate::psf::build`]), with
+    /// the image a `fits` model names, read once by [`Plan::new`].
+    ///
+    /// # Panics
+    /// When `index` is not a PSF of the plan (a dataset's `psf` always is).
+    pub fn psf_spec(&self, index: usize) -> PsfSpec {
+        PsfSpec {
+            entry: self.config.psfs[index].clone(),
+            telescope: self.config.telescope.clone(),
+            pixel_scale_arcsec: self.pixel_scale_arcsec(),
+            image: self.psf_images[index].clone(),
+        }
+    }
+
+    /// [`Plan::psf_spec`] of every PSF, in config order.
+    pub fn psf_specs(&self) -> Vec<PsfSpec> {
+        (0..self.config.psfs.len())
+            .map(|i| self.psf_spec(i))
+            .collect()
+    }
+
+    /// The objects of base field `field`'s SkyMaker list, read once by
+    /// [`Plan::new`]; `None` when the population is drawn (`source = stuff`)
+    /// or `field` is not a base field of the plan.
+    pub fn skymaker_list(&self, field: u32) -> Option<&[ListObject]> {
+        self.lists
+            .as_ref()
+            .and_then(|l| l.get(field as usize))
+            .map(Vec::as_slice)
+    }
+}
+
+/// `path` resolved against the directory of the config file `config`
+/// (absolute paths stay).
+fn resolve(config: &Path, path: &Path) -> PathBuf {
+    if path.is_relative() {
+        config
+            .parent()
+            .map(|d| d.join(path))
+            .unwrap_or_else(|| path.into())
+    } else {
+        path.into()
+    }
+}
+
+/// The list file of field `field` for the path pattern `pattern`
+/// (`{field}` replaced by the field number), resolved against the config's
+/// directory.
+pub fn list_path(config: &Path, pattern: &str, field: u32) -> PathBuf {
+    resolve(
+        config,
+        Path::new(&pattern.replace("{field}", &field.to_string())),
+    )
+}
+
+/// The sky alone must stay below the clip level, or every pixel of every
+/// image is the saturation value (a blank image).
+fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), (String, String)> {
+    let ins = &raw.instrument;
+    let sky_adu = sky_e_per_pixel(ins, raw.image.pixel_scale_arcsec) / ins.gain_e_per_adu;
+    if sky_adu.is_finite() && sky_adu < ins.saturation_adu {
+        return Ok(());
+    }
+    Err((
+        "instrument".into(),
+        format!(
+            "the sky alone gives {sky_adu:.4e} ADU per pixel, at or above instrument.saturation_adu = {}: every pixel would be clipped (a blank image); lower instrument.exposure_s or image.pixel_scale_arcsec, or raise instrument.sky_mag_arcsec2 or instrument.gain_e_per_adu",
+            ins.saturation_adu
+        ),
+    ))
+}
+
+/// The datasets of a validated config with its seed set: PSF × shear on
+/// the public fields, then (with `challenge.holdout_fields`) PSF × slot on
+/// the held-out fields with drawn shears.
+fn challenge_datasets(config: &RawConfig) -> Vec<Dataset> {
+    let seed = config.run.seed.unwrap_or_default();
+    let n_fields = config.image.n_images;
+    let n_shears = config.shears.len();
+    let n_psfs = config.psfs.len();
+    let held = holdout_fields(seed, n_fields, config.challenge.holdout_fields);
+    let public: Vec<u32> = (0..n_fields).filter(|f| !held.contains(f)).collect();
+    let pairs = || (0..n_psfs).flat_map(move |p| (0..n_shears).map(move |s| (p, s)));
+    let mut out: Vec<Dataset> = pairs()
+        .map(|(psf, shear)| Dataset {
+            index: (psf * n_shears + shear) as u32,
+            psf,
+            shear,
+            part: Part::Public,
+            fields: public.clone(),
+            g1: config.shears[shear].g1,
+            g2: config.shears[shear].g2,
+        })
+        .collect();
+    if !held.is_empty() {
+        let g_max = config.challenge.holdout_g_max;
+        out.extend(pairs().map(|(psf, slot)| {
+            let index = (n_psfs * n_shears + psf * n_shears + slot) as u32;
+            let (g1, g2) = holdout_shear(seed, index, g_max);
+            Dataset {
+                index,
+                psf,
+                shear: slot,
+                part: Part::Holdout,
+                fields: held.clone(),
+                g1,
+                g2,
+            }
+        }));
+    }
+    out
+}
+
+/// The base fields held out: `n_held` of `0..n_fields`, chosen by a keyed
+/// order (stream [`Stream::Holdout`] per field), not by position, so that
+/// nothing about a field's index tells its part. Ascending.
+pub fn holdout_fields(seed: u64, n_fields: u32, n_held: u32) -> Vec<u32> {
+    let mut order: Vec<(u64, u32)> = (0..n_fields)
+        .map(|f| (SeedKey::base(seed, f, Stream::Holdout).seed(), f))
+        .collect();
+    order.sort_unstable();
+    let mut held: Vec<u32> = order
+        .into_iter()
+        .take(n_held as usize)
+        .map(|(_, f)| f)
+        .collect();
+    held.sort_unstable();
+    held
+}
+
+/// The shear of held-out dataset `index`: uniform in the disc |g| ≤ `g_max`
+/// (radius g_max·√u, angle 2πv), from the keyed stream
+/// `SeedKey::image(seed, 0, index, Stream::Holdout)`.
+pub fn holdout_shear(seed: u64, index: u32, g_max: f64) -> (f64, f64) {
+    use rand::RngExt;
+    let mut rng = SeedKey::image(seed, 0, index, Stream::Holdout).rng();
+    let u: f64 = rng.random();
+    let v: f64 = rng.random();
+    let r = g_max * u.sqrt();
+    let phi = std::f64::consts::TAU * v;
+    (r * phi.cos(), r * phi.sin())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<RawConfig, ConfigError> {
+        RawConfig::parse(text, Path::new("test.json"), &[])
+    }
+
+    #[test]
+    fn empty_object_gives_step1_defaults() {
+        let raw = parse("{}").unwrap();
+        assert_eq!(raw, RawConfig::default());
+        let plan = Plan::new(raw, Path::new("test.json")).unwrap();
+        assert_eq!(plan.datasets().len(), 30);
+        assert_eq!(plan.datasets()[7].psf, 1);
+        assert_eq!(plan.datasets()[7].shear, 2);
+        assert_eq!(plan.datasets()[7].g1, 0.01);
+    }
+
+    #[test]
+    fn out_of_range_values_name_the_key() {
+        let raw = RawConfig::parse("{}", Path::new("t.json"), &["shears.0.g1=1.5".into()]).unwrap();
+        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
+        assert!(err.contains("shears.0"), "{err}");
+        let raw = RawConfig::parse(
+            "{}",
+            Path::new("t.json"),
+            &["image.pixel_scale_arcsec=-1".into()],
+        )
+        .unwrap();
+        let err = Plan::new(raw, Path::new("t.json")).unwrap_err().to_string();
+        assert!(err.contains("image.pixel_scale_arcsec"), "{err}");
+    }
+
+    #[test]
+    fn a_config_without_seed_gets_a_fresh_one_and_records_it() {
+        let raw = parse("{}").unwrap();
+        assert_eq!(raw.run.seed, None);
+        assert!(!raw.to_json().contains("seed"), "no seed key when absent");
+        let a = Plan::new(raw.clone(), Path::new("t.json")).unwrap();
+        let b = Plan::new(raw, Path::new("t.json")).unwrap();
+        assert_eq!(
+            (a.seed_origin(), b.seed_origin()),
+            (SeedOrigin::Drawn, SeedOrigin::Drawn)
+        );
+        assert_eq!(a.config.run.seed, Some(a.seed()));
+        // 64 bits from the OS: two draws agreeing would be a broken source.
+        assert_ne!(a.seed(), b.seed());
+        assert!(a.config_json().contains(&format!("\"seed\": {}", a.seed())));
+        // The resolved JSON gives the same seed back, now as given.
+        let again = Plan::new(parse(&a.config_json()).unwrap(), Path::new("c.json")).unwrap();
+        assert_eq!(
+            (again.seed(), again.seed_origin()),
+            (a.seed(), SeedOrigin::Config)
+        );
+        let given = parse("{\"run\": {\"seed\": 7}}").unwrap();
+        let p = Plan::new(given, Path::new("t.json")).unwrap();
+        assert_eq!((p.seed(), p.seed_origin()), (7, SeedOrigin::Config));
+        assert_eq!(p.with_seed(9).seed(), 9);
+    }
+
+    /// A config file in `dir` with the given JSON body.
+    fn config_in(dir: &Path, body: &str) -> PathBuf {
+        let path = dir.join("config.json");
+        std::fs::write(&path, body).unwrap();
+        path
+    }
+
+    #[test]
+    fn a_fits_psf_is_found_beside_the_config_and_read_once() {
+        use crate::io::psf_fits::{PsfImage, write_psf_fits};
+        let dir = tempfile::tempdir().unwrap();
+        // A round Gaussian, σ = 4 samples of 0.05″, on 41².
+        let n = 41;
+        let values: Vec<f64> = (0..n * n)
+            .map(|k| {
+                let (x, y) = ((k % n) as f64 - 20.0, (k / n) as f64 - 20.0);
+                (-(x * x + y * y) / 32.0).exp()
+            })
+            .collect();
+        let image = PsfImage {
+            data: &values,
+            n,
+            scale_arcsec: 0.05,
+        };
+        std::fs::create_dir(dir.path().join("psfs")).unwrap();
+        write_psf_fits(&dir.path().join("psfs/g.fits"), "g", image, image, 1, &[]).unwrap();
+        let config = config_in(
+            dir.path(),
+            r#"{"psfs": [{"name": "g", "fwhm_arcsec": 0.47, "model": "fits",
+                          "path": "psfs/g.fits", "pixel_scale_arcsec": 0.05}]}"#,
+        );
+        let plan = Plan::load(&config, &[]).unwrap();
+        let spec = plan.psf_spec(0);
+        let read = spec.image.as_ref().unwrap();
+        assert_eq!((read.nx, read.ny), (n, n));
+        assert_eq!(read.path, dir.path().join("psfs/g.fits"));
+        let with_file = crate::psf::build(&spec).unwrap();
+        let r_with_file = crate::psf::Psf::radius_enclosing(with_file.as_ref(), 0.5);
+        // Read once: the PSF builds from the plan's copy without the file,
+        // and is the same PSF.
+        std::fs::remove_dir_all(dir.path().join("psfs")).unwrap();
+        let psf = crate::psf::build(&spec).unwrap();
+        let r_half = crate::psf::Psf::radius_enclosing(psf.as_ref(), 0.5);
+        assert_eq!(r_half, r_with_file);
+        // σ = 0.2″: half the light within σ √(2 ln 2) = 0.2355″ before the
+        // detector's pixel widens it (0.25″ measured).
+        assert!((0.2355..0.27).contains(&r_half), "{r_half}");
+        let err = Plan::load(&config, &[]).unwrap_err().to_string();
+        assert!(
+            err.contains("key `psfs.0.model.path` (psf g)") && err.contains("g.fits"),
+            "{err}"
+        );
+    }
+}
