@@ -6,7 +6,8 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use stepsim_harness::part::Part;
+use stepsim_harness::part::{Part, PublicFeedback, score_part};
+use stepsim_harness::pipeline::ScoreOptions;
 use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
 
 fn stepsim(args: &[&str]) -> std::process::Output {
@@ -113,11 +114,15 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
 
     let (mut server, addr) = serve(&state);
     let mut ids = Vec::new();
+    let mut files = Vec::new();
     for m in [0.0, 0.01, 0.02] {
         let rows = all.submission(&|t, _| {
             (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0))
         });
         let text = submission_text(&all.index(), &rows);
+        let file = tmp.path().join(format!("cat{}.txt", files.len()));
+        std::fs::write(&file, &text).unwrap();
+        files.push(file);
         let (status, body) = http(&addr, "POST", "/api/submissions", &token, text.as_bytes());
         assert_eq!(status, 202, "{body}");
         let v: serde_json::Value = serde_json::from_str(&body).unwrap();
@@ -148,12 +153,80 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     server.wait().unwrap();
     assert!(done, "every accepted upload is scored");
     let ch = stepsim_server::Challenge::open(&state).unwrap();
-    for id in ids {
-        let sub = ch.store.submission(id).unwrap().unwrap();
+    let truth = run.join("private");
+    for (id, file) in ids.iter().zip(&files) {
+        let sub = ch.store.submission(*id).unwrap().unwrap();
         assert_eq!(
             (sub.status.as_str(), sub.n_scorings),
             ("scored", 1),
             "entry {id}"
         );
+        // The numbers of the library code of `stepsim score` on the same
+        // file restricted to the public part.
+        let report = score_part(&ScoreOptions::new(&truth, file), Part::Public).unwrap();
+        let want = serde_json::to_value(PublicFeedback::of_report(&report)).unwrap();
+        let got: serde_json::Value =
+            serde_json::from_str(sub.public_json.as_deref().unwrap()).unwrap();
+        assert_eq!(got, want, "entry {id}");
     }
+    drop(ch);
+
+    // Rotate: the old token stops, the new one works; revoke stops it.
+    let out = stepsim(&["challenge", "team", "rotate", "Team <A>", "--state", s]);
+    assert!(out.status.success());
+    let new_token = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .last()
+        .unwrap()
+        .to_string();
+    assert_ne!(new_token, token);
+    let (mut server, addr) = serve(&state);
+    assert_eq!(http(&addr, "GET", "/api/submissions", &token, b"").0, 401);
+    assert_eq!(
+        http(&addr, "GET", "/api/submissions", &new_token, b"").0,
+        200
+    );
+    let out = stepsim(&["challenge", "team", "revoke", "Team <A>", "--state", s]);
+    assert!(out.status.success());
+    assert_eq!(
+        http(&addr, "GET", "/api/submissions", &new_token, b"").0,
+        401
+    );
+    server.kill().unwrap();
+    server.wait().unwrap();
+
+    // Reveal and export: JSON, CSV and reports `stepsim leaderboard` reads.
+    assert!(
+        stepsim(&["challenge", "reveal", "--state", s])
+            .status
+            .success()
+    );
+    let board = tmp.path().join("board.json");
+    let b = board.to_str().unwrap();
+    assert!(
+        stepsim(&["challenge", "export", "--state", s, "--out", b])
+            .status
+            .success()
+    );
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&board).unwrap()).unwrap();
+    assert_eq!(doc["part"], "holdout");
+    assert_eq!(doc["rows"][0]["team"], "Team <A>");
+    let csv = std::fs::read_to_string(tmp.path().join("board.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "rank,team,entry,part,m_mean,sigma_c,q_c,report"
+    );
+    assert!(lines.next().unwrap().starts_with("1,Team <A>,"), "{csv}");
+    let report = tmp
+        .path()
+        .join("board.reports")
+        .join(doc["rows"][0]["report"].as_str().unwrap());
+    let out = stepsim(&["leaderboard", report.to_str().unwrap()]);
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    let entry = format!("entry {}", doc["rows"][0]["entry"]);
+    assert!(table.contains(&entry), "{table}");
 }

@@ -33,6 +33,16 @@ enum Command {
         #[command(subcommand)]
         command: TeamCommand,
     },
+    /// Write the leaderboard: FILE (JSON), FILE.csv and FILE.reports/ (one
+    /// report.json per ranked entry, for `stepsim leaderboard`).
+    Export {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+        /// The JSON file to write.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+    },
     /// Reveal: held-out scores and full reports open.
     Reveal {
         /// The challenge's state directory.
@@ -107,6 +117,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 eprintln!("stepsim: the token of team {name:?} is revoked");
             }
         },
+        Command::Export { state, out } => {
+            let e = Challenge::open(state)?.export(out)?;
+            eprintln!(
+                "stepsim: leaderboard written: {}, {} and {} reports",
+                e.json.display(),
+                e.csv.display(),
+                e.reports.len()
+            );
+        }
         Command::Reveal { state } => {
             Challenge::open(state)?.reveal()?;
             eprintln!("stepsim: revealed: held-out scores are on the leaderboard");
