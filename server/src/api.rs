@@ -39,7 +39,12 @@ struct Inner {
     dir: PathBuf,
     settings: crate::Settings,
     store: Mutex<Box<dyn Store>>,
+    /// Times (s) of the recent requests of each token hash / client address.
+    recent: Mutex<std::collections::HashMap<String, std::collections::VecDeque<i64>>>,
 }
+
+/// The window of the per-token and per-address rate limit.
+pub const RATE_WINDOW_S: i64 = 60;
 
 impl AppState {
     /// The state of a challenge (its own store connection).
@@ -49,6 +54,7 @@ impl AppState {
                 dir: ch.dir,
                 settings: ch.settings,
                 store: Mutex::new(ch.store),
+                recent: Mutex::new(std::collections::HashMap::new()),
             }),
         }
     }
@@ -120,6 +126,10 @@ pub fn router(state: AppState) -> Router {
         .route("/api/submissions/{id}", get(get_submission))
         .route("/api/leaderboard", get(leaderboard))
         .fallback(|| async { ApiError::not_found() })
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            rate_limit,
+        ))
         .layer(axum::extract::DefaultBodyLimit::disable())
         .layer(H::overriding(
             header::X_CONTENT_TYPE_OPTIONS,
@@ -142,6 +152,70 @@ pub fn router(state: AppState) -> Router {
             HeaderValue::from_static("no-store"),
         ))
         .with_state(state)
+}
+
+/// Counts a request against its token's and its client address's limit
+/// (`requests_per_minute` each, over the last [`RATE_WINDOW_S`] seconds);
+/// 429 with the reset time past either. A forged token is counted too, so
+/// guessing tokens is slowed like everything else.
+async fn rate_limit(
+    State(state): State<AppState>,
+    req: Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let mut keys = Vec::new();
+    if let Some(info) = req
+        .extensions()
+        .get::<axum::extract::ConnectInfo<std::net::SocketAddr>>()
+    {
+        keys.push(format!("addr {}", info.0.ip()));
+    }
+    if let Some(v) = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+    {
+        keys.push(format!("token {}", token_hash(v)));
+    }
+    let limit = state.inner.settings.requests_per_minute as usize;
+    let now = crate::now_s();
+    let mut refused = None;
+    {
+        let mut recent = state
+            .inner
+            .recent
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        for k in &keys {
+            let times = recent.entry(k.clone()).or_default();
+            while times.front().is_some_and(|&t| t <= now - RATE_WINDOW_S) {
+                times.pop_front();
+            }
+            if times.len() >= limit {
+                let reset = times.front().copied().unwrap_or(now) + RATE_WINDOW_S;
+                refused = Some(refused.map_or(reset, |r: i64| r.max(reset)));
+            }
+        }
+        if refused.is_none() {
+            for k in &keys {
+                recent.entry(k.clone()).or_default().push_back(now);
+            }
+        }
+    }
+    match refused {
+        Some(reset) => ApiError {
+            reset_s: Some(reset),
+            ..ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "more than {limit} requests in a minute; the next is possible at {}",
+                    crate::utc_text(reset)
+                ),
+            )
+        }
+        .into_response(),
+        None => next.run(req).await,
+    }
 }
 
 /// The team of a request's bearer token, or 401.
@@ -565,9 +639,12 @@ pub async fn serve(
         .local_addr()
         .map_err(|e| crate::ChallengeError::Run(e.to_string()))?;
     eprintln!("stepsim serve: listening on http://{addr}");
-    axum::serve(listener, router(AppState::new(ch)))
-        .await
-        .map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
+    axum::serve(
+        listener,
+        router(AppState::new(ch)).into_make_service_with_connect_info::<std::net::SocketAddr>(),
+    )
+    .await
+    .map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
 }
 
 /// [`serve`] on a runtime of its own (for the command line).

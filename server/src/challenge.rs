@@ -14,6 +14,8 @@ pub const DEFAULT_QUOTA: u32 = 4;
 pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::input::MAX_SUBMISSION_BYTES;
 /// Uploads refused by the format check allowed per team per 24 hours.
 pub const DEFAULT_FORMAT_FAILURE_CAP: u32 = 20;
+/// Requests allowed per token and per client address in one minute.
+pub const DEFAULT_REQUESTS_PER_MINUTE: u32 = 120;
 /// The window of the quota.
 pub const QUOTA_WINDOW_S: i64 = 24 * 3600;
 
@@ -50,6 +52,8 @@ pub struct Settings {
     pub max_upload_bytes: u64,
     /// Refused uploads allowed per team per 24 hours.
     pub format_failure_cap: u32,
+    /// Requests per token and per client address per minute.
+    pub requests_per_minute: u32,
     /// Whether the run has a held-out part.
     pub holdout: bool,
 }
@@ -130,6 +134,7 @@ impl Challenge {
             quota,
             max_upload_bytes: DEFAULT_MAX_UPLOAD_BYTES,
             format_failure_cap: DEFAULT_FORMAT_FAILURE_CAP,
+            requests_per_minute: DEFAULT_REQUESTS_PER_MINUTE,
             holdout,
         };
         for (k, v) in [
@@ -140,6 +145,10 @@ impl Challenge {
             (
                 "format_failure_cap",
                 settings.format_failure_cap.to_string(),
+            ),
+            (
+                "requests_per_minute",
+                settings.requests_per_minute.to_string(),
             ),
             ("holdout", holdout.to_string()),
             ("revealed", "false".into()),
@@ -185,6 +194,11 @@ impl Challenge {
             quota: num("quota")? as u32,
             max_upload_bytes: num("max_upload_bytes")?,
             format_failure_cap: num("format_failure_cap")? as u32,
+            // Challenges made before the setting existed take the default.
+            requests_per_minute: match store.meta("requests_per_minute")? {
+                Some(_) => num("requests_per_minute")? as u32,
+                None => DEFAULT_REQUESTS_PER_MINUTE,
+            },
             holdout: get("holdout")? == "true",
         };
         Ok(Self {

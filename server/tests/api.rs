@@ -593,3 +593,41 @@ fn init_refuses_a_run_without_held_out_fields_unless_told() {
         .to_string();
     assert!(err.contains("already holds a challenge"), "{err}");
 }
+
+#[tokio::test]
+async fn requests_past_the_rate_limit_per_token_and_per_address_get_429() {
+    let f = fixture(4, &["alpha", "beta"]);
+    f.set("requests_per_minute", "3");
+    let app = f.app();
+    let from = |addr: &str, token: Option<&str>| {
+        let mut r = get("/api/submissions", token);
+        r.extensions_mut().insert(axum::extract::ConnectInfo(
+            addr.parse::<std::net::SocketAddr>().unwrap(),
+        ));
+        r
+    };
+    // alpha from two addresses: the token's limit counts both.
+    for addr in ["10.0.0.1:1", "10.0.0.2:1", "10.0.0.1:2"] {
+        let (s, _, body) = call(&app, from(addr, Some(&f.tokens[0]))).await;
+        assert_eq!(s, StatusCode::OK, "{body}");
+    }
+    let (s, h, body) = call(&app, from("10.0.0.3:1", Some(&f.tokens[0]))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS, "{body}");
+    assert!(json(&body)["reset"].is_string(), "{body}");
+    assert!(h.contains_key(header::RETRY_AFTER));
+    // beta is not held back by alpha's requests...
+    let (s, _, _) = call(&app, from("10.0.0.3:1", Some(&f.tokens[1]))).await;
+    assert_eq!(s, StatusCode::OK);
+    // ...but an address that made 3 requests is, whatever the token; a
+    // forged token from a fresh address counts towards the address too.
+    let (s, _, _) = call(&app, from("10.0.0.1:3", Some(&f.tokens[1]))).await;
+    assert_eq!(s, StatusCode::OK, "10.0.0.1 made 2 counted requests");
+    let (s, _, _) = call(&app, from("10.0.0.1:4", None)).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
+    for _ in 0..3 {
+        let (s, _, _) = call(&app, from("10.0.0.9:1", Some("stp_forged"))).await;
+        assert_eq!(s, StatusCode::UNAUTHORIZED);
+    }
+    let (s, _, _) = call(&app, from("10.0.0.9:1", Some("stp_forged2"))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
+}
