@@ -36,6 +36,10 @@ enum Command {
     Psf(cmd::psf::Args),
     /// Print a Slurm submit script: generate, measure and score as job arrays.
     Slurm(cmd::slurm::Args),
+    /// Run a served challenge: init, teams and tokens, reveal, export.
+    Challenge(cmd::challenge::Args),
+    /// Serve a challenge over HTTP (uploads, scoring queue, leaderboard).
+    Serve(cmd::serve::Args),
 }
 
 fn main() -> ExitCode {
@@ -60,6 +64,8 @@ fn main() -> ExitCode {
         Command::Catalog(args) => cmd::catalog::run(&args),
         Command::Psf(args) => cmd::psf::run(&args),
         Command::Slurm(args) => cmd::slurm::run(&args),
+        Command::Challenge(args) => cmd::challenge::run(&args),
+        Command::Serve(args) => cmd::serve::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

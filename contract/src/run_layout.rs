@@ -75,6 +75,32 @@ pub struct DatasetImage {
     pub rotated: bool,
 }
 
+/// Which part of a challenge run a dataset belongs to.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Hash, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Part {
+    /// Scored with feedback before reveal (the configured design).
+    #[default]
+    Public,
+    /// Scored only at reveal (base fields and shears of its own).
+    Holdout,
+}
+
+impl Part {
+    /// True for [`Part::Public`] (`datasets.json` leaves the default out).
+    pub fn is_public(&self) -> bool {
+        *self == Part::Public
+    }
+
+    /// The name used in files and on the command line.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Part::Public => "public",
+            Part::Holdout => "holdout",
+        }
+    }
+}
+
 /// One dataset (private).
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -91,6 +117,10 @@ pub struct DatasetEntry {
     pub g2: f64,
     /// Its images.
     pub images: Vec<DatasetImage>,
+    /// Which part of a challenge run it belongs to (absent: public, as in
+    /// every run made without a `challenge` section).
+    #[serde(default, skip_serializing_if = "Part::is_public")]
+    pub part: Part,
 }
 
 /// `private/datasets.json`.

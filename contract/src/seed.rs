@@ -48,6 +48,9 @@ pub enum Stream {
     Blinding = 4,
     /// Sky position (WCS reference point) of a base field.
     Pointing = 5,
+    /// Which base fields a challenge run holds out, and the shears of its
+    /// held-out datasets (`challenge` section).
+    Holdout = 6,
     /// Anything a test wants to draw (never used by a simulation).
     Test = 99,
 }

@@ -122,6 +122,11 @@ fn scorers_do_not_link_the_simulator_and_the_graph_is_acyclic() {
         assert!(graph.contains_key(name), "{name} missing from {graph:?}");
     }
     assert!(graph["stepsim-harness"].contains(CONTRACT), "{graph:?}");
+    // The challenge server scores with the harness and links no simulator.
+    assert!(
+        !reachable(&graph, "stepsim-server").contains(SIMULATOR),
+        "stepsim-server reaches {SIMULATOR}: {graph:?}"
+    );
     let broken = violations(&metadata);
     assert!(broken.is_empty(), "{}", broken.join("\n"));
 }

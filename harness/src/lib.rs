@@ -15,6 +15,7 @@
 //! fit.rs         weighted least squares, means with errors
 //! bootstrap.rs   intervals from resampled base fields
 //! pipeline.rs    the stages end to end, writing the outputs
+//! part.rs        one part of a challenge run; the public feedback
 //! report.rs      report.json types      markdown.rs  report.md
 //! plots.rs       Figs 2-5 as SVG + PNG  leaderboard.rs  ranking reports
 //! ```
@@ -33,6 +34,7 @@ pub mod leaderboard;
 pub mod markdown;
 pub mod matching;
 pub mod metrics;
+pub mod part;
 pub mod pipeline;
 pub mod plots;
 pub mod report;

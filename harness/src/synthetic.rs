@@ -239,6 +239,7 @@ pub fn make_run(spec: &SynthSpec) -> SynthRun {
                 }
             }
             datasets.push(DatasetEntry {
+                part: Default::default(),
                 dataset: format!("d{d:03}"),
                 psf_id: *psf_id,
                 psf: psf.clone(),

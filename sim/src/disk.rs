@@ -42,8 +42,7 @@ pub fn fits_file_bytes(data_bytes: u64) -> u64 {
 /// Images the run makes (every field, its rotated twin if any, every
 /// dataset).
 pub fn images_in_run(plan: &Plan) -> u64 {
-    let per_field = plan.datasets().len() as u64 * (1 + u64::from(plan.population().rotated_pairs));
-    u64::from(plan.n_fields()) * per_field
+    plan.n_images_in_run()
 }
 
 /// Bytes of one truth table row.

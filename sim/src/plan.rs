@@ -23,12 +23,14 @@ use crate::config::{
     ConfigError, RawConfig, RawImage, RawInstrument, RawOutput, RawPopulation, RawPsf, RawPsfModel,
     RawRender, RawShear, RawTelescope, SeedOrigin, Source, draw_seed,
 };
+use crate::config::{Part, RawChallenge};
 use crate::io::IoError;
 use crate::io::psf_fits::read_psf_fits;
 use crate::io::skymaker::{ListError, ListObject, read_list};
 use crate::noise::{Detector, sky_e_per_pixel};
 use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
 use crate::render::Accuracy;
+use crate::seed::{SeedKey, Stream};
 use crate::wcs::TanWcs;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -62,15 +64,22 @@ pub enum PlanError {
     },
 }
 
-/// One dataset: a PSF and a shear. Its index is stable: `psf * n_shears + shear`.
+/// One dataset: a PSF and a shear. Its index is stable: `psf * n_shears + shear`
+/// for the public part; held-out datasets (a `challenge` section) follow as
+/// `n_psfs * n_shears + psf * n_shears + slot`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Dataset {
     /// Index in [`Plan::datasets`].
     pub index: u32,
     /// Index of the PSF in [`Plan::psfs`].
     pub psf: usize,
-    /// Index of the shear in [`Plan::shears`].
+    /// Index of the shear in [`Plan::shears`] (for a held-out dataset: its
+    /// slot, 0..n_shears; its shear is drawn, not configured).
     pub shear: usize,
+    /// Which part of the challenge it belongs to.
+    pub part: Part,
+    /// Its base fields, ascending (every field unless the run holds some out).
+    pub fields: Vec<u32>,
     /// Applied g1.
     pub g1: f64,
     /// Applied g2.
@@ -124,17 +133,7 @@ impl Plan {
                 SeedOrigin::Drawn
             }
         };
-        let n_shears = config.shears.len();
-        let datasets = (0..config.psfs.len())
-            .flat_map(|p| (0..n_shears).map(move |s| (p, s)))
-            .map(|(psf, shear)| Dataset {
-                index: (psf * n_shears + shear) as u32,
-                psf,
-                shear,
-                g1: config.shears[shear].g1,
-                g2: config.shears[shear].g2,
-            })
-            .collect();
+        let datasets = challenge_datasets(&config);
         let lists = match &config.population.source {
             Source::Stuff => None,
             Source::SkymakerList { path } => {
@@ -201,6 +200,7 @@ impl Plan {
     pub fn with_seed(&self, seed: u64) -> Self {
         let mut p = self.clone();
         p.config.run.seed = Some(seed);
+        p.datasets = challenge_datasets(&p.config);
         p
     }
 
@@ -227,6 +227,21 @@ impl Plan {
     /// Number of base fields (images per dataset).
     pub fn n_fields(&self) -> u32 {
         self.config.image.n_images
+    }
+
+    /// Number of images in the run (every dataset's fields, twins included).
+    pub fn n_images_in_run(&self) -> u64 {
+        let twins = 1 + u64::from(self.config.population.rotated_pairs);
+        self.datasets
+            .iter()
+            .map(|d| d.fields.len() as u64)
+            .sum::<u64>()
+            * twins
+    }
+
+    /// The `challenge` section (held-out fields and their shears' range).
+    pub fn challenge(&self) -> &RawChallenge {
+        &self.config.challenge
     }
 
     /// The run's name (`run.name`).
@@ -423,6 +438,77 @@ fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), (String, String)> {
             ins.saturation_adu
         ),
     ))
+}
+
+/// The datasets of a validated config with its seed set: PSF × shear on
+/// the public fields, then (with `challenge.holdout_fields`) PSF × slot on
+/// the held-out fields with drawn shears.
+fn challenge_datasets(config: &RawConfig) -> Vec<Dataset> {
+    let seed = config.run.seed.unwrap_or_default();
+    let n_fields = config.image.n_images;
+    let n_shears = config.shears.len();
+    let n_psfs = config.psfs.len();
+    let held = holdout_fields(seed, n_fields, config.challenge.holdout_fields);
+    let public: Vec<u32> = (0..n_fields).filter(|f| !held.contains(f)).collect();
+    let pairs = || (0..n_psfs).flat_map(move |p| (0..n_shears).map(move |s| (p, s)));
+    let mut out: Vec<Dataset> = pairs()
+        .map(|(psf, shear)| Dataset {
+            index: (psf * n_shears + shear) as u32,
+            psf,
+            shear,
+            part: Part::Public,
+            fields: public.clone(),
+            g1: config.shears[shear].g1,
+            g2: config.shears[shear].g2,
+        })
+        .collect();
+    if !held.is_empty() {
+        let g_max = config.challenge.holdout_g_max;
+        out.extend(pairs().map(|(psf, slot)| {
+            let index = (n_psfs * n_shears + psf * n_shears + slot) as u32;
+            let (g1, g2) = holdout_shear(seed, index, g_max);
+            Dataset {
+                index,
+                psf,
+                shear: slot,
+                part: Part::Holdout,
+                fields: held.clone(),
+                g1,
+                g2,
+            }
+        }));
+    }
+    out
+}
+
+/// The base fields held out: `n_held` of `0..n_fields`, chosen by a keyed
+/// order (stream [`Stream::Holdout`] per field), not by position, so that
+/// nothing about a field's index tells its part. Ascending.
+pub fn holdout_fields(seed: u64, n_fields: u32, n_held: u32) -> Vec<u32> {
+    let mut order: Vec<(u64, u32)> = (0..n_fields)
+        .map(|f| (SeedKey::base(seed, f, Stream::Holdout).seed(), f))
+        .collect();
+    order.sort_unstable();
+    let mut held: Vec<u32> = order
+        .into_iter()
+        .take(n_held as usize)
+        .map(|(_, f)| f)
+        .collect();
+    held.sort_unstable();
+    held
+}
+
+/// The shear of held-out dataset `index`: uniform in the disc |g| ≤ `g_max`
+/// (radius g_max·√u, angle 2πv), from the keyed stream
+/// `SeedKey::image(seed, 0, index, Stream::Holdout)`.
+pub fn holdout_shear(seed: u64, index: u32, g_max: f64) -> (f64, f64) {
+    use rand::RngExt;
+    let mut rng = SeedKey::image(seed, 0, index, Stream::Holdout).rng();
+    let u: f64 = rng.random();
+    let v: f64 = rng.random();
+    let r = g_max * u.sqrt();
+    let phi = std::f64::consts::TAU * v;
+    (r * phi.cos(), r * phi.sin())
 }
 
 #[cfg(test)]

@@ -16,12 +16,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     println!("{}", plan.config_json_as_given());
     eprintln!(
-        "stepsim: {}: {} PSFs × {} shears = {} datasets of {} images each",
+        "stepsim: {}: {} PSFs × {} shears = {} datasets of {} base fields each",
         args.config.config.display(),
         plan.psfs().len(),
         plan.shears().len(),
         plan.datasets().len(),
-        plan.n_fields()
+        plan.datasets()[0].fields.len()
     );
     match plan.seed_origin() {
         SeedOrigin::Config => eprintln!(

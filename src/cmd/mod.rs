@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod catalog;
+pub mod challenge;
 pub mod config;
 pub mod generate;
 pub mod leaderboard;
@@ -9,6 +10,7 @@ pub mod measure;
 pub mod progress;
 pub mod psf;
 pub mod score;
+pub mod serve;
 pub mod slurm;
 
 use anyhow::Context as _;

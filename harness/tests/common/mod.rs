@@ -18,6 +18,7 @@ pub fn index() -> ImageIndex {
         height_px: 80,
         pixel_scale_arcsec: 0.2,
         datasets: vec![DatasetEntry {
+            part: Default::default(),
             dataset: "dA".into(),
             psf_id: 0,
             psf: "none".into(),

@@ -13,11 +13,13 @@
 //! be (`--set image.n_images=4`, `--set run.name="x"`) and taken as a string
 //! otherwise (`--set run.name=x`).
 
+mod challenge;
 mod image;
 mod population;
 mod psf;
 mod render;
 
+pub use challenge::{Part, RawChallenge};
 pub use image::{RawImage, RawInstrument, RawTelescope};
 pub use population::{
     Cosmology, Flattening, GalaxyType, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Sizes,
@@ -134,6 +136,10 @@ pub struct RawConfig {
     pub render: RawRender,
     /// What gets written.
     pub output: RawOutput,
+    /// The held-out part of a challenge run (left out of the resolved
+    /// config when it is the default, so older runs keep their bytes).
+    #[serde(skip_serializing_if = "RawChallenge::is_default")]
+    pub challenge: RawChallenge,
 }
 
 impl Default for RawConfig {
@@ -148,6 +154,7 @@ impl Default for RawConfig {
             shears: RawShear::step1_set(),
             render: RawRender::default(),
             output: RawOutput::default(),
+            challenge: RawChallenge::default(),
         }
     }
 }
@@ -235,7 +242,7 @@ impl RawConfig {
                 column: e.column(),
                 message: strip_position(&e.to_string()),
             })?;
-        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        let defaults = shape_defaults();
         check_shape(&value, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
             path: path.into(),
             line: line_of_key(text, &key),
@@ -260,7 +267,7 @@ impl RawConfig {
         for arg in overrides {
             apply_override(&mut tree, arg)?;
         }
-        let defaults = serde_json::to_value(RawConfig::default()).expect("config serialises");
+        let defaults = shape_defaults();
         check_shape(&tree, &defaults, "").map_err(|(key, found)| ConfigError::NotAnObject {
             path: PathBuf::from("--set"),
             key,
@@ -279,6 +286,19 @@ impl RawConfig {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("config serialises")
     }
+}
+
+/// The default config as a JSON tree, with every section present (also
+/// those left out of the resolved config when default), for [`check_shape`].
+fn shape_defaults() -> serde_json::Value {
+    let mut tree = serde_json::to_value(RawConfig::default()).expect("config serialises");
+    if let serde_json::Value::Object(map) = &mut tree {
+        map.insert(
+            "challenge".into(),
+            serde_json::to_value(RawChallenge::default()).expect("config serialises"),
+        );
+    }
+    tree
 }
 
 /// Finds where `value` holds something other than an object where the
@@ -418,6 +438,9 @@ impl RawConfig {
             .map_err(|(k, m)| invalid(&k, m))?;
         self.render.validate().map_err(|(k, m)| invalid(&k, m))?;
         self.output.validate().map_err(|(k, m)| invalid(&k, m))?;
+        self.challenge
+            .validate(self.image.n_images)
+            .map_err(|(k, m)| invalid(&k, m))?;
         if self.psfs.is_empty() {
             return Err(invalid("psfs", "at least one PSF is needed".into()));
         }

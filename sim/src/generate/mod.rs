@@ -245,7 +245,7 @@ pub fn jobs(plan: &Plan, key: &BlindingKey) -> Result<Vec<Job>, GenerateError> {
     let mut out = Vec::new();
     for field in 0..plan.n_fields() {
         for &rotated in rotations {
-            for d in plan.datasets() {
+            for d in plan.datasets().iter().filter(|d| d.fields.contains(&field)) {
                 out.push(Job {
                     order: out.len(),
                     field,
@@ -993,6 +993,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
                             rotated: j.rotated,
                         })
                         .collect(),
+                    part: d.part,
                 }
             })
             .collect(),

@@ -15,7 +15,7 @@ pub fn participants_readme(plan: &Plan, submission_format: &str) -> String {
     let ins = plan.instrument();
     let img = plan.image();
     let det = plan.detector();
-    let n_per = plan.n_fields()
+    let n_per = plan.datasets()[0].fields.len() as u32
         * if plan.population().rotated_pairs {
             2
         } else {

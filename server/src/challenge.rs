@@ -1,0 +1,378 @@
+//! A challenge's state directory and the organiser's operations on it.
+
+use crate::store::{SqliteStore, Store, StoreError};
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+use stepsim_harness::part::has_holdout;
+use stepsim_harness::truth_set::load_truth_set;
+
+/// Name of the database in the state directory.
+pub const DB_FILE: &str = "challenge.db";
+/// Default rolling 24-hour quota of scored submissions per team.
+pub const DEFAULT_QUOTA: u32 = 4;
+/// Default cap on one upload, in bytes (the harness's own limit).
+pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::input::MAX_SUBMISSION_BYTES;
+/// Uploads refused by the format check allowed per team per 24 hours.
+pub const DEFAULT_FORMAT_FAILURE_CAP: u32 = 20;
+/// Requests allowed per token and per client address in one minute.
+pub const DEFAULT_REQUESTS_PER_MINUTE: u32 = 120;
+/// The window of the quota.
+pub const QUOTA_WINDOW_S: i64 = 24 * 3600;
+
+/// What can go wrong with a challenge.
+#[derive(Debug, thiserror::Error)]
+pub enum ChallengeError {
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The run cannot be served (message names the file).
+    #[error("{0}")]
+    Run(String),
+    /// The state directory is not usable.
+    #[error("{path}: {message}")]
+    State {
+        /// The directory or file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A team name is unknown or taken.
+    #[error("{0}")]
+    Team(String),
+}
+
+/// The settings recorded at `init`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Settings {
+    /// `RUN/private` of the served run.
+    pub truth_dir: PathBuf,
+    /// Scored submissions per team per rolling 24 hours.
+    pub quota: u32,
+    /// Upload cap in bytes.
+    pub max_upload_bytes: u64,
+    /// Refused uploads allowed per team per 24 hours.
+    pub format_failure_cap: u32,
+    /// Requests per token and per client address per minute.
+    pub requests_per_minute: u32,
+    /// Whether the run has a held-out part.
+    pub holdout: bool,
+}
+
+/// An open challenge: its directory, settings and store.
+pub struct Challenge {
+    /// The state directory.
+    pub dir: PathBuf,
+    /// Its settings.
+    pub settings: Settings,
+    /// Its store.
+    pub store: Box<dyn Store>,
+}
+
+impl std::fmt::Debug for Challenge {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Challenge({})", self.dir.display())
+    }
+}
+
+/// SHA-256 of a token, lower-case hex (what the store keeps).
+pub fn token_hash(token: &str) -> String {
+    hex(&Sha256::digest(token.as_bytes()))
+}
+
+/// Lower-case hex of bytes.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// A new random token: `stp_` and 64 hex digits (256 bits from the
+/// operating system).
+pub fn new_token() -> Result<String, ChallengeError> {
+    let mut b = [0u8; 32];
+    getrandom::fill(&mut b)
+        .map_err(|e| ChallengeError::Run(format!("cannot draw a token: {e}")))?;
+    Ok(format!("stp_{}", hex(&b)))
+}
+
+impl Challenge {
+    /// Creates a challenge for `run` in `dir` (which must not hold one).
+    /// Refuses a run without held-out datasets unless `no_holdout`.
+    pub fn init(
+        run: &Path,
+        dir: &Path,
+        quota: u32,
+        no_holdout: bool,
+    ) -> Result<Self, ChallengeError> {
+        let truth_dir = run.join("private");
+        let truth = load_truth_set(&truth_dir).map_err(|e| ChallengeError::Run(e.to_string()))?;
+        let holdout = has_holdout(&truth.datasets);
+        if !holdout && !no_holdout {
+            return Err(ChallengeError::Run(format!(
+                "{}: the run has no held-out datasets (config section `challenge.holdout_fields`); \
+                 its public feedback would be its final score. Generate a run with held-out \
+                 fields, or pass --no-holdout to serve it anyway",
+                truth_dir.join("datasets.json").display()
+            )));
+        }
+        if quota == 0 {
+            return Err(ChallengeError::Run("--quota must be at least 1".into()));
+        }
+        let state = |message: String| ChallengeError::State {
+            path: dir.to_path_buf(),
+            message,
+        };
+        std::fs::create_dir_all(dir).map_err(|e| state(format!("cannot create: {e}")))?;
+        if dir.join(DB_FILE).exists() {
+            return Err(state(format!(
+                "already holds a challenge ({DB_FILE}); use another directory"
+            )));
+        }
+        let truth_dir = std::fs::canonicalize(&truth_dir)
+            .map_err(|e| ChallengeError::Run(format!("{}: {e}", truth_dir.display())))?;
+        let mut store = SqliteStore::open(&dir.join(DB_FILE), true)?;
+        let settings = Settings {
+            truth_dir,
+            quota,
+            max_upload_bytes: DEFAULT_MAX_UPLOAD_BYTES,
+            format_failure_cap: DEFAULT_FORMAT_FAILURE_CAP,
+            requests_per_minute: DEFAULT_REQUESTS_PER_MINUTE,
+            holdout,
+        };
+        for (k, v) in [
+            ("truth_dir", settings.truth_dir.display().to_string()),
+            ("run", truth.run.clone()),
+            ("quota", quota.to_string()),
+            ("max_upload_bytes", settings.max_upload_bytes.to_string()),
+            (
+                "format_failure_cap",
+                settings.format_failure_cap.to_string(),
+            ),
+            (
+                "requests_per_minute",
+                settings.requests_per_minute.to_string(),
+            ),
+            ("holdout", holdout.to_string()),
+            ("revealed", "false".into()),
+        ] {
+            store.set_meta(k, &v)?;
+        }
+        for sub in ["uploads", "entries"] {
+            std::fs::create_dir_all(dir.join(sub)).map_err(|e| state(e.to_string()))?;
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            settings,
+            store: Box::new(store),
+        })
+    }
+
+    /// Opens the challenge in `dir`.
+    pub fn open(dir: &Path) -> Result<Self, ChallengeError> {
+        let db = dir.join(DB_FILE);
+        if !db.is_file() {
+            return Err(ChallengeError::State {
+                path: dir.to_path_buf(),
+                message: format!(
+                    "holds no challenge ({DB_FILE} missing): run `stepsim challenge init` first"
+                ),
+            });
+        }
+        let store = SqliteStore::open(&db, false)?;
+        let get = |k: &str| -> Result<String, ChallengeError> {
+            store.meta(k)?.ok_or_else(|| ChallengeError::State {
+                path: db.clone(),
+                message: format!("setting `{k}` is missing"),
+            })
+        };
+        let num = |k: &str| -> Result<u64, ChallengeError> {
+            get(k)?.parse().map_err(|_| ChallengeError::State {
+                path: db.clone(),
+                message: format!("setting `{k}` is not a number"),
+            })
+        };
+        let settings = Settings {
+            truth_dir: PathBuf::from(get("truth_dir")?),
+            quota: num("quota")? as u32,
+            max_upload_bytes: num("max_upload_bytes")?,
+            format_failure_cap: num("format_failure_cap")? as u32,
+            // Challenges made before the setting existed take the default.
+            requests_per_minute: match store.meta("requests_per_minute")? {
+                Some(_) => num("requests_per_minute")? as u32,
+                None => DEFAULT_REQUESTS_PER_MINUTE,
+            },
+            holdout: get("holdout")? == "true",
+        };
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            settings,
+            store: Box::new(store),
+        })
+    }
+
+    /// Adds a team; returns its token (shown once; only its hash is kept).
+    pub fn add_team(&mut self, name: &str) -> Result<String, ChallengeError> {
+        let name = name.trim();
+        if name.is_empty() || name.chars().count() > 80 || name.chars().any(char::is_control) {
+            return Err(ChallengeError::Team(
+                "a team name must be 1 to 80 characters without control characters".into(),
+            ));
+        }
+        if self.store.team_by_name(name)?.is_some() {
+            return Err(ChallengeError::Team(format!(
+                "a team named {name:?} exists already"
+            )));
+        }
+        let token = new_token()?;
+        self.store
+            .add_team(name, &token_hash(&token), crate::now_s())?;
+        Ok(token)
+    }
+
+    fn team_id(&self, name: &str) -> Result<i64, ChallengeError> {
+        self.store
+            .team_by_name(name)?
+            .map(|t| t.id)
+            .ok_or_else(|| ChallengeError::Team(format!("no team named {name:?}")))
+    }
+
+    /// Gives a team a new token (the old one stops working).
+    pub fn rotate_token(&mut self, name: &str) -> Result<String, ChallengeError> {
+        let id = self.team_id(name)?;
+        let token = new_token()?;
+        self.store.set_token(id, &token_hash(&token))?;
+        Ok(token)
+    }
+
+    /// Revokes a team's token.
+    pub fn revoke(&mut self, name: &str) -> Result<(), ChallengeError> {
+        let id = self.team_id(name)?;
+        Ok(self.store.revoke(id)?)
+    }
+
+    /// True once revealed.
+    pub fn revealed(&self) -> Result<bool, ChallengeError> {
+        Ok(self.store.meta("revealed")?.as_deref() == Some("true"))
+    }
+
+    /// Reveals: held-out scores and full reports become visible.
+    pub fn reveal(&mut self) -> Result<(), ChallengeError> {
+        Ok(self.store.set_meta("revealed", "true")?)
+    }
+
+    /// Where an upload with this SHA-256 is kept.
+    pub fn upload_path(&self, sha256: &str) -> PathBuf {
+        self.dir.join("uploads").join(sha256)
+    }
+
+    /// Where the reports of entry `id` for a part are kept.
+    pub fn entry_dir(&self, id: i64, part: stepsim_harness::part::Part) -> PathBuf {
+        self.dir
+            .join("entries")
+            .join(id.to_string())
+            .join(part.name())
+    }
+}
+
+/// What [`Challenge::export`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Export {
+    /// The leaderboard as JSON (`{"revealed", "part", "rows"}`).
+    pub json: PathBuf,
+    /// The same rows as CSV.
+    pub csv: PathBuf,
+    /// One `report.json` per ranked row (`stepsim leaderboard DIR/*.json`
+    /// ranks them again).
+    pub reports: Vec<PathBuf>,
+}
+
+/// The CSV columns of an export (rows of the leaderboard).
+pub const EXPORT_CSV_COLUMNS: [&str; 8] = [
+    "rank", "team", "entry", "part", "m_mean", "sigma_c", "q_c", "report",
+];
+
+/// Quotes a CSV field when it holds a comma, quote or line break.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+impl Challenge {
+    /// Writes the leaderboard to `out` (JSON), `out` with extension `csv`,
+    /// and each ranked entry's report of the part it is ranked on (held-out
+    /// after reveal, public before) into the directory `out` with extension
+    /// `reports`, named `RANK-entryID.json`. Every file is written
+    /// atomically.
+    pub fn export(&self, out: &Path) -> Result<Export, ChallengeError> {
+        use stepsim_contract::io::write_bytes_atomically;
+        let revealed = self.revealed()?;
+        let part = if revealed && self.settings.holdout {
+            stepsim_harness::part::Part::Holdout
+        } else {
+            stepsim_harness::part::Part::Public
+        };
+        let teams = self.store.teams()?;
+        let subs = self.store.all_submissions()?;
+        let mut rows = crate::api::leaderboard_rows(&teams, &subs, revealed);
+        let reports_dir = out.with_extension("reports");
+        let io = |p: &Path, e: String| ChallengeError::State {
+            path: p.to_path_buf(),
+            message: e,
+        };
+        std::fs::create_dir_all(&reports_dir).map_err(|e| io(&reports_dir, e.to_string()))?;
+        let mut reports = Vec::new();
+        let mut csv = EXPORT_CSV_COLUMNS.join(",");
+        csv.push('\n');
+        for row in &mut rows {
+            let id = row["entry"].as_i64().unwrap_or(0);
+            let rank = row["rank"].as_i64().unwrap_or(0);
+            let src = self.entry_dir(id, part).join("report.json");
+            let dst = reports_dir.join(format!("{rank}-entry{id}.json"));
+            let bytes = std::fs::read(&src).map_err(|e| io(&src, e.to_string()))?;
+            write_bytes_atomically(&dst, &bytes).map_err(|e| io(&dst, e.to_string()))?;
+            let name = dst
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let figures = if part == stepsim_harness::part::Part::Holdout {
+                &row["holdout"]
+            } else {
+                &row["public"]
+            };
+            let num = |k: &str| figures.get(k).map(|v| v.to_string()).unwrap_or_default();
+            let fields = [
+                rank.to_string(),
+                csv_field(row["team"].as_str().unwrap_or("")),
+                id.to_string(),
+                part.name().to_string(),
+                num("m_mean"),
+                num("sigma_c"),
+                num("q_c"),
+                csv_field(&format!(
+                    "{}/{name}",
+                    reports_dir
+                        .file_name()
+                        .map(|n| n.to_string_lossy().into_owned())
+                        .unwrap_or_default()
+                )),
+            ];
+            csv.push_str(&fields.join(","));
+            csv.push('\n');
+            row["report"] = serde_json::json!(name);
+            reports.push(dst);
+        }
+        let doc = serde_json::json!({"revealed": revealed, "part": part.name(), "rows": rows});
+        let mut json = serde_json::to_string_pretty(&doc).map_err(|e| io(out, e.to_string()))?;
+        json.push('\n');
+        write_bytes_atomically(out, json.as_bytes()).map_err(|e| io(out, e.to_string()))?;
+        let csv_path = out.with_extension("csv");
+        write_bytes_atomically(&csv_path, csv.as_bytes())
+            .map_err(|e| io(&csv_path, e.to_string()))?;
+        Ok(Export {
+            json: out.to_path_buf(),
+            csv: csv_path,
+            reports,
+        })
+    }
+}

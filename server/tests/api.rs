@@ -1,0 +1,633 @@
+//! The JSON API in-process (tower's `oneshot`): tokens, escaping and
+//! headers, the size cap, the quota, refused uploads, scoring through the
+//! queue with the harness's numbers, and a participant's walk over routes.
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode, header};
+use http_body_util::BodyExt;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use stepsim_harness::part::{Part, PublicFeedback, score_part};
+use stepsim_harness::pipeline::ScoreOptions;
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_server::api::{AppState, router};
+use stepsim_server::{Challenge, worker};
+use tower::ServiceExt;
+
+/// A challenge run: public part (2 PSFs × 2 shears, fields 0-1) and
+/// held-out part (other shears, fields 2-3), written to `dir/run/private`.
+fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(2);
+    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
+    let public = make_run(&spec);
+    let mut h = spec.clone();
+    h.shears = vec![(0.0371, -0.0523), (-0.0617, 0.0289)];
+    h.seed = 7;
+    let mut held = make_run(&h);
+    for d in &mut held.datasets.datasets {
+        d.dataset = format!("h{}", d.dataset);
+        d.part = Part::Holdout;
+        for im in &mut d.images {
+            im.image = format!("h{}", im.image);
+            im.field += 2;
+        }
+    }
+    let mut all = public.clone();
+    all.datasets.datasets.extend(held.datasets.datasets.clone());
+    all.truth.extend(held.truth.clone());
+    all.write(&dir.join("run/private")).unwrap();
+    (all, held)
+}
+
+/// A catalogue of the whole run with m = `m`.
+fn catalogue(all: &SynthRun, m: f64) -> String {
+    let rows =
+        all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
+    submission_text(&all.index(), &rows)
+}
+
+struct Fixture {
+    _tmp: tempfile::TempDir,
+    state: PathBuf,
+    truth: PathBuf,
+    all: SynthRun,
+    held: SynthRun,
+    tokens: Vec<String>,
+}
+
+fn fixture(quota: u32, teams: &[&str]) -> Fixture {
+    let tmp = tempfile::tempdir().unwrap();
+    let (all, held) = write_run(tmp.path());
+    let state = tmp.path().join("state");
+    let mut ch = Challenge::init(&tmp.path().join("run"), &state, quota, false).unwrap();
+    let tokens = teams.iter().map(|t| ch.add_team(t).unwrap()).collect();
+    Fixture {
+        truth: ch.settings.truth_dir.clone(),
+        _tmp: tmp,
+        state,
+        all,
+        held,
+        tokens,
+    }
+}
+
+impl Fixture {
+    fn app(&self) -> axum::Router {
+        router(AppState::new(Challenge::open(&self.state).unwrap()))
+    }
+    fn set(&self, key: &str, value: &str) {
+        let mut ch = Challenge::open(&self.state).unwrap();
+        ch.store.set_meta(key, value).unwrap();
+    }
+    /// Scores every queued job now (what a worker does).
+    fn score_queue(&self) {
+        let mut ch = Challenge::open(&self.state).unwrap();
+        while let Some(job) = ch.store.claim_job(stepsim_server::now_s()).unwrap() {
+            let r = worker::score_entry(&ch, &job);
+            ch.store
+                .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+                .unwrap();
+        }
+    }
+}
+
+async fn call(
+    app: &axum::Router,
+    req: Request<Body>,
+) -> (StatusCode, axum::http::HeaderMap, String) {
+    let resp = app.clone().oneshot(req).await.unwrap();
+    let status = resp.status();
+    let headers = resp.headers().clone();
+    let body = resp.into_body().collect().await.unwrap().to_bytes();
+    (status, headers, String::from_utf8_lossy(&body).into_owned())
+}
+
+fn get(path: &str, token: Option<&str>) -> Request<Body> {
+    let mut r = Request::get(path);
+    if let Some(t) = token {
+        r = r.header(header::AUTHORIZATION, format!("Bearer {t}"));
+    }
+    r.body(Body::empty()).unwrap()
+}
+
+fn upload(token: &str, body: impl Into<Body>) -> Request<Body> {
+    Request::post("/api/submissions")
+        .header(header::AUTHORIZATION, format!("Bearer {token}"))
+        .body(body.into())
+        .unwrap()
+}
+
+/// Equal JSON trees, numbers to 1e-9 relative (1e-20 absolute): the
+/// harness's bootstrap of a σ_c at rounding level (1e-13) is not
+/// bit-reproducible between two scorings of one file (reported, harness).
+fn assert_close(got: &Value, want: &Value, at: &str) {
+    match (got, want) {
+        (Value::Number(a), Value::Number(b)) => {
+            let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
+            assert!(
+                (a - b).abs() <= 1e-9 * a.abs().max(b.abs()) + 1e-20,
+                "{at}: {a} != {b}"
+            );
+        }
+        (Value::Object(a), Value::Object(b)) => {
+            assert_eq!(a.len(), b.len(), "{at}: keys differ");
+            for (k, v) in b {
+                assert_close(&a[k], v, &format!("{at}.{k}"));
+            }
+        }
+        (Value::Array(a), Value::Array(b)) => {
+            assert_eq!(a.len(), b.len(), "{at}: lengths differ");
+            for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                assert_close(x, y, &format!("{at}[{i}]"));
+            }
+        }
+        _ => assert_eq!(got, want, "{at}"),
+    }
+}
+
+fn json(s: &str) -> Value {
+    serde_json::from_str(s).unwrap_or_else(|e| panic!("not JSON ({e}): {s}"))
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[tokio::test]
+async fn tokens_gate_every_route_and_entries_stay_with_their_team() {
+    let f = fixture(4, &["alpha", "beta", "gamma"]);
+    let app = f.app();
+    let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{body}");
+    let id = json(&body)["id"].as_i64().unwrap();
+    assert_eq!(json(&body)["status"], "queued");
+    let own = format!("/api/submissions/{id}");
+    // No token, a forged one, a malformed header: 401 with a JSON error.
+    for token in [None, Some("stp_0000"), Some("")] {
+        for path in ["/api/submissions", own.as_str()] {
+            let (s, h, body) = call(&app, get(path, token)).await;
+            assert_eq!(s, StatusCode::UNAUTHORIZED, "{path} {token:?}");
+            assert!(json(&body)["error"].as_str().unwrap().contains("token"));
+            assert_eq!(h[header::WWW_AUTHENTICATE], "Bearer");
+        }
+        let (s, _, _) = call(&app, upload(token.unwrap_or(""), "x")).await;
+        assert_eq!(s, StatusCode::UNAUTHORIZED);
+    }
+    // Another team's entry: 404, the same answer as a missing one.
+    let (s, _, other) = call(&app, get(&own, Some(&f.tokens[1]))).await;
+    let (s2, _, missing) = call(&app, get("/api/submissions/999", Some(&f.tokens[1]))).await;
+    assert_eq!((s, s2), (StatusCode::NOT_FOUND, StatusCode::NOT_FOUND));
+    assert_eq!(other, missing);
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[1]))).await;
+    assert_eq!(json(&list)["submissions"], serde_json::json!([]));
+    // The owner sees it.
+    let (s, _, mine) = call(&app, get(&own, Some(&f.tokens[0]))).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(json(&mine)["status"], "queued");
+    // Revoked and rotated tokens stop working; the new one works.
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.revoke("gamma").unwrap();
+    let (s, _, _) = call(&app, get("/api/submissions", Some(&f.tokens[2]))).await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    let new = ch.rotate_token("alpha").unwrap();
+    let (s, _, _) = call(&app, get(&own, Some(&f.tokens[0]))).await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    let (s, _, _) = call(&app, get(&own, Some(&new))).await;
+    assert_eq!(s, StatusCode::OK);
+    // Only the hash of a token is stored.
+    let db = std::fs::read(f.state.join("challenge.db")).unwrap();
+    let db = String::from_utf8_lossy(&db);
+    assert!(!db.contains(&new) && !db.contains(&f.tokens[1]));
+}
+
+#[tokio::test]
+async fn names_stay_text_and_answers_carry_security_headers() {
+    let f = fixture(4, &["<script>alert(1)</script>"]);
+    let app = f.app();
+    let (s, _, _) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.01))).await;
+    assert_eq!(s, StatusCode::ACCEPTED);
+    f.score_queue();
+    let (s, h, body) = call(&app, get("/api/leaderboard", None)).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(h[header::CONTENT_TYPE], "application/json");
+    assert_eq!(h[header::X_CONTENT_TYPE_OPTIONS], "nosniff");
+    assert_eq!(h[header::X_FRAME_OPTIONS], "DENY");
+    assert!(
+        h[header::CONTENT_SECURITY_POLICY]
+            .to_str()
+            .unwrap()
+            .contains("default-src 'none'")
+    );
+    assert_eq!(json(&body)["rows"][0]["team"], "<script>alert(1)</script>");
+    // Names with control characters are refused at `team add`.
+    let mut ch = Challenge::open(&f.state).unwrap();
+    assert!(ch.add_team("a\u{7}b").is_err());
+    assert!(
+        ch.add_team("<script>alert(1)</script>").is_err(),
+        "names are unique"
+    );
+}
+
+#[tokio::test]
+async fn uploads_past_the_cap_get_413_and_leave_nothing() {
+    let f = fixture(4, &["alpha"]);
+    f.set("max_upload_bytes", "1000");
+    let app = f.app();
+    let big = catalogue(&f.all, 0.0);
+    assert!(big.len() > 5_000, "{}", big.len());
+    // Announced by Content-Length, and streamed without one.
+    let mut announced = upload(&f.tokens[0], big.clone());
+    announced.headers_mut().insert(
+        header::CONTENT_LENGTH,
+        big.len().to_string().parse().unwrap(),
+    );
+    let (s, _, body) = call(&app, announced).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("limit of 1000 bytes")
+    );
+    let stream = Body::new(Chunked(
+        big.as_bytes().chunks(500).map(<[u8]>::to_vec).collect(),
+    ));
+    let (s, _, body) = call(&app, upload(&f.tokens[0], stream)).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE);
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("limit of 1000 bytes")
+    );
+    assert!(files_in(&f.state.join("uploads")).is_empty());
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
+    assert_eq!(json(&list)["submissions"], serde_json::json!([]));
+}
+
+/// A body of chunks without a known length (no Content-Length).
+struct Chunked(std::collections::VecDeque<Vec<u8>>);
+
+impl http_body::Body for Chunked {
+    type Data = axum::body::Bytes;
+    type Error = std::io::Error;
+    fn poll_frame(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Self::Data>, Self::Error>>> {
+        let next = self.get_mut().0.pop_front();
+        std::task::Poll::Ready(next.map(|c| Ok(http_body::Frame::data(c.into()))))
+    }
+}
+
+#[tokio::test]
+async fn the_quota_counts_accepted_uploads_and_says_when_it_resets() {
+    let f = fixture(2, &["alpha", "beta"]);
+    let app = f.app();
+    for m in [0.0, 0.01] {
+        let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, m))).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{body}");
+    }
+    // The same bytes again are recognised, not counted.
+    let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS, "quota first: {body}");
+    let (s, h, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.02))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
+    let v = json(&body);
+    assert!(
+        v["error"].as_str().unwrap().contains("quota of 2"),
+        "{body}"
+    );
+    let reset = v["reset"].as_str().unwrap();
+    assert!(reset.ends_with('Z') && reset.len() == 20, "{reset}");
+    let wait: i64 = h[header::RETRY_AFTER].to_str().unwrap().parse().unwrap();
+    assert!((23 * 3600..=24 * 3600).contains(&wait), "{wait}");
+    // Another team is not affected; the list shows the quota.
+    let (s, _, _) = call(&app, upload(&f.tokens[1], catalogue(&f.all, 0.0))).await;
+    assert_eq!(s, StatusCode::ACCEPTED);
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
+    let q = &json(&list)["quota"];
+    assert_eq!(
+        (q["used"].as_u64(), q["limit"].as_u64()),
+        (Some(2), Some(2))
+    );
+    assert_eq!(q["reset"].as_str(), Some(reset));
+}
+
+#[tokio::test]
+async fn duplicates_are_recognised() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let (_, _, a) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+    let (s, _, b) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(json(&b)["id"], json(&a)["id"]);
+    assert_eq!(json(&b)["duplicate"], true);
+    assert_eq!(files_in(&f.state.join("uploads")).len(), 1);
+}
+
+#[tokio::test]
+async fn bad_uploads_get_the_harness_message_and_change_nothing() {
+    let f = fixture(4, &["alpha", "beta"]);
+    f.set("format_failure_cap", "5");
+    let app = f.app();
+    let good = catalogue(&f.all, 0.0);
+    let first_line = good.lines().nth(1).unwrap();
+    let id = first_line.split(' ').next().unwrap();
+    let truncated = &good[..good.len() / 2 + 7];
+    let wrong_id = good.replacen(id, "i0000000000000000", 1);
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("empty", vec![], "no rows"),
+        (
+            "binary",
+            vec![0u8, 159, 146, 150, 0, 1, 2, 3, 10, 0],
+            "binary",
+        ),
+        ("truncated", truncated.as_bytes().to_vec(), "line"),
+        ("wrong id", wrong_id.into_bytes(), "unknown image id"),
+    ];
+    for (what, bytes, says) in cases {
+        let (s, _, body) = call(&app, upload(&f.tokens[0], bytes)).await;
+        assert_eq!(s, StatusCode::UNPROCESSABLE_ENTITY, "{what}: {body}");
+        let msg = json(&body)["error"].as_str().unwrap().to_owned();
+        assert!(msg.to_lowercase().contains(says), "{what}: {msg}");
+        assert!(
+            !msg.contains(f.state.to_str().unwrap()),
+            "{what}: a server path: {msg}"
+        );
+        assert!(
+            !msg.contains(f.truth.to_str().unwrap()),
+            "{what}: a server path: {msg}"
+        );
+    }
+    assert!(files_in(&f.state.join("uploads")).is_empty());
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
+    assert_eq!(json(&list)["submissions"], serde_json::json!([]));
+    assert_eq!(json(&list)["quota"]["used"], 0, "refusals use no quota");
+    // The cap on refusals: the fifth is the last.
+    let (s, _, _) = call(&app, upload(&f.tokens[0], "x")).await;
+    assert_eq!(s, StatusCode::UNPROCESSABLE_ENTITY);
+    let (s, _, body) = call(&app, upload(&f.tokens[0], good.clone())).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("5 refused uploads")
+    );
+    // Multipart without a `file` field is a 400 with a JSON error (another
+    // team: alpha is past its cap).
+    let b = "--XyZ\r\nContent-Disposition: form-data; name=\"other\"\r\n\r\nabc\r\n--XyZ--\r\n";
+    let req = Request::post("/api/submissions")
+        .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[1]))
+        .header(header::CONTENT_TYPE, "multipart/form-data; boundary=XyZ")
+        .body(Body::from(b))
+        .unwrap();
+    let (s, _, body) = call(&app, req).await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{body}");
+    assert!(json(&body)["error"].as_str().unwrap().contains("`file`"));
+}
+
+#[tokio::test]
+async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
+    let f = fixture(4, &["alpha", "beta"]);
+    let app = f.app();
+    let text = catalogue(&f.all, 0.02);
+    let b = format!(
+        "--XyZ\r\nContent-Disposition: form-data; name=\"file\"; filename=\"c.txt\"\r\n\
+         Content-Type: text/plain\r\n\r\n{text}\r\n--XyZ--\r\n"
+    );
+    let req = Request::post("/api/submissions")
+        .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+        .header(header::CONTENT_TYPE, "multipart/form-data; boundary=XyZ")
+        .body(Body::from(b))
+        .unwrap();
+    let (s, _, body) = call(&app, req).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{body}");
+    let id = json(&body)["id"].as_i64().unwrap();
+    // The stored file is the upload, byte for byte.
+    let stored = files_in(&f.state.join("uploads"));
+    assert_eq!(
+        std::fs::read(f.state.join("uploads").join(&stored[0])).unwrap(),
+        text.as_bytes()
+    );
+    // A worker scores it.
+    let stop = Arc::new(AtomicBool::new(false));
+    let (dir, stop2) = (f.state.clone(), stop.clone());
+    let w = std::thread::spawn(move || worker::run_worker(&dir, stop2, worker::DEFAULT_TIMEOUT));
+    let mut entry = Value::Null;
+    for _ in 0..600 {
+        let (_, _, e) = call(
+            &app,
+            get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+        )
+        .await;
+        entry = json(&e);
+        if entry["status"] == "scored" || entry["status"] == "refused" {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    w.join().unwrap().unwrap();
+    assert_eq!(entry["status"], "scored", "{entry}");
+    // The feedback is the harness's public-part report, rounded.
+    let copy = f.state.join("copy.txt");
+    std::fs::write(&copy, &text).unwrap();
+    let want = score_part(&ScoreOptions::new(&f.truth, &copy), Part::Public).unwrap();
+    let want = serde_json::to_value(PublicFeedback::of_report(&want)).unwrap();
+    assert_eq!(entry["public"], want);
+    assert!((entry["public"]["m_mean"].as_f64().unwrap() - 0.02).abs() < 0.002);
+    assert!(
+        entry.get("holdout").is_none(),
+        "held out until reveal: {entry}"
+    );
+    // Reports kept per entry, both parts.
+    for part in ["public", "holdout"] {
+        let d = f.state.join(format!("entries/{id}/{part}"));
+        for file in ["report.json", "report.md", "fig2_shear_response.png"] {
+            assert!(d.join(file).is_file(), "{part}/{file}");
+        }
+    }
+    let ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.store.submission(id).unwrap().unwrap().n_scorings, 1);
+    // The leaderboard: one row (beta has no entry), public figures only.
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    let lb = json(&lb);
+    assert_eq!(lb["revealed"], false);
+    assert_eq!(lb["rows"].as_array().unwrap().len(), 1);
+    assert_eq!(lb["rows"][0]["team"], "alpha");
+    assert_eq!(lb["rows"][0]["public"], want);
+    assert!(lb["rows"][0].get("holdout").is_none());
+    // After reveal: the held-out summary, as the harness scores that part.
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.reveal().unwrap();
+    let held = score_part(&ScoreOptions::new(&f.truth, &copy), Part::Holdout).unwrap();
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    let lb = json(&lb);
+    assert_eq!(lb["revealed"], true);
+    // The summary as report.json carries it (stored as JSON text, read back).
+    let held_json: Value =
+        serde_json::from_str(&serde_json::to_string(&held.summary).unwrap()).unwrap();
+    assert_close(&lb["rows"][0]["holdout"], &held_json, "holdout");
+    let (_, _, e) = call(
+        &app,
+        get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+    )
+    .await;
+    assert_eq!(
+        json(&e)["holdout"]["m_mean"],
+        serde_json::json!(held.summary.m_mean)
+    );
+}
+
+#[tokio::test]
+async fn a_participant_walking_every_route_sees_no_truth_and_no_server_path() {
+    let f = fixture(4, &["alpha", "beta"]);
+    let app = f.app();
+    let (_, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.01))).await;
+    let id = json(&body)["id"].as_i64().unwrap();
+    f.score_queue();
+    let sha = files_in(&f.state.join("uploads"))[0].clone();
+    let paths = [
+        "/".to_string(),
+        "/api".into(),
+        "/api/leaderboard".into(),
+        "/api/submissions".into(),
+        format!("/api/submissions/{id}"),
+        format!("/api/submissions/{}", id + 1),
+        "/api/submissions/1/../../../run/private/datasets.json".into(),
+        "/../run/private/datasets.json".into(),
+        "/%2e%2e/%2e%2e/run/private/datasets.json".into(),
+        "/challenge.db".into(),
+        format!("/uploads/{sha}"),
+        format!("/entries/{id}/holdout/report.json"),
+        format!("/entries/{id}/public/report.json"),
+        "/private/truth".into(),
+        "/api/submissions/-1".into(),
+        "/api/submissions/1e3".into(),
+    ];
+    // Values a leak would show: held-out shears and dataset ids, image ids
+    // of the held-out part, paths of the server.
+    let mut secrets: Vec<String> = Vec::new();
+    for d in &f.held.datasets.datasets {
+        secrets.push(d.dataset.clone());
+        secrets.push(format!("{}", d.g1));
+        secrets.push(format!("{}", d.g2));
+        secrets.extend(d.images.iter().map(|i| i.image.clone()));
+    }
+    secrets.push(f.truth.display().to_string());
+    secrets.push(f.state.display().to_string());
+    secrets.push("holdout".into());
+    secrets.push("truth".into());
+    for token in [Some(f.tokens[0].as_str()), Some(f.tokens[1].as_str()), None] {
+        for path in &paths {
+            let (s, _, body) = call(&app, get(path, token)).await;
+            assert!(s == StatusCode::OK || s.is_client_error(), "{path}: {s}");
+            for secret in &secrets {
+                assert!(
+                    !body.contains(secret.as_str()),
+                    "{path} shows {secret:?}: {body}"
+                );
+            }
+        }
+    }
+}
+
+#[tokio::test]
+async fn a_job_interrupted_while_scoring_is_scored_once_after_a_restart() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let (_, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+    let id = json(&body)["id"].as_i64().unwrap();
+    {
+        // A worker claims it and the server dies before it records a result.
+        let mut ch = Challenge::open(&f.state).unwrap();
+        let job = ch.store.claim_job(0).unwrap().unwrap();
+        assert_eq!(job.id, id);
+        assert!(
+            ch.store.claim_job(0).unwrap().is_none(),
+            "one running job per team"
+        );
+    }
+    let mut ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.store.requeue_interrupted().unwrap(), 1);
+    f.score_queue();
+    let s = ch.store.submission(id).unwrap().unwrap();
+    assert_eq!((s.status.as_str(), s.n_scorings), ("scored", 1));
+    // A late result of the dead worker changes nothing.
+    ch.store.finish_job(id, Err("late".into()), "x", 0).unwrap();
+    let s = ch.store.submission(id).unwrap().unwrap();
+    assert_eq!((s.status.as_str(), s.n_scorings), ("scored", 1));
+}
+
+#[test]
+fn init_refuses_a_run_without_held_out_fields_unless_told() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (all, _) = write_run(tmp.path());
+    let mut public = all.clone();
+    public.datasets.datasets.retain(|d| d.part == Part::Public);
+    public.truth.truncate(public.index().images.len());
+    public.write(&tmp.path().join("plain/private")).unwrap();
+    let err = Challenge::init(&tmp.path().join("plain"), &tmp.path().join("s1"), 4, false)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("no held-out datasets") && err.contains("--no-holdout"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("s1").exists());
+    let ch = Challenge::init(&tmp.path().join("plain"), &tmp.path().join("s2"), 4, true).unwrap();
+    assert!(!ch.settings.holdout);
+    // A directory that holds a challenge is not taken again.
+    let err = Challenge::init(&tmp.path().join("run"), &tmp.path().join("s2"), 4, false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("already holds a challenge"), "{err}");
+}
+
+#[tokio::test]
+async fn requests_past_the_rate_limit_per_token_and_per_address_get_429() {
+    let f = fixture(4, &["alpha", "beta"]);
+    f.set("requests_per_minute", "3");
+    let app = f.app();
+    let from = |addr: &str, token: Option<&str>| {
+        let mut r = get("/api/submissions", token);
+        r.extensions_mut().insert(axum::extract::ConnectInfo(
+            addr.parse::<std::net::SocketAddr>().unwrap(),
+        ));
+        r
+    };
+    // alpha from two addresses: the token's limit counts both.
+    for addr in ["10.0.0.1:1", "10.0.0.2:1", "10.0.0.1:2"] {
+        let (s, _, body) = call(&app, from(addr, Some(&f.tokens[0]))).await;
+        assert_eq!(s, StatusCode::OK, "{body}");
+    }
+    let (s, h, body) = call(&app, from("10.0.0.3:1", Some(&f.tokens[0]))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS, "{body}");
+    assert!(json(&body)["reset"].is_string(), "{body}");
+    assert!(h.contains_key(header::RETRY_AFTER));
+    // beta is not held back by alpha's requests...
+    let (s, _, _) = call(&app, from("10.0.0.3:1", Some(&f.tokens[1]))).await;
+    assert_eq!(s, StatusCode::OK);
+    // ...but an address that made 3 requests is, whatever the token; a
+    // forged token from a fresh address counts towards the address too.
+    let (s, _, _) = call(&app, from("10.0.0.1:3", Some(&f.tokens[1]))).await;
+    assert_eq!(s, StatusCode::OK, "10.0.0.1 made 2 counted requests");
+    let (s, _, _) = call(&app, from("10.0.0.1:4", None)).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
+    for _ in 0..3 {
+        let (s, _, _) = call(&app, from("10.0.0.9:1", Some("stp_forged"))).await;
+        assert_eq!(s, StatusCode::UNAUTHORIZED);
+    }
+    let (s, _, _) = call(&app, from("10.0.0.9:1", Some("stp_forged2"))).await;
+    assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
+}

@@ -1,0 +1,232 @@
+//! The real binary: `stepsim challenge init`, `team add` (token on the last
+//! line), `serve` killed with SIGKILL right after accepting uploads, and
+//! started again: every accepted submission ends scored exactly once.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use stepsim_harness::part::{Part, PublicFeedback, score_part};
+use stepsim_harness::pipeline::ScoreOptions;
+use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
+
+fn stepsim(args: &[&str]) -> std::process::Output {
+    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args(args)
+        .output()
+        .unwrap();
+    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+/// Starts `stepsim serve` on a free port; returns the child and its address.
+fn serve(state: &Path) -> (Child, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args([
+            "serve",
+            "--state",
+            state.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let addr = loop {
+        let line = lines.next().expect("serve printed its address").unwrap();
+        if let Some(a) = line.strip_prefix("stepsim serve: listening on http://") {
+            break a.to_string();
+        }
+    };
+    // Keep draining stderr so the server never blocks on it.
+    std::thread::spawn(move || for _ in lines {});
+    (child, addr)
+}
+
+/// One HTTP/1.1 request; returns (status, body).
+fn http(addr: &str, method: &str, path: &str, token: &str, body: &[u8]) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {token}\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).unwrap();
+    s.write_all(body).unwrap();
+    let mut out = String::new();
+    s.read_to_string(&mut out).unwrap();
+    let status = out[9..12].parse().unwrap();
+    let body = out
+        .split_once("\r\n\r\n")
+        .map(|x| x.1.to_string())
+        .unwrap_or_default();
+    (status, body)
+}
+
+#[test]
+fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(2);
+    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
+    let mut all = make_run(&spec);
+    let mut h = spec.clone();
+    h.shears = vec![(0.03, -0.04), (-0.05, 0.02)];
+    h.seed = 5;
+    let held = make_run(&h);
+    for d in &held.datasets.datasets {
+        let mut d = d.clone();
+        d.dataset = format!("h{}", d.dataset);
+        d.part = Part::Holdout;
+        for im in &mut d.images {
+            im.image = format!("h{}", im.image);
+            im.field += 2;
+        }
+        all.datasets.datasets.push(d);
+    }
+    all.truth.extend(held.truth.clone());
+    let run = tmp.path().join("run");
+    all.write(&run.join("private")).unwrap();
+    let state = tmp.path().join("state");
+    let (r, s) = (run.to_str().unwrap(), state.to_str().unwrap());
+    // A run without held-out datasets would be refused; this one is taken.
+    assert!(
+        stepsim(&[
+            "challenge",
+            "init",
+            "--run",
+            r,
+            "--state",
+            s,
+            "--quota",
+            "5"
+        ])
+        .status
+        .success()
+    );
+    let out = stepsim(&["challenge", "team", "add", "Team <A>", "--state", s]);
+    assert!(out.status.success());
+    let stdout = String::from_utf8(out.stdout).unwrap();
+    let token = stdout.lines().last().unwrap().to_string();
+    assert!(token.starts_with("stp_") && token.len() == 68, "{stdout}");
+
+    let (mut server, addr) = serve(&state);
+    let mut ids = Vec::new();
+    let mut files = Vec::new();
+    for m in [0.0, 0.01, 0.02] {
+        let rows = all.submission(&|t, _| {
+            (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0))
+        });
+        let text = submission_text(&all.index(), &rows);
+        let file = tmp.path().join(format!("cat{}.txt", files.len()));
+        std::fs::write(&file, &text).unwrap();
+        files.push(file);
+        let (status, body) = http(&addr, "POST", "/api/submissions", &token, text.as_bytes());
+        assert_eq!(status, 202, "{body}");
+        let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+        ids.push(v["id"].as_i64().unwrap());
+    }
+    server.kill().unwrap(); // SIGKILL
+    server.wait().unwrap();
+
+    let (mut server, addr) = serve(&state);
+    let mut done = false;
+    for _ in 0..1200 {
+        let statuses: Vec<String> = ids
+            .iter()
+            .map(|id| {
+                let (_, body) = http(&addr, "GET", &format!("/api/submissions/{id}"), &token, b"");
+                let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+                v["status"].as_str().unwrap().to_string()
+            })
+            .collect();
+        if statuses.iter().all(|s| s == "scored") {
+            done = true;
+            break;
+        }
+        assert!(!statuses.iter().any(|s| s == "refused"), "{statuses:?}");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    server.kill().unwrap();
+    server.wait().unwrap();
+    assert!(done, "every accepted upload is scored");
+    let ch = stepsim_server::Challenge::open(&state).unwrap();
+    let truth = run.join("private");
+    for (id, file) in ids.iter().zip(&files) {
+        let sub = ch.store.submission(*id).unwrap().unwrap();
+        assert_eq!(
+            (sub.status.as_str(), sub.n_scorings),
+            ("scored", 1),
+            "entry {id}"
+        );
+        // The numbers of the library code of `stepsim score` on the same
+        // file restricted to the public part.
+        let report = score_part(&ScoreOptions::new(&truth, file), Part::Public).unwrap();
+        let want = serde_json::to_value(PublicFeedback::of_report(&report)).unwrap();
+        let got: serde_json::Value =
+            serde_json::from_str(sub.public_json.as_deref().unwrap()).unwrap();
+        assert_eq!(got, want, "entry {id}");
+    }
+    drop(ch);
+
+    // Rotate: the old token stops, the new one works; revoke stops it.
+    let out = stepsim(&["challenge", "team", "rotate", "Team <A>", "--state", s]);
+    assert!(out.status.success());
+    let new_token = String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .last()
+        .unwrap()
+        .to_string();
+    assert_ne!(new_token, token);
+    let (mut server, addr) = serve(&state);
+    assert_eq!(http(&addr, "GET", "/api/submissions", &token, b"").0, 401);
+    assert_eq!(
+        http(&addr, "GET", "/api/submissions", &new_token, b"").0,
+        200
+    );
+    let out = stepsim(&["challenge", "team", "revoke", "Team <A>", "--state", s]);
+    assert!(out.status.success());
+    assert_eq!(
+        http(&addr, "GET", "/api/submissions", &new_token, b"").0,
+        401
+    );
+    server.kill().unwrap();
+    server.wait().unwrap();
+
+    // Reveal and export: JSON, CSV and reports `stepsim leaderboard` reads.
+    assert!(
+        stepsim(&["challenge", "reveal", "--state", s])
+            .status
+            .success()
+    );
+    let board = tmp.path().join("board.json");
+    let b = board.to_str().unwrap();
+    assert!(
+        stepsim(&["challenge", "export", "--state", s, "--out", b])
+            .status
+            .success()
+    );
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&board).unwrap()).unwrap();
+    assert_eq!(doc["part"], "holdout");
+    assert_eq!(doc["rows"][0]["team"], "Team <A>");
+    let csv = std::fs::read_to_string(tmp.path().join("board.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "rank,team,entry,part,m_mean,sigma_c,q_c,report"
+    );
+    assert!(lines.next().unwrap().starts_with("1,Team <A>,"), "{csv}");
+    let report = tmp
+        .path()
+        .join("board.reports")
+        .join(doc["rows"][0]["report"].as_str().unwrap());
+    let out = stepsim(&["leaderboard", report.to_str().unwrap()]);
+    assert!(out.status.success());
+    let table = String::from_utf8(out.stdout).unwrap();
+    let entry = format!("entry {}", doc["rows"][0]["entry"]);
+    assert!(table.contains(&entry), "{table}");
+}
