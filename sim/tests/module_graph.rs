@@ -295,7 +295,14 @@ fn paths_are_read_from_code_not_from_prose() {
 const FILE_EDGES: [&str; 5] = ["io", "generate", "config", "products", "disk"];
 
 /// What in code reads or writes files (or the file system's tree).
-const FILE_IO: [&str; 6] = ["std::fs", "fs::", "File::", "fitsio", "OpenOptions", "read_dir"];
+const FILE_IO: [&str; 6] = [
+    "std::fs",
+    "fs::",
+    "File::",
+    "fitsio",
+    "OpenOptions",
+    "read_dir",
+];
 
 /// The file-I/O words in the non-test code of `source` (everything from the
 /// first `#[cfg(test)]` on is test code, as is a file named `tests.rs`).
@@ -315,7 +322,12 @@ fn file_io_outside(edges: &[&str]) -> (usize, Vec<String>) {
     let mut checked = 0;
     for f in &files {
         let rel = f.strip_prefix(&src).unwrap();
-        let top = rel.components().next().unwrap().as_os_str().to_string_lossy();
+        let top = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
         let top = top.trim_end_matches(".rs");
         if edges.contains(&top) || f.file_name().is_some_and(|n| n == "tests.rs") {
             continue;

@@ -56,12 +56,11 @@ pub fn run_once(
     t.population_s = lap.lap().0;
 
     let det = plan.detector();
-    let psf =
-        plan.psf(psf_index).map_err(|source| GenerateError::Psf {
-            index: psf_index,
-            name: plan.psfs()[psf_index].name.clone(),
-            source,
-        })?;
+    let psf = plan.psf(psf_index).map_err(|source| GenerateError::Psf {
+        index: psf_index,
+        name: plan.psfs()[psf_index].name.clone(),
+        source,
+    })?;
     let renderer = Renderer::new(psf, pixel_scale, plan.accuracy(), det.sky_sigma_e());
     // The split method's image kernel belongs to the PSF stage too.
     if let Some(split) = renderer.split() {
