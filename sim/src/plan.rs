@@ -29,7 +29,7 @@ use crate::io::psf_fits::read_psf_fits;
 use crate::io::skymaker::{ListError, ListObject, read_list};
 use crate::noise::{Detector, sky_e_per_pixel};
 use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
-use crate::render::Accuracy;
+use crate::render::{Accuracy, Renderer};
 use crate::seed::{SeedKey, Stream};
 use crate::wcs::TanWcs;
 use std::path::{Path, PathBuf};
@@ -380,6 +380,17 @@ impl Plan {
         }
         let built = crate::psf::build(&self.psf_spec(index))?;
         Ok(slot.get_or_init(|| built).clone())
+    }
+
+    /// The renderer of PSF `index` for this plan's images: its PSF
+    /// ([`Plan::psf`]), pixel scale, accuracy and the detector's sky noise.
+    pub fn renderer(&self, index: usize) -> Result<Renderer, PsfError> {
+        Ok(Renderer::new(
+            self.psf(index)?,
+            self.pixel_scale_arcsec(),
+            self.accuracy(),
+            self.detector().sky_sigma_e(),
+        ))
     }
 
     /// [`Plan::psf_spec`] of every PSF, in config order.

@@ -11,7 +11,6 @@
 use super::pipeline::{Context, Lap, make_image};
 use super::{GenerateError, Made, RunPaths};
 use crate::plan::Plan;
-use crate::render::Renderer;
 use std::path::Path;
 
 pub use super::pipeline::{StageTimes, process_cpu_s};
@@ -31,7 +30,6 @@ pub fn run_once(
     scratch: &Path,
 ) -> Result<StageTimes, GenerateError> {
     let (w, h) = (plan.image().width_px, plan.image().height_px);
-    let pixel_scale = plan.pixel_scale_arcsec();
     let last_shear = plan.shears().len() - 1;
     let dataset = plan
         .datasets()
@@ -56,12 +54,13 @@ pub fn run_once(
     t.population_s = lap.lap().0;
 
     let det = plan.detector();
-    let psf = plan.psf(psf_index).map_err(|source| GenerateError::Psf {
-        index: psf_index,
-        name: plan.psfs()[psf_index].name.clone(),
-        source,
-    })?;
-    let renderer = Renderer::new(psf, pixel_scale, plan.accuracy(), det.sky_sigma_e());
+    let renderer = plan
+        .renderer(psf_index)
+        .map_err(|source| GenerateError::Psf {
+            index: psf_index,
+            name: plan.psfs()[psf_index].name.clone(),
+            source,
+        })?;
     // The split method's image kernel belongs to the PSF stage too.
     if let Some(split) = renderer.split() {
         split.convolver(w as usize, h as usize);

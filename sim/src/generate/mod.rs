@@ -587,7 +587,6 @@ fn build_psfs(
     }
     needed.sort_unstable();
     needed.dedup();
-    let pixel_scale = plan.pixel_scale_arcsec();
     let det = plan.detector();
     let mut out = Psfs {
         renderers: BTreeMap::new(),
@@ -599,14 +598,13 @@ fn build_psfs(
     });
     for &p in &needed {
         let raw = &plan.psfs()[p];
-        let psf = plan.psf(p).map_err(|source| GenerateError::Psf {
+        let renderer = plan.renderer(p).map_err(|source| GenerateError::Psf {
             index: p,
             name: raw.name.clone(),
             source,
         })?;
-        let renderer = Renderer::new(psf.clone(), pixel_scale, plan.accuracy(), det.sky_sigma_e());
+        out.built.push((p, renderer.psf().clone()));
         out.renderers.insert(p, renderer);
-        out.built.push((p, psf));
         progress(Event::PsfBuilt {
             name: raw.name.clone(),
             done: out.built.len(),
@@ -1246,10 +1244,8 @@ mod tests {
             d.g1,
             d.g2,
         );
-        let scale = p.pixel_scale_arcsec();
         let det = p.detector();
-        let psf = p.psf(1).unwrap();
-        let r = Renderer::new(psf, scale, p.accuracy(), det.sky_sigma_e());
+        let r = p.renderer(1).unwrap();
         let (w, h) = (p.image().width_px, p.image().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
