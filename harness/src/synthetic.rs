@@ -14,7 +14,7 @@ use crate::submission::SubRow;
 use crate::truth_set::ImageIndex;
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
-use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
+use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part};
 use stepsim_contract::seed::{SimRng, splitmix64};
 use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
 
@@ -259,6 +259,37 @@ pub fn make_run(spec: &SynthSpec) -> SynthRun {
         },
         truth,
     }
+}
+
+/// A challenge run's two parts: the public part of `spec`, and a held-out
+/// part with the same PSFs, `holdout_shears` and base fields of its own
+/// (numbered after the public ones, drawn with `holdout_seed`), its
+/// datasets and images renamed `h…` and marked [`Part::Holdout`]. Returns
+/// (public, held-out, the whole run).
+pub fn challenge_run(
+    spec: &SynthSpec,
+    holdout_shears: &[(f64, f64)],
+    holdout_seed: u64,
+) -> (SynthRun, SynthRun, SynthRun) {
+    let public = make_run(spec);
+    let mut h = spec.clone();
+    h.shears = holdout_shears.to_vec();
+    h.seed = holdout_seed;
+    let mut held = make_run(&h);
+    for d in &mut held.datasets.datasets {
+        d.dataset = format!("h{}", d.dataset);
+        d.part = Part::Holdout;
+        for im in &mut d.images {
+            im.image = format!("h{}", im.image);
+            im.field += spec.n_fields;
+        }
+    }
+    let mut all = public.clone();
+    all.datasets
+        .datasets
+        .extend(held.datasets.datasets.iter().cloned());
+    all.truth.extend(held.truth.iter().cloned());
+    (public, held, all)
 }
 
 impl SynthRun {

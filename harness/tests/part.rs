@@ -5,7 +5,7 @@
 use stepsim_harness::part::{
     FEEDBACK_DECIMALS, Part, PublicFeedback, has_holdout, round_to, score_part,
 };
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_harness::synthetic::{self, SynthRun, SynthSpec, submission_text};
 use stepsim_harness::{ScoreOptions, score};
 use stepsim_sim::truth::TruthRow;
 
@@ -15,19 +15,8 @@ fn challenge_run() -> (SynthRun, SynthRun) {
     let mut spec = SynthSpec::small(2);
     spec.psfs.truncate(2);
     spec.shears = vec![(0.0, 0.0), (0.01, 0.0), (0.05, 0.0)];
-    let public = make_run(&spec);
-    let mut spec_h = spec.clone();
-    spec_h.shears = vec![(0.031, -0.044), (-0.02, 0.07), (0.066, 0.012)];
-    spec_h.seed = 99;
-    let mut held = make_run(&spec_h);
-    for d in &mut held.datasets.datasets {
-        d.dataset = format!("h{}", d.dataset);
-        d.part = Part::Holdout;
-        for im in &mut d.images {
-            im.image = format!("h{}", im.image);
-            im.field += 2;
-        }
-    }
+    let (public, held, _) =
+        synthetic::challenge_run(&spec, &[(0.031, -0.044), (-0.02, 0.07), (0.066, 0.012)], 99);
     (public, held)
 }
 

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use stepsim_harness::part::{Part, PublicFeedback, score_part};
 use stepsim_harness::pipeline::ScoreOptions;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
 use stepsim_server::api::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
@@ -22,22 +22,7 @@ fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
     let mut spec = SynthSpec::small(2);
     spec.psfs.truncate(2);
     spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
-    let public = make_run(&spec);
-    let mut h = spec.clone();
-    h.shears = vec![(0.0371, -0.0523), (-0.0617, 0.0289)];
-    h.seed = 7;
-    let mut held = make_run(&h);
-    for d in &mut held.datasets.datasets {
-        d.dataset = format!("h{}", d.dataset);
-        d.part = Part::Holdout;
-        for im in &mut d.images {
-            im.image = format!("h{}", im.image);
-            im.field += 2;
-        }
-    }
-    let mut all = public.clone();
-    all.datasets.datasets.extend(held.datasets.datasets.clone());
-    all.truth.extend(held.truth.clone());
+    let (_, held, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
     all.write(&dir.join("run/private")).unwrap();
     (all, held)
 }
