@@ -195,7 +195,11 @@ fn sharded_measure_joined_is_byte_identical_to_one_measure() {
     let refs: Vec<_> = scenes.iter().map(|(d, id, img)| (*d, *id, img)).collect();
     write_public_run(&run, &refs).unwrap();
     let whole = dir.path().join("whole.txt");
-    assert!(measure(&run, &whole, "2").status.success());
+    let o = measure(&run, &whole, "2");
+    assert!(o.status.success());
+    // Off a terminal it says how far it is (one group of 4 images here).
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("stepsim: 4/4 images measured (100%)"), "{e}");
     let sub = dir.path().join("sub.txt");
     let shard = |k: u32| {
         let o = stepsim()

@@ -45,6 +45,10 @@ pub struct ImageSummary {
     pub psf_order: Option<usize>,
 }
 
+/// Told (images measured, images in all) after each group of images, so
+/// that a long measurement can say how far it is.
+pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
+
 /// Measures `public_dir` (holding `manifest.json`) with `threads` threads
 /// (0: rayon's default) and writes the submission to `out`.
 pub fn measure_run(
@@ -52,8 +56,9 @@ pub fn measure_run(
     out: &Path,
     threads: usize,
     params: &KsbParams,
+    progress: Progress,
 ) -> Result<Vec<ImageSummary>, KsbError> {
-    let (images, measured) = measure_datasets(public_dir, threads, params, |_| true)?;
+    let (images, measured) = measure_datasets(public_dir, threads, params, |_| true, progress)?;
     write_submission(out, rows(&images, &measured))?;
     Ok(summaries(&images, &measured))
 }
@@ -93,13 +98,19 @@ pub fn measure_shard(
     n: u32,
     threads: usize,
     params: &KsbParams,
+    progress: Progress,
 ) -> Result<Vec<ImageSummary>, KsbError> {
     let manifest_path = public_dir.join("manifest.json");
     let manifest = read_manifest(&manifest_path)?;
     let all: Vec<&str> = manifest.images.iter().map(|i| i.dataset.as_str()).collect();
     let mine = shard_datasets(&all, k, n);
-    let (images, measured) =
-        measure_datasets(public_dir, threads, params, |d| mine.iter().any(|m| m == d))?;
+    let (images, measured) = measure_datasets(
+        public_dir,
+        threads,
+        params,
+        |d| mine.iter().any(|m| m == d),
+        progress,
+    )?;
     let text = crate::io::format_submission(rows(&images, &measured));
     let text = with_manifest_line(&text, &manifest_sha256(&manifest_path)?);
     let path = part_path(out, k, n);
@@ -240,6 +251,7 @@ fn measure_datasets(
     threads: usize,
     params: &KsbParams,
     keep: impl Fn(&str) -> bool,
+    progress: Progress,
 ) -> Result<
     (
         Vec<stepsim_contract::run_layout::ManifestImage>,
@@ -299,6 +311,7 @@ fn measure_datasets(
     let mut slots: Vec<Option<ImageMeasurement>> = vec![None; images.len()];
     let mut group: Vec<usize> = Vec::new();
     let datasets: Vec<&Vec<usize>> = by_dataset.values().collect();
+    let mut n_done = 0;
     for (n, members) in datasets.iter().enumerate() {
         group.extend_from_slice(members);
         if group.len() < GROUP_IMAGES && n + 1 < datasets.len() {
@@ -309,6 +322,8 @@ fn measure_datasets(
         for (i, m) in group.iter().zip(done) {
             slots[*i] = Some(m);
         }
+        n_done += group.len();
+        progress(n_done, images.len());
         group.clear();
     }
     for m in slots {
@@ -411,7 +426,13 @@ mod tests {
             scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
         write_public_run(dir.path(), &refs).unwrap();
         let out = dir.path().join("sub.txt");
-        let s = measure_run(dir.path(), &out, 1, &KsbParams::default()).unwrap();
+        let told = std::sync::Mutex::new(Vec::new());
+        let s = measure_run(dir.path(), &out, 1, &KsbParams::default(), &|d, n| {
+            told.lock().unwrap().push((d, n))
+        })
+        .unwrap();
+        // Three images (fewer than a group of 64): told once, at the end.
+        assert_eq!(told.into_inner().unwrap(), [(3, 3)]);
         let rg = |id: &str| s.iter().find(|x| x.image == id).unwrap().rg_star_px;
         let a = rg("ia").expect("locus of ia");
         assert!((a / 1.856 - 1.0).abs() < 0.01, "{a}");
@@ -446,7 +467,7 @@ mod tests {
             scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
         write_public_run(dir.path(), &refs).unwrap();
         let out = dir.path().join("sub.txt");
-        measure_run(dir.path(), &out, 2, &params).unwrap();
+        measure_run(dir.path(), &out, 2, &params, &|_, _| {}).unwrap();
 
         // The electrons measure_run sees: the written file, read back.
         let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();

@@ -77,13 +77,24 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             "lower --threads",
         )?;
     }
+    // A line after each group of images (64 or more), with the time left
+    // from the rate so far: measuring the full preset takes about an hour.
+    let start = std::time::Instant::now();
+    let progress = |done: usize, total: usize| {
+        eprintln!(
+            "{}",
+            super::progress::count_line("images measured", done, total, start.elapsed())
+        );
+    };
     let (summary, written) = match args.shard {
         Some(sh) if sh.n > 1 => (
-            stepsim_ksb::run::measure_shard(&args.run, &args.out, sh.k, sh.n, threads, &params)?,
+            stepsim_ksb::run::measure_shard(
+                &args.run, &args.out, sh.k, sh.n, threads, &params, &progress,
+            )?,
             stepsim_ksb::run::part_path(&args.out, sh.k, sh.n),
         ),
         _ => (
-            stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params)?,
+            stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params, &progress)?,
             args.out.clone(),
         ),
     };

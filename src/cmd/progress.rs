@@ -12,6 +12,12 @@ pub const LOG_EVERY_S: u64 = 30;
 /// The log line after `done` of `total` images, `elapsed` after the first
 /// image was started (the rate of the images so far gives the time left).
 pub fn images_line(done: usize, total: usize, elapsed: Duration) -> String {
+    count_line("images written", done, total, elapsed)
+}
+
+/// "stepsim: done/total what (pct%), s s, about left s left": a progress
+/// line of `generate` or `measure`, the time left from the rate so far.
+pub fn count_line(what: &str, done: usize, total: usize, elapsed: Duration) -> String {
     let s = elapsed.as_secs_f64();
     let left = if done > 0 && done < total {
         format!(
@@ -22,7 +28,7 @@ pub fn images_line(done: usize, total: usize, elapsed: Duration) -> String {
         String::new()
     };
     format!(
-        "stepsim: {done}/{total} images written ({:.0}%), {s:.0} s{left}",
+        "stepsim: {done}/{total} {what} ({:.0}%), {s:.0} s{left}",
         100.0 * done as f64 / total.max(1) as f64
     )
 }
@@ -158,6 +164,14 @@ mod tests {
         assert!(bar_template(1).contains("eta {eta}"));
         assert_eq!(psfs_message(1), "building 1 PSF");
         assert_eq!(psfs_message(6), "building 6 PSFs");
+    }
+
+    #[test]
+    fn measure_lines_say_how_far_and_how_long() {
+        assert_eq!(
+            count_line("images measured", 64, 320, Duration::from_secs(240)),
+            "stepsim: 64/320 images measured (20%), 240 s, about 960 s left"
+        );
     }
 
     #[test]
