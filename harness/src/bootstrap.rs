@@ -45,15 +45,7 @@ pub fn resample_summaries(
     n: usize,
     seed: u64,
 ) -> Vec<Summary> {
-    let mut fields: Vec<u32> = stats.iter().map(|s| s.field).collect();
-    fields.sort_unstable();
-    fields.dedup();
-    // Images of each field.
-    let mut by_field: Vec<Vec<&ImageStats>> = vec![Vec::new(); fields.len()];
-    for s in stats {
-        let k = fields.binary_search(&s.field).unwrap_or(0);
-        by_field[k].push(s);
-    }
+    let by_field = group_by_field(stats);
     let models = score_tables(meta, stats, area_arcmin2).models;
     (0..n)
         .into_par_iter()
@@ -62,6 +54,19 @@ pub fn resample_summaries(
             score_tables_with(meta, &sample, area_arcmin2, &models).summary
         })
         .collect()
+}
+
+/// The images of `stats` grouped by base field, in field order.
+fn group_by_field(stats: &[ImageStats]) -> Vec<Vec<&ImageStats>> {
+    let mut fields: Vec<u32> = stats.iter().map(|s| s.field).collect();
+    fields.sort_unstable();
+    fields.dedup();
+    let mut by_field: Vec<Vec<&ImageStats>> = vec![Vec::new(); fields.len()];
+    for s in stats {
+        let k = fields.binary_search(&s.field).unwrap_or(0);
+        by_field[k].push(s);
+    }
+    by_field
 }
 
 /// Resample `b`: as many base fields as `by_field` holds (each with all its
@@ -199,18 +204,6 @@ mod tests {
         );
     }
 
-    /// The images of `stats` grouped by base field, as `resample_summaries`
-    /// groups them.
-    fn by_field(stats: &[ImageStats]) -> Vec<Vec<&ImageStats>> {
-        let mut fields: Vec<u32> = stats.iter().map(|s| s.field).collect();
-        fields.sort_unstable();
-        fields.dedup();
-        fields
-            .iter()
-            .map(|f| stats.iter().filter(|s| s.field == *f).collect())
-            .collect()
-    }
-
     /// A shape-noise run with a quadratic term `q` in the response,
     /// measured as e = e_true + q g1²: (meta, stats).
     fn quadratic_case(q: f64, n_fields: u32) -> (Vec<DatasetMeta>, Vec<ImageStats>) {
@@ -236,7 +229,7 @@ mod tests {
         let (meta, stats) = quadratic_case(QUAD, 8);
         let full = score_tables(&meta, &stats, 1.0);
         let full_linear = full.models[0].1.g1_linear;
-        let groups = by_field(&stats);
+        let groups = group_by_field(&stats);
         let n = 200;
         let free: Vec<Scores> = (0..n)
             .map(|b| score_tables(&meta, &resample(&groups, b, 7), 1.0))

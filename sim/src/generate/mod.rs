@@ -442,7 +442,7 @@ pub fn generate(
         pending: work.pending.len(),
         done: work.mine.len() - work.pending.len(),
     });
-    let shared = || write_shared(plan, &paths, &key, &all, options, &psfs.built);
+    let shared = || write_shared(plan, &paths, &key, &all, options, &psfs.renderers);
     make_images(
         plan,
         &paths,
@@ -555,10 +555,8 @@ fn find_pending<'a>(
 
 /// The PSFs of a process, each built once, and their renderers.
 struct Psfs {
-    /// Renderer of each PSF index built.
+    /// Renderer (and so PSF) of each PSF index built.
     renderers: BTreeMap<usize, Renderer>,
-    /// (PSF index, PSF) in the order built.
-    built: Vec<(usize, Arc<dyn crate::psf::Psf>)>,
     /// The detector of every image.
     det: Detector,
 }
@@ -590,7 +588,6 @@ fn build_psfs(
     let det = plan.detector();
     let mut out = Psfs {
         renderers: BTreeMap::new(),
-        built: Vec::new(),
         det,
     };
     progress(Event::PsfsStart {
@@ -603,11 +600,10 @@ fn build_psfs(
             name: raw.name.clone(),
             source,
         })?;
-        out.built.push((p, renderer.psf().clone()));
         out.renderers.insert(p, renderer);
         progress(Event::PsfBuilt {
             name: raw.name.clone(),
-            done: out.built.len(),
+            done: out.renderers.len(),
             total: needed.len(),
         });
     }
@@ -894,7 +890,7 @@ fn write_shared(
     key: &BlindingKey,
     all: &[Job],
     options: &Options,
-    psfs: &[(usize, Arc<dyn crate::psf::Psf>)],
+    renderers: &BTreeMap<usize, Renderer>,
 ) -> Result<(), GenerateError> {
     let private = paths.private();
     for (name, bytes) in private_shared(plan, key, all) {
@@ -909,11 +905,11 @@ fn write_shared(
         participants_readme(plan, para).as_bytes(),
     )?;
     if plan.output().write_psf {
-        for (p, psf) in psfs {
+        for (p, renderer) in renderers {
             let raw = &plan.psfs()[*p];
             write_psf_file(
                 &paths.psf(&raw.name),
-                psf,
+                renderer.psf(),
                 raw,
                 plan.pixel_scale_arcsec(),
                 plan.render().max_stamp_px as usize,
