@@ -1232,6 +1232,21 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
         assert_eq!(json(&body)["error"], "not found", "{bad}");
         assert!(h.get(header::LAST_MODIFIED).is_none());
     }
+    // A manifest naming a file outside public/ is refused whole.
+    let public = f.truth.parent().unwrap().join("public");
+    let text = std::fs::read_to_string(public.join("manifest.json")).unwrap();
+    let first = &files[2].0;
+    let text = text.replacen(first.as_str(), "../private/datasets.json", 1);
+    std::fs::write(public.join("manifest.json"), text).unwrap();
+    for path in [
+        "/data/",
+        "/data/../private/datasets.json",
+        "/data/manifest.json",
+    ] {
+        let (s, _, body) = call(&app, get(path, None)).await;
+        assert_eq!(s, StatusCode::NOT_FOUND, "{path}: {body}");
+        assert!(!body.contains("stepsim-datasets"), "{body}");
+    }
 }
 
 #[test]
