@@ -152,7 +152,7 @@ pub fn chance_matches(
     let span = |v: f64, size: f64| -> Option<(usize, usize)> {
         let lo = ((v - r - 0.5) * kf / size - 0.5).floor() - 1.0;
         let hi = ((v + r - 0.5) * kf / size - 0.5).ceil() + 1.0;
-        if !(lo <= hi) || hi < 0.0 || lo > kf - 1.0 {
+        if lo.is_nan() || hi.is_nan() || lo > hi || hi < 0.0 || lo > kf - 1.0 {
             return None;
         }
         Some((lo.max(0.0) as usize, hi.min(kf - 1.0) as usize))
