@@ -8,6 +8,7 @@
 //! challenge.rs  a challenge's directory: init, teams and tokens, reveal
 //! api.rs        the JSON API (axum): uploads, entries, leaderboard
 //! worker.rs     the scoring queue: claims jobs, calls the harness, records
+//! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
 //!
 //! All state lives in one directory (`--state DIR`): `challenge.db`,
@@ -18,6 +19,7 @@
 pub mod api;
 pub mod challenge;
 pub mod store;
+pub mod web;
 pub mod worker;
 
 pub use challenge::{Challenge, ChallengeError, Settings};
