@@ -186,6 +186,17 @@ fn size_text(bytes: i64) -> String {
     }
 }
 
+/// A size cap for people: whole MiB or KiB when it is one (`256 MiB`).
+fn cap_text(bytes: u64) -> String {
+    if bytes >= 1 << 20 && bytes % (1 << 20) == 0 {
+        format!("{} MiB", bytes >> 20)
+    } else if bytes >= 1 << 10 && bytes % (1 << 10) == 0 {
+        format!("{} KiB", bytes >> 10)
+    } else {
+        format!("{bytes} bytes")
+    }
+}
+
 fn random_hex() -> Result<String, ApiError> {
     let mut b = [0u8; 32];
     getrandom::fill(&mut b).map_err(ApiError::internal)?;
@@ -414,7 +425,7 @@ fn rules(state: &AppState) -> Value {
     serde_json::json!({
         "quota": s.quota,
         "requests_per_minute": s.requests_per_minute,
-        "max_upload": size_text(s.max_upload_bytes as i64),
+        "max_upload": cap_text(s.max_upload_bytes),
         "max_upload_bytes": s.max_upload_bytes,
         "format_failure_cap": s.format_failure_cap,
         "holdout": s.holdout,
@@ -975,6 +986,8 @@ mod tests {
         assert_eq!(signed(Some(0.00001), 3), "0.000");
         assert_eq!(size_text(999), "999 B");
         assert_eq!(size_text(12_345), "12.3 kB");
+        assert_eq!(cap_text(256 << 20), "256 MiB");
+        assert_eq!(cap_text(1000), "1000 bytes");
         assert_eq!(when(0), "1970-01-01 00:00 UTC");
     }
 

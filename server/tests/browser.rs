@@ -106,7 +106,7 @@ async fn shot(c: &Client, name: &str) {
         .ok()
         .and_then(|v| v.as_u64())
         .unwrap_or(1000)
-        .clamp(600, 4000) as u32;
+        .clamp(600, 6000) as u32;
     c.set_window_size(1280, height + 140).await.unwrap();
     let png = c.screenshot().await.unwrap();
     std::fs::write(shots_dir().join(format!("server-{name}.png")), png).unwrap();

@@ -555,7 +555,11 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
         r.body.contains(&format!("{:.4}", g1.abs())),
         "true held-out shear {g1} shown after reveal"
     );
-    assert!(r.body.contains("95 % interval"), "bootstrap intervals");
+    assert!(
+        r.body
+            .contains("95 % bootstrap intervals from 200 resamples"),
+        "bootstrap intervals"
+    );
     assert!(r.body.contains(&format!("src=\"{fig}\"")));
     assert!(r.body.contains(&format!("src=\"{held_fig}\"")));
     for path in [fig, held_fig] {
