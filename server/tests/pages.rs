@@ -418,12 +418,18 @@ async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good
     );
     assert!(r.body.contains("<strong>1</strong> of 4"));
     assert!(r.body.contains("leaves the window at"));
+    // While an entry waits the page reloads itself (no script needed).
+    assert!(
+        r.body
+            .contains("<meta http-equiv=\"refresh\" content=\"10; url=/entries\">")
+    );
     f.score_queue();
     let r = a.get("/entries").await;
     assert!(
         r.body
             .contains("<span class=\"badge scored\">scored</span>")
     );
+    assert!(!r.body.contains("http-equiv"), "no reload once scored");
     let ch = Challenge::open(&f.state).unwrap();
     let public: serde_json::Value = serde_json::from_str(
         &ch.store
