@@ -488,16 +488,21 @@ async fn receive(
                     continue;
                 }
                 if field.name() != Some("file") {
+                    // Read in chunks, capped: a huge field is refused, never buffered.
                     let name = field.name().unwrap_or_default().to_string();
-                    let value = field
-                        .bytes()
+                    let mut value = Vec::new();
+                    while let Some(chunk) = field
+                        .chunk()
                         .await
-                        .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
-                    if fields.len() >= MAX_FIELDS || value.len() > FIELD_MAX_BYTES {
-                        return Err(ApiError::new(
-                            StatusCode::BAD_REQUEST,
-                            "the multipart form has too many or too large fields before `file`",
-                        ));
+                        .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
+                    {
+                        value.extend_from_slice(&chunk);
+                        if fields.len() >= MAX_FIELDS || value.len() > FIELD_MAX_BYTES {
+                            return Err(ApiError::new(
+                                StatusCode::BAD_REQUEST,
+                                "the multipart form has too many or too large fields before `file`",
+                            ));
+                        }
                     }
                     fields.push((name, String::from_utf8_lossy(&value).into_owned()));
                     continue;

@@ -348,6 +348,12 @@ async fn forms_without_the_right_token_or_from_another_origin_are_refused() {
     a.origin = Some(ORIGIN.into());
     let r = a.post_form("/signout", &[("csrf", "nope")]).await;
     assert_eq!(r.status, StatusCode::FORBIDDEN);
+    // A field before the file larger than 1 KiB is refused unread (400).
+    let r = a
+        .upload(Some(&"x".repeat(5000)), good_file.as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::BAD_REQUEST, "{}", r.body);
+    assert!(r.body.contains("too many or too large fields"));
     assert_eq!(uploads(&f.state), 0, "nothing kept");
     // A post without a session (as a cross-site form arrives under
     // SameSite=Strict) is refused too.
