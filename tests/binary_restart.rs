@@ -230,3 +230,157 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     let entry = format!("entry {}", doc["rows"][0]["entry"]);
     assert!(table.contains(&entry), "{table}");
 }
+
+/// `stepsim challenge` with stdin.
+fn stepsim_stdin(args: &[&str], input: &str) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+#[test]
+fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(1);
+    spec.shears = vec![(0.0, 0.0)];
+    let (_, _, all) = stepsim_harness::synthetic::challenge_run(&spec, &[(0.03, -0.04)], 5);
+    let run = tmp.path().join("run");
+    all.write(&run.join("private")).unwrap();
+    let state = tmp.path().join("state");
+    let (r, s) = (run.to_str().unwrap(), state.to_str().unwrap());
+    // Bad times and roles are usage errors (exit 2) and change nothing.
+    let out = stepsim(&[
+        "challenge",
+        "init",
+        "--run",
+        r,
+        "--state",
+        s,
+        "--deadline",
+        "soon",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("RFC 3339"));
+    assert!(!state.join("challenge.db").exists());
+    let init = [
+        "challenge",
+        "init",
+        "--run",
+        r,
+        "--state",
+        s,
+        "--deadline",
+        "2099-01-02T03:04:05+01:00",
+        "--name",
+        "STEP-mini <test>",
+    ];
+    assert!(stepsim(&init).status.success());
+    assert!(
+        stepsim(&["challenge", "team", "add", "KSB", "--state", s])
+            .status
+            .success()
+    );
+    let out = stepsim(&[
+        "challenge",
+        "team",
+        "mark",
+        "KSB",
+        "--role",
+        "boss",
+        "--state",
+        s,
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = stepsim(&[
+        "challenge",
+        "team",
+        "mark",
+        "nobody",
+        "--role",
+        "baseline",
+        "--state",
+        s,
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let mark = [
+        "challenge",
+        "team",
+        "mark",
+        "KSB",
+        "--role",
+        "baseline",
+        "--state",
+        s,
+    ];
+    assert!(stepsim(&mark).status.success());
+    let ch = stepsim_server::Challenge::open(&state).unwrap();
+    let team = ch.store.team_by_name("KSB").unwrap().unwrap();
+    assert_eq!(team.role, stepsim_server::store::Role::Baseline);
+    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    assert_eq!(
+        phase.deadline_s,
+        Some(4_071_002_645),
+        "2099-01-02T02:04:05Z"
+    );
+    assert_eq!(
+        ch.store.meta("name").unwrap().as_deref(),
+        Some("STEP-mini <test>")
+    );
+    drop(ch);
+    let at = [
+        "challenge",
+        "deadline",
+        "--state",
+        s,
+        "--at",
+        "2030-06-01T00:00:00Z",
+    ];
+    assert!(stepsim(&at).status.success());
+    assert!(
+        stepsim(&["challenge", "freeze", "--state", s])
+            .status
+            .success()
+    );
+    let ch = stepsim_server::Challenge::open(&state).unwrap();
+    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    assert_eq!(
+        (phase.deadline_s, phase.frozen, phase.closed),
+        (Some(1_906_502_400), true, false)
+    );
+    drop(ch);
+    assert!(
+        stepsim(&["challenge", "close", "--state", s])
+            .status
+            .success()
+    );
+    let out = stepsim(&["challenge", "rescore", "--state", s]);
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("0 scored entries queued again"));
+    // The password: the first line of stdin; too short is refused (exit 1).
+    let pw = ["challenge", "organiser-password", "--state", s];
+    assert_eq!(stepsim_stdin(&pw, "short\n").status.code(), Some(1));
+    assert!(
+        stepsim_stdin(&pw, "a long enough secret\nsecond line\n")
+            .status
+            .success()
+    );
+    let ch = stepsim_server::Challenge::open(&state).unwrap();
+    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    assert!(phase.closed && phase.frozen);
+    assert!(ch.verify_organiser_password("a long enough secret"));
+    assert!(!ch.verify_organiser_password("a long enough secret\nsecond line"));
+}

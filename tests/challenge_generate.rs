@@ -4,19 +4,14 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 use stepsim_sim::config::{Part, RawConfig};
 use stepsim_sim::plan::{Plan, holdout_fields, holdout_shear};
 
+mod common;
+
 fn stepsim(args: &[&str], dir: &Path) -> Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
-        .args(args)
-        .current_dir(dir)
-        .env("CI", "1")
-        .output()
-        .unwrap();
-    eprintln!("{}", String::from_utf8_lossy(&out.stderr));
-    out
+    common::run(args, dir)
 }
 
 /// 2 Gaussian PSFs × 2 shears on `n_images` tiny base fields.

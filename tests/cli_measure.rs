@@ -5,7 +5,7 @@ use std::path::Path;
 use stepsim_ksb::draw::{SceneSpec, synthetic_scene, write_public_run};
 
 mod common;
-use common::stepsim;
+use common::{ok, run_with, stderr, stepsim};
 
 /// Writes a public half with two 512² synthetic images (ADU, gain 4).
 fn public_run(dir: &Path) {
@@ -29,14 +29,14 @@ fn public_run(dir: &Path) {
 }
 
 fn measure(run: &Path, out: &Path, threads: &str) -> std::process::Output {
-    stepsim()
-        .args(["measure", "--run"])
-        .arg(run)
-        .arg("--out")
-        .arg(out)
-        .args(["--threads", threads])
-        .output()
-        .unwrap()
+    run_with(
+        stepsim()
+            .args(["measure", "--run"])
+            .arg(run)
+            .arg("--out")
+            .arg(out)
+            .args(["--threads", threads]),
+    )
 }
 
 #[test]
@@ -45,18 +45,8 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
     let run = dir.path().join("public");
     public_run(&run);
     let (a, b) = (dir.path().join("a.txt"), dir.path().join("b.txt"));
-    let out = measure(&run, &a, "1");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let out = measure(&run, &b, "2");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    ok(measure(&run, &a, "1"));
+    ok(measure(&run, &b, "2"));
     let text = std::fs::read_to_string(&a).unwrap();
     assert_eq!(text, std::fs::read_to_string(&b).unwrap());
     let mut lines = text.lines();
@@ -99,26 +89,21 @@ fn pgamma_fit_and_psf_order_options_are_accepted() {
     let run = dir.path().join("public");
     public_run(&run);
     let out_a = dir.path().join("fit.txt");
-    let out = stepsim()
-        .args([
-            "measure",
-            "--pgamma",
-            "fit-size",
-            "--psf-order",
-            "1",
-            "--run",
-        ])
-        .arg(&run)
-        .arg("--out")
-        .arg(&out_a)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let err = String::from_utf8_lossy(&out.stderr);
+    let out = ok(run_with(
+        stepsim()
+            .args([
+                "measure",
+                "--pgamma",
+                "fit-size",
+                "--psf-order",
+                "1",
+                "--run",
+            ])
+            .arg(&run)
+            .arg("--out")
+            .arg(&out_a),
+    ));
+    let err = stderr(&out);
     assert!(
         err.contains("PSF order 1") || err.contains("PSF order 0"),
         "{err}"
@@ -131,10 +116,7 @@ fn pgamma_fit_and_psf_order_options_are_accepted() {
         .count();
     assert!(weighted > 20, "{weighted}");
     // Orders above 4 are a usage error.
-    let out = stepsim()
-        .args(["measure", "--psf-order", "7", "--run", "x", "--out", "y"])
-        .output()
-        .unwrap();
+    let out = run_with(stepsim().args(["measure", "--psf-order", "7", "--run", "x", "--out", "y"]));
     assert_eq!(out.status.code(), Some(2));
 }
 
@@ -143,7 +125,7 @@ fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = measure(&dir.path().join("nowhere"), &dir.path().join("s.txt"), "1");
     assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = stderr(&out);
     assert!(err.contains("manifest.json"), "{err}");
     assert!(!dir.path().join("s.txt").exists());
 
@@ -152,16 +134,16 @@ fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
     std::fs::write(run.join("d0/ia1.fits"), b"SIMPLE  = this is not FITS").unwrap();
     let out = measure(&run, &dir.path().join("s.txt"), "1");
     assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = stderr(&out);
     assert!(err.contains("ia1.fits"), "{err}");
     assert!(!dir.path().join("s.txt").exists());
 
     std::fs::write(run.join("manifest.json"), b"{\"format\": 3}").unwrap();
     let out = measure(&run, &dir.path().join("s.txt"), "1");
     assert_eq!(out.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("manifest.json"));
+    assert!(stderr(&out).contains("manifest.json"));
 
-    let out = stepsim().args(["measure", "--run", "x"]).output().unwrap();
+    let out = run_with(stepsim().args(["measure", "--run", "x"]));
     assert_eq!(out.status.code(), Some(2));
 }
 
@@ -195,32 +177,30 @@ fn sharded_measure_joined_is_byte_identical_to_one_measure() {
     let refs: Vec<_> = scenes.iter().map(|(d, id, img)| (*d, *id, img)).collect();
     write_public_run(&run, &refs).unwrap();
     let whole = dir.path().join("whole.txt");
-    let o = measure(&run, &whole, "2");
-    assert!(o.status.success());
+    let o = ok(measure(&run, &whole, "2"));
     // Off a terminal it says how far it is (one group of 4 images here).
-    let e = String::from_utf8_lossy(&o.stderr);
+    let e = stderr(&o);
     assert!(e.contains("stepsim: 4/4 images measured (100%)"), "{e}");
     let sub = dir.path().join("sub.txt");
     let shard = |k: u32| {
-        let o = stepsim()
-            .args(["measure", "--run"])
-            .arg(&run)
-            .arg("--out")
-            .arg(&sub)
-            .args(["--shard", &format!("{k}/2"), "--threads", "1"])
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        ok(run_with(
+            stepsim()
+                .args(["measure", "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(&sub)
+                .args(["--shard", &format!("{k}/2"), "--threads", "1"]),
+        ));
     };
     let finish = || {
-        stepsim()
-            .args(["measure", "--run"])
-            .arg(&run)
-            .arg("--out")
-            .arg(&sub)
-            .arg("--finish")
-            .output()
-            .unwrap()
+        run_with(
+            stepsim()
+                .args(["measure", "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(&sub)
+                .arg("--finish"),
+        )
     };
     shard(2);
     // Shard 2 of 2 measured dataset d1 only (sorted ids d0, d1, d2).
@@ -234,11 +214,10 @@ fn sharded_measure_joined_is_byte_identical_to_one_measure() {
     // A missing part: refused, naming it, nothing written.
     let o = finish();
     assert_eq!(o.status.code(), Some(1));
-    let e = String::from_utf8_lossy(&o.stderr);
+    let e = stderr(&o);
     assert!(e.contains("1-of-2.txt") && e.contains("--shard 1/2"), "{e}");
     assert!(!sub.exists());
     shard(1);
-    let o = finish();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    ok(finish());
     assert!(std::fs::read(&sub).unwrap() == std::fs::read(&whole).unwrap());
 }

@@ -155,16 +155,16 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
 fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
     let dir = setup();
     let d = dir.path();
-    let o = common::stepsim()
-        .args([
-            "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
-        ])
-        .current_dir(d)
-        .env_remove("SLURM_ARRAY_TASK_ID")
-        .env_remove("SLURM_ARRAY_TASK_COUNT")
-        .env_remove("SLURM_ARRAY_TASK_MIN")
-        .output()
-        .unwrap();
+    let o = common::run_with(
+        common::stepsim()
+            .args([
+                "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
+            ])
+            .current_dir(d)
+            .env_remove("SLURM_ARRAY_TASK_ID")
+            .env_remove("SLURM_ARRAY_TASK_COUNT")
+            .env_remove("SLURM_ARRAY_TASK_MIN"),
+    );
     assert_eq!(o.status.code(), Some(2));
     assert!(
         stderr(&o).contains("SLURM_ARRAY_TASK_ID is not set"),
@@ -173,17 +173,17 @@ fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
     );
     assert!(!d.join("a").exists());
     // Array 0-1: task 1 is shard 2/2.
-    let o = common::stepsim()
-        .args([
-            "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
-        ])
-        .current_dir(d)
-        .env("SLURM_ARRAY_TASK_ID", "1")
-        .env("SLURM_ARRAY_TASK_COUNT", "2")
-        .env("SLURM_ARRAY_TASK_MIN", "0")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
+    let o = common::run_with(
+        common::stepsim()
+            .args([
+                "generate", "--config", "c.json", "--out", "a", "--shard", "auto",
+            ])
+            .current_dir(d)
+            .env("SLURM_ARRAY_TASK_ID", "1")
+            .env("SLURM_ARRAY_TASK_COUNT", "2")
+            .env("SLURM_ARRAY_TASK_MIN", "0"),
+    );
+    common::ok(o);
     assert!(d.join("a/private/shards/2-of-2.json").is_file());
 }
 

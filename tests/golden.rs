@@ -117,20 +117,16 @@ fn first_draws_of_every_distribution_are_pinned() {
 fn a_small_run_has_the_pinned_bytes() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
-    let out = common::stepsim()
-        .arg("generate")
-        .arg("--config")
-        .arg(golden("config.json"))
-        .arg("--out")
-        .arg(&run)
-        .args(["--threads", "2"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::run_with(
+        common::stepsim()
+            .arg("generate")
+            .arg("--config")
+            .arg(golden("config.json"))
+            .arg("--out")
+            .arg(&run)
+            .args(["--threads", "2"]),
     );
+    common::ok(out);
     let hashes: BTreeMap<String, String> = files(&run)
         .into_iter()
         .map(|(rel, bytes)| {

@@ -417,12 +417,12 @@ fn paths_that_are_not_utf8_are_refused_before_anything_is_written() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("c.json"), TINY).unwrap();
     let bad = std::ffi::OsStr::from_bytes(b"r\xffn");
-    let o = common::stepsim()
-        .args(["generate", "--config", "c.json", "--out"])
-        .arg(bad)
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    let o = common::run_with(
+        common::stepsim()
+            .args(["generate", "--config", "c.json", "--out"])
+            .arg(bad)
+            .current_dir(dir.path()),
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("--out r\u{fffd}n: the path is not valid UTF-8"),

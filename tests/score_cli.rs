@@ -231,6 +231,16 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
         serde_json::from_str(&std::fs::read_to_string(fx.path("out/report.json")).unwrap())
             .unwrap();
     assert_eq!(r["submission"], "other");
+    assert!(r["summary"]["bootstrap"].is_object());
+    // Without resamples: no intervals, the same figures.
+    let o = fx.score(&sub, "nob", &["--bootstrap-resamples", "0"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let nob: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(fx.path("nob/report.json")).unwrap())
+            .unwrap();
+    assert!(nob["summary"]["bootstrap"].is_null());
+    assert_eq!(nob["summary"]["m_mean"], r["summary"]["m_mean"]);
+    assert_eq!(nob["summary"]["q_c"], r["summary"]["q_c"]);
 }
 
 #[test]

@@ -5,23 +5,31 @@
 //!                             multipart field `file`) -> 202 {"id", "status"}
 //! GET  /api/submissions       the caller's entries, newest first
 //! GET  /api/submissions/{id}  one of the caller's entries (404 for others')
-//! GET  /api/leaderboard       {"revealed", "rows": [{"team", ...}]}
+//! GET  /api/leaderboard       {"revealed", "rows": [{"rank", "team", "role", ...}]}
+//! PUT  /api/final             Bearer token; {"entries": [id, ...]} (at most 2)
+//! GET  /api/challenge         name, deadline, frozen/closed/revealed, rules
+//! GET  /data/                 the public files: path, bytes, sha256 (manifest order)
+//! GET  /data/{path}           one public file listed there (nothing else)
 //! ```
 //!
 //! Errors are JSON `{"error": "..."}`: 401 without a valid token, 404 for
 //! what does not exist or is another team's, 413 past the size cap, 422 for
 //! an upload the harness refuses (its message, file paths replaced), 429
 //! past the quota or the cap on refused uploads (with `reset`, also as
-//! `Retry-After`).
+//! `Retry-After`), 403 for an upload when the challenge is frozen, closed or
+//! past its deadline and for a choice of final entries once it is closed.
 
-use crate::challenge::{Challenge, QUOTA_WINDOW_S, hex, token_hash};
-use crate::store::{Store, Submission, Team};
+use crate::challenge::{
+    Challenge, ChoiceError, Phase, QUOTA_WINDOW_S, choose_final_entries, final_entries_or_default,
+    hex, parse_figures, rank_key, token_hash,
+};
+use crate::store::{Role, Store, Submission, Team};
 use axum::Router;
 use axum::body::Body;
 use axum::extract::{FromRequest, Path as UrlPath, Request, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, put};
 use http_body_util::BodyExt;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
@@ -59,21 +67,29 @@ impl AppState {
         }
     }
 
-    pub(crate) fn store(&self) -> std::sync::MutexGuard<'_, Box<dyn Store>> {
+    /// The store (one connection, locked while the guard lives: keep it
+    /// short and never across an `.await`).
+    pub fn store(&self) -> std::sync::MutexGuard<'_, Box<dyn Store>> {
         self.inner
             .store
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
+    /// The challenge's state directory.
+    pub fn dir(&self) -> &std::path::Path {
+        &self.inner.dir
+    }
+
     /// The challenge's settings.
-    pub(crate) fn settings(&self) -> &crate::Settings {
+    pub fn settings(&self) -> &crate::Settings {
         &self.inner.settings
     }
 
-    /// The challenge's state directory.
-    pub(crate) fn dir(&self) -> &std::path::Path {
-        &self.inner.dir
+    /// The team of a bearer token (its text after `Bearer `), if it is a
+    /// valid, unrevoked one.
+    pub fn team_of_token(&self, token: &str) -> Result<Option<Team>, crate::store::StoreError> {
+        self.store().team_by_token(&token_hash(token))
     }
 }
 
@@ -86,21 +102,24 @@ pub struct ApiError {
 }
 
 impl ApiError {
-    pub(crate) fn new(status: StatusCode, message: impl Into<String>) -> Self {
+    /// An answer with this status and `{"error": message}`.
+    pub fn new(status: StatusCode, message: impl Into<String>) -> Self {
         Self {
             status,
             message: message.into(),
             reset_s: None,
         }
     }
-    pub(crate) fn internal(e: impl std::fmt::Display) -> Self {
+    /// A 500 whose cause goes to the server's log only.
+    pub fn internal(e: impl std::fmt::Display) -> Self {
         eprintln!("stepsim serve: internal error: {e}");
         Self::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             "the server failed; the organisers can see why in its log",
         )
     }
-    pub(crate) fn not_found() -> Self {
+    /// 404 `{"error": "not found"}`.
+    pub fn not_found() -> Self {
         Self::new(StatusCode::NOT_FOUND, "not found")
     }
 }
@@ -135,6 +154,11 @@ pub fn router(state: AppState) -> Router {
         )
         .route("/api/submissions/{id}", get(get_submission))
         .route("/api/leaderboard", get(leaderboard))
+        .route("/api/final", put(put_final))
+        .route("/api/challenge", get(challenge_state))
+        .route("/data", get(crate::data::listing))
+        .route("/data/", get(crate::data::listing))
+        .route("/data/{*path}", get(crate::data::download))
         .merge(crate::web::routes(&state))
         .fallback(|| async { ApiError::not_found() })
         .layer(axum::middleware::from_fn_with_state(
@@ -174,6 +198,11 @@ async fn rate_limit(
     req: Request,
     next: axum::middleware::Next,
 ) -> Response {
+    // Public data downloads need no token and come in hundreds of files;
+    // they are not counted (docs/server.md, "Rules").
+    if req.uri().path().starts_with("/data/") {
+        return next.run(req).await;
+    }
     let mut keys = Vec::new();
     if let Some(info) = req
         .extensions()
@@ -253,8 +282,11 @@ fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
         .ok_or_else(unauthorized)
 }
 
-/// One entry as its team sees it.
-fn entry_json(s: &Submission, revealed: bool) -> Value {
+/// One entry as its team sees it: `id`, `status`, `created`, `sha256`,
+/// `bytes`, `final`, `error` (refused), `public` and `scorer_version`
+/// (once scored; a re-scored entry shows its newest score), `holdout`
+/// (after reveal).
+pub fn entry_json(s: &Submission, revealed: bool) -> Value {
     let parse = |t: &Option<String>| {
         t.as_deref()
             .and_then(|t| serde_json::from_str::<Value>(t).ok())
@@ -265,12 +297,14 @@ fn entry_json(s: &Submission, revealed: bool) -> Value {
         "created": crate::utc_text(s.created_s),
         "sha256": s.sha256,
         "bytes": s.bytes,
+        "final": s.final_choice,
     });
     if let Some(e) = &s.error {
         v["error"] = json!(e);
     }
-    if s.status == "scored" {
+    if s.has_score() {
         v["public"] = parse(&s.public_json).unwrap_or(Value::Null);
+        v["scorer_version"] = json!(s.scorer_version);
         if revealed && s.holdout_json.is_some() {
             v["holdout"] = parse(&s.holdout_json).unwrap_or(Value::Null);
         }
@@ -295,11 +329,103 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
         .submissions_of(team.id)
         .map_err(ApiError::internal)?;
     let quota = quota_status(&state, team.id)?;
-    let entries: Vec<Value> = subs.iter().map(|s| entry_json(s, revealed)).collect();
-    Ok(
-        axum::Json(json!({"team": team.name, "quota": quota, "submissions": entries}))
-            .into_response(),
-    )
+    let refs: Vec<&Submission> = subs.iter().collect();
+    let counted: Vec<i64> = final_entries_or_default(&refs)
+        .iter()
+        .map(|s| s.id)
+        .collect();
+    let chosen = subs.iter().any(|s| s.final_choice);
+    let entries: Vec<Value> = subs
+        .iter()
+        .map(|s| {
+            let mut v = entry_json(s, revealed);
+            v["final"] = json!(counted.contains(&s.id));
+            v
+        })
+        .collect();
+    Ok(axum::Json(json!({
+        "team": team.name,
+        "role": team.role.name(),
+        "quota": quota,
+        "final": counted,
+        "final_chosen": chosen,
+        "submissions": entries,
+    }))
+    .into_response())
+}
+
+/// `PUT /api/final` with `{"entries": [id, ...]}`: the team's final entries
+/// (at most two of its scored entries; `[]` goes back to the default).
+async fn put_final(State(state): State<AppState>, req: Request) -> ApiResult {
+    let team = auth(&state, req.headers())?;
+    let bad = |why: String| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("the body must be JSON {{\"entries\": [id, ...]}}: {why}"),
+        )
+    };
+    let bytes = axum::body::to_bytes(req.into_body(), 64 * 1024)
+        .await
+        .map_err(|e| bad(format!("cannot read it ({e})")))?;
+    let v: Value = serde_json::from_slice(&bytes).map_err(|e| bad(format!("not JSON ({e})")))?;
+    let list = v
+        .get("entries")
+        .and_then(Value::as_array)
+        .ok_or_else(|| bad("no list `entries`".into()))?;
+    let ids = list
+        .iter()
+        .map(|x| {
+            x.as_i64()
+                .ok_or_else(|| bad(format!("{x} is not an entry id")))
+        })
+        .collect::<Result<Vec<i64>, ApiError>>()?;
+    let result = choose_final_entries(state.store().as_mut(), team.id, &ids);
+    match result {
+        Ok(ids) => Ok(axum::Json(json!({"final": ids})).into_response()),
+        Err(ChoiceError::Store(e)) => Err(ApiError::internal(e)),
+        Err(ChoiceError::NotFound(_)) => Err(ApiError::not_found()),
+        Err(e @ ChoiceError::Closed) => Err(ApiError::new(StatusCode::FORBIDDEN, e.to_string())),
+        Err(e) => Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            e.to_string(),
+        )),
+    }
+}
+
+/// The public state of the challenge as JSON (`GET /api/challenge`).
+pub fn challenge_json(state: &AppState, now_s: i64) -> Result<Value, crate::store::StoreError> {
+    let store = state.store();
+    let phase = Phase::read(store.as_ref())?;
+    let name = store
+        .meta("name")?
+        .unwrap_or_else(|| "stepsim challenge".into());
+    let s = state.settings();
+    Ok(json!({
+        "name": name,
+        "deadline": phase.deadline_s.map(crate::utc_text),
+        "frozen": phase.frozen,
+        "closed": phase.closed,
+        "revealed": phase.revealed,
+        "uploads_open": phase.uploads_open(now_s),
+        "holdout": s.holdout,
+        "rules": {
+            "quota": s.quota,
+            "quota_window_hours": QUOTA_WINDOW_S / 3600,
+            "refused_uploads_cap": s.format_failure_cap,
+            "max_upload_bytes": s.max_upload_bytes,
+            "requests_per_minute": s.requests_per_minute,
+            "max_final_entries": crate::challenge::MAX_FINAL_ENTRIES,
+            "feedback_decimals": stepsim_harness::part::FEEDBACK_DECIMALS
+                .iter()
+                .map(|(k, d)| (k.to_string(), json!(d)))
+                .collect::<serde_json::Map<String, Value>>(),
+        },
+    }))
+}
+
+async fn challenge_state(State(state): State<AppState>) -> ApiResult {
+    let v = challenge_json(&state, crate::now_s()).map_err(ApiError::internal)?;
+    Ok(axum::Json(v).into_response())
 }
 
 async fn get_submission(
@@ -347,64 +473,72 @@ async fn leaderboard(State(state): State<AppState>) -> ApiResult {
     Ok(axum::Json(json!({"revealed": revealed, "rows": rows})).into_response())
 }
 
-fn number(v: &Value, key: &str) -> Option<f64> {
-    v.get(key).and_then(Value::as_f64)
-}
-
-/// The leaderboard: each team's best scored entry by public Q_c (ties by
-/// |⟨m⟩|, then by the earlier entry). Before reveal the rows carry the
-/// public feedback only, ranked by it; after, the held-out summary of that
-/// entry too, ranked by held-out Q_c.
+/// The leaderboard. Before reveal: each team's best scored entry by
+/// public Q_c (ties by |⟨m⟩|, then the earlier entry), ranked by it. After
+/// reveal: of each team's final entries (those it chose, or its best public
+/// one), the one with the best held-out Q_c (ties by |⟨m⟩|), ranked by it,
+/// with `finals` (the ids that counted) and `holdout`. Every row has `rank`,
+/// `team`, `role`, `entries` (how many scored), `entry` and `public`.
+/// Participants are ranked 1, 2, ...; the organisers' and the baseline's
+/// rows are placed where their figures put them with `rank: null`.
 pub fn leaderboard_rows(teams: &[Team], subs: &[Submission], revealed: bool) -> Vec<Value> {
-    let key = |v: &Value| {
-        (
-            -number(v, "q_c").unwrap_or(f64::NEG_INFINITY),
-            number(v, "m_mean").map_or(f64::INFINITY, f64::abs),
-        )
-    };
-    let mut rows: Vec<(Value, (f64, f64))> = Vec::new();
+    let mut rows: Vec<(Value, (f64, f64), i64)> = Vec::new();
     for team in teams {
-        let mut best: Option<(&Submission, Value)> = None;
-        let mut n = 0;
-        for s in subs
+        let own: Vec<&Submission> = subs
             .iter()
-            .filter(|s| s.team_id == team.id && s.status == "scored")
-        {
-            n += 1;
-            let Some(p) = s
-                .public_json
-                .as_deref()
-                .and_then(|t| serde_json::from_str::<Value>(t).ok())
-            else {
-                continue;
-            };
-            let better = match &best {
-                None => true,
-                Some((_, b)) => key(&p).partial_cmp(&key(b)) == Some(std::cmp::Ordering::Less),
-            };
-            if better {
-                best = Some((s, p));
-            }
-        }
-        let Some((s, public)) = best else { continue };
-        let mut k = key(&public);
-        let mut row = json!({"team": team.name, "entries": n, "entry": s.id, "public": public});
+            .filter(|s| s.team_id == team.id && s.has_score())
+            .collect();
+        let Some(best) = crate::challenge::best_public(&own) else {
+            continue;
+        };
+        let public = parse_figures(best.public_json.as_deref());
+        let mut row = json!({
+            "team": team.name,
+            "role": team.role.name(),
+            "entries": own.len(),
+            "entry": best.id,
+            "public": public,
+        });
+        let mut key = rank_key(&public);
+        let mut entry = best.id;
         if revealed {
-            let h = s
-                .holdout_json
-                .as_deref()
-                .and_then(|t| serde_json::from_str::<Value>(t).ok())
-                .unwrap_or(Value::Null);
-            k = key(&h);
-            row["holdout"] = h;
+            let finals = final_entries_or_default(&own);
+            let mut pick: Option<(&Submission, Value, (f64, f64))> = None;
+            for s in &finals {
+                let h = parse_figures(s.holdout_json.as_deref());
+                let k = rank_key(&h);
+                if pick
+                    .as_ref()
+                    .is_none_or(|p| k.partial_cmp(&p.2) == Some(std::cmp::Ordering::Less))
+                {
+                    pick = Some((s, h, k));
+                }
+            }
+            if let Some((s, h, k)) = pick {
+                row["entry"] = json!(s.id);
+                row["public"] = parse_figures(s.public_json.as_deref());
+                row["holdout"] = h;
+                key = k;
+                entry = s.id;
+            }
+            row["finals"] = json!(finals.iter().map(|s| s.id).collect::<Vec<_>>());
         }
-        rows.push((row, k));
+        rows.push((row, key, entry));
     }
-    rows.sort_by(|a, b| a.1.partial_cmp(&b.1).unwrap_or(std::cmp::Ordering::Equal));
+    rows.sort_by(|a, b| {
+        a.1.partial_cmp(&b.1)
+            .unwrap_or(std::cmp::Ordering::Equal)
+            .then(a.2.cmp(&b.2))
+    });
+    let mut rank = 0;
     rows.into_iter()
-        .enumerate()
-        .map(|(i, (mut r, _))| {
-            r["rank"] = json!(i + 1);
+        .map(|(mut r, _, _)| {
+            if r["role"] == Role::Participant.name() {
+                rank += 1;
+                r["rank"] = json!(rank);
+            } else {
+                r["rank"] = Value::Null;
+            }
             r
         })
         .collect()
@@ -639,6 +773,10 @@ pub(crate) async fn submit(
     req: Request,
     check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<Accepted, ApiError> {
+    let phase = Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
+    if let Some(why) = phase.upload_refusal(crate::now_s()) {
+        return Err(ApiError::new(StatusCode::FORBIDDEN, why));
+    }
     check_limits(state, team.id)?;
     let max = state.inner.settings.max_upload_bytes;
     let (tmp, sha, size) = receive(state, req, max, check).await?;

@@ -1,6 +1,6 @@
 //! A challenge's state directory and the organiser's operations on it.
 
-use crate::store::{SqliteStore, Store, StoreError};
+use crate::store::{Role, SqliteStore, Store, StoreError, Submission};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use stepsim_harness::part::has_holdout;
@@ -152,6 +152,15 @@ impl Challenge {
             ),
             ("holdout", holdout.to_string()),
             ("revealed", "false".into()),
+            // Shown to participants (`GET /api/challenge`): the run
+            // directory's name until `set_name`; never the run identity,
+            // which is a hash of the secret datasets.json.
+            (
+                "name",
+                run.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "stepsim challenge".into()),
+            ),
         ] {
             store.set_meta(k, &v)?;
         }
@@ -253,9 +262,85 @@ impl Challenge {
         Ok(self.store.meta("revealed")?.as_deref() == Some("true"))
     }
 
-    /// Reveals: held-out scores and full reports become visible.
+    /// Reveals: held-out scores and full reports become visible. Reveal
+    /// implies close (nothing changes any more).
     pub fn reveal(&mut self) -> Result<(), ChallengeError> {
+        self.store.set_meta("closed", "true")?;
         Ok(self.store.set_meta("revealed", "true")?)
+    }
+
+    /// Sets the challenge's name (shown to participants).
+    pub fn set_name(&mut self, name: &str) -> Result<(), ChallengeError> {
+        let name = name.trim();
+        if name.is_empty() || name.chars().count() > 200 || name.chars().any(char::is_control) {
+            return Err(ChallengeError::Run(
+                "a challenge name must be 1 to 200 characters without control characters".into(),
+            ));
+        }
+        Ok(self.store.set_meta("name", name)?)
+    }
+
+    /// Sets (or, with `None`, removes) the deadline (Unix seconds): uploads
+    /// from then on are refused as when frozen.
+    pub fn set_deadline(&mut self, at_s: Option<i64>) -> Result<(), ChallengeError> {
+        match at_s {
+            Some(t) => self.store.set_meta("deadline", &t.to_string())?,
+            None => self.store.set_meta("deadline", "")?,
+        }
+        Ok(())
+    }
+
+    /// Freezes: no more uploads; final choices are still allowed.
+    pub fn freeze(&mut self) -> Result<(), ChallengeError> {
+        Ok(self.store.set_meta("frozen", "true")?)
+    }
+
+    /// Closes: no more uploads and no more final choices.
+    pub fn close(&mut self) -> Result<(), ChallengeError> {
+        self.store.set_meta("frozen", "true")?;
+        Ok(self.store.set_meta("closed", "true")?)
+    }
+
+    /// Marks a team as participants' (ranked), organisers' or the baseline
+    /// (shown, never ranked).
+    pub fn set_role(&mut self, name: &str, role: Role) -> Result<(), ChallengeError> {
+        let id = self.team_id(name)?;
+        Ok(self.store.set_role(id, role)?)
+    }
+
+    /// Queues every scored entry again for this binary's scorer
+    /// ([`crate::worker::SCORER_VERSION`]), except those it has scored
+    /// already; returns how many. Old scores are kept.
+    pub fn rescore(&mut self) -> Result<usize, ChallengeError> {
+        Ok(self.store.rescore(crate::worker::SCORER_VERSION)?)
+    }
+
+    /// Stores the organiser password as an Argon2id PHC hash (a random
+    /// salt; the password itself is never stored).
+    pub fn set_organiser_password(&mut self, password: &str) -> Result<(), ChallengeError> {
+        use argon2::password_hash::{PasswordHasher, SaltString};
+        if password.chars().count() < 8 {
+            return Err(ChallengeError::Run(
+                "the organiser password must have at least 8 characters".into(),
+            ));
+        }
+        let mut salt = [0u8; 16];
+        getrandom::fill(&mut salt)
+            .map_err(|e| ChallengeError::Run(format!("cannot draw a salt: {e}")))?;
+        let salt = SaltString::encode_b64(&salt)
+            .map_err(|e| ChallengeError::Run(format!("cannot encode the salt: {e}")))?;
+        let hash = argon2::Argon2::default()
+            .hash_password(password.as_bytes(), &salt)
+            .map_err(|e| ChallengeError::Run(format!("cannot hash the password: {e}")))?;
+        Ok(self
+            .store
+            .set_meta(ORGANISER_PASSWORD_KEY, &hash.to_string())?)
+    }
+
+    /// True when `password` is the organiser password (false when none is
+    /// set). See [`verify_organiser_password`].
+    pub fn verify_organiser_password(&self, password: &str) -> bool {
+        verify_organiser_password(self.store.as_ref(), password)
     }
 
     /// Where an upload with this SHA-256 is kept.
@@ -374,5 +459,174 @@ impl Challenge {
             csv: csv_path,
             reports,
         })
+    }
+}
+
+/// The setting that holds the organiser password's PHC hash.
+pub const ORGANISER_PASSWORD_KEY: &str = "organiser_password_phc";
+
+/// True when `password` is the organiser password stored by
+/// [`Challenge::set_organiser_password`]; false when none is set, the
+/// store fails or the hash cannot be read (never panics).
+pub fn verify_organiser_password(store: &dyn Store, password: &str) -> bool {
+    use argon2::password_hash::{PasswordHash, PasswordVerifier};
+    let Ok(Some(phc)) = store.meta(ORGANISER_PASSWORD_KEY) else {
+        return false;
+    };
+    let Ok(hash) = PasswordHash::new(&phc) else {
+        return false;
+    };
+    argon2::Argon2::default()
+        .verify_password(password.as_bytes(), &hash)
+        .is_ok()
+}
+
+/// Where a challenge stands: its deadline and whether it is frozen, closed
+/// or revealed (settings `deadline`, `frozen`, `closed`, `revealed`).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Phase {
+    /// The deadline (Unix seconds), if one is set.
+    pub deadline_s: Option<i64>,
+    /// No more uploads (`challenge freeze`).
+    pub frozen: bool,
+    /// Nothing changes any more (`challenge close`, or reveal).
+    pub closed: bool,
+    /// Held-out scores are open.
+    pub revealed: bool,
+}
+
+impl Phase {
+    /// The phase recorded in a store.
+    pub fn read(store: &dyn Store) -> Result<Self, StoreError> {
+        let flag =
+            |k: &str| -> Result<bool, StoreError> { Ok(store.meta(k)?.as_deref() == Some("true")) };
+        Ok(Self {
+            deadline_s: store.meta("deadline")?.and_then(|v| v.parse().ok()),
+            frozen: flag("frozen")?,
+            closed: flag("closed")?,
+            revealed: flag("revealed")?,
+        })
+    }
+
+    /// Why an upload at `now_s` is refused, if it is (closed, frozen, or
+    /// past the deadline).
+    pub fn upload_refusal(&self, now_s: i64) -> Option<String> {
+        if self.closed {
+            Some("the challenge is closed: no more uploads are accepted".into())
+        } else if self.frozen {
+            Some("the challenge is frozen: no more uploads are accepted".into())
+        } else {
+            self.deadline_s.filter(|&d| now_s >= d).map(|d| {
+                format!(
+                    "the deadline ({}) has passed: no more uploads are accepted",
+                    crate::utc_text(d)
+                )
+            })
+        }
+    }
+
+    /// True when uploads are accepted at `now_s`.
+    pub fn uploads_open(&self, now_s: i64) -> bool {
+        self.upload_refusal(now_s).is_none()
+    }
+}
+
+/// Why a choice of final entries is refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ChoiceError {
+    /// The challenge is closed (HTTP 403).
+    #[error("the challenge is closed: final entries can no longer be chosen")]
+    Closed,
+    /// More than [`MAX_FINAL_ENTRIES`] (HTTP 422).
+    #[error("at most {MAX_FINAL_ENTRIES} final entries can be chosen; {0} were given")]
+    TooMany(usize),
+    /// No entry of the team has this id (HTTP 404, as for another team's).
+    #[error("entry {0} not found")]
+    NotFound(i64),
+    /// The entry has no score (HTTP 422).
+    #[error("entry {0} is not scored; only scored entries can be final")]
+    NotScored(i64),
+    /// The store failed (HTTP 500).
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+/// How many final entries a team may choose.
+pub const MAX_FINAL_ENTRIES: usize = 2;
+
+/// Checks and records a team's choice of final entries (up to
+/// [`MAX_FINAL_ENTRIES`] of its own scored entries; an empty list goes
+/// back to the default, its best public entry). Repeated ids count once.
+/// Returns the chosen ids, sorted. Allowed while frozen, refused once
+/// closed. Nothing changes when it is refused.
+pub fn choose_final_entries(
+    store: &mut dyn Store,
+    team_id: i64,
+    ids: &[i64],
+) -> Result<Vec<i64>, ChoiceError> {
+    if Phase::read(store)?.closed {
+        return Err(ChoiceError::Closed);
+    }
+    let mut ids = ids.to_vec();
+    ids.sort_unstable();
+    ids.dedup();
+    if ids.len() > MAX_FINAL_ENTRIES {
+        return Err(ChoiceError::TooMany(ids.len()));
+    }
+    for &id in &ids {
+        let sub = store
+            .submission(id)?
+            .filter(|s| s.team_id == team_id)
+            .ok_or(ChoiceError::NotFound(id))?;
+        if !sub.has_score() {
+            return Err(ChoiceError::NotScored(id));
+        }
+    }
+    store.set_final_entries(team_id, &ids)?;
+    Ok(ids)
+}
+
+/// The key by which entries are compared (smaller is better): higher Q_c,
+/// then smaller |⟨m⟩|. A figure missing counts as the worst.
+pub fn rank_key(figures: &serde_json::Value) -> (f64, f64) {
+    let number = |k: &str| figures.get(k).and_then(serde_json::Value::as_f64);
+    (
+        -number("q_c").unwrap_or(f64::NEG_INFINITY),
+        number("m_mean").map_or(f64::INFINITY, f64::abs),
+    )
+}
+
+/// The figures of a stored JSON text (`Null` when absent or unreadable).
+pub fn parse_figures(text: Option<&str>) -> serde_json::Value {
+    text.and_then(|t| serde_json::from_str(t).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
+/// A team's best entry by public feedback (the earlier entry on ties), among
+/// those with a score.
+pub fn best_public<'a>(subs: &[&'a Submission]) -> Option<&'a Submission> {
+    let mut best: Option<(&Submission, (f64, f64))> = None;
+    for s in subs.iter().filter(|s| s.has_score()) {
+        let k = rank_key(&parse_figures(s.public_json.as_deref()));
+        if best.is_none_or(|(_, b)| k.partial_cmp(&b) == Some(std::cmp::Ordering::Less)) {
+            best = Some((s, k));
+        }
+    }
+    best.map(|b| b.0)
+}
+
+/// The entries of one team that count at reveal: those it chose (with a
+/// score), or, when it chose none, its best public entry. `subs` are the
+/// team's entries.
+pub fn final_entries_or_default<'a>(subs: &[&'a Submission]) -> Vec<&'a Submission> {
+    let chosen: Vec<&Submission> = subs
+        .iter()
+        .copied()
+        .filter(|s| s.final_choice && s.has_score())
+        .collect();
+    if chosen.is_empty() {
+        best_public(subs).into_iter().collect()
+    } else {
+        chosen
     }
 }

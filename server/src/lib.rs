@@ -6,7 +6,8 @@
 //! ```text
 //! store.rs      the state behind a trait; SQLite (WAL, migrations in the binary)
 //! challenge.rs  a challenge's directory: init, teams and tokens, reveal
-//! api.rs        the JSON API (axum): uploads, entries, leaderboard
+//! api.rs        the JSON API (axum): uploads, entries, finals, leaderboard
+//! data.rs       the run's public files, as its manifest lists them
 //! worker.rs     the scoring queue: claims jobs, calls the harness, records
 //! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
@@ -18,6 +19,7 @@
 
 pub mod api;
 pub mod challenge;
+pub mod data;
 pub mod store;
 pub mod web;
 pub mod worker;
@@ -54,9 +56,124 @@ pub fn utc_text(t_s: i64) -> String {
     )
 }
 
+/// Days since 1970-01-01 of a civil date (proleptic Gregorian).
+fn days_from_civil(year: i64, month: i64, day: i64) -> i64 {
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let yoe = y.rem_euclid(400);
+    let mp = (month + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    era * 146_097 + doe - 719_468
+}
+
+/// Reads an RFC 3339 time (`2026-12-31T23:59:59Z`, `...T12:00:00+02:00`,
+/// fractions of a second dropped) as Unix seconds; `None` when it is not one.
+pub fn parse_rfc3339(text: &str) -> Option<i64> {
+    let t = text.trim();
+    let b = t.as_bytes();
+    let num = |r: std::ops::Range<usize>| -> Option<i64> {
+        let s = t.get(r)?;
+        (!s.is_empty() && s.bytes().all(|c| c.is_ascii_digit())).then(|| s.parse().ok())?
+    };
+    if b.len() < 20
+        || b[4] != b'-'
+        || b[7] != b'-'
+        || !matches!(b[10], b'T' | b't' | b' ')
+        || b[13] != b':'
+        || b[16] != b':'
+    {
+        return None;
+    }
+    let (year, month, day) = (num(0..4)?, num(5..7)?, num(8..10)?);
+    let (hour, minute, second) = (num(11..13)?, num(14..16)?, num(17..19)?);
+    let mut rest = t.get(19..)?;
+    if let Some(frac) = rest.strip_prefix('.') {
+        let n = frac.bytes().take_while(u8::is_ascii_digit).count();
+        if n == 0 {
+            return None;
+        }
+        rest = &frac[n..];
+    }
+    let offset_s = match rest {
+        "Z" | "z" => 0,
+        _ => {
+            let sign = match rest.as_bytes().first()? {
+                b'+' => 1,
+                b'-' => -1,
+                _ => return None,
+            };
+            let o = rest.get(1..)?;
+            if o.len() != 5 || o.as_bytes()[2] != b':' {
+                return None;
+            }
+            let (h, m): (i64, i64) = (o[..2].parse().ok()?, o[3..].parse().ok()?);
+            if h > 23 || m > 59 {
+                return None;
+            }
+            sign * (h * 3600 + m * 60)
+        }
+    };
+    let leap = (year % 4 == 0 && year % 100 != 0) || year % 400 == 0;
+    let month_days = [
+        31,
+        if leap { 29 } else { 28 },
+        31,
+        30,
+        31,
+        30,
+        31,
+        31,
+        30,
+        31,
+        30,
+        31,
+    ];
+    if !(1..=12).contains(&month)
+        || day < 1
+        || day > month_days[(month - 1) as usize]
+        || hour > 23
+        || minute > 59
+        || second > 60
+    {
+        return None;
+    }
+    let days = days_from_civil(year, month, day);
+    Some(days * 86_400 + hour * 3600 + minute * 60 + second.min(59) - offset_s)
+}
+
 #[cfg(test)]
 mod tests {
-    use super::utc_text;
+    use super::{parse_rfc3339, utc_text};
+
+    #[test]
+    fn rfc3339_times_read_back_as_written() {
+        for t in [0, 951_782_400, 1_798_761_599, -1, 1_700_000_000] {
+            assert_eq!(parse_rfc3339(&utc_text(t)), Some(t));
+        }
+        assert_eq!(
+            parse_rfc3339("2026-12-31T23:59:59.25+01:00"),
+            Some(1_798_761_599 - 3600)
+        );
+        assert_eq!(
+            parse_rfc3339("2000-02-29t00:00:00-00:30"),
+            Some(951_784_200)
+        );
+        for bad in [
+            "",
+            "2026-12-31",
+            "2026-12-31T23:59:59",
+            "2026-02-30T00:00:00Z",
+            "2026-13-01T00:00:00Z",
+            "2026-12-31T24:00:00Z",
+            "2026-12-31T23:59:59+1:00",
+            "2026-12-31T23:59:59.Z",
+            "２026-12-31T23:59:59Z",
+            "tomorrow",
+        ] {
+            assert_eq!(parse_rfc3339(bad), None, "{bad:?}");
+        }
+    }
 
     #[test]
     fn utc_text_of_known_instants() {

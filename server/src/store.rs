@@ -36,7 +36,8 @@ pub enum StoreError {
 
 /// Schema migrations, applied in order; `PRAGMA user_version` counts those
 /// applied. Never edit one that has shipped: add another.
-pub const MIGRATIONS: &[&str] = &[r#"
+pub const MIGRATIONS: &[&str] = &[
+    r#"
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE teams (
     id INTEGER PRIMARY KEY,
@@ -69,7 +70,85 @@ CREATE TABLE format_failures (
     error TEXT NOT NULL
 );
 CREATE INDEX format_failures_team ON format_failures(team_id, created_s);
-"#];
+"#,
+    r#"
+ALTER TABLE teams ADD COLUMN role TEXT NOT NULL DEFAULT 'participant'
+    CHECK (role IN ('participant', 'organisers', 'baseline'));
+ALTER TABLE submissions ADD COLUMN final INTEGER NOT NULL DEFAULT 0;
+CREATE TABLE scores (
+    submission_id INTEGER NOT NULL REFERENCES submissions(id),
+    scorer_version TEXT NOT NULL,
+    status TEXT NOT NULL CHECK (status IN ('scored', 'refused')),
+    finished_s INTEGER NOT NULL,
+    error TEXT,
+    public_json TEXT,
+    holdout_json TEXT,
+    n_scorings INTEGER NOT NULL DEFAULT 1,
+    PRIMARY KEY (submission_id, scorer_version)
+);
+INSERT INTO scores (submission_id, scorer_version, status, finished_s, error, public_json,
+                    holdout_json, n_scorings)
+    SELECT id, COALESCE(scorer_version, 'unknown'), status, COALESCE(finished_s, 0), error,
+           public_json, holdout_json, n_scorings
+    FROM submissions WHERE status IN ('scored', 'refused');
+"#,
+];
+
+/// A team's part in the challenge: participants are ranked; the organisers'
+/// rows and the baseline (the KSB+ reference) are shown, tagged, unranked.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Role {
+    /// Ranked on the leaderboards.
+    #[default]
+    Participant,
+    /// The organisers' own entries: shown, never ranked.
+    Organisers,
+    /// The reference pipeline: shown, tagged, never ranked.
+    Baseline,
+}
+
+impl Role {
+    /// Every role.
+    pub const ALL: [Role; 3] = [Role::Participant, Role::Organisers, Role::Baseline];
+
+    /// The role's name (`participant`, `organisers`, `baseline`), as stored
+    /// and as the API's `role` key.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Participant => "participant",
+            Role::Organisers => "organisers",
+            Role::Baseline => "baseline",
+        }
+    }
+
+    /// The role of a name, if it is one.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| r.name() == name)
+    }
+}
+
+/// One score of an entry by one scorer version (kept when the entry is
+/// scored again by another).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Score {
+    /// The entry.
+    pub submission_id: i64,
+    /// The scorer that made it ([`crate::worker::SCORER_VERSION`]).
+    pub scorer_version: String,
+    /// `scored` or `refused`.
+    pub status: String,
+    /// When it was recorded.
+    pub finished_s: i64,
+    /// Why it was refused.
+    pub error: Option<String>,
+    /// The public feedback (JSON).
+    pub public_json: Option<String>,
+    /// The held-out summary (JSON).
+    pub holdout_json: Option<String>,
+    /// How many times this scorer version finished scoring the entry
+    /// (1: exactly once).
+    pub n_scorings: i64,
+}
 
 /// A team.
 #[derive(Debug, Clone, PartialEq)]
@@ -80,6 +159,8 @@ pub struct Team {
     pub name: String,
     /// True when its token no longer works.
     pub revoked: bool,
+    /// Ranked, or shown unranked as the organisers' or the baseline.
+    pub role: Role,
 }
 
 /// One submission.
@@ -103,8 +184,21 @@ pub struct Submission {
     pub public_json: Option<String>,
     /// The held-out summary (JSON), shown only after reveal.
     pub holdout_json: Option<String>,
-    /// How many times a worker finished scoring it (1 once scored).
+    /// How many times a worker finished scoring it, over all scorer
+    /// versions (1 once scored; each re-score adds one).
     pub n_scorings: i64,
+    /// The scorer version of the score shown (the newest), once scored.
+    pub scorer_version: Option<String>,
+    /// True when its team chose it as a final entry.
+    pub final_choice: bool,
+}
+
+impl Submission {
+    /// True when it has a score to show (`scored`, or queued again for a
+    /// re-score and still showing its previous one).
+    pub fn has_score(&self) -> bool {
+        self.public_json.is_some()
+    }
 }
 
 /// The challenge's storage. Every method is one transaction.
@@ -164,6 +258,20 @@ pub trait Store: Send {
     ) -> Result<(), StoreError>;
     /// Puts jobs left `scoring` by a stopped server back in the queue.
     fn requeue_interrupted(&mut self) -> Result<usize, StoreError>;
+    /// Sets a team's role.
+    fn set_role(&mut self, team_id: i64, role: Role) -> Result<(), StoreError>;
+    /// Makes `ids` the team's final entries (and no other); the caller
+    /// checks them ([`crate::challenge::choose_final_entries`]). Ids of
+    /// other teams are left alone.
+    fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<(), StoreError>;
+    /// The entries a team chose as final, by id (empty: none chosen).
+    fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError>;
+    /// Queues again every scored entry that has no score by
+    /// `scorer_version`; returns how many. Their previous scores stay shown
+    /// until the new ones are recorded, and stay in [`Store::scores_of`].
+    fn rescore(&mut self, scorer_version: &str) -> Result<usize, StoreError>;
+    /// Every score of an entry, the most recently recorded first.
+    fn scores_of(&self, submission_id: i64) -> Result<Vec<Score>, StoreError>;
 }
 
 /// [`Store`] on one SQLite file.
@@ -179,7 +287,7 @@ impl std::fmt::Debug for SqliteStore {
 }
 
 const SUBMISSION_COLUMNS: &str = "id, team_id, sha256, bytes, created_s, status, error, \
-                                  public_json, holdout_json, n_scorings";
+                                  public_json, holdout_json, n_scorings, scorer_version, final";
 
 fn row_submission(r: &rusqlite::Row<'_>) -> rusqlite::Result<Submission> {
     Ok(Submission {
@@ -193,6 +301,24 @@ fn row_submission(r: &rusqlite::Row<'_>) -> rusqlite::Result<Submission> {
         public_json: r.get(7)?,
         holdout_json: r.get(8)?,
         n_scorings: r.get(9)?,
+        scorer_version: r.get(10)?,
+        final_choice: r.get::<_, i64>(11)? != 0,
+    })
+}
+
+const SCORE_COLUMNS: &str = "submission_id, scorer_version, status, finished_s, error, \
+                             public_json, holdout_json, n_scorings";
+
+fn row_score(r: &rusqlite::Row<'_>) -> rusqlite::Result<Score> {
+    Ok(Score {
+        submission_id: r.get(0)?,
+        scorer_version: r.get(1)?,
+        status: r.get(2)?,
+        finished_s: r.get(3)?,
+        error: r.get(4)?,
+        public_json: r.get(5)?,
+        holdout_json: r.get(6)?,
+        n_scorings: r.get(7)?,
     })
 }
 
@@ -201,6 +327,7 @@ fn row_team(r: &rusqlite::Row<'_>) -> rusqlite::Result<Team> {
         id: r.get(0)?,
         name: r.get(1)?,
         revoked: r.get::<_, i64>(2)? != 0,
+        role: Role::from_name(&r.get::<_, String>(3)?).unwrap_or_default(),
     })
 }
 
@@ -320,7 +447,7 @@ impl Store for SqliteStore {
     fn team_by_name(&self, name: &str) -> Result<Option<Team>, StoreError> {
         self.conn
             .query_row(
-                "SELECT id, name, revoked FROM teams WHERE name = ?1",
+                "SELECT id, name, revoked, role FROM teams WHERE name = ?1",
                 [name],
                 row_team,
             )
@@ -331,7 +458,7 @@ impl Store for SqliteStore {
     fn team_by_token(&self, token_sha256: &str) -> Result<Option<Team>, StoreError> {
         self.conn
             .query_row(
-                "SELECT id, name, revoked FROM teams WHERE token_sha256 = ?1 AND revoked = 0",
+                "SELECT id, name, revoked, role FROM teams WHERE token_sha256 = ?1 AND revoked = 0",
                 [token_sha256],
                 row_team,
             )
@@ -359,7 +486,7 @@ impl Store for SqliteStore {
     fn teams(&self) -> Result<Vec<Team>, StoreError> {
         let mut st = self
             .conn
-            .prepare_cached("SELECT id, name, revoked FROM teams ORDER BY id")
+            .prepare_cached("SELECT id, name, revoked, role FROM teams ORDER BY id")
             .map_err(|e| self.err(e))?;
         let rows = st
             .query_map([], row_team)
@@ -476,15 +603,33 @@ impl Store for SqliteStore {
             Ok((p, h)) => ("scored", None, Some(p), h),
             Err(e) => ("refused", Some(e), None, None),
         };
-        self.conn
+        let path = self.path.clone();
+        let db = |e: rusqlite::Error| StoreError::Db {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        let tx = self.conn.transaction().map_err(db)?;
+        let changed = tx
             .execute(
                 "UPDATE submissions SET status = ?2, error = ?3, public_json = ?4, \
                  holdout_json = ?5, scorer_version = ?6, finished_s = ?7, \
                  n_scorings = n_scorings + 1 WHERE id = ?1 AND status = 'scoring'",
                 params![id, status, error, public, holdout, scorer_version, now_s],
             )
-            .map(drop)
-            .map_err(|e| self.err(e))
+            .map_err(db)?;
+        if changed == 1 {
+            tx.execute(
+                "INSERT INTO scores (submission_id, scorer_version, status, finished_s, error, \
+                 public_json, holdout_json) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7) \
+                 ON CONFLICT (submission_id, scorer_version) DO UPDATE SET \
+                 status = excluded.status, finished_s = excluded.finished_s, \
+                 error = excluded.error, public_json = excluded.public_json, \
+                 holdout_json = excluded.holdout_json, n_scorings = scores.n_scorings + 1",
+                params![id, scorer_version, status, now_s, error, public, holdout],
+            )
+            .map_err(db)?;
+        }
+        tx.commit().map_err(db)
     }
 
     fn requeue_interrupted(&mut self) -> Result<usize, StoreError> {
@@ -495,5 +640,73 @@ impl Store for SqliteStore {
                 [],
             )
             .map_err(|e| self.err(e))
+    }
+
+    fn set_role(&mut self, team_id: i64, role: Role) -> Result<(), StoreError> {
+        self.conn
+            .execute(
+                "UPDATE teams SET role = ?2 WHERE id = ?1",
+                params![team_id, role.name()],
+            )
+            .map(drop)
+            .map_err(|e| self.err(e))
+    }
+
+    fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<(), StoreError> {
+        let path = self.path.clone();
+        let db = |e: rusqlite::Error| StoreError::Db {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        let tx = self.conn.transaction().map_err(db)?;
+        tx.execute(
+            "UPDATE submissions SET final = 0 WHERE team_id = ?1 AND final = 1",
+            [team_id],
+        )
+        .map_err(db)?;
+        for id in ids {
+            tx.execute(
+                "UPDATE submissions SET final = 1 WHERE team_id = ?1 AND id = ?2",
+                params![team_id, id],
+            )
+            .map_err(db)?;
+        }
+        tx.commit().map_err(db)
+    }
+
+    fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT id FROM submissions WHERE team_id = ?1 AND final = 1 ORDER BY id",
+            )
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([team_id], |r| r.get(0))
+            .and_then(|it| it.collect::<rusqlite::Result<Vec<i64>>>());
+        rows.map_err(|e| self.err(e))
+    }
+
+    fn rescore(&mut self, scorer_version: &str) -> Result<usize, StoreError> {
+        self.conn
+            .execute(
+                "UPDATE submissions SET status = 'queued', started_s = NULL \
+                 WHERE status = 'scored' AND NOT EXISTS (SELECT 1 FROM scores \
+                 WHERE scores.submission_id = submissions.id AND scores.scorer_version = ?1)",
+                [scorer_version],
+            )
+            .map_err(|e| self.err(e))
+    }
+
+    fn scores_of(&self, submission_id: i64) -> Result<Vec<Score>, StoreError> {
+        let sql = format!(
+            "SELECT {SCORE_COLUMNS} FROM scores WHERE submission_id = ?1 \
+             ORDER BY rowid DESC"
+        );
+        let mut st = self.conn.prepare_cached(&sql).map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([submission_id], row_score)
+            .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>());
+        rows.map_err(|e| self.err(e))
     }
 }

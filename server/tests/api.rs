@@ -616,3 +616,576 @@ async fn requests_past_the_rate_limit_per_token_and_per_address_get_429() {
     let (s, _, _) = call(&app, from("10.0.0.9:1", Some("stp_forged2"))).await;
     assert_eq!(s, StatusCode::TOO_MANY_REQUESTS);
 }
+
+/// A request with a JSON body.
+fn put_json(path: &str, token: &str, body: &str) -> Request<Body> {
+    Request::put(path)
+        .header(header::AUTHORIZATION, format!("Bearer {token}"))
+        .header(header::CONTENT_TYPE, "application/json")
+        .body(Body::from(body.to_string()))
+        .unwrap()
+}
+
+async fn upload_id(app: &axum::Router, token: &str, text: String) -> i64 {
+    let (s, _, body) = call(app, upload(token, text)).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{body}");
+    json(&body)["id"].as_i64().unwrap()
+}
+
+#[tokio::test]
+async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
+    let f = fixture(4, &["alpha", "beta"]);
+    let app = f.app();
+    let a_best = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
+    let a_worse = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.08)).await;
+    let b_only = upload_id(&app, &f.tokens[1], catalogue(&f.all, 0.03)).await;
+    // Not scored yet: refused with 422.
+    let (s, _, body) = call(
+        &app,
+        put_json(
+            "/api/final",
+            &f.tokens[0],
+            &format!("{{\"entries\": [{a_best}]}}"),
+        ),
+    )
+    .await;
+    assert_eq!(s, StatusCode::UNPROCESSABLE_ENTITY, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("not scored")
+    );
+    f.score_queue();
+    let a_third = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
+    // The default: the best public entry, no choice made.
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
+    let list = json(&list);
+    assert_eq!(list["final"], serde_json::json!([a_best]));
+    assert_eq!(list["final_chosen"], false);
+    let flags: Vec<(i64, bool)> = list["submissions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| (e["id"].as_i64().unwrap(), e["final"].as_bool().unwrap()))
+        .collect();
+    assert_eq!(
+        flags,
+        vec![
+            (a_third, false),
+            (b_only, false),
+            (a_worse, false),
+            (a_best, true)
+        ]
+        .into_iter()
+        .filter(|(id, _)| *id != b_only)
+        .collect::<Vec<_>>()
+    );
+    // Refusals change nothing: three ids, another team's id (404 as for a
+    // missing one), an unscored one, malformed bodies.
+    let refusals = [
+        (
+            format!("{{\"entries\": [{a_best}, {a_worse}, {a_third}]}}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "at most 2",
+        ),
+        (
+            format!("{{\"entries\": [{a_best}, {a_third}]}}"),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "not scored",
+        ),
+        (
+            "{\"entries\": [\"x\"]}".into(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "not an entry id",
+        ),
+        (
+            "{\"entries\": 3}".into(),
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "entries",
+        ),
+        ("[1, 2".into(), StatusCode::UNPROCESSABLE_ENTITY, "not JSON"),
+    ];
+    for (body, status, says) in refusals {
+        let (s, _, answer) = call(&app, put_json("/api/final", &f.tokens[0], &body)).await;
+        assert_eq!(s, status, "{body}: {answer}");
+        assert!(
+            json(&answer)["error"].as_str().unwrap().contains(says),
+            "{answer}"
+        );
+    }
+    let (s, _, other) = call(
+        &app,
+        put_json(
+            "/api/final",
+            &f.tokens[0],
+            &format!("{{\"entries\": [{b_only}]}}"),
+        ),
+    )
+    .await;
+    let (s2, _, missing) = call(
+        &app,
+        put_json("/api/final", &f.tokens[0], "{\"entries\": [999]}"),
+    )
+    .await;
+    assert_eq!((s, s2), (StatusCode::NOT_FOUND, StatusCode::NOT_FOUND));
+    assert_eq!(other, missing);
+    let (s, _, _) = call(
+        &app,
+        put_json("/api/final", "stp_forged", "{\"entries\": []}"),
+    )
+    .await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    let ch = Challenge::open(&f.state).unwrap();
+    assert!(
+        ch.store.final_entries(1).unwrap().is_empty(),
+        "nothing chosen yet"
+    );
+    drop(ch);
+    // alpha chooses its worse entry (twice named: counted once).
+    let (s, _, body) = call(
+        &app,
+        put_json(
+            "/api/final",
+            &f.tokens[0],
+            &format!("{{\"entries\": [{a_worse}, {a_worse}]}}"),
+        ),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK, "{body}");
+    assert_eq!(json(&body)["final"], serde_json::json!([a_worse]));
+    let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
+    assert_eq!(json(&list)["final"], serde_json::json!([a_worse]));
+    assert_eq!(json(&list)["final_chosen"], true);
+    // Before reveal: ranked by the best public entry, choices not shown.
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    let lb = json(&lb);
+    let order = |lb: &Value| -> Vec<(String, i64, Value)> {
+        lb["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                (
+                    r["team"].as_str().unwrap().to_string(),
+                    r["entry"].as_i64().unwrap(),
+                    r["rank"].clone(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(
+        order(&lb),
+        vec![
+            ("alpha".into(), a_best, 1.into()),
+            ("beta".into(), b_only, 2.into())
+        ]
+    );
+    assert!(lb["rows"][0].get("finals").is_none(), "{lb}");
+    // After reveal: each team's final entries on the held-out part; alpha's
+    // choice (m = 0.08) ranks it below beta (m = 0.03).
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.reveal().unwrap();
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    let lb = json(&lb);
+    assert_eq!(
+        order(&lb),
+        vec![
+            ("beta".into(), b_only, 1.into()),
+            ("alpha".into(), a_worse, 2.into())
+        ]
+    );
+    assert_eq!(lb["rows"][1]["finals"], serde_json::json!([a_worse]));
+    assert_eq!(
+        lb["rows"][0]["finals"],
+        serde_json::json!([b_only]),
+        "the default"
+    );
+    let held_m = lb["rows"][1]["holdout"]["m_mean"].as_f64().unwrap();
+    assert!((held_m - 0.08).abs() < 0.005, "{held_m}");
+    // Reveal closes the challenge: no more choices.
+    let (s, _, body) = call(
+        &app,
+        put_json(
+            "/api/final",
+            &f.tokens[0],
+            &format!("{{\"entries\": [{a_best}]}}"),
+        ),
+    )
+    .await;
+    assert_eq!(s, StatusCode::FORBIDDEN, "{body}");
+    assert!(json(&body)["error"].as_str().unwrap().contains("closed"));
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![a_worse]);
+}
+
+#[tokio::test]
+async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
+    let f = fixture(4, &["org", "ksb", "p1", "p2"]);
+    let app = f.app();
+    for (i, m) in [0.0, 0.01, 0.02, 0.04].into_iter().enumerate() {
+        upload_id(&app, &f.tokens[i], catalogue(&f.all, m)).await;
+    }
+    f.score_queue();
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_role("org", stepsim_server::store::Role::Organisers)
+        .unwrap();
+    ch.set_role("ksb", stepsim_server::store::Role::Baseline)
+        .unwrap();
+    assert!(
+        ch.set_role("nobody", stepsim_server::store::Role::Baseline)
+            .is_err()
+    );
+    for revealed in [false, true] {
+        if revealed {
+            ch.reveal().unwrap();
+        }
+        let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+        let rows: Vec<(String, String, Value)> = json(&lb)["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| {
+                (
+                    r["team"].as_str().unwrap().into(),
+                    r["role"].as_str().unwrap().into(),
+                    r["rank"].clone(),
+                )
+            })
+            .collect();
+        assert_eq!(
+            rows,
+            vec![
+                ("org".into(), "organisers".into(), Value::Null),
+                ("ksb".into(), "baseline".into(), Value::Null),
+                ("p1".into(), "participant".into(), 1.into()),
+                ("p2".into(), "participant".into(), 2.into()),
+            ],
+            "revealed {revealed}"
+        );
+    }
+    // Marked back as participants, they are ranked.
+    ch.set_role("org", stepsim_server::store::Role::Participant)
+        .unwrap();
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    assert_eq!(json(&lb)["rows"][0]["rank"], 1);
+    assert_eq!(json(&lb)["rows"][2]["rank"], 2);
+}
+
+#[tokio::test]
+async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let (_, _, c) = call(&app, get("/api/challenge", None)).await;
+    let c = json(&c);
+    assert_eq!(c["name"], "run");
+    assert_eq!(c["deadline"], Value::Null);
+    assert_eq!(
+        (
+            &c["frozen"],
+            &c["closed"],
+            &c["revealed"],
+            &c["uploads_open"]
+        ),
+        (&false.into(), &false.into(), &false.into(), &true.into())
+    );
+    assert_eq!(c["rules"]["quota"], 4);
+    assert_eq!(c["rules"]["quota_window_hours"], 24);
+    assert_eq!(c["rules"]["max_final_entries"], 2);
+    assert_eq!(c["rules"]["feedback_decimals"]["m_mean"], 3);
+    let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
+    f.score_queue();
+    let mut ch = Challenge::open(&f.state).unwrap();
+    // A deadline in the future changes nothing; one passed refuses uploads.
+    ch.set_deadline(Some(stepsim_server::now_s() + 3600))
+        .unwrap();
+    upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
+    ch.set_deadline(stepsim_server::parse_rfc3339("2020-01-01T00:00:00Z"))
+        .unwrap();
+    let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.02))).await;
+    assert_eq!(s, StatusCode::FORBIDDEN, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("deadline (2020-01-01T00:00:00Z) has passed"),
+        "{body}"
+    );
+    let (_, _, c) = call(&app, get("/api/challenge", None)).await;
+    assert_eq!(json(&c)["deadline"], "2020-01-01T00:00:00Z");
+    assert_eq!(json(&c)["uploads_open"], false);
+    ch.set_deadline(None).unwrap();
+    // Frozen: uploads refused, final choices allowed.
+    ch.freeze().unwrap();
+    let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.02))).await;
+    assert_eq!(s, StatusCode::FORBIDDEN);
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("the challenge is frozen")
+    );
+    let (s, _, _) = call(
+        &app,
+        put_json(
+            "/api/final",
+            &f.tokens[0],
+            &format!("{{\"entries\": [{id}]}}"),
+        ),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK);
+    // Closed: nothing changes.
+    ch.close().unwrap();
+    let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.03))).await;
+    assert_eq!(s, StatusCode::FORBIDDEN);
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("the challenge is closed")
+    );
+    let (s, _, _) = call(
+        &app,
+        put_json("/api/final", &f.tokens[0], "{\"entries\": []}"),
+    )
+    .await;
+    assert_eq!(s, StatusCode::FORBIDDEN);
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![id]);
+    let (_, _, c) = call(&app, get("/api/challenge", None)).await;
+    let c = json(&c);
+    assert_eq!((&c["frozen"], &c["closed"]), (&true.into(), &true.into()));
+    // Nothing was stored by the refused uploads.
+    assert_eq!(files_in(&f.state.join("uploads")).len(), 2);
+}
+
+#[test]
+fn the_organiser_password_is_kept_as_an_argon2_hash() {
+    let f = fixture(4, &[]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    assert!(!ch.verify_organiser_password(""), "none set");
+    assert!(ch.set_organiser_password("short").is_err());
+    ch.set_organiser_password("correct horse battery").unwrap();
+    assert!(ch.verify_organiser_password("correct horse battery"));
+    assert!(!ch.verify_organiser_password("correct horse batterY"));
+    assert!(!ch.verify_organiser_password(""));
+    let ch = Challenge::open(&f.state).unwrap();
+    assert!(stepsim_server::challenge::verify_organiser_password(
+        ch.store.as_ref(),
+        "correct horse battery"
+    ));
+    let phc = ch
+        .store
+        .meta(stepsim_server::challenge::ORGANISER_PASSWORD_KEY)
+        .unwrap()
+        .unwrap();
+    assert!(phc.starts_with("$argon2id$"), "{phc}");
+    let db = std::fs::read(f.state.join("challenge.db")).unwrap();
+    assert!(!String::from_utf8_lossy(&db).contains("correct horse"));
+    // A damaged hash is a wrong password, not a panic.
+    let mut ch = ch;
+    ch.store
+        .set_meta(
+            stepsim_server::challenge::ORGANISER_PASSWORD_KEY,
+            "$argon2id$garbage",
+        )
+        .unwrap();
+    assert!(!ch.verify_organiser_password("correct horse battery"));
+}
+
+#[tokio::test]
+async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_version() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
+    // Scored by an older scorer.
+    {
+        let mut ch = Challenge::open(&f.state).unwrap();
+        let job = ch.store.claim_job(0).unwrap().unwrap();
+        let mut r = worker::score_entry(&ch, &job);
+        if let Ok((p, _)) = &mut r {
+            *p = p.replace("\"m_mean\":0.01", "\"m_mean\":0.5");
+        }
+        ch.store
+            .finish_job(job.id, r, "stepsim-harness 0.0.1", 10)
+            .unwrap();
+    }
+    let (_, _, e) = call(
+        &app,
+        get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+    )
+    .await;
+    assert_eq!(json(&e)["scorer_version"], "stepsim-harness 0.0.1");
+    assert_eq!(json(&e)["public"]["m_mean"], 0.5);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.rescore().unwrap(), 1);
+    // Queued again, still showing its old score (and on the leaderboard).
+    let (_, _, e) = call(
+        &app,
+        get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+    )
+    .await;
+    assert_eq!(json(&e)["status"], "queued");
+    assert_eq!(json(&e)["public"]["m_mean"], 0.5);
+    let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
+    assert_eq!(json(&lb)["rows"][0]["entry"], id);
+    // A worker claims it and dies; after the restart it is scored once.
+    let job = ch.store.claim_job(20).unwrap().unwrap();
+    assert_eq!(job.id, id);
+    drop(ch);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.store.requeue_interrupted().unwrap(), 1);
+    f.score_queue();
+    // The dead worker's late result is ignored; a second rescore by the same
+    // scorer queues nothing.
+    ch.store
+        .finish_job(id, Err("late".into()), worker::SCORER_VERSION, 30)
+        .unwrap();
+    assert_eq!(ch.rescore().unwrap(), 0);
+    let scores = ch.store.scores_of(id).unwrap();
+    let got: Vec<(&str, &str, i64)> = scores
+        .iter()
+        .map(|s| (s.scorer_version.as_str(), s.status.as_str(), s.n_scorings))
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            (worker::SCORER_VERSION, "scored", 1),
+            ("stepsim-harness 0.0.1", "scored", 1)
+        ]
+    );
+    assert!(
+        scores[1]
+            .public_json
+            .as_deref()
+            .unwrap()
+            .contains("\"m_mean\":0.5")
+    );
+    let sub = ch.store.submission(id).unwrap().unwrap();
+    assert_eq!((sub.status.as_str(), sub.n_scorings), ("scored", 2));
+    let (_, _, e) = call(
+        &app,
+        get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+    )
+    .await;
+    let e = json(&e);
+    assert_eq!(e["scorer_version"], worker::SCORER_VERSION);
+    assert_eq!(e["public"]["m_mean"], 0.01, "the newest score is shown");
+}
+
+/// Writes a `public/` beside the fixture's `private/`: a manifest naming
+/// one file per image (made-up bytes), a README, and a stray file the
+/// manifest does not name.
+fn write_public(f: &Fixture) -> (PathBuf, Vec<(String, Vec<u8>)>) {
+    use sha2::Digest;
+    let public = f.truth.parent().unwrap().join("public");
+    let mut images = Vec::new();
+    let mut files = Vec::new();
+    for (k, d) in f.all.datasets.datasets.iter().enumerate() {
+        for im in &d.images {
+            let file = format!("{}/{}.fits", d.dataset, im.image);
+            let bytes: Vec<u8> = (0..1000 + 37 * k).map(|i| (i * 7 + k) as u8).collect();
+            std::fs::create_dir_all(public.join(&d.dataset)).unwrap();
+            std::fs::write(public.join(&file), &bytes).unwrap();
+            images.push(serde_json::json!({
+                "image": im.image, "dataset": d.dataset, "file": file,
+                "sha256": stepsim_server::challenge::hex(&sha2::Sha256::digest(&bytes)),
+            }));
+            files.push((file, bytes));
+        }
+    }
+    let manifest = serde_json::json!({
+        "format": "stepsim-manifest-1",
+        "instrument": {"width_px": 64, "height_px": 64, "pixel_scale_arcsec": 0.2,
+            "gain_e_per_adu": 4.0, "read_noise_e": 5.0, "saturation_adu": 65535.0,
+            "exposure_s": 3600.0, "zeropoint_mag": 26.0},
+        "images": images,
+    });
+    let text = serde_json::to_string_pretty(&manifest).unwrap();
+    std::fs::write(public.join("manifest.json"), &text).unwrap();
+    std::fs::write(public.join("README.md"), "# the data\n").unwrap();
+    std::fs::write(public.join("notes.txt"), "not listed\n").unwrap();
+    let mut all = vec![
+        ("manifest.json".to_string(), text.into_bytes()),
+        ("README.md".to_string(), b"# the data\n".to_vec()),
+    ];
+    all.extend(files);
+    (public, all)
+}
+
+#[tokio::test]
+async fn the_public_data_downloads_as_listed_and_nothing_else() {
+    use sha2::Digest;
+    let f = fixture(4, &["alpha"]);
+    let (_, files) = write_public(&f);
+    let app = f.app();
+    let (s, h, body) = call(&app, get("/data/", None)).await;
+    assert_eq!(s, StatusCode::OK, "{body}");
+    assert!(h.get(header::LAST_MODIFIED).is_none());
+    let listed: Vec<(String, u64, String)> = json(&body)["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| {
+            (
+                x["path"].as_str().unwrap().to_string(),
+                x["bytes"].as_u64().unwrap(),
+                x["sha256"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    let want: Vec<(String, u64, String)> = files
+        .iter()
+        .map(|(p, b)| {
+            (
+                p.clone(),
+                b.len() as u64,
+                stepsim_server::challenge::hex(&sha2::Sha256::digest(b)),
+            )
+        })
+        .collect();
+    assert_eq!(listed, want, "the manifest's order, sizes and checksums");
+    for (path, bytes) in &files {
+        let resp = app
+            .clone()
+            .oneshot(get(&format!("/data/{path}"), None))
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::OK, "{path}");
+        assert!(
+            resp.headers().get(header::LAST_MODIFIED).is_none(),
+            "{path}"
+        );
+        if path.ends_with(".fits") {
+            let sha = stepsim_server::challenge::hex(&sha2::Sha256::digest(bytes));
+            assert_eq!(resp.headers()[header::ETAG], format!("\"{sha}\""));
+        }
+        let got = resp.into_body().collect().await.unwrap().to_bytes();
+        assert_eq!(got.as_ref(), bytes.as_slice(), "{path}");
+    }
+    let sha = {
+        let (_, _, _) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
+        files_in(&f.state.join("uploads"))[0].clone()
+    };
+    let truth_file = format!("{}.fits", f.held.datasets.datasets[0].images[0].image);
+    for bad in [
+        "/data/notes.txt".to_string(),
+        "/data/../private/datasets.json".into(),
+        "/data/..%2Fprivate%2Fdatasets.json".into(),
+        "/data/%2e%2e/private/datasets.json".into(),
+        "/data/%2E%2E%2Fprivate%2Fdatasets.json".into(),
+        "/data/./manifest.json".into(),
+        "/data//manifest.json".into(),
+        "/data/manifest.json/../../private/datasets.json".into(),
+        format!("/data/../private/truth/{truth_file}"),
+        format!("/data/..%2Fprivate%2Ftruth%2F{truth_file}"),
+        "/data/../../state/challenge.db".into(),
+        "/data/..%2F..%2Fstate%2Fchallenge.db".into(),
+        format!("/data/../../state/uploads/{sha}"),
+        "/data/%2Fetc%2Fpasswd".into(),
+    ] {
+        let (s, h, body) = call(&app, get(&bad, Some(&f.tokens[0]))).await;
+        assert_eq!(s, StatusCode::NOT_FOUND, "{bad}: {body}");
+        assert_eq!(json(&body)["error"], "not found", "{bad}");
+        assert!(h.get(header::LAST_MODIFIED).is_none());
+    }
+}

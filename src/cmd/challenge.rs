@@ -3,6 +3,19 @@
 
 use std::path::PathBuf;
 use stepsim_server::Challenge;
+use stepsim_server::store::Role;
+
+/// Reads an RFC 3339 time for `--deadline`/`--at`.
+fn rfc3339(text: &str) -> Result<i64, String> {
+    stepsim_server::parse_rfc3339(text)
+        .ok_or_else(|| format!("{text:?} is not an RFC 3339 time such as 2026-12-31T23:59:59Z"))
+}
+
+/// Reads a role for `team mark --role`.
+fn role(text: &str) -> Result<Role, String> {
+    Role::from_name(text)
+        .ok_or_else(|| format!("{text:?} is not a role: organisers, baseline or participant"))
+}
 
 /// Arguments of `stepsim challenge`.
 #[derive(Debug, clap::Args)]
@@ -27,6 +40,49 @@ enum Command {
         /// Serve a run without held-out fields (its public score is final).
         #[arg(long)]
         no_holdout: bool,
+        /// Uploads are refused from this time on (RFC 3339, e.g.
+        /// 2026-12-31T23:59:59Z).
+        #[arg(long, value_name = "TIME", value_parser = rfc3339)]
+        deadline: Option<i64>,
+        /// The challenge's name shown to participants (default: the run
+        /// directory's name).
+        #[arg(long, value_name = "TEXT")]
+        name: Option<String>,
+    },
+    /// Set the deadline: uploads are refused from then on.
+    Deadline {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+        /// The deadline (RFC 3339, e.g. 2026-12-31T23:59:59Z).
+        #[arg(long, value_name = "TIME", value_parser = rfc3339)]
+        at: i64,
+    },
+    /// Freeze: no more uploads (final entries can still be chosen).
+    Freeze {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+    },
+    /// Close: no more uploads and no more choices of final entries.
+    Close {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+    },
+    /// Queue every scored entry again for this binary's scorer (old scores
+    /// are kept; the newest is shown).
+    Rescore {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+    },
+    /// Set the organiser password (read from the first line of stdin; only
+    /// its Argon2id hash is stored).
+    OrganiserPassword {
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
     },
     /// Teams and their tokens.
     Team {
@@ -77,6 +133,18 @@ enum TeamCommand {
         #[arg(long, value_name = "DIR")]
         state: PathBuf,
     },
+    /// Mark a team as the organisers' or the baseline (shown, never
+    /// ranked), or as participants (ranked; the default).
+    Mark {
+        /// The team's name.
+        name: String,
+        /// organisers, baseline or participant.
+        #[arg(long, value_name = "ROLE", value_parser = role)]
+        role: Role,
+        /// The challenge's state directory.
+        #[arg(long, value_name = "DIR")]
+        state: PathBuf,
+    },
 }
 
 /// Runs the command.
@@ -87,8 +155,24 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             state,
             quota,
             no_holdout,
+            deadline,
+            name,
         } => {
-            let ch = Challenge::init(run, state, *quota, *no_holdout)?;
+            if let Some(n) = name {
+                let n = n.trim();
+                if n.is_empty() || n.chars().count() > 200 || n.chars().any(char::is_control) {
+                    anyhow::bail!(
+                        "--name: a challenge name must be 1 to 200 characters without control characters"
+                    );
+                }
+            }
+            let mut ch = Challenge::init(run, state, *quota, *no_holdout)?;
+            if let Some(n) = name {
+                ch.set_name(n)?;
+            }
+            if deadline.is_some() {
+                ch.set_deadline(*deadline)?;
+            }
             eprintln!(
                 "stepsim: challenge in {} for {} (quota {} per 24 h{})",
                 state.display(),
@@ -116,6 +200,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 Challenge::open(state)?.revoke(name)?;
                 eprintln!("stepsim: the token of team {name:?} is revoked");
             }
+            TeamCommand::Mark { name, role, state } => {
+                Challenge::open(state)?.set_role(name, *role)?;
+                eprintln!("stepsim: team {name:?} is marked {}", role.name());
+            }
         },
         Command::Export { state, out } => {
             let e = Challenge::open(state)?.export(out)?;
@@ -128,7 +216,39 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         Command::Reveal { state } => {
             Challenge::open(state)?.reveal()?;
-            eprintln!("stepsim: revealed: held-out scores are on the leaderboard");
+            eprintln!("stepsim: revealed (and closed): held-out scores are on the leaderboard");
+        }
+        Command::Deadline { state, at } => {
+            Challenge::open(state)?.set_deadline(Some(*at))?;
+            eprintln!(
+                "stepsim: uploads are refused from {}",
+                stepsim_server::utc_text(*at)
+            );
+        }
+        Command::Freeze { state } => {
+            Challenge::open(state)?.freeze()?;
+            eprintln!("stepsim: frozen: no more uploads; final entries can still be chosen");
+        }
+        Command::Close { state } => {
+            Challenge::open(state)?.close()?;
+            eprintln!("stepsim: closed: no more uploads or choices of final entries");
+        }
+        Command::Rescore { state } => {
+            let n = Challenge::open(state)?.rescore()?;
+            eprintln!(
+                "stepsim: {n} scored entries queued again for {}",
+                stepsim_server::worker::SCORER_VERSION
+            );
+        }
+        Command::OrganiserPassword { state } => {
+            let mut ch = Challenge::open(state)?;
+            let mut line = String::new();
+            std::io::stdin()
+                .read_line(&mut line)
+                .map_err(|e| anyhow::anyhow!("cannot read the password from stdin: {e}"))?;
+            let password = line.trim_end_matches(['\n', '\r']);
+            ch.set_organiser_password(password)?;
+            eprintln!("stepsim: the organiser password is set (only its hash is stored)");
         }
     }
     Ok(())

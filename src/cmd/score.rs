@@ -27,6 +27,10 @@ pub struct Args {
     /// Score a submission that lacks some images (they are left out).
     #[arg(long)]
     allow_missing_images: bool,
+    /// Bootstrap resamples of the base fields for the intervals; 0 leaves
+    /// the intervals out (a faster score, e.g. while developing a method).
+    #[arg(long, value_name = "N", default_value_t = stepsim_harness::bootstrap::DEFAULT_RESAMPLES)]
+    bootstrap_resamples: usize,
     /// Overwrite the files of an earlier report in --out.
     #[arg(long)]
     force: bool,
@@ -41,6 +45,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     opts.name = args.name.clone();
     opts.match_radius_arcsec = args.match_radius_arcsec;
     opts.allow_missing_images = args.allow_missing_images;
+    opts.bootstrap_resamples = args.bootstrap_resamples;
     let report = stepsim_harness::score(&opts)?;
     stepsim_harness::write_outputs(&args.out, &report, args.force)?;
     for w in &report.warnings {
