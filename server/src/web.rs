@@ -46,6 +46,8 @@ use stepsim_harness::pipeline::{REPORT_FIGURES, REPORT_JSON};
 pub const SESSION_COOKIE: &str = "stepsim_session";
 /// The sign-in form's CSRF cookie (double submit: cookie and hidden field).
 pub const SIGNIN_COOKIE: &str = "stepsim_signin";
+/// The organisers' sign-in form's CSRF cookie (on `/organisers`).
+pub const ORGANISER_SIGNIN_COOKIE: &str = "stepsim_org_signin";
 /// How long a session lasts.
 pub const SESSION_S: i64 = 12 * 3600;
 /// Sessions kept at most; past it the one closest to expiry goes.
@@ -63,7 +65,7 @@ const FORM_MAX_BYTES: usize = 16 * 1024;
 const STYLE_CSS: &str = include_str!("../templates/style.css");
 
 /// The page templates, compiled into the binary.
-const TEMPLATES: [(&str, &str); 7] = [
+const TEMPLATES: [(&str, &str); 8] = [
     ("base.html", include_str!("../templates/base.html")),
     ("index.html", include_str!("../templates/index.html")),
     ("signin.html", include_str!("../templates/signin.html")),
@@ -74,6 +76,10 @@ const TEMPLATES: [(&str, &str); 7] = [
     ),
     ("report.html", include_str!("../templates/report.html")),
     ("message.html", include_str!("../templates/message.html")),
+    (
+        "organisers.html",
+        include_str!("../templates/organisers.html"),
+    ),
 ];
 
 /// The template environment (autoescape on for `.html`).
@@ -88,7 +94,10 @@ pub fn templates() -> Result<Environment<'static>, minijinja::Error> {
 
 #[derive(Debug, Clone)]
 struct Session {
+    /// The team's token hash (empty for an organiser session).
     token_sha256: String,
+    /// Signed in with the organiser password (no team).
+    organiser: bool,
     csrf: String,
     expires_s: i64,
 }
@@ -124,6 +133,9 @@ pub fn routes(state: &AppState) -> Router<AppState> {
         .route("/signin", get(signin_page).post(signin))
         .route("/signout", post(signout))
         .route("/entries", get(entries_page).post(upload))
+        .route("/entries/final", post(choose_final))
+        .route("/organisers", get(organisers_page))
+        .route("/organisers/signin", post(organisers_signin))
         .route("/leaderboard", get(leaderboard_page))
         .route("/entries/{id}/report", get(report_page))
         .route("/entries/{id}/figures/{part}/{file}", get(figure))
@@ -251,9 +263,37 @@ pub fn same_origin(headers: &HeaderMap) -> bool {
 /// The signed-in team as the page header shows it.
 #[derive(Debug, Serialize)]
 struct Nav {
+    /// The challenge's name (`challenge init --name`, or the run
+    /// directory's name).
+    challenge: String,
     team: Option<String>,
+    /// Signed in with the organiser password.
+    organiser: bool,
     csrf: String,
     page: &'static str,
+}
+
+impl Nav {
+    fn new(
+        state: &AppState,
+        session: Option<&Session>,
+        team: Option<&Team>,
+        page: &'static str,
+    ) -> Self {
+        let challenge = state
+            .store()
+            .meta("name")
+            .ok()
+            .flatten()
+            .unwrap_or_else(|| "stepsim challenge".into());
+        Nav {
+            challenge,
+            team: team.map(|t| t.name.clone()),
+            organiser: session.is_some_and(|s| s.organiser),
+            csrf: session.map(|s| s.csrf.clone()).unwrap_or_default(),
+            page,
+        }
+    }
 }
 
 impl Web {
@@ -307,10 +347,10 @@ impl Web {
         self.message(nav, e.status, title, &e.message)
     }
 
-    /// The session of a request and its team, if signed in with a token
-    /// that still works. Expired sessions and those of revoked or rotated
-    /// tokens are dropped.
-    fn session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Team)> {
+    /// The session of a request: an organiser's (no team), or a team's
+    /// whose token still works. Expired sessions and those of revoked or
+    /// rotated tokens are dropped.
+    fn session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Option<Team>)> {
         let id = cookie(headers, SESSION_COOKIE)?;
         let key = token_hash(&id);
         let mut sessions = self
@@ -318,11 +358,15 @@ impl Web {
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let s = sessions.get(&key)?.clone();
-        let team = (s.expires_s > crate::now_s())
+        let live = s.expires_s > crate::now_s();
+        if live && s.organiser {
+            return Some((s, None));
+        }
+        let team = live
             .then(|| state.store().team_by_token(&s.token_sha256).ok().flatten())
             .flatten();
         match team {
-            Some(t) => Some((s, t)),
+            Some(t) => Some((s, Some(t))),
             None => {
                 sessions.remove(&key);
                 None
@@ -330,23 +374,24 @@ impl Web {
         }
     }
 
-    fn nav(&self, state: &AppState, headers: &HeaderMap, page: &'static str) -> Nav {
-        match self.session(state, headers) {
-            Some((s, t)) => Nav {
-                team: Some(t.name),
-                csrf: s.csrf,
-                page,
-            },
-            None => Nav {
-                team: None,
-                csrf: String::new(),
-                page,
-            },
+    /// The session of a signed-in team, if any.
+    fn team_session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Team)> {
+        match self.session(state, headers)? {
+            (s, Some(t)) => Some((s, t)),
+            (_, None) => None,
         }
     }
 
-    /// Starts a session for a token's hash; returns the cookie's value.
-    fn start_session(&self, token_sha256: &str) -> Result<String, ApiError> {
+    fn nav(&self, state: &AppState, headers: &HeaderMap, page: &'static str) -> Nav {
+        match self.session(state, headers) {
+            Some((s, t)) => Nav::new(state, Some(&s), t.as_ref(), page),
+            None => Nav::new(state, None, None, page),
+        }
+    }
+
+    /// Starts a session for a token's hash (empty with `organiser`);
+    /// returns the cookie's value.
+    fn start_session(&self, token_sha256: &str, organiser: bool) -> Result<String, ApiError> {
         let id = random_hex()?;
         let now = crate::now_s();
         let mut sessions = self
@@ -367,6 +412,7 @@ impl Web {
             token_hash(&id),
             Session {
                 token_sha256: token_sha256.to_string(),
+                organiser,
                 csrf: random_hex()?,
                 expires_s: now + SESSION_S,
             },
@@ -395,14 +441,18 @@ fn over_https(headers: &HeaderMap) -> bool {
         .is_some_and(|o| o.starts_with("https://"))
 }
 
-/// A urlencoded form body (at most [`FORM_MAX_BYTES`]).
-async fn form(req: Request) -> Result<HashMap<String, String>, ApiError> {
+/// A urlencoded form body (at most [`FORM_MAX_BYTES`]), its fields in order.
+async fn form_pairs(req: Request) -> Result<Vec<(String, String)>, ApiError> {
     let bytes = axum::body::to_bytes(req.into_body(), FORM_MAX_BYTES)
         .await
         .map_err(|_| ApiError::new(StatusCode::BAD_REQUEST, "the form is too large"))?;
     serde_urlencoded::from_bytes::<Vec<(String, String)>>(&bytes)
-        .map(|v| v.into_iter().collect())
         .map_err(|_| ApiError::new(StatusCode::BAD_REQUEST, "the form could not be read"))
+}
+
+/// A urlencoded form body as a map (the last of repeated names).
+async fn form(req: Request) -> Result<HashMap<String, String>, ApiError> {
+    Ok(form_pairs(req).await?.into_iter().collect())
 }
 
 fn csrf_refused() -> ApiError {
@@ -451,10 +501,11 @@ async fn index(
     headers: HeaderMap,
 ) -> Response {
     let nav = web.nav(&state, &headers, "index");
-    let revealed = match crate::api::revealed(&state) {
-        Ok(r) => r,
-        Err(e) => return web.error(&nav, &e),
+    let phase = match crate::challenge::Phase::read(state.store().as_ref()) {
+        Ok(p) => p,
+        Err(e) => return web.error(&nav, &ApiError::internal(e)),
     };
+    let now = crate::now_s();
     // The README is HTML made by `markdown_html`, which escapes every
     // character of the text: it is marked safe, everything else is escaped.
     let readme = web
@@ -469,7 +520,13 @@ async fn index(
             ..minijinja::Value::from_serialize(serde_json::json!({
                 "nav": nav,
                 "rules": rules(&state),
-                "revealed": revealed,
+                "revealed": phase.revealed,
+                "closed": phase.closed,
+                "frozen": phase.frozen,
+                "deadline": phase.deadline_s.map(when),
+                "deadline_passed": phase.deadline_s.is_some_and(|d| now >= d),
+                "uploads_open": phase.uploads_open(now),
+                "max_final": crate::challenge::MAX_FINAL_ENTRIES,
             }))
         },
     )
@@ -531,7 +588,7 @@ async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Requ
             Some("this token is not valid (mistyped, revoked or replaced): ask the organisers"),
         );
     }
-    let id = match web.start_session(&hash) {
+    let id = match web.start_session(&hash, false) {
         Ok(id) => id,
         Err(e) => return web.error(&nav, &e),
     };
@@ -540,6 +597,151 @@ async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Requ
     for c in [
         set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
         set_cookie(SIGNIN_COOKIE, "", "/signin", 0, secure),
+    ] {
+        if let Ok(v) = HeaderValue::from_str(&c) {
+            resp.headers_mut().append(header::SET_COOKIE, v);
+        }
+    }
+    resp
+}
+
+/// The organisers' page: with an organiser session, every team and entry
+/// (statuses, rounded public feedback, final choices; no truth); without,
+/// the password form.
+async fn organisers_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let session = web.session(&state, &headers);
+    let nav = web.nav(&state, &headers, "organisers");
+    match session {
+        Some((s, None)) if s.organiser => organisers_list(&state, &web, &nav),
+        _ => organisers_form(&web, &nav, StatusCode::OK, None),
+    }
+}
+
+fn organisers_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>) -> Response {
+    let token = match random_hex() {
+        Ok(t) => t,
+        Err(e) => return web.error(nav, &e),
+    };
+    let mut resp = web.render(
+        status,
+        "organisers.html",
+        serde_json::json!({"nav": nav, "signed_in": false, "csrf": token, "error": error}),
+    );
+    let c = set_cookie(ORGANISER_SIGNIN_COOKIE, &token, "/organisers", 3600, false);
+    if let Ok(v) = HeaderValue::from_str(&c) {
+        resp.headers_mut().insert(header::SET_COOKIE, v);
+    }
+    resp
+}
+
+fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
+    let (teams, subs) = {
+        let store = state.store();
+        match (store.teams(), store.all_submissions()) {
+            (Ok(t), Ok(s)) => (t, s),
+            (Err(e), _) | (_, Err(e)) => return web.error(nav, &ApiError::internal(e)),
+        }
+    };
+    let mut team_rows = Vec::new();
+    let mut counted: Vec<i64> = Vec::new();
+    for t in &teams {
+        let own: Vec<&crate::store::Submission> =
+            subs.iter().filter(|s| s.team_id == t.id).collect();
+        let finals: Vec<i64> = crate::challenge::final_entries_or_default(&own)
+            .iter()
+            .map(|s| s.id)
+            .collect();
+        counted.extend(&finals);
+        let chosen = own.iter().any(|s| s.final_choice);
+        team_rows.push(serde_json::json!({
+            "name": t.name,
+            "role": t.role.name(),
+            "revoked": t.revoked,
+            "entries": own.len(),
+            "scored": own.iter().filter(|s| s.has_score()).count(),
+            "refused": own.iter().filter(|s| s.status == "refused").count(),
+            "finals": if finals.is_empty() {
+                "—".to_string()
+            } else {
+                let ids: Vec<String> = finals.iter().map(i64::to_string).collect();
+                format!("{}{}", ids.join(", "), if chosen { "" } else { " (default)" })
+            },
+        }));
+    }
+    let mut entries: Vec<Value> = subs
+        .iter()
+        .rev()
+        .map(|s| {
+            let mut v = serde_json::to_value(EntryView {
+                counted: counted.contains(&s.id),
+                ..entry_view(s, false)
+            })
+            .unwrap_or(Value::Null);
+            v["team"] = serde_json::json!(
+                teams
+                    .iter()
+                    .find(|t| t.id == s.team_id)
+                    .map_or("", |t| t.name.as_str())
+            );
+            v["final"] = serde_json::json!(counted.contains(&s.id));
+            v
+        })
+        .collect();
+    entries.truncate(1000);
+    web.render(
+        StatusCode::OK,
+        "organisers.html",
+        serde_json::json!({"nav": nav, "signed_in": true, "teams": team_rows, "entries": entries}),
+    )
+}
+
+/// `POST /organisers/signin`: the organiser password (its Argon2id hash,
+/// [`crate::challenge::verify_organiser_password`]) → an organiser session.
+async fn organisers_signin(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    req: Request,
+) -> Response {
+    let headers = req.headers().clone();
+    let nav = web.nav(&state, &headers, "organisers");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let fields = match form(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
+    let kept = cookie(&headers, ORGANISER_SIGNIN_COOKIE).unwrap_or_default();
+    if sent.is_empty() || !same_secret(sent, &kept) {
+        return web.error(&nav, &csrf_refused());
+    }
+    let password = fields.get("password").map(String::as_str).unwrap_or("");
+    let ok = !password.is_empty()
+        && crate::challenge::verify_organiser_password(state.store().as_ref(), password);
+    if !ok {
+        return organisers_form(
+            &web,
+            &nav,
+            StatusCode::UNAUTHORIZED,
+            Some(
+                "this is not the organiser password (or none is set: `stepsim challenge organiser-password`)",
+            ),
+        );
+    }
+    let id = match web.start_session("", true) {
+        Ok(id) => id,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let secure = over_https(&headers);
+    let mut resp = redirect("/organisers");
+    for c in [
+        set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
+        set_cookie(ORGANISER_SIGNIN_COOKIE, "", "/organisers", 0, secure),
     ] {
         if let Ok(v) = HeaderValue::from_str(&c) {
             resp.headers_mut().append(header::SET_COOKIE, v);
@@ -597,6 +799,12 @@ struct EntryView {
     pct_stars: String,
     pct_false: String,
     report: bool,
+    /// It has a score to show (scored, or queued again for a re-score).
+    scored: bool,
+    /// It counts at reveal (chosen, or the default best public entry).
+    counted: bool,
+    /// The team chose it.
+    chosen: bool,
 }
 
 fn entry_view(s: &crate::store::Submission, revealed: bool) -> EntryView {
@@ -620,7 +828,10 @@ fn entry_view(s: &crate::store::Submission, revealed: bool) -> EntryView {
         q_c: fixed(n("q_c"), 0),
         pct_stars: fixed(n("pct_stars"), 1),
         pct_false: fixed(n("pct_false"), 1),
-        report: revealed && s.status == "scored",
+        report: revealed && s.has_score(),
+        scored: s.has_score(),
+        counted: false,
+        chosen: s.final_choice,
     }
 }
 
@@ -650,7 +861,20 @@ fn entries_response(
             .get("reset")
             .and_then(Value::as_str)
             .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]));
-        let entries: Vec<EntryView> = subs.iter().map(|s| entry_view(s, revealed)).collect();
+        let refs: Vec<&crate::store::Submission> = subs.iter().collect();
+        let counted: Vec<i64> = crate::challenge::final_entries_or_default(&refs)
+            .iter()
+            .map(|s| s.id)
+            .collect();
+        let entries: Vec<EntryView> = subs
+            .iter()
+            .map(|s| EntryView {
+                counted: counted.contains(&s.id),
+                ..entry_view(s, revealed)
+            })
+            .collect();
+        let phase =
+            crate::challenge::Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
         Ok(serde_json::json!({
             "nav": nav,
             "team": team.name,
@@ -660,6 +884,14 @@ fn entries_response(
             "revealed": revealed,
             "notice": notice,
             "pending": subs.iter().any(|s| s.status == "queued" || s.status == "scoring"),
+            "final": {
+                "chosen": subs.iter().any(|s| s.final_choice),
+                "counted": counted,
+                "max": crate::challenge::MAX_FINAL_ENTRIES,
+                "open": !phase.closed,
+            },
+            "uploads_open": phase.uploads_open(crate::now_s()),
+            "upload_refusal": phase.upload_refusal(crate::now_s()),
         }))
     })();
     match result {
@@ -674,19 +906,23 @@ async fn entries_page(
     headers: HeaderMap,
     uri: axum::http::Uri,
 ) -> Response {
-    let Some((session, team)) = web.session(&state, &headers) else {
+    let Some((session, team)) = web.team_session(&state, &headers) else {
         return redirect("/signin");
     };
-    let nav = Nav {
-        team: Some(team.name.clone()),
-        csrf: session.csrf,
-        page: "entries",
-    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
     let query: HashMap<String, String> = uri
         .query()
         .and_then(|q| serde_urlencoded::from_str::<Vec<(String, String)>>(q).ok())
         .map(|v| v.into_iter().collect())
         .unwrap_or_default();
+    let chosen = query.get("final").map(|ids| Notice {
+        ok: true,
+        text: if ids.is_empty() {
+            "No final entry chosen: your best public entry counts at reveal.".into()
+        } else {
+            format!("Final entries saved: {ids}.")
+        },
+    });
     let notice = query
         .get("uploaded")
         .and_then(|id| id.parse::<i64>().ok())
@@ -701,7 +937,69 @@ async fn entries_page(
                 )
             },
         });
-    entries_response(&state, &web, &nav, &team, StatusCode::OK, notice)
+    entries_response(&state, &web, &nav, &team, StatusCode::OK, notice.or(chosen))
+}
+
+/// The final-entries form (`POST /entries/final`, checkboxes `final`):
+/// [`crate::challenge::choose_final_entries`], the path of `PUT /api/final`.
+async fn choose_final(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    req: Request,
+) -> Response {
+    let headers = req.headers().clone();
+    let Some((session, team)) = web.team_session(&state, &headers) else {
+        let nav = web.nav(&state, &headers, "entries");
+        return web.message(
+            &nav,
+            StatusCode::FORBIDDEN,
+            "Sign in first",
+            "choosing final entries needs a signed-in team: sign in with your team's token.",
+        );
+    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let fields = match form_pairs(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let sent = fields
+        .iter()
+        .find(|(k, _)| k == "csrf")
+        .map_or("", |(_, v)| v.as_str());
+    if !same_secret(sent, &session.csrf) {
+        return web.error(&nav, &csrf_refused());
+    }
+    let ids: Vec<i64> = fields
+        .iter()
+        .filter(|(k, _)| k == "final")
+        .filter_map(|(_, v)| v.parse().ok())
+        .collect();
+    let result = crate::challenge::choose_final_entries(state.store().as_mut(), team.id, &ids);
+    use crate::challenge::ChoiceError;
+    let e = match result {
+        Ok(ids) => {
+            let list: Vec<String> = ids.iter().map(i64::to_string).collect();
+            return redirect(&format!("/entries?final={}", list.join(",")));
+        }
+        Err(ChoiceError::Store(e)) => ApiError::internal(e),
+        Err(ChoiceError::NotFound(_)) => ApiError::not_found(),
+        Err(e @ ChoiceError::Closed) => ApiError::new(StatusCode::FORBIDDEN, e.to_string()),
+        Err(e) => ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()),
+    };
+    entries_response(
+        &state,
+        &web,
+        &nav,
+        &team,
+        e.status,
+        Some(Notice {
+            ok: false,
+            text: e.message,
+        }),
+    )
 }
 
 /// The upload form: [`crate::api::submit`], the path of `POST
@@ -709,7 +1007,7 @@ async fn entries_page(
 /// file is kept.
 async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
-    let Some((session, team)) = web.session(&state, &headers) else {
+    let Some((session, team)) = web.team_session(&state, &headers) else {
         let nav = web.nav(&state, &headers, "entries");
         return web.message(
             &nav,
@@ -718,11 +1016,7 @@ async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Requ
             "uploading from the page needs a signed-in team: sign in with your team's token.",
         );
     };
-    let nav = Nav {
-        team: Some(team.name.clone()),
-        csrf: session.csrf.clone(),
-        page: "entries",
-    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
     if !same_origin(&headers) {
         return web.error(&nav, &origin_refused());
     }
@@ -762,8 +1056,12 @@ async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Requ
 /// A leaderboard row for the page.
 #[derive(Debug, Serialize)]
 struct BoardRow {
-    rank: i64,
+    /// `None` for the organisers' and the baseline's rows (never ranked).
+    rank: Option<i64>,
     team: String,
+    role: String,
+    /// After reveal: the team's final entries (those that counted).
+    finals: String,
     entries: i64,
     entry: i64,
     m_mean: String,
@@ -805,8 +1103,19 @@ async fn leaderboard_page(
         .map(|r| {
             let n = |part: &str, k: &str| r[part].get(k).and_then(Value::as_f64);
             BoardRow {
-                rank: r["rank"].as_i64().unwrap_or(0),
+                rank: r["rank"].as_i64(),
                 team: r["team"].as_str().unwrap_or("").to_string(),
+                role: r["role"].as_str().unwrap_or("participant").to_string(),
+                finals: r["finals"]
+                    .as_array()
+                    .map(|a| {
+                        a.iter()
+                            .filter_map(Value::as_i64)
+                            .map(|i| i.to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    })
+                    .unwrap_or_default(),
                 entries: r["entries"].as_i64().unwrap_or(0),
                 entry: r["entry"].as_i64().unwrap_or(0),
                 m_mean: signed(n("public", "m_mean"), 3),
@@ -844,11 +1153,11 @@ fn visible_entry(
         .store()
         .submission(id)
         .map_err(ApiError::internal)?
-        .filter(|s| s.status == "scored")
+        .filter(|s| s.has_score())
         .ok_or_else(ApiError::not_found)?;
     let ranked = rows.iter().any(|r| r["entry"].as_i64() == Some(id));
     let own = web
-        .session(state, headers)
+        .team_session(state, headers)
         .is_some_and(|(_, t)| t.id == sub.team_id);
     if ranked || own {
         Ok(sub)

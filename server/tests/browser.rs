@@ -170,9 +170,15 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
     let token = ch.add_team(TEAM).unwrap();
     let others = [
         ("Durham KSB", -0.021, 0.0004),
-        ("Bonn shapelets", 0.034, -0.0009),
+        ("KSB+ reference", 0.034, -0.0009),
     ];
     let other_tokens: Vec<String> = others.iter().map(|o| ch.add_team(o.0).unwrap()).collect();
+    // The reference pipeline's row: shown, tagged, never ranked.
+    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .unwrap();
+    ch.set_name("STEP1-mini challenge").unwrap();
+    ch.set_deadline(Some(stepsim_server::now_s() + 14 * 86_400))
+        .unwrap();
     drop(ch);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let base = format!("http://{}", listener.local_addr().unwrap());

@@ -636,3 +636,184 @@ async fn the_rate_limit_counts_page_requests() {
     assert_eq!(r.status, StatusCode::TOO_MANY_REQUESTS);
     assert!(r.headers.contains_key(header::RETRY_AFTER));
 }
+
+#[tokio::test]
+async fn final_entries_are_chosen_on_the_entries_page() {
+    let f = fixture(&["alpha", "beta"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    for m in [0.01, 0.2] {
+        let r = a.upload(Some(&csrf), catalogue(&f.all, m).as_bytes()).await;
+        assert_eq!(r.status, StatusCode::SEE_OTHER);
+    }
+    f.score_queue();
+    let r = a.get("/entries").await;
+    assert!(
+        r.body.contains("final (default)"),
+        "the best public entry counts"
+    );
+    assert!(r.body.contains("name=\"final\" value=\"2\""));
+    // Entry 2 chosen through the form.
+    let r = a
+        .post_form("/entries/final", &[("csrf", &csrf), ("final", "2")])
+        .await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/entries?final=2")
+    );
+    let ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2]);
+    let r = a.get(r.location().to_string().as_str()).await;
+    assert!(r.body.contains("Final entries saved: 2."), "{}", r.body);
+    assert!(r.body.contains("id=\"final-2\" checked"));
+    // Refused: a wrong token, three entries, an entry of another team.
+    let r = a
+        .post_form("/entries/final", &[("csrf", "bad"), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    let r = a
+        .post_form(
+            "/entries/final",
+            &[
+                ("csrf", &csrf),
+                ("final", "1"),
+                ("final", "2"),
+                ("final", "3"),
+            ],
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert!(r.body.contains("at most 2 final entries"), "{}", r.body);
+    let mut b = Agent::new(app);
+    b.sign_in(&f.tokens[1]).await;
+    let bcsrf = b.get("/entries").await.csrf();
+    let r = b
+        .post_form("/entries/final", &[("csrf", &bcsrf), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2], "unchanged");
+    // Once closed: no more choices, no form button.
+    Challenge::open(&f.state).unwrap().close().unwrap();
+    let r = a
+        .post_form("/entries/final", &[("csrf", &csrf), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("closed"));
+    assert!(!a.get("/entries").await.body.contains("save-final"));
+}
+
+#[tokio::test]
+async fn the_challenge_page_shows_the_deadline_and_uploads_stop_after_it() {
+    let f = fixture(&["alpha", "beta"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_name("STEP mini 2026").unwrap();
+    ch.set_deadline(Some(stepsim_server::now_s() + 3600))
+        .unwrap();
+    let mut a = Agent::new(f.app());
+    let r = a.get("/").await;
+    assert!(r.body.contains("STEP mini 2026"), "the name in the header");
+    assert!(r.body.contains("id=\"deadline\""));
+    assert!(r.body.contains("badge queued\">open"));
+    ch.set_deadline(Some(stepsim_server::now_s() - 60)).unwrap();
+    let r = a.get("/").await;
+    assert!(r.body.contains("deadline passed"), "{}", r.body);
+    a.sign_in(&f.tokens[0]).await;
+    let r = a.get("/entries").await;
+    assert!(r.body.contains("id=\"uploads-closed\""));
+    assert!(!r.body.contains("enctype=\"multipart/form-data\""));
+    let csrf = r.csrf();
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.0).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("has passed: no more uploads"), "{}", r.body);
+    assert_eq!(uploads(&f.state), 0);
+    ch.set_deadline(None).unwrap();
+    ch.freeze().unwrap();
+    assert!(a.get("/").await.body.contains("badge refused\">frozen"));
+}
+
+#[tokio::test]
+async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
+    let f = fixture(&[HOSTILE, "KSB+ reference"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .unwrap();
+    ch.set_organiser_password("correct horse").unwrap();
+    let app = f.app();
+    for t in &f.tokens {
+        let resp = app
+            .clone()
+            .oneshot(
+                Request::post("/api/submissions")
+                    .header(header::AUTHORIZATION, format!("Bearer {t}"))
+                    .body(Body::from(catalogue(&f.all, 0.01)))
+                    .unwrap(),
+            )
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::ACCEPTED);
+    }
+    f.score_queue();
+    let mut o = Agent::new(app.clone());
+    let r = o.get("/leaderboard").await;
+    assert!(
+        r.body
+            .contains("KSB+ reference <span class=\"tag role\">baseline</span>"),
+        "{}",
+        r.body
+    );
+    assert!(
+        r.body.contains("<td class=\"num rank\">—</td>"),
+        "the baseline is not ranked"
+    );
+    assert!(r.body.contains("<td class=\"num rank\">1</td>"));
+    // The organisers' page: the form, a wrong password, the right one.
+    let r = o.get("/organisers").await;
+    assert!(r.body.contains("Organiser password"));
+    assert!(!r.body.contains("id=\"teams\""));
+    let csrf = r.csrf();
+    let r = o
+        .post_form("/organisers/signin", &[("password", "correct horse")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN, "no CSRF token");
+    let r = o
+        .post_form(
+            "/organisers/signin",
+            &[("csrf", &csrf), ("password", "wrong")],
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let csrf = r.csrf();
+    let r = o
+        .post_form(
+            "/organisers/signin",
+            &[("csrf", &csrf), ("password", "correct horse")],
+        )
+        .await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/organisers")
+    );
+    let r = o.get("/organisers").await;
+    assert!(r.body.contains("id=\"teams\"") && r.body.contains("id=\"all-entries\""));
+    assert!(
+        r.body
+            .contains("&lt;script&gt;alert(1)&lt;&#x2f;script&gt;")
+    );
+    assert!(!r.body.contains(HOSTILE));
+    assert!(r.body.contains("<span class=\"tag\">baseline</span>"));
+    for s in secrets(&f) {
+        assert!(
+            !r.body.contains(s.as_str()),
+            "the organisers' page shows {s:?}"
+        );
+    }
+    // An organiser session is not a team's; a team's is not an organiser's.
+    assert_eq!(o.get("/entries").await.status, StatusCode::SEE_OTHER);
+    let mut t = Agent::new(app);
+    t.sign_in(&f.tokens[0]).await;
+    assert!(!t.get("/organisers").await.body.contains("id=\"teams\""));
+}
