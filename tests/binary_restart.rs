@@ -217,7 +217,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     let mut lines = csv.lines();
     assert_eq!(
         lines.next().unwrap(),
-        "rank,team,entry,part,m_mean,sigma_c,q_c,report"
+        "rank,team,entry,part,m_mean,sigma_c,q_c,report,role"
     );
     assert!(lines.next().unwrap().starts_with("1,Team <A>,"), "{csv}");
     let report = tmp

@@ -407,7 +407,6 @@ pub fn challenge_json(state: &AppState, now_s: i64) -> Result<Value, crate::stor
         "closed": phase.closed,
         "revealed": phase.revealed,
         "uploads_open": phase.uploads_open(now_s),
-        "holdout": s.holdout,
         "rules": {
             "quota": s.quota,
             "quota_window_hours": QUOTA_WINDOW_S / 3600,

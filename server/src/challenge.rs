@@ -370,8 +370,8 @@ pub struct Export {
 }
 
 /// The CSV columns of an export (rows of the leaderboard).
-pub const EXPORT_CSV_COLUMNS: [&str; 8] = [
-    "rank", "team", "entry", "part", "m_mean", "sigma_c", "q_c", "report",
+pub const EXPORT_CSV_COLUMNS: [&str; 9] = [
+    "rank", "team", "entry", "part", "m_mean", "sigma_c", "q_c", "report", "role",
 ];
 
 /// Quotes a CSV field when it holds a comma, quote or line break.
@@ -387,7 +387,8 @@ impl Challenge {
     /// Writes the leaderboard to `out` (JSON), `out` with extension `csv`,
     /// and each ranked entry's report of the part it is ranked on (held-out
     /// after reveal, public before) into the directory `out` with extension
-    /// `reports`, named `RANK-entryID.json`. Every file is written
+    /// `reports`, named `RANK-entryID.json` (`organisers-entryID.json`,
+    /// `baseline-entryID.json` for unranked rows). Every file is written
     /// atomically.
     pub fn export(&self, out: &Path) -> Result<Export, ChallengeError> {
         use stepsim_contract::io::write_bytes_atomically;
@@ -411,9 +412,13 @@ impl Challenge {
         csv.push('\n');
         for row in &mut rows {
             let id = row["entry"].as_i64().unwrap_or(0);
-            let rank = row["rank"].as_i64().unwrap_or(0);
+            // Unranked rows (organisers, baseline): an empty rank, and the
+            // role in the report's name.
+            let rank = row["rank"].as_i64();
+            let role = row["role"].as_str().unwrap_or("participant").to_string();
+            let label = rank.map_or_else(|| role.clone(), |r| r.to_string());
             let src = self.entry_dir(id, part).join("report.json");
-            let dst = reports_dir.join(format!("{rank}-entry{id}.json"));
+            let dst = reports_dir.join(format!("{label}-entry{id}.json"));
             let bytes = std::fs::read(&src).map_err(|e| io(&src, e.to_string()))?;
             write_bytes_atomically(&dst, &bytes).map_err(|e| io(&dst, e.to_string()))?;
             let name = dst
@@ -427,7 +432,7 @@ impl Challenge {
             };
             let num = |k: &str| figures.get(k).map(|v| v.to_string()).unwrap_or_default();
             let fields = [
-                rank.to_string(),
+                rank.map(|r| r.to_string()).unwrap_or_default(),
                 csv_field(row["team"].as_str().unwrap_or("")),
                 id.to_string(),
                 part.name().to_string(),
@@ -441,6 +446,7 @@ impl Challenge {
                         .map(|n| n.to_string_lossy().into_owned())
                         .unwrap_or_default()
                 )),
+                role,
             ];
             csv.push_str(&fields.join(","));
             csv.push('\n');

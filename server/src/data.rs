@@ -68,6 +68,19 @@ pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String>
         });
     }
     for im in manifest.images {
+        // Only plain relative names below `public/` (a damaged manifest
+        // cannot point outside it).
+        let plain = std::path::Path::new(&im.file)
+            .components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)));
+        if !plain || im.file.contains('\\') {
+            return Err(format!(
+                "{}: image {}: file {:?} is not a plain path inside public/",
+                mpath.display(),
+                im.image,
+                im.file
+            ));
+        }
         let bytes =
             size(&im.file).map_err(|e| format!("{}: {e}", public.join(&im.file).display()))?;
         files.push(PublicFile {

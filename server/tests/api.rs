@@ -499,6 +499,14 @@ async fn a_participant_walking_every_route_sees_no_truth_and_no_server_path() {
         "/private/truth".into(),
         "/api/submissions/-1".into(),
         "/api/submissions/1e3".into(),
+        "/api/challenge".into(),
+        "/api/final".into(),
+        "/data".into(),
+        "/data/".into(),
+        "/data/manifest.json".into(),
+        "/data/../private/datasets.json".into(),
+        "/data/..%2Fprivate%2Fdatasets.json".into(),
+        "/data/%2e%2e/%2e%2e/state/challenge.db".into(),
     ];
     // Values a leak would show: held-out shears and dataset ids, image ids
     // of the held-out part, paths of the server.
@@ -863,6 +871,42 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
             "revealed {revealed}"
         );
     }
+    // The export: unranked rows have an empty rank and their role in the
+    // report's name; `stepsim leaderboard` can still read every report.
+    let out = f.state.join("board.json");
+    let e = ch.export(&out).unwrap();
+    let csv = std::fs::read_to_string(&e.csv).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0],
+        "rank,team,entry,part,m_mean,sigma_c,q_c,report,role"
+    );
+    assert!(lines[1].starts_with(",org,1,holdout,"), "{csv}");
+    assert!(
+        lines[1].ends_with(",board.reports/organisers-entry1.json,organisers"),
+        "{csv}"
+    );
+    assert!(lines[2].starts_with(",ksb,2,holdout,"), "{csv}");
+    assert!(lines[2].ends_with(",baseline"), "{csv}");
+    assert!(lines[3].starts_with("1,p1,3,holdout,"), "{csv}");
+    assert!(
+        lines[4].ends_with(",board.reports/2-entry4.json,participant"),
+        "{csv}"
+    );
+    let names: Vec<String> = e
+        .reports
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "organisers-entry1.json",
+            "baseline-entry2.json",
+            "1-entry3.json",
+            "2-entry4.json"
+        ]
+    );
     // Marked back as participants, they are ranked.
     ch.set_role("org", stepsim_server::store::Role::Participant)
         .unwrap();
@@ -1188,4 +1232,53 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
         assert_eq!(json(&body)["error"], "not found", "{bad}");
         assert!(h.get(header::LAST_MODIFIED).is_none());
     }
+    // A manifest naming a file outside public/ is refused whole.
+    let public = f.truth.parent().unwrap().join("public");
+    let text = std::fs::read_to_string(public.join("manifest.json")).unwrap();
+    let first = &files[2].0;
+    let text = text.replacen(first.as_str(), "../private/datasets.json", 1);
+    std::fs::write(public.join("manifest.json"), text).unwrap();
+    for path in [
+        "/data/",
+        "/data/../private/datasets.json",
+        "/data/manifest.json",
+    ] {
+        let (s, _, body) = call(&app, get(path, None)).await;
+        assert_eq!(s, StatusCode::NOT_FOUND, "{path}: {body}");
+        assert!(!body.contains("stepsim-datasets"), "{body}");
+    }
+}
+
+#[test]
+fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
+    use stepsim_server::store::{MIGRATIONS, SqliteStore, Store};
+    let tmp = tempfile::tempdir().unwrap();
+    let db = tmp.path().join("challenge.db");
+    {
+        let conn = rusqlite::Connection::open(&db).unwrap();
+        conn.execute_batch(MIGRATIONS[0]).unwrap();
+        conn.pragma_update(None, "user_version", 1).unwrap();
+        conn.execute_batch(
+            "INSERT INTO teams (name, token_sha256, created_s) VALUES ('a', 'h', 0);
+             INSERT INTO submissions (team_id, sha256, bytes, created_s, status, public_json,
+                 scorer_version, n_scorings) VALUES (1, 's', 3, 0, 'scored', '{\"q_c\":7}',
+                 'stepsim-harness 0.0.9', 1);
+             INSERT INTO submissions (team_id, sha256, bytes, created_s, status)
+                 VALUES (1, 't', 3, 0, 'queued');",
+        )
+        .unwrap();
+    }
+    let store = SqliteStore::open(&db, false).unwrap();
+    let team = store.team_by_name("a").unwrap().unwrap();
+    assert_eq!(team.role, stepsim_server::store::Role::Participant);
+    let scores = store.scores_of(1).unwrap();
+    assert_eq!(scores.len(), 1);
+    assert_eq!(
+        (scores[0].scorer_version.as_str(), scores[0].n_scorings),
+        ("stepsim-harness 0.0.9", 1)
+    );
+    assert_eq!(scores[0].public_json.as_deref(), Some("{\"q_c\":7}"));
+    assert!(store.scores_of(2).unwrap().is_empty());
+    let s = store.submission(1).unwrap().unwrap();
+    assert!(!s.final_choice && s.has_score());
 }
