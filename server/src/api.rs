@@ -96,9 +96,9 @@ impl AppState {
 /// An error answer.
 #[derive(Debug)]
 pub struct ApiError {
-    status: StatusCode,
-    message: String,
-    reset_s: Option<i64>,
+    pub(crate) status: StatusCode,
+    pub(crate) message: String,
+    pub(crate) reset_s: Option<i64>,
 }
 
 impl ApiError {
@@ -159,6 +159,7 @@ pub fn router(state: AppState) -> Router {
         .route("/data", get(crate::data::listing))
         .route("/data/", get(crate::data::listing))
         .route("/data/{*path}", get(crate::data::download))
+        .merge(crate::web::routes(&state))
         .fallback(|| async { ApiError::not_found() })
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
@@ -173,11 +174,11 @@ pub fn router(state: AppState) -> Router {
             header::X_FRAME_OPTIONS,
             HeaderValue::from_static("DENY"),
         ))
-        .layer(H::overriding(
+        .layer(H::if_not_present(
             header::CONTENT_SECURITY_POLICY,
             HeaderValue::from_static("default-src 'none'; frame-ancestors 'none'"),
         ))
-        .layer(H::overriding(
+        .layer(H::if_not_present(
             header::REFERRER_POLICY,
             HeaderValue::from_static("no-referrer"),
         ))
@@ -311,7 +312,7 @@ pub fn entry_json(s: &Submission, revealed: bool) -> Value {
     v
 }
 
-fn revealed(state: &AppState) -> Result<bool, ApiError> {
+pub(crate) fn revealed(state: &AppState) -> Result<bool, ApiError> {
     Ok(state
         .store()
         .meta("revealed")
@@ -444,7 +445,7 @@ async fn get_submission(
 }
 
 /// The quota of a team now: used, limit and when the oldest use expires.
-fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
+pub(crate) fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
     let now = crate::now_s();
     let used = state
         .store()
@@ -542,13 +543,26 @@ pub fn leaderboard_rows(teams: &[Team], subs: &[Submission], revealed: bool) -> 
         .collect()
 }
 
+/// The small form fields sent before a multipart upload's `file` (name,
+/// value), as [`submit`]'s check sees them; empty for a raw body.
+pub(crate) type FormFields = [(String, String)];
+
+/// At most this many fields, of at most [`FIELD_MAX_BYTES`] each, may come
+/// before a multipart upload's `file`.
+const MAX_FIELDS: usize = 16;
+const FIELD_MAX_BYTES: usize = 1024;
+
 /// Streams the upload (raw body or multipart field `file`) into a temporary
 /// file under `uploads/`, capped at `max` bytes; returns (path, SHA-256, size).
+/// `check` sees the fields sent before `file` (nothing for a raw body) and
+/// may refuse before a byte of the file is kept.
 async fn receive(
     state: &AppState,
     req: Request,
     max: u64,
+    check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<(PathBuf, String, u64), ApiError> {
+    let mut check = Some(check);
     let too_big = || {
         ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
@@ -597,15 +611,39 @@ async fn receive(
                 .await
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
             let mut found = false;
+            let mut fields: Vec<(String, String)> = Vec::new();
             while let Some(mut field) = mp
                 .next_field()
                 .await
                 .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
             {
-                if field.name() != Some("file") || found {
+                if found {
+                    continue;
+                }
+                if field.name() != Some("file") {
+                    // Read in chunks, capped: a huge field is refused, never buffered.
+                    let name = field.name().unwrap_or_default().to_string();
+                    let mut value = Vec::new();
+                    while let Some(chunk) = field
+                        .chunk()
+                        .await
+                        .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
+                    {
+                        value.extend_from_slice(&chunk);
+                        if fields.len() >= MAX_FIELDS || value.len() > FIELD_MAX_BYTES {
+                            return Err(ApiError::new(
+                                StatusCode::BAD_REQUEST,
+                                "the multipart form has too many or too large fields before `file`",
+                            ));
+                        }
+                    }
+                    fields.push((name, String::from_utf8_lossy(&value).into_owned()));
                     continue;
                 }
                 found = true;
+                if let Some(c) = check.take() {
+                    c(&fields)?;
+                }
                 while let Some(chunk) = field
                     .chunk()
                     .await
@@ -621,6 +659,9 @@ async fn receive(
                 ));
             }
         } else {
+            if let Some(c) = check.take() {
+                c(&[])?;
+            }
             let mut body: Body = req.into_body();
             while let Some(frame) = body.frame().await {
                 let frame = frame.map_err(|e| {
@@ -694,13 +735,50 @@ fn check_limits(state: &AppState, team_id: i64) -> Result<(), ApiError> {
 
 async fn post_submission(State(state): State<AppState>, req: Request) -> ApiResult {
     let team = auth(&state, req.headers())?;
+    let accepted = submit(&state, &team, req, |_| Ok(())).await?;
+    Ok(if accepted.duplicate {
+        (
+            StatusCode::OK,
+            axum::Json(json!({"id": accepted.id, "status": accepted.status, "duplicate": true})),
+        )
+    } else {
+        (
+            StatusCode::ACCEPTED,
+            axum::Json(json!({"id": accepted.id, "status": "queued"})),
+        )
+    }
+    .into_response())
+}
+
+/// What [`submit`] made of an upload.
+#[derive(Debug)]
+pub(crate) struct Accepted {
+    /// The entry's id.
+    pub(crate) id: i64,
+    /// Its status now (`queued` for a new one).
+    pub(crate) status: String,
+    /// True when the team had uploaded these bytes before (that entry).
+    pub(crate) duplicate: bool,
+}
+
+/// An upload of `team` (raw body or multipart field `file`): the limits,
+/// the streamed copy with its SHA-256, the harness's format check, the
+/// duplicate check, the immutable file and the queue. The one path of both
+/// `POST /api/submissions` and the page's upload form; `check` sees the
+/// form's fields before the file (the form's CSRF token).
+pub(crate) async fn submit(
+    state: &AppState,
+    team: &Team,
+    req: Request,
+    check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
+) -> Result<Accepted, ApiError> {
     let phase = Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
     if let Some(why) = phase.upload_refusal(crate::now_s()) {
         return Err(ApiError::new(StatusCode::FORBIDDEN, why));
     }
-    check_limits(&state, team.id)?;
+    check_limits(state, team.id)?;
     let max = state.inner.settings.max_upload_bytes;
-    let (tmp, sha, size) = receive(&state, req, max).await?;
+    let (tmp, sha, size) = receive(state, req, max, check).await?;
     // The format check: the harness reads the whole upload against every
     // image of the run, as `stepsim score` does.
     let truth = state.inner.settings.truth_dir.clone();
@@ -729,11 +807,11 @@ async fn post_submission(State(state): State<AppState>, req: Request) -> ApiResu
         let _ = tokio::fs::remove_file(&tmp).await;
         let s = state.store().submission(id).map_err(ApiError::internal)?;
         let status = s.map(|s| s.status).unwrap_or_default();
-        return Ok((
-            StatusCode::OK,
-            axum::Json(json!({"id": id, "status": status, "duplicate": true})),
-        )
-            .into_response());
+        return Ok(Accepted {
+            id,
+            status,
+            duplicate: true,
+        });
     }
     let final_path = state.inner.dir.join("uploads").join(&sha);
     if final_path.exists() {
@@ -750,11 +828,11 @@ async fn post_submission(State(state): State<AppState>, req: Request) -> ApiResu
         .store()
         .insert_submission(team.id, &sha, size as i64, crate::now_s())
         .map_err(ApiError::internal)?;
-    Ok((
-        StatusCode::ACCEPTED,
-        axum::Json(json!({"id": id, "status": "queued"})),
-    )
-        .into_response())
+    Ok(Accepted {
+        id,
+        status: "queued".into(),
+        duplicate: false,
+    })
 }
 
 /// Serves the API on `listen` with `workers` scoring workers until the

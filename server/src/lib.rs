@@ -9,6 +9,7 @@
 //! api.rs        the JSON API (axum): uploads, entries, finals, leaderboard
 //! data.rs       the run's public files, as its manifest lists them
 //! worker.rs     the scoring queue: claims jobs, calls the harness, records
+//! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
 //!
 //! All state lives in one directory (`--state DIR`): `challenge.db`,
@@ -20,6 +21,7 @@ pub mod api;
 pub mod challenge;
 pub mod data;
 pub mod store;
+pub mod web;
 pub mod worker;
 
 pub use challenge::{Challenge, ChallengeError, Settings};

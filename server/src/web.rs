@@ -1,0 +1,1339 @@
+//! The participants' pages (docs/server.md, "Pages"): HTML rendered on the
+//! server from templates built into the binary (`server/templates/`,
+//! minijinja, every value escaped), no JavaScript.
+//!
+//! ```text
+//! GET  /                       the challenge: the run's README, the rules
+//! GET  /signin, POST /signin   a team token -> a session cookie
+//! POST /signout                ends the session
+//! GET  /entries, POST /entries the team's entries, quota, the upload form
+//! GET  /leaderboard            the board (the final one after reveal)
+//! GET  /entries/{id}/report    after reveal: full reports, both parts
+//! GET  /entries/{id}/figures/{public|holdout}/{fig}.png   after reveal
+//! GET  /static/style.css       the stylesheet
+//! ```
+//!
+//! A session is a random 256-bit id in an `HttpOnly; SameSite=Strict`
+//! cookie; the server keeps only its SHA-256, with the team's token hash
+//! (a revoked or rotated token ends its sessions) and the session's CSRF
+//! token. Sessions live in memory: a restarted server signs everyone out.
+//! Every form POST carries a CSRF token in a hidden field and must come
+//! from the page's own origin (`Origin`, else `Referer`); the upload form
+//! goes through [`crate::api`]'s one upload path.
+
+mod markdown;
+mod report;
+
+pub use markdown::{escape, markdown_html};
+
+use crate::api::{ApiError, AppState};
+use crate::challenge::{hex, token_hash};
+use crate::store::Team;
+use axum::Router;
+use axum::body::Body;
+use axum::extract::{Extension, Path as UrlPath, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use minijinja::Environment;
+use serde::Serialize;
+use serde_json::Value;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use stepsim_harness::pipeline::{REPORT_FIGURES, REPORT_JSON};
+
+/// The session cookie.
+pub const SESSION_COOKIE: &str = "stepsim_session";
+/// The sign-in form's CSRF cookie (double submit: cookie and hidden field).
+pub const SIGNIN_COOKIE: &str = "stepsim_signin";
+/// The organisers' sign-in form's CSRF cookie (on `/organisers`).
+pub const ORGANISER_SIGNIN_COOKIE: &str = "stepsim_org_signin";
+/// How long a session lasts.
+pub const SESSION_S: i64 = 12 * 3600;
+/// Sessions kept at most; past it the one closest to expiry goes.
+pub const MAX_SESSIONS: usize = 10_000;
+/// The pages' Content-Security-Policy: no script at all, styles and images
+/// from the server only, forms posting only to it, no framing.
+pub const PAGE_CSP: &str = "default-src 'none'; img-src 'self'; style-src 'self'; \
+                            form-action 'self'; frame-ancestors 'none'; base-uri 'none'";
+/// The pages' Referrer-Policy: a form post carries its `Origin` (browsers
+/// send `Origin: null` under `no-referrer`), nothing goes to other sites.
+pub const PAGE_REFERRER_POLICY: &str = "same-origin";
+/// The largest sign-in or sign-out form body read.
+const FORM_MAX_BYTES: usize = 16 * 1024;
+
+const STYLE_CSS: &str = include_str!("../templates/style.css");
+
+/// The page templates, compiled into the binary.
+const TEMPLATES: [(&str, &str); 8] = [
+    ("base.html", include_str!("../templates/base.html")),
+    ("index.html", include_str!("../templates/index.html")),
+    ("signin.html", include_str!("../templates/signin.html")),
+    ("entries.html", include_str!("../templates/entries.html")),
+    (
+        "leaderboard.html",
+        include_str!("../templates/leaderboard.html"),
+    ),
+    ("report.html", include_str!("../templates/report.html")),
+    ("message.html", include_str!("../templates/message.html")),
+    (
+        "organisers.html",
+        include_str!("../templates/organisers.html"),
+    ),
+];
+
+/// The template environment (autoescape on for `.html`).
+pub fn templates() -> Result<Environment<'static>, minijinja::Error> {
+    let mut env = Environment::new();
+    env.set_undefined_behavior(minijinja::UndefinedBehavior::Strict);
+    for (name, source) in TEMPLATES {
+        env.add_template(name, source)?;
+    }
+    Ok(env)
+}
+
+#[derive(Debug, Clone)]
+struct Session {
+    /// The team's token hash (empty for an organiser session).
+    token_sha256: String,
+    /// Signed in with the organiser password (no team).
+    organiser: bool,
+    csrf: String,
+    expires_s: i64,
+}
+
+/// What the pages share besides [`AppState`].
+struct Web {
+    env: Result<Environment<'static>, String>,
+    /// The run's `public/README.md` as HTML, read when the server starts.
+    readme_html: Option<String>,
+    /// SHA-256 of the session id -> session.
+    sessions: Mutex<HashMap<String, Session>>,
+}
+
+type Shared = Extension<Arc<Web>>;
+
+/// The pages' routes, merged into [`crate::api::router`].
+pub fn routes(state: &AppState) -> Router<AppState> {
+    use tower_http::set_header::SetResponseHeaderLayer as H;
+    let readme = state
+        .settings()
+        .truth_dir
+        .parent()
+        .map(|run| run.join("public").join("README.md"))
+        .and_then(|p| std::fs::read_to_string(p).ok())
+        .map(|t| markdown_html(&t));
+    let web = Arc::new(Web {
+        env: templates().map_err(|e| e.to_string()),
+        readme_html: readme,
+        sessions: Mutex::new(HashMap::new()),
+    });
+    Router::new()
+        .route("/", get(index))
+        .route("/signin", get(signin_page).post(signin))
+        .route("/signout", post(signout))
+        .route("/entries", get(entries_page).post(upload))
+        .route("/entries/final", post(choose_final))
+        .route("/organisers", get(organisers_page))
+        .route("/organisers/signin", post(organisers_signin))
+        .route("/leaderboard", get(leaderboard_page))
+        .route("/entries/{id}/report", get(report_page))
+        .route("/entries/{id}/figures/{part}/{file}", get(figure))
+        .route("/static/style.css", get(stylesheet))
+        .layer(Extension(web))
+        .layer(H::overriding(
+            header::CONTENT_SECURITY_POLICY,
+            HeaderValue::from_static(PAGE_CSP),
+        ))
+        .layer(H::overriding(
+            header::REFERRER_POLICY,
+            HeaderValue::from_static(PAGE_REFERRER_POLICY),
+        ))
+}
+
+// ---- small helpers ----------------------------------------------------
+
+/// `v` with `dp` decimals, a true minus sign, `—` when missing.
+pub(crate) fn fixed(v: Option<f64>, dp: usize) -> String {
+    match v.filter(|v| v.is_finite()) {
+        Some(v) => {
+            let s = format!("{v:.dp$}");
+            match s.strip_prefix('-') {
+                // -0.000 reads as 0.000.
+                Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_string(),
+                Some(rest) => format!("−{rest}"),
+                None => s,
+            }
+        }
+        None => "—".into(),
+    }
+}
+
+/// As [`fixed`], with a `+` on positive values (columns of signed numbers).
+pub(crate) fn signed(v: Option<f64>, dp: usize) -> String {
+    let s = fixed(v, dp);
+    match v {
+        Some(x) if x > 0.0 && !s.chars().all(|c| c == '0' || c == '.') => format!("+{s}"),
+        _ => s,
+    }
+}
+
+/// A time as `YYYY-MM-DD HH:MM UTC`.
+fn when(t_s: i64) -> String {
+    let t = crate::utc_text(t_s);
+    format!("{} {} UTC", &t[..10], &t[11..16])
+}
+
+/// A byte count for people (`12.3 kB`).
+fn size_text(bytes: i64) -> String {
+    let b = bytes as f64;
+    if b < 1e3 {
+        format!("{bytes} B")
+    } else if b < 1e6 {
+        format!("{:.1} kB", b / 1e3)
+    } else if b < 1e9 {
+        format!("{:.1} MB", b / 1e6)
+    } else {
+        format!("{:.2} GB", b / 1e9)
+    }
+}
+
+/// A size cap for people: whole MiB or KiB when it is one (`256 MiB`).
+fn cap_text(bytes: u64) -> String {
+    if bytes >= 1 << 20 && bytes % (1 << 20) == 0 {
+        format!("{} MiB", bytes >> 20)
+    } else if bytes >= 1 << 10 && bytes % (1 << 10) == 0 {
+        format!("{} KiB", bytes >> 10)
+    } else {
+        format!("{bytes} bytes")
+    }
+}
+
+fn random_hex() -> Result<String, ApiError> {
+    let mut b = [0u8; 32];
+    getrandom::fill(&mut b).map_err(ApiError::internal)?;
+    Ok(hex(&b))
+}
+
+/// Equality of two secrets in time independent of where they differ.
+fn same_secret(a: &str, b: &str) -> bool {
+    a.len() == b.len()
+        && a.bytes()
+            .zip(b.bytes())
+            .fold(0u8, |acc, (x, y)| acc | (x ^ y))
+            == 0
+}
+
+/// The value of cookie `name`.
+fn cookie(headers: &HeaderMap, name: &str) -> Option<String> {
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .filter_map(|kv| kv.trim().split_once('='))
+        .find(|(k, _)| *k == name)
+        .map(|(_, v)| v.to_string())
+}
+
+/// Whether a form post comes from this server's own pages: its `Origin`
+/// (else its `Referer`) must be `http(s)://HOST` of the request. A request
+/// carrying neither (not a browser) is left to the CSRF token.
+pub fn same_origin(headers: &HeaderMap) -> bool {
+    let host = headers.get(header::HOST).and_then(|v| v.to_str().ok());
+    let ok = |origin: &str| {
+        host.is_some_and(|h| origin == format!("http://{h}") || origin == format!("https://{h}"))
+    };
+    if let Some(o) = headers.get(header::ORIGIN) {
+        return o.to_str().is_ok_and(ok);
+    }
+    if let Some(r) = headers.get(header::REFERER) {
+        let Ok(r) = r.to_str() else { return false };
+        let Some((scheme, rest)) = r.split_once("://") else {
+            return false;
+        };
+        let authority = rest.split('/').next().unwrap_or("");
+        return ok(&format!("{scheme}://{authority}"));
+    }
+    true
+}
+
+// ---- rendering --------------------------------------------------------
+
+/// The signed-in team as the page header shows it.
+#[derive(Debug, Serialize)]
+struct Nav {
+    /// The challenge's name (`challenge init --name`, or the run
+    /// directory's name).
+    challenge: String,
+    team: Option<String>,
+    /// Signed in with the organiser password.
+    organiser: bool,
+    csrf: String,
+    page: &'static str,
+}
+
+impl Nav {
+    fn new(
+        state: &AppState,
+        session: Option<&Session>,
+        team: Option<&Team>,
+        page: &'static str,
+    ) -> Self {
+        let challenge = state
+            .store()
+            .meta("name")
+            .ok()
+            .flatten()
+            .unwrap_or_else(|| "stepsim challenge".into());
+        Nav {
+            challenge,
+            team: team.map(|t| t.name.clone()),
+            organiser: session.is_some_and(|s| s.organiser),
+            csrf: session.map(|s| s.csrf.clone()).unwrap_or_default(),
+            page,
+        }
+    }
+}
+
+impl Web {
+    fn render(&self, status: StatusCode, name: &str, ctx: Value) -> Response {
+        self.render_value(status, name, minijinja::Value::from_serialize(&ctx))
+    }
+
+    fn render_value(&self, status: StatusCode, name: &str, ctx: minijinja::Value) -> Response {
+        let html = self.env.as_ref().map_err(|e| e.clone()).and_then(|env| {
+            env.get_template(name)
+                .and_then(|t| t.render(&ctx))
+                .map_err(|e| format!("{e:#}"))
+        });
+        match html {
+            Ok(html) => (
+                status,
+                [(header::CONTENT_TYPE, "text/html; charset=utf-8")],
+                html,
+            )
+                .into_response(),
+            Err(e) => {
+                eprintln!("stepsim serve: page {name} failed: {e}");
+                (
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
+                    "the page failed; the organisers can see why in the server's log",
+                )
+                    .into_response()
+            }
+        }
+    }
+
+    /// A page of one message (errors, refusals).
+    fn message(&self, nav: &Nav, status: StatusCode, title: &str, text: &str) -> Response {
+        self.render(
+            status,
+            "message.html",
+            serde_json::json!({"nav": nav, "title": title, "text": text,
+                               "code": status.as_u16()}),
+        )
+    }
+
+    fn error(&self, nav: &Nav, e: &ApiError) -> Response {
+        let title = match e.status {
+            StatusCode::NOT_FOUND => "Not found",
+            StatusCode::FORBIDDEN => "Refused",
+            StatusCode::TOO_MANY_REQUESTS => "Too many requests",
+            s if s.is_server_error() => "Server error",
+            _ => "Refused",
+        };
+        self.message(nav, e.status, title, &e.message)
+    }
+
+    /// The session of a request: an organiser's (no team), or a team's
+    /// whose token still works. Expired sessions and those of revoked or
+    /// rotated tokens are dropped.
+    fn session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Option<Team>)> {
+        let id = cookie(headers, SESSION_COOKIE)?;
+        let key = token_hash(&id);
+        let mut sessions = self
+            .sessions
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let s = sessions.get(&key)?.clone();
+        let live = s.expires_s > crate::now_s();
+        if live && s.organiser {
+            return Some((s, None));
+        }
+        let team = live
+            .then(|| state.store().team_by_token(&s.token_sha256).ok().flatten())
+            .flatten();
+        match team {
+            Some(t) => Some((s, Some(t))),
+            None => {
+                sessions.remove(&key);
+                None
+            }
+        }
+    }
+
+    /// The session of a signed-in team, if any.
+    fn team_session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Team)> {
+        match self.session(state, headers)? {
+            (s, Some(t)) => Some((s, t)),
+            (_, None) => None,
+        }
+    }
+
+    fn nav(&self, state: &AppState, headers: &HeaderMap, page: &'static str) -> Nav {
+        match self.session(state, headers) {
+            Some((s, t)) => Nav::new(state, Some(&s), t.as_ref(), page),
+            None => Nav::new(state, None, None, page),
+        }
+    }
+
+    /// Starts a session for a token's hash (empty with `organiser`);
+    /// returns the cookie's value.
+    fn start_session(&self, token_sha256: &str, organiser: bool) -> Result<String, ApiError> {
+        let id = random_hex()?;
+        let now = crate::now_s();
+        let mut sessions = self
+            .sessions
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        sessions.retain(|_, s| s.expires_s > now);
+        if sessions.len() >= MAX_SESSIONS {
+            let oldest = sessions
+                .iter()
+                .min_by_key(|(_, s)| s.expires_s)
+                .map(|(k, _)| k.clone());
+            if let Some(k) = oldest {
+                sessions.remove(&k);
+            }
+        }
+        sessions.insert(
+            token_hash(&id),
+            Session {
+                token_sha256: token_sha256.to_string(),
+                organiser,
+                csrf: random_hex()?,
+                expires_s: now + SESSION_S,
+            },
+        );
+        Ok(id)
+    }
+}
+
+fn redirect(to: &str) -> Response {
+    (StatusCode::SEE_OTHER, [(header::LOCATION, to.to_string())]).into_response()
+}
+
+/// `Set-Cookie` for `name=value` on `path` for `max_age_s` (0 clears),
+/// `Secure` when the page was reached over HTTPS.
+fn set_cookie(name: &str, value: &str, path: &str, max_age_s: i64, secure: bool) -> String {
+    format!(
+        "{name}={value}; HttpOnly; SameSite=Strict; Path={path}; Max-Age={max_age_s}{}",
+        if secure { "; Secure" } else { "" }
+    )
+}
+
+fn over_https(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::ORIGIN)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|o| o.starts_with("https://"))
+}
+
+/// A urlencoded form body (at most [`FORM_MAX_BYTES`]), its fields in order.
+async fn form_pairs(req: Request) -> Result<Vec<(String, String)>, ApiError> {
+    let bytes = axum::body::to_bytes(req.into_body(), FORM_MAX_BYTES)
+        .await
+        .map_err(|_| ApiError::new(StatusCode::BAD_REQUEST, "the form is too large"))?;
+    serde_urlencoded::from_bytes::<Vec<(String, String)>>(&bytes)
+        .map_err(|_| ApiError::new(StatusCode::BAD_REQUEST, "the form could not be read"))
+}
+
+/// A urlencoded form body as a map (the last of repeated names).
+async fn form(req: Request) -> Result<HashMap<String, String>, ApiError> {
+    Ok(form_pairs(req).await?.into_iter().collect())
+}
+
+fn csrf_refused() -> ApiError {
+    ApiError::new(
+        StatusCode::FORBIDDEN,
+        "this form was not sent from this site's own page, or the page is out of date \
+         (its security token is missing or wrong). Open the page again and resend the form.",
+    )
+}
+
+fn origin_refused() -> ApiError {
+    ApiError::new(
+        StatusCode::FORBIDDEN,
+        "this form was sent from another site (its Origin is not this server); it was refused.",
+    )
+}
+
+fn rules(state: &AppState) -> Value {
+    let s = state.settings();
+    serde_json::json!({
+        "quota": s.quota,
+        "requests_per_minute": s.requests_per_minute,
+        "max_upload": cap_text(s.max_upload_bytes),
+        "max_upload_bytes": s.max_upload_bytes,
+        "format_failure_cap": s.format_failure_cap,
+        "holdout": s.holdout,
+    })
+}
+
+// ---- handlers ---------------------------------------------------------
+
+async fn stylesheet() -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, "text/css; charset=utf-8"),
+            (header::CACHE_CONTROL, "public, max-age=3600"),
+        ],
+        STYLE_CSS,
+    )
+        .into_response()
+}
+
+async fn index(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let nav = web.nav(&state, &headers, "index");
+    let phase = match crate::challenge::Phase::read(state.store().as_ref()) {
+        Ok(p) => p,
+        Err(e) => return web.error(&nav, &ApiError::internal(e)),
+    };
+    let now = crate::now_s();
+    // The README is HTML made by `markdown_html`, which escapes every
+    // character of the text: it is marked safe, everything else is escaped.
+    let readme = web
+        .readme_html
+        .clone()
+        .map(minijinja::Value::from_safe_string);
+    web.render_value(
+        StatusCode::OK,
+        "index.html",
+        minijinja::context! {
+            readme => readme,
+            ..minijinja::Value::from_serialize(serde_json::json!({
+                "nav": nav,
+                "rules": rules(&state),
+                "revealed": phase.revealed,
+                "closed": phase.closed,
+                "frozen": phase.frozen,
+                "deadline": phase.deadline_s.map(when),
+                "deadline_passed": phase.deadline_s.is_some_and(|d| now >= d),
+                "uploads_open": phase.uploads_open(now),
+                "max_final": crate::challenge::MAX_FINAL_ENTRIES,
+            }))
+        },
+    )
+}
+
+async fn signin_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let nav = web.nav(&state, &headers, "signin");
+    signin_form(&web, &nav, StatusCode::OK, None)
+}
+
+/// The sign-in form with a fresh double-submit CSRF token.
+fn signin_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>) -> Response {
+    let token = match random_hex() {
+        Ok(t) => t,
+        Err(e) => return web.error(nav, &e),
+    };
+    let mut resp = web.render(
+        status,
+        "signin.html",
+        serde_json::json!({"nav": nav, "csrf": token, "error": error}),
+    );
+    if let Ok(v) = HeaderValue::from_str(&set_cookie(SIGNIN_COOKIE, &token, "/signin", 3600, false))
+    {
+        resp.headers_mut().insert(header::SET_COOKIE, v);
+    }
+    resp
+}
+
+async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
+    let headers = req.headers().clone();
+    let nav = web.nav(&state, &headers, "signin");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let fields = match form(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
+    let kept = cookie(&headers, SIGNIN_COOKIE).unwrap_or_default();
+    if sent.is_empty() || !same_secret(sent, &kept) {
+        return web.error(&nav, &csrf_refused());
+    }
+    let token = fields.get("token").map(|t| t.trim()).unwrap_or("");
+    let hash = token_hash(token);
+    let team = match state.store().team_by_token(&hash) {
+        Ok(t) => t,
+        Err(e) => return web.error(&nav, &ApiError::internal(e)),
+    };
+    if token.is_empty() || team.is_none() {
+        return signin_form(
+            &web,
+            &nav,
+            StatusCode::UNAUTHORIZED,
+            Some("this token is not valid (mistyped, revoked or replaced): ask the organisers"),
+        );
+    }
+    let id = match web.start_session(&hash, false) {
+        Ok(id) => id,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let secure = over_https(&headers);
+    let mut resp = redirect("/entries");
+    for c in [
+        set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
+        set_cookie(SIGNIN_COOKIE, "", "/signin", 0, secure),
+    ] {
+        if let Ok(v) = HeaderValue::from_str(&c) {
+            resp.headers_mut().append(header::SET_COOKIE, v);
+        }
+    }
+    resp
+}
+
+/// The organisers' page: with an organiser session, every team and entry
+/// (statuses, rounded public feedback, final choices; no truth); without,
+/// the password form.
+async fn organisers_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let session = web.session(&state, &headers);
+    let nav = web.nav(&state, &headers, "organisers");
+    match session {
+        Some((s, None)) if s.organiser => organisers_list(&state, &web, &nav),
+        _ => organisers_form(&web, &nav, StatusCode::OK, None),
+    }
+}
+
+fn organisers_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>) -> Response {
+    let token = match random_hex() {
+        Ok(t) => t,
+        Err(e) => return web.error(nav, &e),
+    };
+    let mut resp = web.render(
+        status,
+        "organisers.html",
+        serde_json::json!({"nav": nav, "signed_in": false, "csrf": token, "error": error}),
+    );
+    let c = set_cookie(ORGANISER_SIGNIN_COOKIE, &token, "/organisers", 3600, false);
+    if let Ok(v) = HeaderValue::from_str(&c) {
+        resp.headers_mut().insert(header::SET_COOKIE, v);
+    }
+    resp
+}
+
+fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
+    let (teams, subs) = {
+        let store = state.store();
+        match (store.teams(), store.all_submissions()) {
+            (Ok(t), Ok(s)) => (t, s),
+            (Err(e), _) | (_, Err(e)) => return web.error(nav, &ApiError::internal(e)),
+        }
+    };
+    let mut team_rows = Vec::new();
+    let mut counted: Vec<i64> = Vec::new();
+    for t in &teams {
+        let own: Vec<&crate::store::Submission> =
+            subs.iter().filter(|s| s.team_id == t.id).collect();
+        let finals: Vec<i64> = crate::challenge::final_entries_or_default(&own)
+            .iter()
+            .map(|s| s.id)
+            .collect();
+        counted.extend(&finals);
+        let chosen = own.iter().any(|s| s.final_choice);
+        team_rows.push(serde_json::json!({
+            "name": t.name,
+            "role": t.role.name(),
+            "revoked": t.revoked,
+            "entries": own.len(),
+            "scored": own.iter().filter(|s| s.has_score()).count(),
+            "refused": own.iter().filter(|s| s.status == "refused").count(),
+            "finals": if finals.is_empty() {
+                "—".to_string()
+            } else {
+                let ids: Vec<String> = finals.iter().map(i64::to_string).collect();
+                format!("{}{}", ids.join(", "), if chosen { "" } else { " (default)" })
+            },
+        }));
+    }
+    let mut entries: Vec<Value> = subs
+        .iter()
+        .rev()
+        .map(|s| {
+            let mut v = serde_json::to_value(EntryView {
+                counted: counted.contains(&s.id),
+                ..entry_view(s, false)
+            })
+            .unwrap_or(Value::Null);
+            v["team"] = serde_json::json!(
+                teams
+                    .iter()
+                    .find(|t| t.id == s.team_id)
+                    .map_or("", |t| t.name.as_str())
+            );
+            v["final"] = serde_json::json!(counted.contains(&s.id));
+            v
+        })
+        .collect();
+    entries.truncate(1000);
+    web.render(
+        StatusCode::OK,
+        "organisers.html",
+        serde_json::json!({"nav": nav, "signed_in": true, "teams": team_rows, "entries": entries}),
+    )
+}
+
+/// `POST /organisers/signin`: the organiser password (its Argon2id hash,
+/// [`crate::challenge::verify_organiser_password`]) → an organiser session.
+async fn organisers_signin(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    req: Request,
+) -> Response {
+    let headers = req.headers().clone();
+    let nav = web.nav(&state, &headers, "organisers");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let fields = match form(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
+    let kept = cookie(&headers, ORGANISER_SIGNIN_COOKIE).unwrap_or_default();
+    if sent.is_empty() || !same_secret(sent, &kept) {
+        return web.error(&nav, &csrf_refused());
+    }
+    let password = fields.get("password").map(String::as_str).unwrap_or("");
+    let ok = !password.is_empty()
+        && crate::challenge::verify_organiser_password(state.store().as_ref(), password);
+    if !ok {
+        return organisers_form(
+            &web,
+            &nav,
+            StatusCode::UNAUTHORIZED,
+            Some(
+                "this is not the organiser password (or none is set: `stepsim challenge organiser-password`)",
+            ),
+        );
+    }
+    let id = match web.start_session("", true) {
+        Ok(id) => id,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let secure = over_https(&headers);
+    let mut resp = redirect("/organisers");
+    for c in [
+        set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
+        set_cookie(ORGANISER_SIGNIN_COOKIE, "", "/organisers", 0, secure),
+    ] {
+        if let Ok(v) = HeaderValue::from_str(&c) {
+            resp.headers_mut().append(header::SET_COOKIE, v);
+        }
+    }
+    resp
+}
+
+async fn signout(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
+    let headers = req.headers().clone();
+    let nav = web.nav(&state, &headers, "signout");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let Some((session, _)) = web.session(&state, &headers) else {
+        return redirect("/");
+    };
+    let fields = match form(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    if !same_secret(
+        fields.get("csrf").map(String::as_str).unwrap_or(""),
+        &session.csrf,
+    ) {
+        return web.error(&nav, &csrf_refused());
+    }
+    if let Some(id) = cookie(&headers, SESSION_COOKIE) {
+        web.sessions
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .remove(&token_hash(&id));
+    }
+    let mut resp = redirect("/");
+    if let Ok(v) = HeaderValue::from_str(&set_cookie(SESSION_COOKIE, "", "/", 0, false)) {
+        resp.headers_mut().insert(header::SET_COOKIE, v);
+    }
+    resp
+}
+
+/// An entry as its team's page shows it.
+#[derive(Debug, Serialize)]
+struct EntryView {
+    id: i64,
+    status: String,
+    created: String,
+    bytes: String,
+    bytes_exact: i64,
+    sha256: String,
+    sha_prefix: String,
+    error: Option<String>,
+    m_mean: String,
+    sigma_c: String,
+    q_c: String,
+    pct_stars: String,
+    pct_false: String,
+    report: bool,
+    /// It has a score to show (scored, or queued again for a re-score).
+    scored: bool,
+    /// It counts at reveal (chosen, or the default best public entry).
+    counted: bool,
+    /// The team chose it.
+    chosen: bool,
+}
+
+fn entry_view(s: &crate::store::Submission, revealed: bool) -> EntryView {
+    let public: Value = s
+        .public_json
+        .as_deref()
+        .and_then(|t| serde_json::from_str(t).ok())
+        .unwrap_or(Value::Null);
+    let n = |k: &str| public.get(k).and_then(Value::as_f64);
+    EntryView {
+        id: s.id,
+        status: s.status.clone(),
+        created: when(s.created_s),
+        bytes: size_text(s.bytes),
+        bytes_exact: s.bytes,
+        sha256: s.sha256.clone(),
+        sha_prefix: s.sha256.chars().take(12).collect(),
+        error: s.error.clone(),
+        m_mean: signed(n("m_mean"), 3),
+        sigma_c: fixed(n("sigma_c"), 4),
+        q_c: fixed(n("q_c"), 0),
+        pct_stars: fixed(n("pct_stars"), 1),
+        pct_false: fixed(n("pct_false"), 1),
+        report: revealed && s.has_score(),
+        scored: s.has_score(),
+        counted: false,
+        chosen: s.final_choice,
+    }
+}
+
+/// A note above the entries (the last upload's outcome).
+#[derive(Debug, Serialize)]
+struct Notice {
+    ok: bool,
+    text: String,
+}
+
+fn entries_response(
+    state: &AppState,
+    web: &Web,
+    nav: &Nav,
+    team: &Team,
+    status: StatusCode,
+    notice: Option<Notice>,
+) -> Response {
+    let result = (|| -> Result<Value, ApiError> {
+        let revealed = crate::api::revealed(state)?;
+        let subs = state
+            .store()
+            .submissions_of(team.id)
+            .map_err(ApiError::internal)?;
+        let quota = crate::api::quota_status(state, team.id)?;
+        let reset = quota
+            .get("reset")
+            .and_then(Value::as_str)
+            .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]));
+        let refs: Vec<&crate::store::Submission> = subs.iter().collect();
+        let counted: Vec<i64> = crate::challenge::final_entries_or_default(&refs)
+            .iter()
+            .map(|s| s.id)
+            .collect();
+        let entries: Vec<EntryView> = subs
+            .iter()
+            .map(|s| EntryView {
+                counted: counted.contains(&s.id),
+                ..entry_view(s, revealed)
+            })
+            .collect();
+        let phase =
+            crate::challenge::Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
+        Ok(serde_json::json!({
+            "nav": nav,
+            "team": team.name,
+            "entries": entries,
+            "quota": {"used": quota["used"], "limit": quota["limit"], "reset": reset},
+            "rules": rules(state),
+            "revealed": revealed,
+            "notice": notice,
+            "pending": subs.iter().any(|s| s.status == "queued" || s.status == "scoring"),
+            "final": {
+                "chosen": subs.iter().any(|s| s.final_choice),
+                "counted": counted,
+                "max": crate::challenge::MAX_FINAL_ENTRIES,
+                "open": !phase.closed,
+            },
+            "uploads_open": phase.uploads_open(crate::now_s()),
+            "upload_refusal": phase.upload_refusal(crate::now_s()),
+        }))
+    })();
+    match result {
+        Ok(ctx) => web.render(status, "entries.html", ctx),
+        Err(e) => web.error(nav, &e),
+    }
+}
+
+async fn entries_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+    uri: axum::http::Uri,
+) -> Response {
+    let Some((session, team)) = web.team_session(&state, &headers) else {
+        return redirect("/signin");
+    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
+    let query: HashMap<String, String> = uri
+        .query()
+        .and_then(|q| serde_urlencoded::from_str::<Vec<(String, String)>>(q).ok())
+        .map(|v| v.into_iter().collect())
+        .unwrap_or_default();
+    let chosen = query.get("final").map(|ids| Notice {
+        ok: true,
+        text: if ids.is_empty() {
+            "No final entry chosen: your best public entry counts at reveal.".into()
+        } else {
+            format!("Final entries saved: {ids}.")
+        },
+    });
+    let notice = query
+        .get("uploaded")
+        .and_then(|id| id.parse::<i64>().ok())
+        .map(|id| Notice {
+            ok: true,
+            text: if query.contains_key("duplicate") {
+                format!("You uploaded these bytes before: entry {id}; nothing was counted.")
+            } else {
+                format!(
+                    "Entry {id} passed the format check and is queued for scoring; \
+                     this page shows its status."
+                )
+            },
+        });
+    entries_response(&state, &web, &nav, &team, StatusCode::OK, notice.or(chosen))
+}
+
+/// The final-entries form (`POST /entries/final`, checkboxes `final`):
+/// [`crate::challenge::choose_final_entries`], the path of `PUT /api/final`.
+async fn choose_final(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    req: Request,
+) -> Response {
+    let headers = req.headers().clone();
+    let Some((session, team)) = web.team_session(&state, &headers) else {
+        let nav = web.nav(&state, &headers, "entries");
+        return web.message(
+            &nav,
+            StatusCode::FORBIDDEN,
+            "Sign in first",
+            "choosing final entries needs a signed-in team: sign in with your team's token.",
+        );
+    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let fields = match form_pairs(req).await {
+        Ok(f) => f,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let sent = fields
+        .iter()
+        .find(|(k, _)| k == "csrf")
+        .map_or("", |(_, v)| v.as_str());
+    if !same_secret(sent, &session.csrf) {
+        return web.error(&nav, &csrf_refused());
+    }
+    let ids: Vec<i64> = fields
+        .iter()
+        .filter(|(k, _)| k == "final")
+        .filter_map(|(_, v)| v.parse().ok())
+        .collect();
+    let result = crate::challenge::choose_final_entries(state.store().as_mut(), team.id, &ids);
+    use crate::challenge::ChoiceError;
+    let e = match result {
+        Ok(ids) => {
+            let list: Vec<String> = ids.iter().map(i64::to_string).collect();
+            return redirect(&format!("/entries?final={}", list.join(",")));
+        }
+        Err(ChoiceError::Store(e)) => ApiError::internal(e),
+        Err(ChoiceError::NotFound(_)) => ApiError::not_found(),
+        Err(e @ ChoiceError::Closed) => ApiError::new(StatusCode::FORBIDDEN, e.to_string()),
+        Err(e) => ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, e.to_string()),
+    };
+    entries_response(
+        &state,
+        &web,
+        &nav,
+        &team,
+        e.status,
+        Some(Notice {
+            ok: false,
+            text: e.message,
+        }),
+    )
+}
+
+/// The upload form: [`crate::api::submit`], the path of `POST
+/// /api/submissions`, with the session's CSRF token checked before the
+/// file is kept.
+async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
+    let headers = req.headers().clone();
+    let Some((session, team)) = web.team_session(&state, &headers) else {
+        let nav = web.nav(&state, &headers, "entries");
+        return web.message(
+            &nav,
+            StatusCode::FORBIDDEN,
+            "Sign in first",
+            "uploading from the page needs a signed-in team: sign in with your team's token.",
+        );
+    };
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
+    if !same_origin(&headers) {
+        return web.error(&nav, &origin_refused());
+    }
+    let expected = session.csrf.clone();
+    let check = move |fields: &crate::api::FormFields| {
+        let sent = fields
+            .iter()
+            .find(|(k, _)| k == "csrf")
+            .map_or("", |(_, v)| v.as_str());
+        if same_secret(sent, &expected) {
+            Ok(())
+        } else {
+            Err(csrf_refused())
+        }
+    };
+    match crate::api::submit(&state, &team, req, check).await {
+        Ok(a) if a.duplicate => redirect(&format!("/entries?uploaded={}&duplicate=1", a.id)),
+        Ok(a) => redirect(&format!("/entries?uploaded={}", a.id)),
+        Err(e) if e.status == StatusCode::FORBIDDEN => web.error(&nav, &e),
+        Err(e) => {
+            let mut text = e.message.clone();
+            if let Some(t) = e.reset_s {
+                text = format!("{text} (resets {})", when(t));
+            }
+            entries_response(
+                &state,
+                &web,
+                &nav,
+                &team,
+                e.status,
+                Some(Notice { ok: false, text }),
+            )
+        }
+    }
+}
+
+/// A leaderboard row for the page.
+#[derive(Debug, Serialize)]
+struct BoardRow {
+    /// `None` for the organisers' and the baseline's rows (never ranked).
+    rank: Option<i64>,
+    team: String,
+    role: String,
+    /// After reveal: the team's final entries (those that counted).
+    finals: String,
+    entries: i64,
+    entry: i64,
+    m_mean: String,
+    sigma_c: String,
+    q_c: String,
+    h_m_mean: String,
+    h_sigma_c: String,
+    h_q_c: String,
+}
+
+/// The leaderboard rows (as the API ranks them) and whether revealed.
+fn board(state: &AppState) -> Result<(bool, Vec<Value>), ApiError> {
+    let revealed = crate::api::revealed(state)?;
+    let (teams, subs) = {
+        let store = state.store();
+        (
+            store.teams().map_err(ApiError::internal)?,
+            store.all_submissions().map_err(ApiError::internal)?,
+        )
+    };
+    Ok((
+        revealed,
+        crate::api::leaderboard_rows(&teams, &subs, revealed),
+    ))
+}
+
+async fn leaderboard_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let nav = web.nav(&state, &headers, "leaderboard");
+    let (revealed, rows) = match board(&state) {
+        Ok(b) => b,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let rows: Vec<BoardRow> = rows
+        .iter()
+        .map(|r| {
+            let n = |part: &str, k: &str| r[part].get(k).and_then(Value::as_f64);
+            BoardRow {
+                rank: r["rank"].as_i64(),
+                team: r["team"].as_str().unwrap_or("").to_string(),
+                role: r["role"].as_str().unwrap_or("participant").to_string(),
+                finals: r["finals"]
+                    .as_array()
+                    .map(|a| {
+                        a.iter()
+                            .filter_map(Value::as_i64)
+                            .map(|i| i.to_string())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    })
+                    .unwrap_or_default(),
+                entries: r["entries"].as_i64().unwrap_or(0),
+                entry: r["entry"].as_i64().unwrap_or(0),
+                m_mean: signed(n("public", "m_mean"), 3),
+                sigma_c: fixed(n("public", "sigma_c"), 4),
+                q_c: fixed(n("public", "q_c"), 0),
+                h_m_mean: signed(n("holdout", "m_mean"), 4),
+                h_sigma_c: fixed(n("holdout", "sigma_c"), 5),
+                h_q_c: fixed(n("holdout", "q_c"), 1),
+            }
+        })
+        .collect();
+    web.render(
+        StatusCode::OK,
+        "leaderboard.html",
+        serde_json::json!({"nav": nav, "rows": rows, "revealed": revealed,
+                           "holdout": state.settings().holdout}),
+    )
+}
+
+/// The entry whose report or figures a request may see: after reveal, a
+/// scored entry that is on the final board, or one of the signed-in
+/// team's own. Anything else is "not found", as for no entry at all.
+fn visible_entry(
+    state: &AppState,
+    web: &Web,
+    headers: &HeaderMap,
+    id: &str,
+) -> Result<crate::store::Submission, ApiError> {
+    let id: i64 = id.parse().map_err(|_| ApiError::not_found())?;
+    let (revealed, rows) = board(state)?;
+    if !revealed {
+        return Err(ApiError::not_found());
+    }
+    let sub = state
+        .store()
+        .submission(id)
+        .map_err(ApiError::internal)?
+        .filter(|s| s.has_score())
+        .ok_or_else(ApiError::not_found)?;
+    let ranked = rows.iter().any(|r| r["entry"].as_i64() == Some(id));
+    let own = web
+        .team_session(state, headers)
+        .is_some_and(|(_, t)| t.id == sub.team_id);
+    if ranked || own {
+        Ok(sub)
+    } else {
+        Err(ApiError::not_found())
+    }
+}
+
+/// The parts whose reports an entry has: `(url name, title, ranked)`.
+const PARTS: [(&str, &str); 2] = [
+    ("holdout", "Held-out part (ranked at reveal)"),
+    ("public", "Public part"),
+];
+
+async fn report_page(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+    UrlPath(id): UrlPath<String>,
+) -> Response {
+    let nav = web.nav(&state, &headers, "report");
+    let sub = match visible_entry(&state, &web, &headers, &id) {
+        Ok(s) => s,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let team = state
+        .store()
+        .teams()
+        .ok()
+        .and_then(|ts| ts.into_iter().find(|t| t.id == sub.team_id))
+        .map(|t| t.name)
+        .unwrap_or_default();
+    let mut parts = Vec::new();
+    for (name, title) in PARTS {
+        let dir = state
+            .dir()
+            .join("entries")
+            .join(sub.id.to_string())
+            .join(name);
+        let Ok(text) = std::fs::read_to_string(dir.join(REPORT_JSON)) else {
+            continue;
+        };
+        let report: stepsim_harness::report::Report = match serde_json::from_str(&text) {
+            Ok(r) => r,
+            Err(e) => {
+                return web.error(
+                    &nav,
+                    &ApiError::internal(format!("{}: {e}", dir.join(REPORT_JSON).display())),
+                );
+            }
+        };
+        let figures: Vec<Value> = REPORT_FIGURES
+            .iter()
+            .filter(|f| dir.join(format!("{f}.png")).is_file())
+            .map(|f| serde_json::json!({"file": format!("{f}.png"), "caption": figure_caption(f)}))
+            .collect();
+        parts.push(serde_json::json!({
+            "name": name,
+            "title": title,
+            "tables": report::tables(&report),
+            "figures": figures,
+        }));
+    }
+    web.render(
+        StatusCode::OK,
+        "report.html",
+        serde_json::json!({"nav": nav, "id": sub.id, "team": team,
+                           "created": when(sub.created_s), "parts": parts}),
+    )
+}
+
+fn figure_caption(name: &str) -> &'static str {
+    match name {
+        "fig2_shear_response" => {
+            "Shear response: measured minus true shear against true shear, per PSF"
+        }
+        "fig3_m_sigma_c" => "m against σc per PSF",
+        "fig4_mselc_muncontaminated" => "Selection bias against the uncontaminated m",
+        "fig5_residual_magnitude" => "Shear residual against true magnitude",
+        _ => "",
+    }
+}
+
+/// One of the report's PNG figures, after reveal, for a visible entry,
+/// only the named plot files, only when the file exists.
+async fn figure(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+    UrlPath((id, part, file)): UrlPath<(String, String, String)>,
+) -> Response {
+    let nav = web.nav(&state, &headers, "report");
+    let not_found = || web.error(&nav, &ApiError::not_found());
+    let sub = match visible_entry(&state, &web, &headers, &id) {
+        Ok(s) => s,
+        Err(e) => return web.error(&nav, &e),
+    };
+    let Some((part, _)) = PARTS.iter().find(|(p, _)| *p == part) else {
+        return not_found();
+    };
+    if !REPORT_FIGURES.iter().any(|f| format!("{f}.png") == file) {
+        return not_found();
+    }
+    let path = state
+        .dir()
+        .join("entries")
+        .join(sub.id.to_string())
+        .join(part)
+        .join(&file);
+    match tokio::fs::read(&path).await {
+        Ok(bytes) => ([(header::CONTENT_TYPE, "image/png")], Body::from(bytes)).into_response(),
+        Err(_) => not_found(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_templates_compile() {
+        let env = templates().unwrap();
+        for (name, _) in TEMPLATES {
+            assert!(env.get_template(name).is_ok(), "{name}");
+        }
+    }
+
+    #[test]
+    fn numbers_read_well() {
+        assert_eq!(fixed(Some(-0.01234), 3), "−0.012");
+        assert_eq!(fixed(Some(-0.0001), 3), "0.000");
+        assert_eq!(fixed(None, 3), "—");
+        assert_eq!(fixed(Some(f64::NAN), 3), "—");
+        assert_eq!(signed(Some(0.0123), 3), "+0.012");
+        assert_eq!(signed(Some(0.00001), 3), "0.000");
+        assert_eq!(size_text(999), "999 B");
+        assert_eq!(size_text(12_345), "12.3 kB");
+        assert_eq!(cap_text(256 << 20), "256 MiB");
+        assert_eq!(cap_text(1000), "1000 bytes");
+        assert_eq!(when(0), "1970-01-01 00:00 UTC");
+    }
+
+    #[test]
+    fn origins_and_cookies() {
+        let mut h = HeaderMap::new();
+        h.insert(header::HOST, HeaderValue::from_static("example.org:8080"));
+        assert!(same_origin(&h), "no Origin, no Referer: the token decides");
+        h.insert(
+            header::ORIGIN,
+            HeaderValue::from_static("http://example.org:8080"),
+        );
+        assert!(same_origin(&h));
+        h.insert(
+            header::ORIGIN,
+            HeaderValue::from_static("http://evil.example"),
+        );
+        assert!(!same_origin(&h));
+        h.insert(header::ORIGIN, HeaderValue::from_static("null"));
+        assert!(!same_origin(&h));
+        h.remove(header::ORIGIN);
+        h.insert(
+            header::REFERER,
+            HeaderValue::from_static("https://example.org:8080/entries"),
+        );
+        assert!(same_origin(&h));
+        h.insert(
+            header::REFERER,
+            HeaderValue::from_static("https://example.org:8080.evil/x"),
+        );
+        assert!(!same_origin(&h));
+        h.insert(
+            header::COOKIE,
+            HeaderValue::from_static("a=1; stepsim_session=abc; b=2"),
+        );
+        assert_eq!(cookie(&h, SESSION_COOKIE).as_deref(), Some("abc"));
+        assert_eq!(cookie(&h, "c"), None);
+        assert!(same_secret("abc", "abc") && !same_secret("abc", "abd") && !same_secret("a", "ab"));
+    }
+}

@@ -1,0 +1,198 @@
+//! A scored entry's full report (report.json of one part) as the tables of
+//! the report page: the summary with its bootstrap intervals, m, q and c per
+//! PSF with their errors, and the per-dataset shears. Shown only after
+//! reveal (docs/server.md, "Pages").
+
+use super::{fixed, signed};
+use serde::Serialize;
+use stepsim_harness::report::Report;
+
+/// One summary figure: value and bootstrap interval.
+#[derive(Debug, Serialize)]
+pub(crate) struct SummaryRow {
+    /// The figure's symbol (`m`, `σ`, ...).
+    label: &'static str,
+    /// Its subscript, if any.
+    sub: &'static str,
+    /// What it is.
+    what: &'static str,
+    value: String,
+    lo: String,
+    hi: String,
+}
+
+/// One PSF's fit.
+#[derive(Debug, Serialize)]
+pub(crate) struct PsfRow {
+    psf: String,
+    m: String,
+    q: String,
+    c1: String,
+    c2: String,
+    m_uncontaminated: String,
+    linear: bool,
+}
+
+/// One dataset.
+#[derive(Debug, Serialize)]
+pub(crate) struct DatasetRow {
+    dataset: String,
+    psf: String,
+    g1_true: String,
+    g2_true: String,
+    g1: String,
+    g2: String,
+    n_images: usize,
+    n_objects: u64,
+    pct_stars: String,
+    pct_false: String,
+}
+
+/// The tables of one part's report.
+#[derive(Debug, Serialize)]
+pub(crate) struct ReportTables {
+    pub(crate) summary: Vec<SummaryRow>,
+    pub(crate) confidence: String,
+    pub(crate) n_resamples: usize,
+    pub(crate) psfs: Vec<PsfRow>,
+    pub(crate) datasets: Vec<DatasetRow>,
+    pub(crate) warnings: Vec<String>,
+}
+
+/// How a summary figure's interval is picked from the bootstrap.
+type Pick = fn(&stepsim_harness::report::BootstrapCi) -> Option<[f64; 2]>;
+/// A summary row to build: (symbol, subscript, meaning, value, interval, decimals).
+type SummaryLine = (
+    &'static str,
+    &'static str,
+    &'static str,
+    Option<f64>,
+    Pick,
+    usize,
+);
+
+/// `value ± error` with `dp` decimals.
+fn pm(v: Option<f64>, e: Option<f64>, dp: usize) -> String {
+    match (v, e) {
+        (Some(_), Some(e)) => format!("{} ± {}", signed(v, dp), fixed(Some(e), dp)),
+        _ => signed(v, dp),
+    }
+}
+
+/// The tables of a report.
+pub(crate) fn tables(r: &Report) -> ReportTables {
+    let s = &r.summary;
+    let b = s.bootstrap.as_ref();
+    let rows: [SummaryLine; 8] = [
+        (
+            "Q",
+            "c",
+            "quality factor (larger is better)",
+            s.q_c,
+            |b| b.q_c,
+            1,
+        ),
+        (
+            "⟨m⟩",
+            "",
+            "mean multiplicative bias over PSFs",
+            s.m_mean,
+            |b| b.m_mean,
+            4,
+        ),
+        (
+            "σ",
+            "c",
+            "scatter of c₁, c₂ over PSFs",
+            s.sigma_c,
+            |b| b.sigma_c,
+            5,
+        ),
+        ("⟨q⟩", "", "mean non-linearity", s.q_mean, |b| b.q_mean, 3),
+        (
+            "⟨m⟩",
+            "galaxies",
+            "galaxies only (uncontaminated)",
+            s.m_uncontaminated_mean,
+            |b| b.m_uncontaminated_mean,
+            4,
+        ),
+        (
+            "⟨m⟩",
+            "selection",
+            "selection bias",
+            s.m_selc_mean,
+            |b| b.m_selc_mean,
+            4,
+        ),
+        (
+            "⟨m⟩",
+            "weight",
+            "weight bias",
+            s.m_weight_mean,
+            |b| b.m_weight_mean,
+            4,
+        ),
+        (
+            "⟨m⟩",
+            "isolated",
+            "isolated galaxies (no blending)",
+            s.m_isolated_mean,
+            |b| b.m_isolated_mean,
+            4,
+        ),
+    ];
+    let summary = rows
+        .into_iter()
+        .map(|(label, sub, what, v, pick, dp)| {
+            let ci = b.and_then(pick);
+            SummaryRow {
+                label,
+                sub,
+                what,
+                value: signed(v, dp),
+                lo: signed(ci.map(|c| c[0]), dp),
+                hi: signed(ci.map(|c| c[1]), dp),
+            }
+        })
+        .collect();
+    let psfs = r
+        .psfs
+        .iter()
+        .map(|p| PsfRow {
+            psf: p.psf.clone(),
+            m: pm(p.m, p.m_err, 4),
+            q: pm(p.q, p.q_err, 3),
+            c1: pm(p.c1, p.c1_err, 5),
+            c2: pm(p.c2, p.c2_err, 5),
+            m_uncontaminated: pm(p.m_uncontaminated, p.m_uncontaminated_err, 4),
+            linear: p.linear,
+        })
+        .collect();
+    let datasets = r
+        .datasets
+        .iter()
+        .map(|d| DatasetRow {
+            dataset: d.dataset.clone(),
+            psf: d.psf.clone(),
+            g1_true: signed(Some(d.g1_true), 4),
+            g2_true: signed(Some(d.g2_true), 4),
+            g1: pm(d.g1, d.g1_err, 4),
+            g2: pm(d.g2, d.g2_err, 4),
+            n_images: d.n_images,
+            n_objects: d.n_objects,
+            pct_stars: fixed(Some(d.pct_stars), 1),
+            pct_false: fixed(Some(d.pct_false), 1),
+        })
+        .collect();
+    ReportTables {
+        summary,
+        confidence: b
+            .map(|b| format!("{:.0} %", 100.0 * b.confidence))
+            .unwrap_or_default(),
+        n_resamples: b.map_or(0, |b| b.n_resamples),
+        psfs,
+        datasets,
+        warnings: r.warnings.clone(),
+    }
+}

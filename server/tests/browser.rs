@@ -1,0 +1,419 @@
+//! The pages in a real browser: Debian's `chromium`, headless, driven
+//! through WebDriver (`chromedriver`, started here on a free port) by
+//! fantoccini. A team signs in with its token, uploads a bad catalogue
+//! (sees the harness's message with the line number) and a good one
+//! through the file input, waits until it is scored and on the
+//! leaderboard; after reveal it opens the report with its tables and
+//! figures. Screenshots of every page go to `target/screenshots/`.
+//!
+//! Without `chromium` and `chromedriver` the test fails, naming the
+//! packages, unless `STEPSIM_SKIP_BROWSER=1`.
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode, header};
+use fantoccini::{Client, ClientBuilder, Locator};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_server::api::{AppState, router};
+use stepsim_server::{Challenge, worker};
+use tower::ServiceExt;
+
+const TEAM: &str = "Lensing Group A";
+
+/// An executable on PATH (or one of `also`), if any.
+fn find_program(names: &[&str], also: &[&str]) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    for name in names {
+        for dir in std::env::split_paths(&path) {
+            let p = dir.join(name);
+            if p.is_file() {
+                return Some(p);
+            }
+        }
+    }
+    also.iter().map(PathBuf::from).find(|p| p.is_file())
+}
+
+/// chromedriver, killed when dropped.
+struct Driver(Child);
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn write_run(dir: &Path) -> SynthRun {
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(2);
+    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
+    let (_, _, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
+    all.write(&dir.join("run/private")).unwrap();
+    std::fs::create_dir_all(dir.join("run/public")).unwrap();
+    std::fs::write(
+        dir.join("run/public/README.md"),
+        format!(
+            "# Simulated weak-lensing images\n\n\
+             This directory holds simulated ground-based images in the style of the Shear \
+             TEsting Programme (STEP1). Every image shows galaxies and stars seen through a \
+             point-spread function and sheared by a constant reduced shear.\n\n\
+             ## What is here\n\n\
+             - `manifest.json`: every image with its id, dataset and SHA-256.\n\
+             - `<dataset-id>/<image-id>.fits`: the images.\n\n{}",
+            stepsim_contract::SUBMISSION_FORMAT_MD
+        ),
+    )
+    .unwrap();
+    all
+}
+
+fn catalogue(all: &SynthRun, m: f64, c: f64) -> String {
+    let rows = all.submission(&|t, _| {
+        (!t.is_star()).then_some(((1.0 + m) * t.e1 + c, (1.0 + m) * t.e2, 1.0))
+    });
+    submission_text(&all.index(), &rows)
+}
+
+fn shots_dir() -> PathBuf {
+    // CARGO_TARGET_TMPDIR is TARGET/tmp: the shots go beside it.
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .parent()
+        .unwrap()
+        .join("screenshots");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A screenshot of the whole page (the window stretched to its height).
+async fn shot(c: &Client, name: &str) {
+    let height = c
+        .execute("return document.documentElement.scrollHeight;", vec![])
+        .await
+        .ok()
+        .and_then(|v| v.as_u64())
+        .unwrap_or(1000)
+        .clamp(600, 6000) as u32;
+    c.set_window_size(1280, height + 140).await.unwrap();
+    let png = c.screenshot().await.unwrap();
+    std::fs::write(shots_dir().join(format!("server-{name}.png")), png).unwrap();
+    c.set_window_size(1280, 1000).await.unwrap();
+}
+
+async fn text_of(c: &Client, css: &str) -> String {
+    match c.find(Locator::Css(css)).await {
+        Ok(e) => e.text().await.unwrap_or_default(),
+        Err(e) => panic!(
+            "{css} not on the page ({e}); the page at {:?}:\n{}",
+            c.current_url().await.map(|u| u.to_string()),
+            c.source().await.unwrap_or_default()
+        ),
+    }
+}
+
+/// Waits (at most 20 s) until the element `css` holds `needle`: a click
+/// on a form's button may return before the next page is there.
+async fn wait_text(c: &Client, css: &str, needle: &str) -> String {
+    let t0 = Instant::now();
+    loop {
+        if let Ok(e) = c.find(Locator::Css(css)).await {
+            if let Ok(t) = e.text().await {
+                if t.contains(needle) {
+                    return t;
+                }
+            }
+        }
+        if t0.elapsed() > Duration::from_secs(20) {
+            return text_of(c, css).await;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_team_uses_the_pages_in_a_real_browser() {
+    let driver = find_program(&["chromedriver"], &["/usr/lib/chromium/chromedriver"]);
+    let chromium = find_program(&["chromium", "chromium-browser"], &[]);
+    let (Some(driver), Some(chromium)) = (driver, chromium) else {
+        if std::env::var("STEPSIM_SKIP_BROWSER").as_deref() == Ok("1") {
+            eprintln!(
+                "browser test skipped (STEPSIM_SKIP_BROWSER=1): chromium/chromedriver not found"
+            );
+            return;
+        }
+        panic!(
+            "the browser test needs Debian's `chromium` and `chromium-driver` packages \
+             (chromium and chromedriver on PATH): install them with \
+             `apt-get install -y chromium chromium-driver`, or set STEPSIM_SKIP_BROWSER=1 to skip it"
+        );
+    };
+
+    // The challenge: three teams; the browser is the first.
+    let tmp = tempfile::tempdir().unwrap();
+    let all = write_run(tmp.path());
+    let state = tmp.path().join("state");
+    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
+    ch.store.set_meta("requests_per_minute", "100000").unwrap();
+    let token = ch.add_team(TEAM).unwrap();
+    let others = [
+        ("Durham KSB", -0.021, 0.0004),
+        ("KSB+ reference", 0.034, -0.0009),
+    ];
+    let other_tokens: Vec<String> = others.iter().map(|o| ch.add_team(o.0).unwrap()).collect();
+    // The reference pipeline's row: shown, tagged, never ranked.
+    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .unwrap();
+    ch.set_name("STEP1-mini challenge").unwrap();
+    ch.set_deadline(Some(stepsim_server::now_s() + 14 * 86_400))
+        .unwrap();
+    drop(ch);
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let base = format!("http://{}", listener.local_addr().unwrap());
+    let app = router(AppState::new(Challenge::open(&state).unwrap()));
+    tokio::spawn(async move {
+        axum::serve(
+            listener,
+            app.into_make_service_with_connect_info::<SocketAddr>(),
+        )
+        .await
+    });
+    let stop = Arc::new(AtomicBool::new(false));
+    let (dir, stop2) = (state.clone(), stop.clone());
+    let worker = std::thread::spawn(move || {
+        worker::run_worker(&dir, stop2, worker::DEFAULT_TIMEOUT).unwrap();
+    });
+    // The other teams upload through the API.
+    let api = router(AppState::new(Challenge::open(&state).unwrap()));
+    for ((_, m, c), t) in others.iter().zip(&other_tokens) {
+        let resp = api
+            .clone()
+            .oneshot(
+                Request::post("/api/submissions")
+                    .header(header::AUTHORIZATION, format!("Bearer {t}"))
+                    .body(Body::from(catalogue(&all, *m, *c)))
+                    .unwrap(),
+            )
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::ACCEPTED);
+    }
+    // The files the browser uploads: a bad one (line 4 not a number) and a
+    // good one.
+    let good = catalogue(&all, 0.008, 0.0002);
+    let mut lines: Vec<String> = good.lines().map(String::from).collect();
+    let mut fields: Vec<&str> = lines[3].split(' ').collect();
+    fields[3] = "abc";
+    lines[3] = fields.join(" ");
+    let bad_path = tmp.path().join("bad-catalogue.txt");
+    std::fs::write(&bad_path, lines.join("\n") + "\n").unwrap();
+    let good_path = tmp.path().join("good-catalogue.txt");
+    std::fs::write(&good_path, &good).unwrap();
+
+    // chromedriver on a free port, headless chromium.
+    let port = free_port();
+    let log = std::fs::File::create(tmp.path().join("chromedriver.log")).unwrap();
+    let _driver = Driver(
+        Command::new(&driver)
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", driver.display())),
+    );
+    let t0 = Instant::now();
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "chromedriver did not listen"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut caps = serde_json::Map::new();
+    caps.insert(
+        "goog:chromeOptions".into(),
+        serde_json::json!({
+            "binary": chromium,
+            "args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                     "--window-size=1280,1000", "--disable-dev-shm-usage",
+                     "--force-device-scale-factor=1"],
+        }),
+    );
+    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&format!("http://127.0.0.1:{port}"))
+        .await
+        .expect("chromedriver session");
+    let result = browse(&c, &base, &token, &bad_path, &good_path, &state).await;
+    let _ = c.close().await;
+    stop.store(true, Ordering::Relaxed);
+    worker.join().unwrap();
+    result.unwrap();
+}
+
+async fn browse(
+    c: &Client,
+    base: &str,
+    token: &str,
+    bad: &Path,
+    good: &Path,
+    state: &Path,
+) -> Result<(), String> {
+    let err = |e: fantoccini::error::CmdError| e.to_string();
+    // The challenge page.
+    c.goto(&format!("{base}/")).await.map_err(err)?;
+    assert!(text_of(c, "main h1").await.contains("The challenge"));
+    assert!(
+        text_of(c, "article.readme")
+            .await
+            .contains("Simulated weak-lensing images")
+    );
+    shot(c, "challenge").await;
+    // Sign in with the token.
+    c.find(Locator::LinkText("Sign in"))
+        .await
+        .map_err(err)?
+        .click()
+        .await
+        .map_err(err)?;
+    c.find(Locator::Id("token"))
+        .await
+        .map_err(err)?
+        .send_keys(token)
+        .await
+        .map_err(err)?;
+    shot(c, "signin").await;
+    c.find(Locator::Css("form.panel button[type=submit]"))
+        .await
+        .map_err(err)?
+        .click()
+        .await
+        .map_err(err)?;
+    let who = wait_text(c, "header .who", TEAM).await;
+    assert!(who.contains(TEAM), "signed in: {who}");
+    assert_eq!(c.current_url().await.map_err(err)?.path(), "/entries");
+    // The bad catalogue: refused, the harness's message with its line.
+    let upload = |path: &Path| {
+        let p = path.display().to_string();
+        async move {
+            c.find(Locator::Id("file")).await?.send_keys(&p).await?;
+            c.find(Locator::Css("form.upload button"))
+                .await?
+                .click()
+                .await
+        }
+    };
+    upload(bad).await.map_err(err)?;
+    let notice = wait_text(c, "#notice", "refused").await;
+    assert!(notice.contains("The upload was refused."), "{notice}");
+    assert!(notice.contains("line 4"), "the line number: {notice}");
+    assert!(notice.contains("the upload"), "{notice}");
+    shot(c, "upload-refused").await;
+    // The good one: queued, then scored (poll, bounded).
+    upload(good).await.map_err(err)?;
+    let notice = wait_text(c, "#notice", "passed the format check").await;
+    assert!(notice.contains("passed the format check"), "{notice}");
+    let t0 = Instant::now();
+    let id = loop {
+        let rows = c
+            .find_all(Locator::Css("#entries tbody tr"))
+            .await
+            .map_err(err)?;
+        let first = rows.first().ok_or("no entry row")?;
+        let status = first
+            .find(Locator::Css(".badge"))
+            .await
+            .map_err(err)?
+            .text()
+            .await
+            .map_err(err)?;
+        if status.eq_ignore_ascii_case("scored") {
+            break first
+                .find(Locator::Css("td"))
+                .await
+                .map_err(err)?
+                .text()
+                .await
+                .map_err(err)?;
+        }
+        assert!(
+            !status.eq_ignore_ascii_case("refused"),
+            "the good file was refused"
+        );
+        assert!(t0.elapsed() < Duration::from_secs(60), "not scored in 60 s");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        c.refresh().await.map_err(err)?;
+    };
+    shot(c, "entries").await;
+    // On the leaderboard.
+    c.find(Locator::LinkText("Leaderboard"))
+        .await
+        .map_err(err)?
+        .click()
+        .await
+        .map_err(err)?;
+    let board = wait_text(c, "#board", TEAM).await;
+    assert!(board.contains(TEAM), "{board}");
+    // Wait for the other teams' entries so the board shows three rows.
+    let t0 = Instant::now();
+    while c
+        .find_all(Locator::Css("#board tbody tr"))
+        .await
+        .map_err(err)?
+        .len()
+        < 3
+    {
+        assert!(t0.elapsed() < Duration::from_secs(60), "board incomplete");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        c.refresh().await.map_err(err)?;
+    }
+    shot(c, "leaderboard").await;
+    // Reveal (the organiser's command, through the library); the final
+    // board links to the reports; the report has tables and figures.
+    Challenge::open(state).unwrap().reveal().unwrap();
+    c.refresh().await.map_err(err)?;
+    let h1 = wait_text(c, "main h1", "Final leaderboard").await;
+    assert!(h1.contains("Final leaderboard"), "{h1}");
+    shot(c, "leaderboard-final").await;
+    c.goto(&format!("{base}/entries/{id}/report"))
+        .await
+        .map_err(err)?;
+    for part in ["holdout", "public"] {
+        let tables = c
+            .find_all(Locator::Css(&format!("#part-{part} table.data")))
+            .await
+            .map_err(err)?;
+        assert_eq!(tables.len(), 3, "summary, per PSF, per dataset ({part})");
+        let imgs = c
+            .find_all(Locator::Css(&format!("#part-{part} figure img")))
+            .await
+            .map_err(err)?;
+        assert_eq!(imgs.len(), 4, "{part} figures");
+        for img in imgs {
+            let w = c
+                .execute(
+                    "return arguments[0].naturalWidth;",
+                    vec![serde_json::to_value(&img).unwrap()],
+                )
+                .await
+                .map_err(err)?
+                .as_u64()
+                .unwrap_or(0);
+            assert!(w > 100, "a figure did not load ({w} px)");
+        }
+    }
+    shot(c, "report").await;
+    Ok(())
+}

@@ -1,0 +1,819 @@
+//! The participants' pages in-process (tower's `oneshot`), as a browser
+//! would use them: sign-in and sessions, CSRF, escaping of a hostile team
+//! name, the upload form's refusals, and reports and figures that open
+//! only at reveal (docs/server.md, "Pages").
+
+use axum::body::Body;
+use axum::http::{HeaderMap, Request, StatusCode, header};
+use http_body_util::BodyExt;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_server::api::{AppState, router};
+use stepsim_server::{Challenge, web, worker};
+use tower::ServiceExt;
+
+const HOST: &str = "challenge.test";
+const ORIGIN: &str = "http://challenge.test";
+const HOSTILE: &str = "<script>alert(1)</script>";
+
+/// A challenge run (public part: 2 PSFs × 2 shears on fields 0-1; held-out
+/// part: other shears on fields 2-3) with a participants' README.
+fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
+    let mut spec = SynthSpec::small(2);
+    spec.psfs.truncate(2);
+    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
+    let (_, held, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
+    all.write(&dir.join("run/private")).unwrap();
+    std::fs::create_dir_all(dir.join("run/public")).unwrap();
+    std::fs::write(
+        dir.join("run/public/README.md"),
+        "# Simulated images\n\nMeasure the **shear**; columns `image x y e1 e2`.\n\n\
+         - one <b>bold</b> claim\n",
+    )
+    .unwrap();
+    (all, held)
+}
+
+fn catalogue(all: &SynthRun, m: f64) -> String {
+    let rows =
+        all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
+    submission_text(&all.index(), &rows)
+}
+
+struct Fixture {
+    _tmp: tempfile::TempDir,
+    state: PathBuf,
+    all: SynthRun,
+    held: SynthRun,
+    tokens: Vec<String>,
+}
+
+fn fixture(teams: &[&str]) -> Fixture {
+    let tmp = tempfile::tempdir().unwrap();
+    let (all, held) = write_run(tmp.path());
+    let state = tmp.path().join("state");
+    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
+    let tokens = teams.iter().map(|t| ch.add_team(t).unwrap()).collect();
+    Fixture {
+        _tmp: tmp,
+        state,
+        all,
+        held,
+        tokens,
+    }
+}
+
+impl Fixture {
+    fn app(&self) -> axum::Router {
+        router(AppState::new(Challenge::open(&self.state).unwrap()))
+    }
+    fn score_queue(&self) {
+        let mut ch = Challenge::open(&self.state).unwrap();
+        while let Some(job) = ch.store.claim_job(stepsim_server::now_s()).unwrap() {
+            let r = worker::score_entry(&ch, &job);
+            ch.store
+                .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+                .unwrap();
+        }
+    }
+    fn reveal(&self) {
+        Challenge::open(&self.state).unwrap().reveal().unwrap();
+    }
+}
+
+/// An answer: status, headers, body text.
+struct Answer {
+    status: StatusCode,
+    headers: HeaderMap,
+    body: String,
+}
+
+impl Answer {
+    fn location(&self) -> &str {
+        self.headers
+            .get(header::LOCATION)
+            .map_or("", |v| v.to_str().unwrap())
+    }
+    /// The value of the first hidden `csrf` field of the page.
+    fn csrf(&self) -> String {
+        let at = self
+            .body
+            .find("name=\"csrf\" value=\"")
+            .unwrap_or_else(|| panic!("no csrf field: {}", self.body));
+        let rest = &self.body[at + 19..];
+        rest[..rest.find('"').unwrap()].to_string()
+    }
+}
+
+/// A browser in miniature: keeps cookies, sends Host and Origin.
+struct Agent {
+    app: axum::Router,
+    cookies: HashMap<String, String>,
+    origin: Option<String>,
+}
+
+impl Agent {
+    fn new(app: axum::Router) -> Self {
+        Self {
+            app,
+            cookies: HashMap::new(),
+            origin: Some(ORIGIN.into()),
+        }
+    }
+
+    async fn send(&mut self, mut req: Request<Body>) -> Answer {
+        req.headers_mut()
+            .insert(header::HOST, HOST.parse().unwrap());
+        if !self.cookies.is_empty() {
+            let c: Vec<String> = self
+                .cookies
+                .iter()
+                .map(|(k, v)| format!("{k}={v}"))
+                .collect();
+            req.headers_mut()
+                .insert(header::COOKIE, c.join("; ").parse().unwrap());
+        }
+        if req.method() == "POST" {
+            if let Some(o) = &self.origin {
+                req.headers_mut().insert(header::ORIGIN, o.parse().unwrap());
+            }
+        }
+        let resp = self.app.clone().oneshot(req).await.unwrap();
+        for v in resp.headers().get_all(header::SET_COOKIE) {
+            let v = v.to_str().unwrap();
+            let (kv, _) = v.split_once(';').unwrap();
+            let (k, val) = kv.split_once('=').unwrap();
+            if val.is_empty() {
+                self.cookies.remove(k);
+            } else {
+                self.cookies.insert(k.into(), val.into());
+            }
+        }
+        let status = resp.status();
+        let headers = resp.headers().clone();
+        let body = resp.into_body().collect().await.unwrap().to_bytes();
+        Answer {
+            status,
+            headers,
+            body: String::from_utf8_lossy(&body).into_owned(),
+        }
+    }
+
+    async fn get(&mut self, path: &str) -> Answer {
+        self.send(Request::get(path).body(Body::empty()).unwrap())
+            .await
+    }
+
+    async fn post_form(&mut self, path: &str, fields: &[(&str, &str)]) -> Answer {
+        let body = serde_urlencoded::to_string(fields).unwrap();
+        self.send(
+            Request::post(path)
+                .header(header::CONTENT_TYPE, "application/x-www-form-urlencoded")
+                .body(Body::from(body))
+                .unwrap(),
+        )
+        .await
+    }
+
+    /// The upload form: `csrf` (when given) then `file`.
+    async fn upload(&mut self, csrf: Option<&str>, file: &[u8]) -> Answer {
+        let mut b = Vec::new();
+        if let Some(c) = csrf {
+            b.extend_from_slice(
+                format!("--XyZ\r\nContent-Disposition: form-data; name=\"csrf\"\r\n\r\n{c}\r\n")
+                    .as_bytes(),
+            );
+        }
+        b.extend_from_slice(
+            b"--XyZ\r\nContent-Disposition: form-data; name=\"file\"; filename=\"c.txt\"\r\n\
+              Content-Type: text/plain\r\n\r\n",
+        );
+        b.extend_from_slice(file);
+        b.extend_from_slice(b"\r\n--XyZ--\r\n");
+        self.send(
+            Request::post("/entries")
+                .header(header::CONTENT_TYPE, "multipart/form-data; boundary=XyZ")
+                .body(Body::from(b))
+                .unwrap(),
+        )
+        .await
+    }
+
+    /// Signs in with `token` through the form; returns the answer.
+    async fn sign_in(&mut self, token: &str) -> Answer {
+        let page = self.get("/signin").await;
+        assert_eq!(page.status, StatusCode::OK);
+        let csrf = page.csrf();
+        self.post_form("/signin", &[("csrf", &csrf), ("token", token)])
+            .await
+    }
+}
+
+fn uploads(state: &Path) -> usize {
+    std::fs::read_dir(state.join("uploads")).unwrap().count()
+}
+
+#[tokio::test]
+async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
+    let f = fixture(&["alpha", "beta"]);
+    let mut a = Agent::new(f.app());
+    // Without a session: the entries page sends to the sign-in page.
+    let r = a.get("/entries").await;
+    assert_eq!((r.status, r.location()), (StatusCode::SEE_OTHER, "/signin"));
+    // The challenge page: the README (its HTML escaped), the rules.
+    let r = a.get("/").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("<h2>Simulated images</h2>"), "{}", r.body);
+    assert!(r.body.contains("<strong>shear</strong>"));
+    assert!(r.body.contains("one &lt;b&gt;bold&lt;/b&gt; claim"));
+    assert!(
+        r.body
+            .contains("<strong>4</strong> scored uploads per team")
+    );
+    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
+    assert!(!web::PAGE_CSP.contains("script-src") && web::PAGE_CSP.contains("default-src 'none'"));
+    assert_eq!(r.headers[header::X_FRAME_OPTIONS], "DENY");
+    assert_eq!(r.headers[header::X_CONTENT_TYPE_OPTIONS], "nosniff");
+    assert_eq!(r.headers[header::REFERRER_POLICY], "same-origin");
+    // The API keeps its own policy.
+    let r = a.get("/api/leaderboard").await;
+    assert_eq!(
+        r.headers[header::CONTENT_SECURITY_POLICY],
+        "default-src 'none'; frame-ancestors 'none'"
+    );
+    assert_eq!(r.headers[header::REFERRER_POLICY], "no-referrer");
+    // The stylesheet is served from the binary.
+    let r = a.get("/static/style.css").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(
+        r.headers[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with("text/css")
+    );
+    assert!(r.body.contains("table.data"));
+    // A wrong token: 401, the form again, no session.
+    let r = a.sign_in("stp_0000").await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    assert!(r.body.contains("this token is not valid"));
+    assert!(!a.cookies.contains_key(web::SESSION_COOKIE));
+    // The right one: a session cookie, HttpOnly, SameSite=Strict, Path=/.
+    let r = a.sign_in(&f.tokens[0]).await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/entries")
+    );
+    let set: Vec<&str> = r
+        .headers
+        .get_all(header::SET_COOKIE)
+        .iter()
+        .map(|v| v.to_str().unwrap())
+        .collect();
+    let session = set
+        .iter()
+        .find(|c| c.starts_with("stepsim_session="))
+        .unwrap();
+    for attr in ["HttpOnly", "SameSite=Strict", "Path=/;"] {
+        assert!(session.contains(attr), "{session}");
+    }
+    let id = a.cookies[web::SESSION_COOKIE].clone();
+    assert_eq!(id.len(), 64, "256 random bits");
+    let r = a.get("/entries").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(r.body.contains("Entries of alpha"));
+    assert!(r.body.contains("<strong>0</strong> of 4"));
+    // Sign out (a form with the session's token): the session ends.
+    let csrf = r.csrf();
+    let r = a.post_form("/signout", &[("csrf", &csrf)]).await;
+    assert_eq!((r.status, r.location()), (StatusCode::SEE_OTHER, "/"));
+    let r = a.get("/entries").await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    // A session of a token that is then revoked ends too; a stolen cookie
+    // value of an ended session does not come back.
+    a.sign_in(&f.tokens[1]).await;
+    assert_eq!(a.get("/entries").await.status, StatusCode::OK);
+    Challenge::open(&f.state).unwrap().revoke("beta").unwrap();
+    assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
+    a.cookies.insert(web::SESSION_COOKIE.into(), id.clone());
+    assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
+}
+
+#[tokio::test]
+async fn forms_without_the_right_token_or_from_another_origin_are_refused() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    // Sign-in: the double-submit token is needed, and the right origin.
+    let page = a.get("/signin").await;
+    let good = page.csrf();
+    for fields in [
+        vec![("token", f.tokens[0].as_str())],
+        vec![("csrf", "0f0f"), ("token", f.tokens[0].as_str())],
+    ] {
+        let r = a.post_form("/signin", &fields).await;
+        assert_eq!(r.status, StatusCode::FORBIDDEN, "{fields:?}");
+        assert!(
+            r.body.contains("security token is missing or wrong"),
+            "{}",
+            r.body
+        );
+    }
+    a.origin = Some("http://evil.example".into());
+    let r = a
+        .post_form("/signin", &[("csrf", &good), ("token", &f.tokens[0])])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("sent from another site"));
+    a.origin = Some("null".into());
+    let r = a
+        .post_form("/signin", &[("csrf", &good), ("token", &f.tokens[0])])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(!a.cookies.contains_key(web::SESSION_COOKIE));
+    a.origin = Some(ORIGIN.into());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    let good_file = catalogue(&f.all, 0.0);
+    // Upload: without the token, with a wrong one, from another origin.
+    let r = a.upload(None, good_file.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN, "{}", r.body);
+    let r = a.upload(Some("deadbeef"), good_file.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    a.origin = Some("https://evil.example".into());
+    let r = a.upload(Some(&csrf), good_file.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    let r = a.post_form("/signout", &[("csrf", &csrf)]).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    a.origin = Some(ORIGIN.into());
+    let r = a.post_form("/signout", &[("csrf", "nope")]).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    // A field before the file larger than 1 KiB is refused unread (400).
+    let r = a
+        .upload(Some(&"x".repeat(5000)), good_file.as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::BAD_REQUEST, "{}", r.body);
+    assert!(r.body.contains("too many or too large fields"));
+    assert_eq!(uploads(&f.state), 0, "nothing kept");
+    // A post without a session (as a cross-site form arrives under
+    // SameSite=Strict) is refused too.
+    let mut stranger = Agent::new(app);
+    let r = stranger.upload(Some(&csrf), good_file.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("Sign in first"));
+    // Still signed in; the right token and origin go through.
+    let r = a.upload(Some(&csrf), good_file.as_bytes()).await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/entries?uploaded=1")
+    );
+    assert_eq!(uploads(&f.state), 1);
+}
+
+#[tokio::test]
+async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good_files() {
+    let f = fixture(&["alpha"]);
+    let mut a = Agent::new(f.app());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // Line 4 of the file carries a value that is not a number.
+    let good = catalogue(&f.all, 0.0);
+    let mut lines: Vec<String> = good.lines().map(String::from).collect();
+    let mut fields: Vec<&str> = lines[3].split(' ').collect();
+    fields[3] = "abc";
+    lines[3] = fields.join(" ");
+    let bad = lines.join("\n") + "\n";
+    let r = a.upload(Some(&csrf), bad.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    assert!(r.body.contains("The upload was refused."));
+    // The harness's message, as the API gives it for the same bytes.
+    let api = f
+        .app()
+        .oneshot(
+            Request::post("/api/submissions")
+                .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+                .body(Body::from(bad.clone()))
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    let api: serde_json::Value =
+        serde_json::from_slice(&api.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    let message = api["error"].as_str().unwrap();
+    assert!(message.contains("line 4"), "{message}");
+    assert!(
+        r.body.contains(&web::escape(message)),
+        "{message} not in {}",
+        r.body
+    );
+    assert!(!r.body.contains(f.state.to_str().unwrap()));
+    // A good file: queued, then scored with the rounded public feedback.
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.02).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let r = a.get(r.location().to_string().as_str()).await;
+    assert!(
+        r.body.contains("Entry 1 passed the format check"),
+        "{}",
+        r.body
+    );
+    assert!(
+        r.body
+            .contains("<span class=\"badge queued\">queued</span>")
+    );
+    assert!(r.body.contains("<strong>1</strong> of 4"));
+    assert!(r.body.contains("leaves the window at"));
+    // While an entry waits the page reloads itself (no script needed).
+    assert!(
+        r.body
+            .contains("<meta http-equiv=\"refresh\" content=\"10; url=/entries\">")
+    );
+    f.score_queue();
+    let r = a.get("/entries").await;
+    assert!(
+        r.body
+            .contains("<span class=\"badge scored\">scored</span>")
+    );
+    assert!(!r.body.contains("http-equiv"), "no reload once scored");
+    let ch = Challenge::open(&f.state).unwrap();
+    let public: serde_json::Value = serde_json::from_str(
+        &ch.store
+            .submission(1)
+            .unwrap()
+            .unwrap()
+            .public_json
+            .unwrap(),
+    )
+    .unwrap();
+    let m = public["m_mean"].as_f64().unwrap();
+    assert!((m - 0.02).abs() < 0.002, "{m}");
+    assert!(r.body.contains(&format!("+{m:.3}")), "{}", r.body);
+    // The same bytes again: recognised, nothing counted.
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.02).as_bytes())
+        .await;
+    assert_eq!(r.location(), "/entries?uploaded=1&duplicate=1");
+}
+
+/// Every dataset id of the run and every held-out shear: none may show
+/// on a page before reveal (per-dataset tables and true shears are hidden).
+fn secrets(f: &Fixture) -> Vec<String> {
+    let mut v: Vec<String> = f
+        .all
+        .datasets
+        .datasets
+        .iter()
+        .map(|d| d.dataset.clone())
+        .collect();
+    for d in &f.held.datasets.datasets {
+        v.push(format!("{:.4}", d.g1.abs()));
+        v.push(format!("{:.4}", d.g2.abs()));
+    }
+    v.push("/figures/".into());
+    v.push(f.state.display().to_string());
+    v
+}
+
+#[tokio::test]
+async fn a_hostile_team_name_stays_text_on_every_page() {
+    let f = fixture(&[HOSTILE, "beta"]);
+    let mut a = Agent::new(f.app());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    f.score_queue();
+    // minijinja writes `/` as `&#x2f;` too.
+    let escaped = "&lt;script&gt;alert(1)&lt;&#x2f;script&gt;";
+    let secrets = secrets(&f);
+    for revealed in [false, true] {
+        if revealed {
+            f.reveal();
+        }
+        let mut pages = vec!["/", "/signin", "/entries", "/leaderboard"];
+        if revealed {
+            pages.push("/entries/1/report");
+        }
+        for page in pages {
+            let r = a.get(page).await;
+            assert_eq!(r.status, StatusCode::OK, "{page}");
+            assert!(!r.body.contains(HOSTILE), "{page}: {}", r.body);
+            assert!(!r.body.contains("<script"), "{page}");
+            assert!(r.body.contains(escaped), "{page} shows the name escaped");
+            if !revealed {
+                for s in &secrets {
+                    assert!(
+                        !r.body.contains(s.as_str()),
+                        "{page} shows {s:?} before reveal"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[tokio::test]
+async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
+    let f = fixture(&["alpha", "beta"]);
+    let app = f.app();
+    let mut alpha = Agent::new(app.clone());
+    alpha.sign_in(&f.tokens[0]).await;
+    let csrf = alpha.get("/entries").await.csrf();
+    for m in [0.01, 0.2] {
+        let r = alpha
+            .upload(Some(&csrf), catalogue(&f.all, m).as_bytes())
+            .await;
+        assert_eq!(r.status, StatusCode::SEE_OTHER);
+    }
+    f.score_queue();
+    let mut anyone = Agent::new(app.clone());
+    let mut beta = Agent::new(app);
+    beta.sign_in(&f.tokens[1]).await;
+    let fig = "/entries/1/figures/public/fig2_shear_response.png";
+    let held_fig = "/entries/1/figures/holdout/fig3_m_sigma_c.png";
+    // Before reveal: nothing, not even for the entry's own team.
+    for agent in [&mut alpha, &mut anyone] {
+        for path in ["/entries/1/report", fig, held_fig] {
+            let r = agent.get(path).await;
+            assert_eq!(r.status, StatusCode::NOT_FOUND, "{path}");
+        }
+    }
+    let r = alpha.get("/entries").await;
+    assert!(!r.body.contains("/report"), "no report link before reveal");
+    f.reveal();
+    // After: the ranked entry's report for everyone, with its tables and
+    // figures; the other entry for its own team only.
+    let r = anyone.get("/leaderboard").await;
+    assert!(r.body.contains("Final leaderboard"));
+    assert!(r.body.contains("href=\"/entries/1/report\""), "{}", r.body);
+    let r = anyone.get("/entries/1/report").await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.body);
+    for part in ["part-holdout", "part-public"] {
+        assert!(r.body.contains(part), "{part}");
+    }
+    for d in f.all.datasets.datasets.iter() {
+        assert!(
+            r.body.contains(&d.dataset),
+            "dataset {} in the tables",
+            d.dataset
+        );
+    }
+    let held = &f.held.datasets.datasets[0];
+    let g1 = stepsim_harness::part::round_to(Some(held.g1), 4).unwrap();
+    assert!(
+        r.body.contains(&format!("{:.4}", g1.abs())),
+        "true held-out shear {g1} shown after reveal"
+    );
+    assert!(
+        r.body
+            .contains("95 % bootstrap intervals from 200 resamples"),
+        "bootstrap intervals"
+    );
+    assert!(r.body.contains(&format!("src=\"{fig}\"")));
+    assert!(r.body.contains(&format!("src=\"{held_fig}\"")));
+    for path in [fig, held_fig] {
+        let r = anyone.get(path).await;
+        assert_eq!(r.status, StatusCode::OK, "{path}");
+        assert_eq!(r.headers[header::CONTENT_TYPE], "image/png");
+        assert!(r.body.starts_with("\u{FFFD}PNG"), "a PNG file");
+    }
+    assert_eq!(
+        anyone.get("/entries/2/report").await.status,
+        StatusCode::NOT_FOUND
+    );
+    assert_eq!(
+        beta.get("/entries/2/report").await.status,
+        StatusCode::NOT_FOUND
+    );
+    assert_eq!(alpha.get("/entries/2/report").await.status, StatusCode::OK);
+    // Only the named PNG plots, never another file or a path.
+    for path in [
+        "/entries/1/figures/public/report.json",
+        "/entries/1/figures/public/report.md",
+        "/entries/1/figures/public/fig2_shear_response.svg",
+        "/entries/1/figures/public/..%2Freport.json",
+        "/entries/1/figures/public/..%2F..%2F..%2Fchallenge.db",
+        "/entries/1/figures/..%2F..%2Fuploads/fig2_shear_response.png",
+        "/entries/1/figures/../../challenge.db",
+        "/entries/1/figures/private/fig2_shear_response.png",
+        "/entries/..%2F1/figures/public/fig2_shear_response.png",
+        "/entries/3/figures/public/fig2_shear_response.png",
+        "/entries/x/report",
+        "/entries/-1/report",
+    ] {
+        let r = anyone.get(path).await;
+        assert_eq!(r.status, StatusCode::NOT_FOUND, "{path}");
+        assert!(!r.body.contains("\"run\""), "{path}");
+    }
+    // A named plot that does not exist: 404 too.
+    std::fs::remove_file(f.state.join("entries/1/public/fig5_residual_magnitude.png")).unwrap();
+    let r = anyone
+        .get("/entries/1/figures/public/fig5_residual_magnitude.png")
+        .await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+}
+
+#[tokio::test]
+async fn the_rate_limit_counts_page_requests() {
+    let f = fixture(&["alpha"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.store.set_meta("requests_per_minute", "3").unwrap();
+    let mut a = Agent::new(f.app());
+    let from = |path: &str| {
+        let mut r = Request::get(path).body(Body::empty()).unwrap();
+        r.extensions_mut().insert(axum::extract::ConnectInfo(
+            "10.1.1.1:5".parse::<std::net::SocketAddr>().unwrap(),
+        ));
+        r
+    };
+    for path in ["/", "/leaderboard", "/signin"] {
+        assert_eq!(a.send(from(path)).await.status, StatusCode::OK, "{path}");
+    }
+    let r = a.send(from("/")).await;
+    assert_eq!(r.status, StatusCode::TOO_MANY_REQUESTS);
+    assert!(r.headers.contains_key(header::RETRY_AFTER));
+}
+
+#[tokio::test]
+async fn final_entries_are_chosen_on_the_entries_page() {
+    let f = fixture(&["alpha", "beta"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    for m in [0.01, 0.2] {
+        let r = a.upload(Some(&csrf), catalogue(&f.all, m).as_bytes()).await;
+        assert_eq!(r.status, StatusCode::SEE_OTHER);
+    }
+    f.score_queue();
+    let r = a.get("/entries").await;
+    assert!(
+        r.body.contains("final (default)"),
+        "the best public entry counts"
+    );
+    assert!(r.body.contains("name=\"final\" value=\"2\""));
+    // Entry 2 chosen through the form.
+    let r = a
+        .post_form("/entries/final", &[("csrf", &csrf), ("final", "2")])
+        .await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/entries?final=2")
+    );
+    let ch = Challenge::open(&f.state).unwrap();
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2]);
+    let r = a.get(r.location().to_string().as_str()).await;
+    assert!(r.body.contains("Final entries saved: 2."), "{}", r.body);
+    assert!(r.body.contains("id=\"final-2\" checked"));
+    // Refused: a wrong token, three entries, an entry of another team.
+    let r = a
+        .post_form("/entries/final", &[("csrf", "bad"), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    let r = a
+        .post_form(
+            "/entries/final",
+            &[
+                ("csrf", &csrf),
+                ("final", "1"),
+                ("final", "2"),
+                ("final", "3"),
+            ],
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY);
+    assert!(r.body.contains("at most 2 final entries"), "{}", r.body);
+    let mut b = Agent::new(app);
+    b.sign_in(&f.tokens[1]).await;
+    let bcsrf = b.get("/entries").await.csrf();
+    let r = b
+        .post_form("/entries/final", &[("csrf", &bcsrf), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2], "unchanged");
+    // Once closed: no more choices, no form button.
+    Challenge::open(&f.state).unwrap().close().unwrap();
+    let r = a
+        .post_form("/entries/final", &[("csrf", &csrf), ("final", "1")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("closed"));
+    assert!(!a.get("/entries").await.body.contains("save-final"));
+}
+
+#[tokio::test]
+async fn the_challenge_page_shows_the_deadline_and_uploads_stop_after_it() {
+    let f = fixture(&["alpha", "beta"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_name("STEP mini 2026").unwrap();
+    ch.set_deadline(Some(stepsim_server::now_s() + 3600))
+        .unwrap();
+    let mut a = Agent::new(f.app());
+    let r = a.get("/").await;
+    assert!(r.body.contains("STEP mini 2026"), "the name in the header");
+    assert!(r.body.contains("id=\"deadline\""));
+    assert!(r.body.contains("badge queued\">open"));
+    ch.set_deadline(Some(stepsim_server::now_s() - 60)).unwrap();
+    let r = a.get("/").await;
+    assert!(r.body.contains("deadline passed"), "{}", r.body);
+    a.sign_in(&f.tokens[0]).await;
+    let r = a.get("/entries").await;
+    assert!(r.body.contains("id=\"uploads-closed\""));
+    assert!(!r.body.contains("enctype=\"multipart/form-data\""));
+    let csrf = r.csrf();
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.0).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN);
+    assert!(r.body.contains("has passed: no more uploads"), "{}", r.body);
+    assert_eq!(uploads(&f.state), 0);
+    ch.set_deadline(None).unwrap();
+    ch.freeze().unwrap();
+    assert!(a.get("/").await.body.contains("badge refused\">frozen"));
+}
+
+#[tokio::test]
+async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
+    let f = fixture(&[HOSTILE, "KSB+ reference"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .unwrap();
+    ch.set_organiser_password("correct horse").unwrap();
+    let app = f.app();
+    for t in &f.tokens {
+        let resp = app
+            .clone()
+            .oneshot(
+                Request::post("/api/submissions")
+                    .header(header::AUTHORIZATION, format!("Bearer {t}"))
+                    .body(Body::from(catalogue(&f.all, 0.01)))
+                    .unwrap(),
+            )
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::ACCEPTED);
+    }
+    f.score_queue();
+    let mut o = Agent::new(app.clone());
+    let r = o.get("/leaderboard").await;
+    assert!(
+        r.body
+            .contains("KSB+ reference <span class=\"tag role\">baseline</span>"),
+        "{}",
+        r.body
+    );
+    assert!(
+        r.body.contains("<td class=\"num rank\">—</td>"),
+        "the baseline is not ranked"
+    );
+    assert!(r.body.contains("<td class=\"num rank\">1</td>"));
+    // The organisers' page: the form, a wrong password, the right one.
+    let r = o.get("/organisers").await;
+    assert!(r.body.contains("Organiser password"));
+    assert!(!r.body.contains("id=\"teams\""));
+    let csrf = r.csrf();
+    let r = o
+        .post_form("/organisers/signin", &[("password", "correct horse")])
+        .await;
+    assert_eq!(r.status, StatusCode::FORBIDDEN, "no CSRF token");
+    let r = o
+        .post_form(
+            "/organisers/signin",
+            &[("csrf", &csrf), ("password", "wrong")],
+        )
+        .await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED);
+    let csrf = r.csrf();
+    let r = o
+        .post_form(
+            "/organisers/signin",
+            &[("csrf", &csrf), ("password", "correct horse")],
+        )
+        .await;
+    assert_eq!(
+        (r.status, r.location()),
+        (StatusCode::SEE_OTHER, "/organisers")
+    );
+    let r = o.get("/organisers").await;
+    assert!(r.body.contains("id=\"teams\"") && r.body.contains("id=\"all-entries\""));
+    assert!(
+        r.body
+            .contains("&lt;script&gt;alert(1)&lt;&#x2f;script&gt;")
+    );
+    assert!(!r.body.contains(HOSTILE));
+    assert!(r.body.contains("<span class=\"tag\">baseline</span>"));
+    for s in secrets(&f) {
+        assert!(
+            !r.body.contains(s.as_str()),
+            "the organisers' page shows {s:?}"
+        );
+    }
+    // An organiser session is not a team's; a team's is not an organiser's.
+    assert_eq!(o.get("/entries").await.status, StatusCode::SEE_OTHER);
+    let mut t = Agent::new(app);
+    t.sign_in(&f.tokens[0]).await;
+    assert!(!t.get("/organisers").await.body.contains("id=\"teams\""));
+}
