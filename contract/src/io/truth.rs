@@ -29,9 +29,7 @@ pub fn write_truth_fits(
     keywords: &[Keyword],
 ) -> Result<String, IoError> {
     let block = row_bytes(rows);
-    // Two header blocks (primary, table) and a few for long headers.
-    let size_hint = block.len() + 8 * 2880;
-    write_fits_hashed(path, Primary::default(), size_hint, |f| {
+    write_fits_hashed(path, Primary::default(), |f| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
         let hdu = f.create_table(TRUTH_EXTNAME, &columns(path)?).map_err(fe)?;
         if !block.is_empty() {

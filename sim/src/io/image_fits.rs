@@ -110,9 +110,7 @@ pub fn write_image_fits(
         image: Some(&desc),
         rice: compression == Compression::Rice,
     };
-    // Pixels (4 bytes each) and a few header blocks; Rice output is smaller.
-    let size_hint = 4 * n + 4 * 2880;
-    write_fits_hashed(path, primary, size_hint, |f| {
+    write_fits_hashed(path, primary, |f| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
         // The image is the last HDU: the primary, or HDU 1 behind an empty
         // primary when cfitsio tile-compresses it.
