@@ -239,7 +239,7 @@ fn block_layout(capacity: usize) -> Option<std::alloc::Layout> {
 unsafe extern "C" fn grow(p: *mut std::os::raw::c_void, size: usize) -> *mut std::os::raw::c_void {
     use std::alloc::{alloc, realloc};
     if p.is_null() {
-        let capacity = size.max(1 << 20);
+        let capacity = size.max(1 << 16);
         let Some(layout) = block_layout(capacity) else {
             return std::ptr::null_mut();
         };
@@ -443,8 +443,9 @@ mod tests {
     #[test]
     fn memory_files_are_the_disk_files_byte_for_byte() {
         let dir = tempfile::tempdir().unwrap();
-        // Big enough that the memory file grows many times (2880-byte
-        // blocks), plain and Rice-compressed, a key written after the data.
+        // Big enough that the memory file grows many times (cfitsio asks
+        // for 2880 more bytes at a time; `grow` starts at 64 KiB and
+        // doubles), plain and Rice-compressed, keys written after the data.
         let (w, h) = (300, 211);
         let data: Vec<i32> = (0..w * h).map(|k| (k as i32 * 7919) % 100_003).collect();
         for rice in [false, true] {
