@@ -5,7 +5,7 @@
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use stepsim_sim::generate::Event;
-use stepsim_sim::psf::store::Origin;
+use stepsim_sim::io::psf_store::Origin;
 
 /// Longest silence between two log lines while images are made.
 pub const LOG_EVERY_S: u64 = 30;

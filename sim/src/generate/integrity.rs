@@ -70,7 +70,7 @@ pub fn refuse_foreign_files(
     for file in listing(&private.join("psf"))? {
         let name = file_name(&file);
         // `cache/` is the run's PSF store: its files are checked when read
-        // (crate::psf::store) and rebuilt when they do not check.
+        // (crate::io::psf_store) and rebuilt when they do not check.
         let store = name == "cache" && file.is_dir();
         if !store && (file.is_dir() || !psfs.contains(&name)) {
             return Err(foreign(&file));

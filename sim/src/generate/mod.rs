@@ -342,7 +342,7 @@ impl RunPaths {
     }
 
     /// `private/psf/cache/`: the PSFs every process of the run reuses
-    /// ([`crate::psf::store`]).
+    /// ([`crate::io::psf_store`]).
     pub fn psf_store(&self) -> PathBuf {
         self.private().join("psf").join("cache")
     }
@@ -384,7 +384,7 @@ pub enum Event {
         total: usize,
         /// How it came: built, reused from `private/psf/cache/`, stored
         /// there, or rebuilt because the stored file was unusable.
-        origin: crate::psf::store::Origin,
+        origin: crate::io::psf_store::Origin,
     },
     /// One image was written.
     ImageWritten,
@@ -623,11 +623,14 @@ fn build_psfs(
         let (_, origin) = plan
             .psf_in_store(p, &paths.psf_store())
             .map_err(|e| match e {
-                crate::psf::store::StoreError::Psf(source) => psf_err(source),
-                crate::psf::store::StoreError::Io(e) => GenerateError::Io(e),
+                crate::io::psf_store::StoreError::Psf(source) => psf_err(source),
+                crate::io::psf_store::StoreError::Io(e) => GenerateError::Io(e),
             })?;
-        let origin = origin.unwrap_or(crate::psf::store::Origin::Built);
-        out.reused += usize::from(matches!(origin, crate::psf::store::Origin::Reused { .. }));
+        let origin = origin.unwrap_or(crate::io::psf_store::Origin::Built);
+        out.reused += usize::from(matches!(
+            origin,
+            crate::io::psf_store::Origin::Reused { .. }
+        ));
         let renderer = plan.renderer(p).map_err(psf_err)?;
         out.renderers.insert(p, renderer);
         progress(Event::PsfBuilt {

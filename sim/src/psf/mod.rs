@@ -27,7 +27,6 @@ pub mod optical;
 pub mod panel;
 pub mod pupil;
 pub mod sampled;
-pub mod store;
 pub mod zernike;
 
 #[cfg(test)]
@@ -353,7 +352,8 @@ pub fn build_optical(
 
 /// The expensive part of [`build_optical`]: the solved calibration and the
 /// band-limited transfer function on the final grid, before
-/// [`OpticalPsf::new`] recentres and samples it (what [`store`] keeps).
+/// [`OpticalPsf::new`] recentres and samples it (what
+/// [`crate::io::psf_store`] keeps).
 #[allow(clippy::too_many_arguments)]
 pub fn solve_optical(
     name: &str,

@@ -33,14 +33,15 @@
 //! and the file is rewritten atomically. Only optical PSFs are stored: the
 //! other models build in milliseconds.
 
-use super::calibrate::OpticalPsf;
-use super::optical::BandTransfer;
-use super::{Calibration, Psf, PsfAccuracy, PsfError, PsfSpec};
+use super::{IoError, write_bytes_atomically};
 use crate::config::RawPsfModel;
-use crate::io::{IoError, write_bytes_atomically};
+use crate::psf::calibrate::OpticalPsf;
+use crate::psf::optical::BandTransfer;
+use crate::psf::{Calibration, Psf, PsfAccuracy, PsfError, PsfSpec};
 use num_complex::Complex64;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use stepsim_contract::digest::sha256_hex;
 
 /// Version of the file format and of what it holds: bump it whenever the
 /// solved PSF or this layout changes, so that older files are rebuilt.
@@ -110,7 +111,7 @@ pub fn spec_digest(spec: &PsfSpec, accuracy: &PsfAccuracy) -> String {
         spec.pixel_scale_arcsec,
         accuracy,
     );
-    crate::blind::sha256_hex(text.as_bytes())
+    sha256_hex(text.as_bytes())
 }
 
 /// The file of `spec` in the store directory `dir`.
@@ -132,7 +133,7 @@ pub fn load_or_build(
         angle_deg,
     } = &spec.entry.model
     else {
-        return Ok((super::build_with(spec, accuracy)?, Origin::Built));
+        return Ok((crate::psf::build_with(spec, accuracy)?, Origin::Built));
     };
     let digest = spec_digest(spec, accuracy);
     let file = dir.join(format!("{digest}.bin"));
@@ -148,7 +149,7 @@ pub fn load_or_build(
         Err(e) => Some(format!("could not be read: {e}")),
     };
     let e = &spec.entry;
-    let (band, cal) = super::solve_optical(
+    let (band, cal) = crate::psf::solve_optical(
         &e.name,
         e.fwhm_arcsec,
         *aberration,
@@ -191,7 +192,7 @@ pub fn encode(band: &BandTransfer, cal: &Calibration, spec_digest: &str) -> Vec<
         c.extend_from_slice(&z.re.to_le_bytes());
         c.extend_from_slice(&z.im.to_le_bytes());
     }
-    let content_sha = crate::blind::sha256_hex(&c);
+    let content_sha = sha256_hex(&c);
     let mut out = format!(
         "stepsim psf store {FORMAT}\nspec-sha256 {spec_digest}\ncontent-sha256 {content_sha}\ncontent-bytes {}\n\n",
         c.len()
@@ -233,7 +234,7 @@ pub fn parse(bytes: &[u8], want_spec: &str) -> Result<(BandTransfer, Calibration
             content.len()
         ));
     }
-    if sha.strip_prefix("content-sha256 ") != Some(crate::blind::sha256_hex(content).as_str()) {
+    if sha.strip_prefix("content-sha256 ") != Some(sha256_hex(content).as_str()) {
         return Err("has content that does not match its SHA-256 (damaged or edited)".into());
     }
     decode(content).ok_or_else(|| "has content that does not parse".into())
@@ -377,8 +378,8 @@ mod tests {
         let (again, o2) = load_or_build(&s, &acc, dir.path()).unwrap();
         assert_eq!(o2, Origin::Reused { file: file.clone() });
         // The very same PSF as building it directly (and as the first).
-        let direct = super::super::build_with(&s, &acc).unwrap();
-        let grid = super::super::StampGrid::new(48, 0.206);
+        let direct = crate::psf::build_with(&s, &acc).unwrap();
+        let grid = crate::psf::StampGrid::new(48, 0.206);
         let t = direct.transfer(grid);
         assert_eq!(*built.transfer(grid), *t);
         assert_eq!(*again.transfer(grid), *t);
