@@ -516,3 +516,93 @@ fn off_a_terminal_progress_is_logged_and_an_unsharded_run_names_no_shard() {
         stderr(&o)
     );
 }
+
+/// One optical PSF (2.5 s to solve), 1 shear × 2 images of 128 × 96.
+const OPTICAL: &str = r#"{
+  "run": {"seed": 4242},
+  "image": {"width_px": 128, "height_px": 96, "n_images": 2, "margin_arcsec": 2.0},
+  "psfs": [{"name": "coma", "model": "optical", "aberration": "coma",
+            "target_chi": 0.04, "fwhm_arcsec": 0.9}],
+  "shears": [{"g1": 0.02, "g2": -0.01}]
+}"#;
+
+#[test]
+fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("c.json"), OPTICAL).unwrap();
+    let store = |run: &str| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(d.join(run).join("private/psf/cache"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        v.sort();
+        v
+    };
+    // One process: builds the PSF and stores it.
+    let o = generate(d, "one", &[]);
+    assert!(
+        stderr(&o).contains("stepsim: built PSF 1/1 (coma), stored in "),
+        "{}",
+        stderr(&o)
+    );
+    let one_store = store("one");
+    assert_eq!(one_store.len(), 1, "{one_store:?}");
+    let stored = std::fs::read(&one_store[0]).unwrap();
+    assert!(stored.starts_with(b"stepsim psf store 1\nspec-sha256 "));
+    // Two shards: the first builds and stores, the second reuses.
+    let o = generate(d, "two", &["--shard", "1/2"]);
+    assert!(
+        stderr(&o).contains("built PSF 1/1 (coma), stored in "),
+        "{}",
+        stderr(&o)
+    );
+    let o = generate(d, "two", &["--shard", "2/2"]);
+    let err = stderr(&o);
+    assert!(
+        err.contains("stepsim: reused PSF 1/1 (coma) from "),
+        "{err}"
+    );
+    assert!(err.contains("private/psf/cache/"), "{err}");
+    assert!(!err.contains("built PSF"), "{err}");
+    generate(d, "two", &["--finish"]);
+    assert!(
+        release(&d.join("one")) == release(&d.join("two")),
+        "reuse changed the run"
+    );
+    // The store's file is the same whichever process wrote it.
+    assert_eq!(store("two").len(), 1);
+    assert_eq!(std::fs::read(&store("two")[0]).unwrap(), stored);
+    assert!(
+        files(&d.join("two/public"))
+            .keys()
+            .all(|k| !k.starts_with("psf"))
+    );
+
+    // Damaged, then foreign (another spec's digest in its header): each is
+    // rebuilt with one line saying why, rewritten, and the run is the same.
+    let file = store("two")[0].clone();
+    let mut foreign = stored.clone();
+    let at = b"stepsim psf store 1\nspec-sha256 ".len();
+    foreign[at] = if foreign[at] == b'0' { b'1' } else { b'0' };
+    for (bad, why) in [
+        (stored[..stored.len() - 100].to_vec(), "is truncated"),
+        (foreign, "was made for another PSF spec"),
+    ] {
+        std::fs::write(&file, bad).unwrap();
+        std::fs::remove_dir_all(d.join("two/private/done")).unwrap();
+        let o = generate(d, "two", &[]);
+        let err = stderr(&o);
+        let line = err
+            .lines()
+            .find(|l| l.contains("rebuilt PSF 1/1 (coma)"))
+            .unwrap_or_else(|| panic!("no rebuild line in {err}"));
+        assert!(
+            line.contains(why) && line.contains("stored again"),
+            "{line}"
+        );
+        assert_eq!(err.matches("PSF 1/1").count(), 1, "{err}");
+        assert_eq!(std::fs::read(&file).unwrap(), stored);
+        assert!(release(&d.join("one")) == release(&d.join("two")));
+    }
+}

@@ -382,6 +382,27 @@ impl Plan {
         Ok(slot.get_or_init(|| built).clone())
     }
 
+    /// [`Plan::psf`], taken from (or, when built, put into) the store
+    /// `dir` of a run (`RUN/private/psf/cache`, see [`crate::io::psf_store`]):
+    /// the second value says how it came (`None`: the plan already held it).
+    pub fn psf_in_store(
+        &self,
+        index: usize,
+        dir: &Path,
+    ) -> Result<
+        (Arc<dyn Psf>, Option<crate::io::psf_store::Origin>),
+        crate::io::psf_store::StoreError,
+    > {
+        let slot = &self.psfs[index];
+        if let Some(p) = slot.get() {
+            return Ok((p.clone(), None));
+        }
+        let accuracy = crate::psf::PsfAccuracy::default();
+        let (built, origin) =
+            crate::io::psf_store::load_or_build(&self.psf_spec(index), &accuracy, dir)?;
+        Ok((slot.get_or_init(|| built).clone(), Some(origin)))
+    }
+
     /// The renderer of PSF `index` for this plan's images: its PSF
     /// ([`Plan::psf`]), pixel scale, accuracy and the detector's sky noise.
     pub fn renderer(&self, index: usize) -> Result<Renderer, PsfError> {

@@ -5,6 +5,7 @@
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use stepsim_sim::generate::Event;
+use stepsim_sim::io::psf_store::Origin;
 
 /// Longest silence between two log lines while images are made.
 pub const LOG_EVERY_S: u64 = 30;
@@ -103,13 +104,28 @@ impl Progress {
                 eprintln!("stepsim: {}", psfs_message(total));
             }
             (Event::PsfsStart { .. }, _) => {}
-            (Event::PsfBuilt { name, done, total }, Some(bar)) => {
-                bar.set_message(format!("built PSF {done}/{total} ({name})"));
+            (
+                Event::PsfBuilt {
+                    name,
+                    done,
+                    total,
+                    origin,
+                },
+                bar,
+            ) => {
+                let line = psf_line(&name, done, total, &origin);
+                match bar {
+                    // A rebuilt file is worth a line that stays.
+                    Some(bar) if matches!(origin, Origin::Rebuilt { .. }) => {
+                        bar.println(format!("stepsim: {line}"));
+                    }
+                    Some(bar) => bar.set_message(line),
+                    None => eprintln!(
+                        "stepsim: {line}, {:.0} s",
+                        st.started.elapsed().as_secs_f64()
+                    ),
+                }
             }
-            (Event::PsfBuilt { name, done, total }, None) => eprintln!(
-                "stepsim: built PSF {done}/{total} ({name}), {:.0} s",
-                st.started.elapsed().as_secs_f64()
-            ),
             (Event::Start { pending, .. }, bar) => {
                 st.pending = pending;
                 st.images_started = Instant::now();
@@ -150,6 +166,26 @@ impl Progress {
         if let Some(bar) = &self.bar {
             bar.finish_and_clear();
         }
+    }
+}
+
+/// The progress line of one PSF: built, stored, reused or rebuilt.
+fn psf_line(name: &str, done: usize, total: usize, origin: &Origin) -> String {
+    match origin {
+        Origin::Built => format!("built PSF {done}/{total} ({name})"),
+        Origin::Stored { file } => {
+            format!(
+                "built PSF {done}/{total} ({name}), stored in {}",
+                file.display()
+            )
+        }
+        Origin::Reused { file } => {
+            format!("reused PSF {done}/{total} ({name}) from {}", file.display())
+        }
+        Origin::Rebuilt { file, why } => format!(
+            "rebuilt PSF {done}/{total} ({name}): {} {why}; stored again",
+            file.display()
+        ),
     }
 }
 

@@ -94,7 +94,14 @@ pub fn create_fits(path: &Path, primary: Primary<'_>) -> Result<FitsFile, IoErro
     if status != 0 {
         return Err(IoError::fits_status(path, status));
     }
-    let mut f = wrap(path, fptr, fitsio::FileOpenMode::READWRITE)?;
+    let f = wrap(path, fptr, fitsio::FileOpenMode::READWRITE)?;
+    init_primary(f, path, primary)
+}
+
+/// Gives a new, empty file `f` its primary HDU (and the compression asked
+/// for); `path` names it in errors.
+fn init_primary(mut f: FitsFile, path: &Path, primary: Primary<'_>) -> Result<FitsFile, IoError> {
+    let mut status = 0;
     if primary.rice {
         let mut tiles = [0 as std::os::raw::c_long; 6];
         // SAFETY: `f` is an open file; `tiles` holds MAX_COMPRESS_DIM (6) values.
@@ -126,6 +133,162 @@ pub fn create_fits(path: &Path, primary: Primary<'_>) -> Result<FitsFile, IoErro
         }
     }
     Ok(f)
+}
+
+/// Writes a FITS file built by `fill` atomically to `path` and returns the
+/// SHA-256 (lower-case hex) of its bytes: the file is built in memory by
+/// cfitsio (`fits_create_memfile`), closed, hashed and written with one
+/// [`write_bytes_atomically`](super::write_bytes_atomically) — the same bytes
+/// [`create_fits`] + [`finish_fits`] put on disk (test
+/// `memory_files_are_the_disk_files_byte_for_byte`), without reading the
+/// file back to hash it. `primary` is as in [`create_fits`]; `path` names
+/// the file in errors.
+pub fn write_fits_hashed(
+    path: &Path,
+    primary: Primary<'_>,
+    fill: impl FnOnce(&mut FitsFile) -> Result<(), IoError>,
+) -> Result<String, IoError> {
+    let bytes = fits_bytes(path, primary, fill)?;
+    super::write_bytes_atomically(path, bytes.as_slice())?;
+    Ok(crate::digest::sha256_hex(bytes.as_slice()))
+}
+
+/// The bytes of a FITS file built in memory by `fill` (see
+/// [`write_fits_hashed`]).
+pub fn fits_bytes(
+    path: &Path,
+    primary: Primary<'_>,
+    fill: impl FnOnce(&mut FitsFile) -> Result<(), IoError>,
+) -> Result<MemoryFile, IoError> {
+    // cfitsio keeps the addresses of the pointer and the size and updates
+    // both as the file grows, so they live in a box that does not move.
+    let mut mem = Box::new(MemoryFile {
+        ptr: std::ptr::null_mut(),
+        len: 0,
+    });
+    let mut fptr = std::ptr::null_mut();
+    let mut status = 0;
+    // SAFETY: `mem.ptr` and `mem.len` outlive the file (closed below or by
+    // the error path before `mem` is dropped); `grow` is a realloc that
+    // accepts a null pointer.
+    unsafe {
+        fitsio::sys::ffimem(
+            &mut fptr,
+            &mut mem.ptr,
+            &mut mem.len,
+            0,
+            Some(grow),
+            &mut status,
+        )
+    };
+    if status != 0 {
+        return Err(IoError::fits_status(path, status));
+    }
+    let f = wrap(path, fptr, fitsio::FileOpenMode::READWRITE)?;
+    let mut f = init_primary(f, path, primary)?;
+    let filled = fill(&mut f);
+    // Closed in every case, so that cfitsio no longer holds `mem`'s addresses.
+    let closed = finish_fits(f, path);
+    filled?;
+    closed?;
+    Ok(*mem)
+}
+
+/// The bytes of a FITS file built in memory ([`fits_bytes`]).
+pub struct MemoryFile {
+    ptr: *mut std::os::raw::c_void,
+    len: usize,
+}
+
+impl MemoryFile {
+    /// The file's bytes.
+    pub fn as_slice(&self) -> &[u8] {
+        if self.ptr.is_null() {
+            return &[];
+        }
+        // SAFETY: `ptr` holds at least `len` bytes written by cfitsio
+        // (`grow` never hands out less than asked for).
+        unsafe { std::slice::from_raw_parts(self.ptr as *const u8, self.len) }
+    }
+}
+
+impl Drop for MemoryFile {
+    fn drop(&mut self) {
+        // SAFETY: `ptr` is null or came from `grow`, and is freed once.
+        unsafe { release(self.ptr) }
+    }
+}
+
+impl std::fmt::Debug for MemoryFile {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MemoryFile({} bytes)", self.len)
+    }
+}
+
+/// Bytes before each block `grow` hands out: its capacity.
+const HEADER: usize = 16;
+
+fn block_layout(capacity: usize) -> Option<std::alloc::Layout> {
+    std::alloc::Layout::from_size_align(capacity.checked_add(HEADER)?, HEADER).ok()
+}
+
+/// cfitsio's realloc for memory files. cfitsio grows a memory file one
+/// 2880-byte block at a time; this keeps a capacity that at least doubles
+/// (stored just before the block), so a 67 MB image costs a few dozen
+/// copies rather than thousands, while cfitsio's size stays exact.
+unsafe extern "C" fn grow(p: *mut std::os::raw::c_void, size: usize) -> *mut std::os::raw::c_void {
+    use std::alloc::{alloc, realloc};
+    if p.is_null() {
+        let capacity = size.max(1 << 16);
+        let Some(layout) = block_layout(capacity) else {
+            return std::ptr::null_mut();
+        };
+        // SAFETY: the layout has a non-zero size.
+        let base = unsafe { alloc(layout) };
+        if base.is_null() {
+            return std::ptr::null_mut();
+        }
+        // SAFETY: the block starts with HEADER bytes for the capacity.
+        unsafe {
+            (base as *mut usize).write(capacity);
+            return base.add(HEADER) as _;
+        }
+    }
+    // SAFETY: `p` came from this function, HEADER bytes after its block's start.
+    let base = unsafe { (p as *mut u8).sub(HEADER) };
+    let capacity = unsafe { (base as *const usize).read() };
+    if size <= capacity {
+        return p;
+    }
+    let wanted = size.max(capacity.saturating_mul(2));
+    let (Some(old), Some(_)) = (block_layout(capacity), block_layout(wanted)) else {
+        return std::ptr::null_mut();
+    };
+    // SAFETY: `base` was allocated with `old`; the new size is valid.
+    let moved = unsafe { realloc(base, old, wanted + HEADER) };
+    if moved.is_null() {
+        return std::ptr::null_mut();
+    }
+    // SAFETY: as for a new block.
+    unsafe {
+        (moved as *mut usize).write(wanted);
+        moved.add(HEADER) as _
+    }
+}
+
+/// Frees a block of [`grow`] (null: nothing).
+unsafe fn release(p: *mut std::os::raw::c_void) {
+    if p.is_null() {
+        return;
+    }
+    // SAFETY: as in `grow`.
+    unsafe {
+        let base = (p as *mut u8).sub(HEADER);
+        let capacity = (base as *const usize).read();
+        if let Some(layout) = block_layout(capacity) {
+            std::alloc::dealloc(base, layout);
+        }
+    }
 }
 
 /// Closes a file being written, reporting what its final flush met (a full
@@ -275,6 +438,55 @@ mod tests {
         assert_eq!(zcmp, "RICE_1");
         let back: Vec<i32> = hdu.read_image(&mut f).unwrap();
         assert_eq!(back, data);
+    }
+
+    #[test]
+    fn memory_files_are_the_disk_files_byte_for_byte() {
+        let dir = tempfile::tempdir().unwrap();
+        // Big enough that the memory file grows many times (cfitsio asks
+        // for 2880 more bytes at a time; `grow` starts at 64 KiB and
+        // doubles), plain and Rice-compressed, keys written after the data.
+        let (w, h) = (300, 211);
+        let data: Vec<i32> = (0..w * h).map(|k| (k as i32 * 7919) % 100_003).collect();
+        for rice in [false, true] {
+            let dims = [h, w];
+            let desc = ImageDescription {
+                data_type: ImageType::Long,
+                dimensions: &dims,
+            };
+            let primary = Primary {
+                image: Some(&desc),
+                rice,
+            };
+            let fill = |f: &mut FitsFile| -> Result<(), IoError> {
+                let last = f.num_hdus().unwrap() - 1;
+                let hdu = f.hdu(last).unwrap();
+                hdu.write_image(f, &data).unwrap();
+                for k in 0..40 {
+                    hdu.write_key(f, &format!("KEY{k}"), (k as f64, "a comment"))
+                        .unwrap();
+                }
+                Ok(())
+            };
+            let disk = dir.path().join(format!("disk-{rice}.fits"));
+            let mut f = create_fits(&disk, primary).unwrap();
+            fill(&mut f).unwrap();
+            finish_fits(f, &disk).unwrap();
+            let mem = dir.path().join(format!("mem-{rice}.fits"));
+            let sha = write_fits_hashed(&mem, primary, fill).unwrap();
+            let (a, b) = (std::fs::read(&disk).unwrap(), std::fs::read(&mem).unwrap());
+            assert!(a.len() > 2880 * if rice { 2 } else { 80 }, "{}", a.len());
+            assert!(a == b, "rice {rice}: {} vs {} bytes", a.len(), b.len());
+            assert_eq!(sha, crate::digest::sha256_hex(&a));
+        }
+        // A failing fill leaves no file and reports its error.
+        let path = dir.path().join("never.fits");
+        let err = write_fits_hashed(&path, Primary::default(), |_| {
+            Err(IoError::format(Path::new("x"), "boom"))
+        })
+        .unwrap_err();
+        assert_eq!(err.to_string(), "x: boom");
+        assert!(!path.exists());
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! Truth tables on disk: FITS binary table (the reference form) and a CSV
 //! twin for people who want to look at one.
 
-use super::fits::{Primary, create_fits, finish_fits, open_fits};
+use super::fits::{Primary, create_fits, finish_fits, open_fits, write_fits_hashed};
 use super::{IoError, write_atomically};
 use crate::truth::{COLUMN_ORDER, Column, FLOAT_COLUMNS, INT_COLUMNS, TruthRow};
 use fitsio::tables::{ColumnDataType, ColumnDescription};
@@ -14,8 +14,113 @@ pub const TRUTH_EXTNAME: &str = "TRUTH";
 pub type Keyword = (String, f64, String);
 
 /// Writes a truth table as a FITS binary table (HDU 1, EXTNAME `TRUTH`),
-/// atomically. `keywords` go into the table header.
+/// atomically, and returns the SHA-256 (hex) of the file's bytes.
+/// `keywords` go into the table header.
+///
+/// The rows go to cfitsio as one block of big-endian row bytes
+/// ([`row_bytes`], one `fits_write_tblbytes` call) and the file is built in
+/// memory and hashed as written ([`super::fits::write_fits_hashed`]); the
+/// bytes are those of the column-by-column writer
+/// [`write_truth_fits_by_column`] (test
+/// `block_writer_equals_the_column_writer_byte_for_byte`).
 pub fn write_truth_fits(
+    path: &Path,
+    rows: &[TruthRow],
+    keywords: &[Keyword],
+) -> Result<String, IoError> {
+    let block = row_bytes(rows);
+    write_fits_hashed(path, Primary::default(), |f| {
+        let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+        let hdu = f.create_table(TRUTH_EXTNAME, &columns(path)?).map_err(fe)?;
+        if !block.is_empty() {
+            let mut status = 0;
+            // SAFETY: `f` is open with the new table current; `block` holds
+            // exactly rows × row length bytes, which cfitsio copies.
+            unsafe {
+                fitsio::sys::ffptbb(
+                    f.as_raw(),
+                    1,
+                    1,
+                    block.len() as i64,
+                    block.as_ptr() as *mut u8,
+                    &mut status,
+                )
+            };
+            if status != 0 {
+                return Err(IoError::fits_status(path, status));
+            }
+        }
+        for (k, v, c) in keywords {
+            hdu.write_key(f, k, (*v, c.as_str())).map_err(fe)?;
+        }
+        Ok(())
+    })
+}
+
+/// The table's columns in SPEC §5 order, with their FITS types.
+fn columns(path: &Path) -> Result<Vec<fitsio::tables::ConcreteColumnDescription>, IoError> {
+    let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+    COLUMN_ORDER
+        .iter()
+        .map(|name| {
+            let typ = match TruthRow::default().value(name) {
+                Some(Column::Long(_)) => ColumnDataType::LongLong,
+                Some(Column::Int(_)) => ColumnDataType::Int,
+                _ => ColumnDataType::Double,
+            };
+            ColumnDescription::new(*name)
+                .with_type(typ)
+                .create()
+                .map_err(fe)
+        })
+        .collect()
+}
+
+/// Where a column's value comes from in a [`TruthRow`].
+#[derive(Clone, Copy)]
+enum Source {
+    Id,
+    Int(usize),
+    Float(usize),
+}
+
+/// The rows as FITS stores them: each row its columns in [`COLUMN_ORDER`],
+/// big-endian (K: 8 bytes, J: 4, D: 8), rows one after the other.
+pub fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
+    let sources: Vec<Source> = COLUMN_ORDER
+        .iter()
+        .map(|name| {
+            if *name == "id" {
+                Source::Id
+            } else if let Some(j) = INT_COLUMNS.iter().position(|c| c == name) {
+                Source::Int(j)
+            } else {
+                let j = FLOAT_COLUMNS.iter().position(|c| c == name);
+                Source::Float(j.expect("every column is id, an int or a float"))
+            }
+        })
+        .collect();
+    let row_len: usize = sources
+        .iter()
+        .map(|s| if matches!(s, Source::Int(_)) { 4 } else { 8 })
+        .sum();
+    let mut out = Vec::with_capacity(rows.len() * row_len);
+    for r in rows {
+        let (ints, floats) = (r.ints(), r.floats());
+        for s in &sources {
+            match *s {
+                Source::Id => out.extend_from_slice(&r.id.to_be_bytes()),
+                Source::Int(j) => out.extend_from_slice(&ints[j].to_be_bytes()),
+                Source::Float(j) => out.extend_from_slice(&floats[j].to_be_bytes()),
+            }
+        }
+    }
+    out
+}
+
+/// The slow obvious twin of [`write_truth_fits`]: a file on disk, one
+/// cfitsio column write per column (how tables were written before).
+pub fn write_truth_fits_by_column(
     path: &Path,
     rows: &[TruthRow],
     keywords: &[Keyword],
@@ -23,22 +128,7 @@ pub fn write_truth_fits(
     write_atomically(path, |tmp| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
         let mut f = create_fits(tmp, Primary::default())?;
-        // Columns in SPEC §5 order; values are written by name below.
-        let mut cols = Vec::with_capacity(COLUMN_ORDER.len());
-        for name in COLUMN_ORDER {
-            let typ = match TruthRow::default().value(name) {
-                Some(Column::Long(_)) => ColumnDataType::LongLong,
-                Some(Column::Int(_)) => ColumnDataType::Int,
-                _ => ColumnDataType::Double,
-            };
-            cols.push(
-                ColumnDescription::new(*name)
-                    .with_type(typ)
-                    .create()
-                    .map_err(fe)?,
-            );
-        }
-        let hdu = f.create_table(TRUTH_EXTNAME, &cols).map_err(fe)?;
+        let hdu = f.create_table(TRUTH_EXTNAME, &columns(path)?).map_err(fe)?;
         let ids: Vec<i64> = rows.iter().map(|r| r.id).collect();
         hdu.write_col(&mut f, "id", &ids).map_err(fe)?;
         for (j, name) in INT_COLUMNS.iter().enumerate() {
@@ -155,6 +245,43 @@ mod tests {
                 .unwrap()
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn block_writer_equals_the_column_writer_byte_for_byte() {
+        let dir = tempfile::tempdir().unwrap();
+        let kw = [
+            ("PIXSCALE".to_string(), 0.206, "arcsec".to_string()),
+            ("G1".to_string(), -0.05, "shear".to_string()),
+        ];
+        for n in [0, 1, 7, 3000] {
+            let rows = sample(n);
+            let (a, b) = (dir.path().join("a.fits"), dir.path().join("b.fits"));
+            let sha = write_truth_fits(&a, &rows, &kw).unwrap();
+            write_truth_fits_by_column(&b, &rows, &kw).unwrap();
+            let (ba, bb) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+            assert_eq!(ba.len() % 2880, 0, "{n} rows");
+            assert!(ba == bb, "{n} rows: the block writer's bytes differ");
+            // The returned hash is the file's.
+            assert_eq!(sha, crate::digest::sha256_hex(&bb), "{n} rows");
+            assert_eq!(read_truth_fits(&a).unwrap(), rows);
+        }
+    }
+
+    #[test]
+    fn row_bytes_are_big_endian_in_column_order() {
+        let rows = sample(2);
+        let b = row_bytes(&rows);
+        let row_len = 8 + 4 * INT_COLUMNS.len() + 8 * FLOAT_COLUMNS.len();
+        assert_eq!(b.len(), 2 * row_len);
+        // Row 1 starts with its id (8 bytes), then `kind` (4 bytes), then x.
+        let r = &b[row_len..];
+        assert_eq!(i64::from_be_bytes(r[..8].try_into().unwrap()), rows[1].id);
+        assert_eq!(
+            i32::from_be_bytes(r[8..12].try_into().unwrap()),
+            rows[1].kind
+        );
+        assert_eq!(f64::from_be_bytes(r[12..20].try_into().unwrap()), rows[1].x);
     }
 
     #[test]

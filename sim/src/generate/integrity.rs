@@ -3,7 +3,8 @@
 //! Every sidecar records what made it (the SHA-256 of the resolved config and
 //! [`OUTPUT_VERSION`]); a sidecar made by anything else is refused by name.
 //! So is any file under `public/`, `private/truth`, `private/model`,
-//! `private/done` or `private/psf` whose name is not one of this run's (a
+//! `private/done` or `private/psf` (apart from the PSF store `private/psf/cache/`)
+//! whose name is not one of this run's (a
 //! leftover of another config, for instance after `private/config.json` was
 //! deleted), and a `private/blinding.key` or `private/datasets.json` with
 //! other content than this run's. Temporary files (`.<name>.<pid>.tmp`) are left to
@@ -67,7 +68,11 @@ pub fn refuse_foreign_files(
         .map(|p| format!("{}.fits", p.name))
         .collect();
     for file in listing(&private.join("psf"))? {
-        if file.is_dir() || !psfs.contains(&file_name(&file)) {
+        let name = file_name(&file);
+        // `cache/` is the run's PSF store: its files are checked when read
+        // (crate::io::psf_store) and rebuilt when they do not check.
+        let store = name == "cache" && file.is_dir();
+        if !store && (file.is_dir() || !psfs.contains(&name)) {
             return Err(foreign(&file));
         }
     }

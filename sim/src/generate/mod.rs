@@ -340,6 +340,12 @@ impl RunPaths {
     pub fn psf(&self, name: &str) -> PathBuf {
         self.private().join("psf").join(format!("{name}.fits"))
     }
+
+    /// `private/psf/cache/`: the PSFs every process of the run reuses
+    /// ([`crate::io::psf_store`]).
+    pub fn psf_store(&self) -> PathBuf {
+        self.private().join("psf").join("cache")
+    }
 }
 
 /// Options of a run besides the config.
@@ -367,14 +373,18 @@ pub enum Event {
         /// PSFs this process builds.
         total: usize,
     },
-    /// One PSF was built (`done` of `total`).
+    /// One PSF is ready (`done` of `total`): built, or reused from the
+    /// run's store (`origin`).
     PsfBuilt {
         /// Its name in the config.
         name: String,
-        /// PSFs built so far.
+        /// PSFs ready so far.
         done: usize,
-        /// PSFs this process builds.
+        /// PSFs this process needs.
         total: usize,
+        /// How it came: built, reused from `private/psf/cache/`, stored
+        /// there, or rebuilt because the stored file was unusable.
+        origin: crate::io::psf_store::Origin,
     },
     /// One image was written.
     ImageWritten,
@@ -406,6 +416,11 @@ pub struct Summary {
     pub marker: Option<PathBuf>,
     /// Temporary files of killed writers removed at the start.
     pub removed_tmp: Vec<PathBuf>,
+    /// PSFs this process loaded from the run's store
+    /// (`private/psf/cache/`) instead of building them.
+    pub psfs_reused: usize,
+    /// PSFs this process built (stored or not; rebuilt ones included).
+    pub psfs_built: usize,
     /// Temporary files (`*.tmp`) still under the run directory at the end:
     /// being written by another shard right now, or not ours.
     pub stray_tmp: Vec<PathBuf>,
@@ -475,6 +490,8 @@ pub fn generate(
         marker,
         removed_tmp,
         stray_tmp,
+        psfs_reused: psfs.reused,
+        psfs_built: psfs.renderers.len() - psfs.reused,
     })
 }
 
@@ -559,6 +576,8 @@ struct Psfs {
     renderers: BTreeMap<usize, Renderer>,
     /// The detector of every image.
     det: Detector,
+    /// How many were loaded from the run's store.
+    reused: usize,
 }
 
 /// Builds the PSFs this process needs: those of its pending images, and
@@ -589,22 +608,36 @@ fn build_psfs(
     let mut out = Psfs {
         renderers: BTreeMap::new(),
         det,
+        reused: 0,
     };
     progress(Event::PsfsStart {
         total: needed.len(),
     });
     for &p in &needed {
         let raw = &plan.psfs()[p];
-        let renderer = plan.renderer(p).map_err(|source| GenerateError::Psf {
+        let psf_err = |source| GenerateError::Psf {
             index: p,
             name: raw.name.clone(),
             source,
-        })?;
+        };
+        let (_, origin) = plan
+            .psf_in_store(p, &paths.psf_store())
+            .map_err(|e| match e {
+                crate::io::psf_store::StoreError::Psf(source) => psf_err(source),
+                crate::io::psf_store::StoreError::Io(e) => GenerateError::Io(e),
+            })?;
+        let origin = origin.unwrap_or(crate::io::psf_store::Origin::Built);
+        out.reused += usize::from(matches!(
+            origin,
+            crate::io::psf_store::Origin::Reused { .. }
+        ));
+        let renderer = plan.renderer(p).map_err(psf_err)?;
         out.renderers.insert(p, renderer);
         progress(Event::PsfBuilt {
             name: raw.name.clone(),
             done: out.renderers.len(),
             total: needed.len(),
+            origin,
         });
     }
     Ok(out)

@@ -8,23 +8,22 @@
 //! 3. pixels: sky, photon and read noise ([`crate::noise::realise`]) keyed
 //!    by the job ([`super::Job::noise_key`]);
 //! 4. files: the public image, the truth table ([`crate::io::truth_header::truth_keywords`]), the
-//!    optional model, and last the sidecar with their SHA-256.
+//!    optional model, and last the sidecar with their SHA-256 (each file
+//!    is built in memory and hashed as written: nothing is read back).
 //!
 //! Every stage's wall time goes to a [`StageTimes`] (and process CPU time
 //! when asked for); generate discards them, bench prints them.
 
 use super::{GenerateError, Job, Made, RunPaths, Sidecar};
-use crate::blind::sha256_hex;
 use crate::config::SampleFormat;
 use crate::io::image_fits::{ImageHeader, write_image_fits};
 use crate::io::truth::write_truth_fits;
 use crate::io::truth_header::truth_keywords;
-use crate::io::{IoError, write_bytes_atomically};
+use crate::io::write_bytes_atomically;
 use crate::noise::{self, Detector};
 use crate::plan::Plan;
 use crate::render::{Canvas, RenderError, Renderer};
 use crate::truth::TruthRow;
-use std::path::Path;
 use std::time::Instant;
 
 /// Wall-clock seconds of each stage of one image, and what it held.
@@ -191,13 +190,13 @@ pub(crate) fn make_image(
     let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
     let image_path = paths.image(job);
     let format = (output.format, output.compression);
-    write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
+    let image_sha256 = write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
     drop(pixels);
     t.write_s = lap.lap().0;
 
     let truth_path = paths.truth(job);
     let keywords = truth_keywords(job.field, job.rotated, d.psf, d.g1, d.g2);
-    write_truth_fits(&truth_path, &rows, &keywords)?;
+    let truth_sha256 = write_truth_fits(&truth_path, &rows, &keywords)?;
     t.truth_s = lap.lap().0;
 
     let model_sha256 = if output.write_model {
@@ -207,8 +206,7 @@ pub(crate) fn make_image(
             .collect();
         let path = paths.model(job);
         let none = crate::config::Compression::None;
-        write_image_fits(&path, &adu, w, h, &header, SampleFormat::Float32, none)?;
-        let sha = file_sha256(&path)?;
+        let sha = write_image_fits(&path, &adu, w, h, &header, SampleFormat::Float32, none)?;
         t.model_s = lap.lap().0;
         Some(sha)
     } else {
@@ -220,8 +218,8 @@ pub(crate) fn make_image(
         image: job.image_id.clone(),
         dataset: job.dataset_id.clone(),
         file: job.public_file(),
-        sha256: file_sha256(&image_path)?,
-        truth_sha256: file_sha256(&truth_path)?,
+        sha256: image_sha256,
+        truth_sha256,
         model_sha256,
         config_sha256: cx.made.config_sha256.to_string(),
         output_version: super::OUTPUT_VERSION,
@@ -230,12 +228,6 @@ pub(crate) fn make_image(
     write_bytes_atomically(&paths.sidecar(job), text.as_bytes())?;
     t.checksum_s = lap.lap().0;
     Ok(())
-}
-
-/// SHA-256 of a file's bytes.
-pub(crate) fn file_sha256(path: &Path) -> Result<String, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
-    Ok(sha256_hex(&bytes))
 }
 
 /// User + system CPU seconds of this process so far (all threads), from

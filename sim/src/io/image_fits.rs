@@ -19,8 +19,8 @@
 //!
 //! Files are written atomically ([`super::write_atomically`]).
 
-use super::fits::{Primary, create_fits, finish_fits};
-use super::{IoError, write_atomically};
+use super::IoError;
+use super::fits::{Primary, write_fits_hashed};
 use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
 use crate::wcs::TanWcs;
 use fitsio::FitsFile;
@@ -70,7 +70,9 @@ pub fn adu_to_i32(v: f32) -> i32 {
     r.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
 }
 
-/// Writes an image atomically. `pixels_adu` has `width × height` values.
+/// Writes an image atomically and returns the SHA-256 (hex) of the file's
+/// bytes, hashed as written ([`write_fits_hashed`]). `pixels_adu` has
+/// `width × height` values.
 pub fn write_image_fits(
     path: &Path,
     pixels_adu: &[f32],
@@ -79,7 +81,7 @@ pub fn write_image_fits(
     header: &ImageHeader,
     format: SampleFormat,
     compression: Compression,
-) -> Result<(), IoError> {
+) -> Result<String, IoError> {
     let n = width as usize * height as usize;
     if pixels_adu.len() != n {
         return Err(IoError::format(
@@ -96,80 +98,65 @@ pub fn write_image_fits(
             "rice compression is only offered for int32 output",
         ));
     }
-    write_atomically(path, |tmp| {
+    let dims = [height as usize, width as usize];
+    let desc = ImageDescription {
+        data_type: match format {
+            SampleFormat::Float32 => ImageType::Float,
+            SampleFormat::Int32 => ImageType::Long,
+        },
+        dimensions: &dims,
+    };
+    let primary = Primary {
+        image: Some(&desc),
+        rice: compression == Compression::Rice,
+    };
+    write_fits_hashed(path, primary, |f| {
         let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
-        let dims = [height as usize, width as usize];
-        let desc = ImageDescription {
-            data_type: match format {
-                SampleFormat::Float32 => ImageType::Float,
-                SampleFormat::Int32 => ImageType::Long,
-            },
-            dimensions: &dims,
-        };
-        let mut f = create_fits(
-            tmp,
-            Primary {
-                image: Some(&desc),
-                rice: compression == Compression::Rice,
-            },
-        )?;
         // The image is the last HDU: the primary, or HDU 1 behind an empty
         // primary when cfitsio tile-compresses it.
         let last = f.num_hdus().map_err(fe)? - 1;
         let hdu = f.hdu(last).map_err(fe)?;
         // fitsio names the new HDU `_PRIMARY`; that is not a FITS keyword
         // anyone needs, so remove it again.
-        delete_key(&mut f, "EXTNAME").map_err(|e| IoError::format(path, e))?;
+        delete_key(f, "EXTNAME").map_err(|e| IoError::format(path, e))?;
         match format {
-            SampleFormat::Float32 => hdu.write_image(&mut f, pixels_adu).map_err(fe)?,
+            SampleFormat::Float32 => hdu.write_image(f, pixels_adu).map_err(fe)?,
             SampleFormat::Int32 => {
                 let ints: Vec<i32> = pixels_adu.iter().map(|&v| adu_to_i32(v)).collect();
-                hdu.write_image(&mut f, &ints).map_err(fe)?
+                hdu.write_image(f, &ints).map_err(fe)?
             }
         }
         let w = &header.wcs;
         let s = |f: &mut FitsFile, k: &str, v: &str, c: &str| hdu.write_key(f, k, (v, c));
         let d = |f: &mut FitsFile, k: &str, v: f64, c: &str| write_f64(f, k, v, c);
-        s(&mut f, "BUNIT", "ADU", "pixel unit").map_err(fe)?;
-        s(&mut f, "CTYPE1", "RA---TAN", "gnomonic projection").map_err(fe)?;
-        s(&mut f, "CTYPE2", "DEC--TAN", "gnomonic projection").map_err(fe)?;
-        s(&mut f, "CUNIT1", "deg", "").map_err(fe)?;
-        s(&mut f, "CUNIT2", "deg", "").map_err(fe)?;
-        s(&mut f, "RADESYS", "ICRS", "").map_err(fe)?;
-        d(&mut f, "EQUINOX", 2000.0, "").map_err(fe)?;
-        d(&mut f, "CRVAL1", w.crval1, "[deg] RA of reference point").map_err(fe)?;
-        d(&mut f, "CRVAL2", w.crval2, "[deg] Dec of reference point").map_err(fe)?;
-        d(&mut f, "CRPIX1", w.crpix1, "reference pixel x").map_err(fe)?;
-        d(&mut f, "CRPIX2", w.crpix2, "reference pixel y").map_err(fe)?;
-        d(&mut f, "CD1_1", w.cd1_1, "[deg/pixel]").map_err(fe)?;
-        d(&mut f, "CD1_2", 0.0, "[deg/pixel]").map_err(fe)?;
-        d(&mut f, "CD2_1", 0.0, "[deg/pixel]").map_err(fe)?;
-        d(&mut f, "CD2_2", w.cd2_2, "[deg/pixel]").map_err(fe)?;
-        d(&mut f, "GAIN", header.gain_e_per_adu, "[e-/ADU]").map_err(fe)?;
-        d(&mut f, "RDNOISE", header.read_noise_e, "[e-] read noise").map_err(fe)?;
+        s(f, "BUNIT", "ADU", "pixel unit").map_err(fe)?;
+        s(f, "CTYPE1", "RA---TAN", "gnomonic projection").map_err(fe)?;
+        s(f, "CTYPE2", "DEC--TAN", "gnomonic projection").map_err(fe)?;
+        s(f, "CUNIT1", "deg", "").map_err(fe)?;
+        s(f, "CUNIT2", "deg", "").map_err(fe)?;
+        s(f, "RADESYS", "ICRS", "").map_err(fe)?;
+        d(f, "EQUINOX", 2000.0, "").map_err(fe)?;
+        d(f, "CRVAL1", w.crval1, "[deg] RA of reference point").map_err(fe)?;
+        d(f, "CRVAL2", w.crval2, "[deg] Dec of reference point").map_err(fe)?;
+        d(f, "CRPIX1", w.crpix1, "reference pixel x").map_err(fe)?;
+        d(f, "CRPIX2", w.crpix2, "reference pixel y").map_err(fe)?;
+        d(f, "CD1_1", w.cd1_1, "[deg/pixel]").map_err(fe)?;
+        d(f, "CD1_2", 0.0, "[deg/pixel]").map_err(fe)?;
+        d(f, "CD2_1", 0.0, "[deg/pixel]").map_err(fe)?;
+        d(f, "CD2_2", w.cd2_2, "[deg/pixel]").map_err(fe)?;
+        d(f, "GAIN", header.gain_e_per_adu, "[e-/ADU]").map_err(fe)?;
+        d(f, "RDNOISE", header.read_noise_e, "[e-] read noise").map_err(fe)?;
+        d(f, "SATURATE", header.saturation_adu, "[ADU] clip level").map_err(fe)?;
+        d(f, "EXPTIME", header.exposure_s, "[s] exposure").map_err(fe)?;
         d(
-            &mut f,
-            "SATURATE",
-            header.saturation_adu,
-            "[ADU] clip level",
-        )
-        .map_err(fe)?;
-        d(&mut f, "EXPTIME", header.exposure_s, "[s] exposure").map_err(fe)?;
-        d(
-            &mut f,
+            f,
             "MAGZERO",
             header.magzero_adu,
             "m = MAGZERO - 2.5 log10(ADU total)",
         )
         .map_err(fe)?;
-        d(
-            &mut f,
-            "PIXSCALE",
-            header.pixel_scale_arcsec,
-            "[arcsec/pixel]",
-        )
-        .map_err(fe)?;
-        finish_fits(f, path)
+        d(f, "PIXSCALE", header.pixel_scale_arcsec, "[arcsec/pixel]").map_err(fe)?;
+        Ok(())
     })
 }
 

@@ -10,6 +10,7 @@
 
 pub mod image_fits;
 pub mod psf_fits;
+pub mod psf_store;
 pub mod skymaker;
 pub mod truth_header;
 

@@ -336,6 +336,36 @@ pub fn build_optical(
     pixel_scale_arcsec: f64,
     accuracy: &PsfAccuracy,
 ) -> Result<OpticalPsf, PsfError> {
+    let (band, cal) = solve_optical(
+        name,
+        fwhm_arcsec,
+        aberration,
+        amplitude,
+        target_chi,
+        angle_rad,
+        telescope,
+        pixel_scale_arcsec,
+        accuracy,
+    )?;
+    Ok(OpticalPsf::new(band, cal))
+}
+
+/// The expensive part of [`build_optical`]: the solved calibration and the
+/// band-limited transfer function on the final grid, before
+/// [`OpticalPsf::new`] recentres and samples it (what
+/// [`crate::io::psf_store`] keeps).
+#[allow(clippy::too_many_arguments)]
+pub fn solve_optical(
+    name: &str,
+    fwhm_arcsec: f64,
+    aberration: Aberration,
+    amplitude: Option<f64>,
+    target_chi: Option<f64>,
+    angle_rad: f64,
+    telescope: &RawTelescope,
+    pixel_scale_arcsec: f64,
+    accuracy: &PsfAccuracy,
+) -> Result<(optical::BandTransfer, Calibration), PsfError> {
     let geometry = pupil::Pupil::from_telescope(telescope);
     let lambda_m = telescope.wavelength_um * 1e-6;
     let pupil = optical::SampledPupil::new(
@@ -410,5 +440,5 @@ pub fn build_optical(
             accuracy.band_floor,
         )
     };
-    Ok(OpticalPsf::new(band, cal))
+    Ok((band, cal))
 }

@@ -1,0 +1,418 @@
+//! PSFs kept between the processes of a run (`RUN/private/psf/cache/`).
+//!
+//! An optical PSF costs 2.5 s to solve (seeing and aberration for the
+//! target FWHM and χ, then the transfer function on the final grid); every
+//! process of a run — a resumed one, each shard, `--finish` — would pay it
+//! again. The first process that builds one stores what was expensive: the
+//! solved [`Calibration`] and the band-limited transfer function before
+//! [`OpticalPsf::new`] recentres and samples it. A later process loads it
+//! when the file checks, and gets the very same PSF (the recentring and
+//! sampling are rerun on the loaded values, so the bytes of every image
+//! are those of a process that built it: test
+//! `generate_reuses_stored_psfs_across_shards_byte_for_byte`).
+//!
+//! File `<spec digest>.bin`: a text header, then the content.
+//!
+//! ```text
+//! stepsim psf store 1            format version (FORMAT)
+//! spec-sha256 <64 hex>           spec_digest: everything the PSF's bytes depend on
+//! content-sha256 <64 hex>        SHA-256 of the content bytes
+//! content-bytes <n>
+//! <empty line>
+//! <n content bytes, little-endian>
+//! ```
+//!
+//! Content: seeing FWHM, λ/r0, amplitude, FWHM, |χ|, centroid shift x, y
+//! (7 × f64), the amplitude unit (u8: 0 waves, 1 arcsec), the aberration's
+//! name (u32 length + UTF-8), the grid side nc (u64), the frequency spacing
+//! (f64) and the nc² complex values (re, im as f64), FFT order.
+//!
+//! A file is used only when its version, spec digest and content hash all
+//! check and the content parses to exactly its length; anything else (a
+//! stale, truncated, tampered or foreign file) is rebuilt, never trusted,
+//! and the file is rewritten atomically. Only optical PSFs are stored: the
+//! other models build in milliseconds.
+
+use super::{IoError, write_bytes_atomically};
+use crate::config::RawPsfModel;
+use crate::psf::calibrate::OpticalPsf;
+use crate::psf::optical::BandTransfer;
+use crate::psf::{Calibration, Psf, PsfAccuracy, PsfError, PsfSpec};
+use num_complex::Complex64;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use stepsim_contract::digest::sha256_hex;
+
+/// Version of the file format and of what it holds: bump it whenever the
+/// solved PSF or this layout changes, so that older files are rebuilt.
+pub const FORMAT: u32 = 1;
+
+/// How a PSF of a process came to be.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Origin {
+    /// Built here; the model is not stored (not optical: cheap to build).
+    Built,
+    /// Loaded from `file`, verified.
+    Reused {
+        /// The file it was loaded from.
+        file: PathBuf,
+    },
+    /// Built here (no file yet) and stored in `file`.
+    Stored {
+        /// The file written.
+        file: PathBuf,
+    },
+    /// `file` was there but unusable (`why`): rebuilt and stored again.
+    Rebuilt {
+        /// The file rewritten.
+        file: PathBuf,
+        /// Why it was not used (lower case, no full stop).
+        why: String,
+    },
+}
+
+impl std::fmt::Display for Origin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Origin::Built => write!(f, "built"),
+            Origin::Reused { file } => write!(f, "reused from {}", file.display()),
+            Origin::Stored { file } => write!(f, "built and stored in {}", file.display()),
+            Origin::Rebuilt { file, why } => {
+                write!(f, "rebuilt ({} {why}) and stored again", file.display())
+            }
+        }
+    }
+}
+
+/// Why a PSF could not be had.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// Building it failed.
+    #[error(transparent)]
+    Psf(#[from] PsfError),
+    /// Storing it failed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+}
+
+/// True for the models kept in a store (optical ones).
+pub fn is_stored(spec: &PsfSpec) -> bool {
+    matches!(spec.entry.model, RawPsfModel::Optical { .. })
+}
+
+/// Hex SHA-256 of everything the PSF's bytes depend on: the format version,
+/// the config entry (model, FWHM, aberration, amplitude or target χ, angle,
+/// name), the telescope, the pixel scale and the accuracy settings.
+pub fn spec_digest(spec: &PsfSpec, accuracy: &PsfAccuracy) -> String {
+    let text = format!(
+        "stepsim psf store {FORMAT}\nentry {}\ntelescope {}\npixel_scale_arcsec {:?}\naccuracy {:?}\n",
+        serde_json::to_string(&spec.entry).expect("a config entry serialises"),
+        serde_json::to_string(&spec.telescope).expect("the telescope serialises"),
+        spec.pixel_scale_arcsec,
+        accuracy,
+    );
+    sha256_hex(text.as_bytes())
+}
+
+/// The file of `spec` in the store directory `dir`.
+pub fn file_for(dir: &Path, spec: &PsfSpec, accuracy: &PsfAccuracy) -> PathBuf {
+    dir.join(format!("{}.bin", spec_digest(spec, accuracy)))
+}
+
+/// The PSF of `spec`: loaded from the store `dir` when its file checks,
+/// otherwise built (and, for optical models, stored).
+pub fn load_or_build(
+    spec: &PsfSpec,
+    accuracy: &PsfAccuracy,
+    dir: &Path,
+) -> Result<(Arc<dyn Psf>, Origin), StoreError> {
+    let RawPsfModel::Optical {
+        aberration,
+        amplitude,
+        target_chi,
+        angle_deg,
+    } = &spec.entry.model
+    else {
+        return Ok((crate::psf::build_with(spec, accuracy)?, Origin::Built));
+    };
+    let digest = spec_digest(spec, accuracy);
+    let file = dir.join(format!("{digest}.bin"));
+    let why = match std::fs::read(&file) {
+        Ok(bytes) => match parse(&bytes, &digest) {
+            Ok((band, cal)) => {
+                let psf = Arc::new(OpticalPsf::new(band, cal));
+                return Ok((psf, Origin::Reused { file }));
+            }
+            Err(why) => Some(why),
+        },
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => Some(format!("could not be read: {e}")),
+    };
+    let e = &spec.entry;
+    let (band, cal) = crate::psf::solve_optical(
+        &e.name,
+        e.fwhm_arcsec,
+        *aberration,
+        *amplitude,
+        *target_chi,
+        angle_deg.to_radians(),
+        &spec.telescope,
+        spec.pixel_scale_arcsec,
+        accuracy,
+    )?;
+    write_bytes_atomically(&file, &encode(&band, &cal, &digest))?;
+    let psf = Arc::new(OpticalPsf::new(band, cal));
+    let origin = match why {
+        None => Origin::Stored { file },
+        Some(why) => Origin::Rebuilt { file, why },
+    };
+    Ok((psf, origin))
+}
+
+/// The whole file of a PSF: header and content.
+pub fn encode(band: &BandTransfer, cal: &Calibration, spec_digest: &str) -> Vec<u8> {
+    let mut c = Vec::with_capacity(128 + band.t.len() * 16);
+    for v in [
+        cal.seeing_fwhm_arcsec,
+        cal.lambda_over_r0_arcsec,
+        cal.amplitude,
+        cal.fwhm_arcsec,
+        cal.chi_abs,
+        cal.centroid_shift_arcsec.0,
+        cal.centroid_shift_arcsec.1,
+    ] {
+        c.extend_from_slice(&v.to_le_bytes());
+    }
+    c.push(u8::from(cal.amplitude_unit == "arcsec"));
+    c.extend_from_slice(&(cal.aberration.len() as u32).to_le_bytes());
+    c.extend_from_slice(cal.aberration.as_bytes());
+    c.extend_from_slice(&(band.nc as u64).to_le_bytes());
+    c.extend_from_slice(&band.du.to_le_bytes());
+    for z in &band.t {
+        c.extend_from_slice(&z.re.to_le_bytes());
+        c.extend_from_slice(&z.im.to_le_bytes());
+    }
+    let content_sha = sha256_hex(&c);
+    let mut out = format!(
+        "stepsim psf store {FORMAT}\nspec-sha256 {spec_digest}\ncontent-sha256 {content_sha}\ncontent-bytes {}\n\n",
+        c.len()
+    )
+    .into_bytes();
+    out.extend_from_slice(&c);
+    out
+}
+
+/// The stored PSF of a file whose spec digest must be `want_spec`, or why
+/// it cannot be used (lower case, no full stop).
+pub fn parse(bytes: &[u8], want_spec: &str) -> Result<(BandTransfer, Calibration), String> {
+    let end = bytes
+        .windows(2)
+        .position(|w| w == b"\n\n")
+        .filter(|&i| i < 4096)
+        .ok_or("has no header (not a PSF store file)")?;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "has a header that is not text")?;
+    let content = &bytes[end + 2..];
+    let lines: Vec<&str> = header.lines().collect();
+    let [version, spec, sha, len] = lines[..] else {
+        return Err("has a header of the wrong shape (not a PSF store file)".into());
+    };
+    if version != format!("stepsim psf store {FORMAT}") {
+        return Err(format!(
+            "is of another format (`{version}`, this stepsim reads version {FORMAT})"
+        ));
+    }
+    if spec.strip_prefix("spec-sha256 ") != Some(want_spec) {
+        return Err("was made for another PSF spec (its spec digest differs)".into());
+    }
+    let n: usize = len
+        .strip_prefix("content-bytes ")
+        .and_then(|v| v.parse().ok())
+        .ok_or("has no valid content length")?;
+    if content.len() != n {
+        return Err(format!(
+            "is truncated or padded ({} content bytes, the header says {n})",
+            content.len()
+        ));
+    }
+    if sha.strip_prefix("content-sha256 ") != Some(sha256_hex(content).as_str()) {
+        return Err("has content that does not match its SHA-256 (damaged or edited)".into());
+    }
+    decode(content).ok_or_else(|| "has content that does not parse".into())
+}
+
+fn decode(c: &[u8]) -> Option<(BandTransfer, Calibration)> {
+    let mut at = 0usize;
+    let mut take = |n: usize| -> Option<&[u8]> {
+        let s = c.get(at..at.checked_add(n)?)?;
+        at += n;
+        Some(s)
+    };
+    let mut f = [0.0f64; 7];
+    for v in &mut f {
+        *v = f64::from_le_bytes(take(8)?.try_into().ok()?);
+    }
+    let unit = match take(1)?[0] {
+        0 => "waves",
+        1 => "arcsec",
+        _ => return None,
+    };
+    let name_len = u32::from_le_bytes(take(4)?.try_into().ok()?) as usize;
+    let aberration = std::str::from_utf8(take(name_len)?).ok()?.to_string();
+    let nc = usize::try_from(u64::from_le_bytes(take(8)?.try_into().ok()?)).ok()?;
+    let du = f64::from_le_bytes(take(8)?.try_into().ok()?);
+    let count = nc.checked_mul(nc)?;
+    let values = take(count.checked_mul(16)?)?;
+    if at != c.len() || nc == 0 || !du.is_finite() || du <= 0.0 {
+        return None;
+    }
+    let t = values
+        .chunks_exact(16)
+        .map(|z| {
+            let re = f64::from_le_bytes(z[..8].try_into().expect("8 bytes"));
+            let im = f64::from_le_bytes(z[8..].try_into().expect("8 bytes"));
+            Complex64::new(re, im)
+        })
+        .collect();
+    let cal = Calibration {
+        seeing_fwhm_arcsec: f[0],
+        lambda_over_r0_arcsec: f[1],
+        aberration,
+        amplitude: f[2],
+        amplitude_unit: unit,
+        fwhm_arcsec: f[3],
+        chi_abs: f[4],
+        centroid_shift_arcsec: (f[5], f[6]),
+    };
+    Some((BandTransfer { nc, du, t }, cal))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{RawPsf, RawTelescope};
+
+    fn spec(target_chi: f64) -> PsfSpec {
+        let entry: RawPsf = serde_json::from_value(serde_json::json!({
+            "name": "coma", "model": "optical", "aberration": "coma",
+            "target_chi": target_chi, "fwhm_arcsec": 0.9
+        }))
+        .unwrap();
+        PsfSpec::new(entry, RawTelescope::default(), 0.206)
+    }
+
+    fn small() -> PsfAccuracy {
+        PsfAccuracy {
+            pupil_grid: 512,
+            calibration_grid: 512,
+            ..PsfAccuracy::default()
+        }
+    }
+
+    fn sample_psf() -> (BandTransfer, Calibration) {
+        let nc = 4;
+        let t = (0..nc * nc)
+            .map(|k| Complex64::new(1.0 / (1.0 + k as f64), -0.25 * k as f64))
+            .collect();
+        let cal = Calibration {
+            seeing_fwhm_arcsec: 0.82,
+            lambda_over_r0_arcsec: 0.84,
+            aberration: "coma".into(),
+            amplitude: 0.291,
+            amplitude_unit: "waves",
+            fwhm_arcsec: 0.9002,
+            chi_abs: 0.0399,
+            centroid_shift_arcsec: (0.01, -0.02),
+        };
+        (BandTransfer { nc, du: 0.125, t }, cal)
+    }
+
+    #[test]
+    fn a_stored_psf_reads_back_exactly_and_nothing_else_is_trusted() {
+        let (band, cal) = sample_psf();
+        let d = "ab".repeat(32);
+        let bytes = encode(&band, &cal, &d);
+        let (b2, c2) = parse(&bytes, &d).unwrap();
+        assert_eq!((b2.nc, b2.du, &b2.t), (band.nc, band.du, &band.t));
+        assert_eq!(c2, cal);
+        // Another spec, a truncation, one flipped bit of the content or of
+        // the header, another version, junk: each refused with its reason.
+        let why = parse(&bytes, &"cd".repeat(32)).unwrap_err();
+        assert!(why.contains("another PSF spec"), "{why}");
+        let why = parse(&bytes[..bytes.len() - 1], &d).unwrap_err();
+        assert!(why.contains("truncated"), "{why}");
+        let mut bad = bytes.clone();
+        let last = bad.len() - 3;
+        bad[last] ^= 1;
+        let why = parse(&bad, &d).unwrap_err();
+        assert!(why.contains("does not match its SHA-256"), "{why}");
+        let other = String::from_utf8_lossy(&bytes[..20]).replace("store 1", "store 9");
+        let mut old = other.into_bytes();
+        old.extend_from_slice(&bytes[20..]);
+        let why = parse(&old, &d).unwrap_err();
+        assert!(why.contains("another format"), "{why}");
+        assert!(parse(b"SIMPLE  = T", &d).unwrap_err().contains("no header"));
+    }
+
+    #[test]
+    fn the_spec_digest_changes_with_everything_the_psf_depends_on() {
+        let acc = PsfAccuracy::default();
+        let base = spec_digest(&spec(0.04), &acc);
+        assert_eq!(base, spec_digest(&spec(0.04), &acc));
+        assert_ne!(base, spec_digest(&spec(0.05), &acc));
+        let mut s = spec(0.04);
+        s.pixel_scale_arcsec = 0.2;
+        assert_ne!(base, spec_digest(&s, &acc));
+        let mut s = spec(0.04);
+        s.telescope.diameter_m = 4.0;
+        assert_ne!(base, spec_digest(&s, &acc));
+        assert_ne!(base, spec_digest(&spec(0.04), &small()));
+    }
+
+    #[test]
+    fn load_or_build_stores_reuses_and_rebuilds_the_same_psf() {
+        let dir = tempfile::tempdir().unwrap();
+        let (s, acc) = (spec(0.04), small());
+        let (built, o1) = load_or_build(&s, &acc, dir.path()).unwrap();
+        let file = file_for(dir.path(), &s, &acc);
+        assert_eq!(o1, Origin::Stored { file: file.clone() });
+        let (again, o2) = load_or_build(&s, &acc, dir.path()).unwrap();
+        assert_eq!(o2, Origin::Reused { file: file.clone() });
+        // The very same PSF as building it directly (and as the first).
+        let direct = crate::psf::build_with(&s, &acc).unwrap();
+        let grid = crate::psf::StampGrid::new(48, 0.206);
+        let t = direct.transfer(grid);
+        assert_eq!(*built.transfer(grid), *t);
+        assert_eq!(*again.transfer(grid), *t);
+        assert_eq!(again.calibration(), direct.calibration());
+        // A damaged file is rebuilt (saying why) and rewritten whole.
+        let good = std::fs::read(&file).unwrap();
+        std::fs::write(&file, &good[..good.len() / 2]).unwrap();
+        let (fixed, o3) = load_or_build(&s, &acc, dir.path()).unwrap();
+        assert!(
+            matches!(&o3, Origin::Rebuilt { why, .. } if why.contains("truncated")),
+            "{o3:?}"
+        );
+        assert_eq!(*fixed.transfer(grid), *t);
+        assert_eq!(std::fs::read(&file).unwrap(), good);
+        // Another config's file under this name is not used.
+        let other = spec(0.05);
+        let (_, _) = load_or_build(&other, &acc, dir.path()).unwrap();
+        std::fs::copy(file_for(dir.path(), &other, &acc), &file).unwrap();
+        let (_, o4) = load_or_build(&s, &acc, dir.path()).unwrap();
+        assert!(
+            matches!(&o4, Origin::Rebuilt { why, .. } if why.contains("another PSF spec")),
+            "{o4:?}"
+        );
+        // Non-optical models are built, never stored.
+        let g = PsfSpec::new(
+            serde_json::from_value(serde_json::json!({"name": "g", "model": "gaussian"})).unwrap(),
+            RawTelescope::default(),
+            0.206,
+        );
+        assert!(!is_stored(&g) && is_stored(&s));
+        assert_eq!(
+            load_or_build(&g, &acc, dir.path()).unwrap().1,
+            Origin::Built
+        );
+    }
+}
