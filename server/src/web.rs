@@ -562,18 +562,10 @@ fn signin_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>) ->
 async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
     let nav = web.nav(&state, &headers, "signin");
-    if !same_origin(&headers) {
-        return web.error(&nav, &origin_refused());
-    }
-    let fields = match form(req).await {
+    let fields = match signin_fields(&web, &nav, &headers, req, SIGNIN_COOKIE).await {
         Ok(f) => f,
-        Err(e) => return web.error(&nav, &e),
+        Err(page) => return page,
     };
-    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
-    let kept = cookie(&headers, SIGNIN_COOKIE).unwrap_or_default();
-    if sent.is_empty() || !same_secret(sent, &kept) {
-        return web.error(&nav, &csrf_refused());
-    }
     let token = fields.get("token").map(|t| t.trim()).unwrap_or("");
     let hash = token_hash(token);
     let team = match state.store().team_by_token(&hash) {
@@ -588,15 +580,54 @@ async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Requ
             Some("this token is not valid (mistyped, revoked or replaced): ask the organisers"),
         );
     }
-    let id = match web.start_session(&hash, false) {
-        Ok(id) => id,
-        Err(e) => return web.error(&nav, &e),
+    signed_in(&web, &nav, &headers, &hash, false)
+}
+
+/// The checks of a sign-in form (same origin, the double-submit token of
+/// its cookie `signin_cookie`) and its fields; the refusal page otherwise.
+async fn signin_fields(
+    web: &Web,
+    nav: &Nav,
+    headers: &HeaderMap,
+    req: Request,
+    signin_cookie: &str,
+) -> Result<HashMap<String, String>, Response> {
+    if !same_origin(headers) {
+        return Err(web.error(nav, &origin_refused()));
+    }
+    let fields = form(req).await.map_err(|e| web.error(nav, &e))?;
+    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
+    let kept = cookie(headers, signin_cookie).unwrap_or_default();
+    if sent.is_empty() || !same_secret(sent, &kept) {
+        return Err(web.error(nav, &csrf_refused()));
+    }
+    Ok(fields)
+}
+
+/// A new session (a team's, or the organisers' when `organiser`): its
+/// cookie set, the sign-in form's cookie cleared, and a redirect to the
+/// page it opens.
+fn signed_in(
+    web: &Web,
+    nav: &Nav,
+    headers: &HeaderMap,
+    token_sha256: &str,
+    organiser: bool,
+) -> Response {
+    let (to, signin_cookie, signin_path) = if organiser {
+        ("/organisers", ORGANISER_SIGNIN_COOKIE, "/organisers")
+    } else {
+        ("/entries", SIGNIN_COOKIE, "/signin")
     };
-    let secure = over_https(&headers);
-    let mut resp = redirect("/entries");
+    let id = match web.start_session(token_sha256, organiser) {
+        Ok(id) => id,
+        Err(e) => return web.error(nav, &e),
+    };
+    let secure = over_https(headers);
+    let mut resp = redirect(to);
     for c in [
         set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
-        set_cookie(SIGNIN_COOKIE, "", "/signin", 0, secure),
+        set_cookie(signin_cookie, "", signin_path, 0, secure),
     ] {
         if let Ok(v) = HeaderValue::from_str(&c) {
             resp.headers_mut().append(header::SET_COOKIE, v);
@@ -708,18 +739,10 @@ async fn organisers_signin(
 ) -> Response {
     let headers = req.headers().clone();
     let nav = web.nav(&state, &headers, "organisers");
-    if !same_origin(&headers) {
-        return web.error(&nav, &origin_refused());
-    }
-    let fields = match form(req).await {
+    let fields = match signin_fields(&web, &nav, &headers, req, ORGANISER_SIGNIN_COOKIE).await {
         Ok(f) => f,
-        Err(e) => return web.error(&nav, &e),
+        Err(page) => return page,
     };
-    let sent = fields.get("csrf").map(String::as_str).unwrap_or("");
-    let kept = cookie(&headers, ORGANISER_SIGNIN_COOKIE).unwrap_or_default();
-    if sent.is_empty() || !same_secret(sent, &kept) {
-        return web.error(&nav, &csrf_refused());
-    }
     let password = fields.get("password").map(String::as_str).unwrap_or("");
     let ok = !password.is_empty()
         && crate::challenge::verify_organiser_password(state.store().as_ref(), password);
@@ -733,21 +756,7 @@ async fn organisers_signin(
             ),
         );
     }
-    let id = match web.start_session("", true) {
-        Ok(id) => id,
-        Err(e) => return web.error(&nav, &e),
-    };
-    let secure = over_https(&headers);
-    let mut resp = redirect("/organisers");
-    for c in [
-        set_cookie(SESSION_COOKIE, &id, "/", SESSION_S, secure),
-        set_cookie(ORGANISER_SIGNIN_COOKIE, "", "/organisers", 0, secure),
-    ] {
-        if let Ok(v) = HeaderValue::from_str(&c) {
-            resp.headers_mut().append(header::SET_COOKIE, v);
-        }
-    }
-    resp
+    signed_in(&web, &nav, &headers, "", true)
 }
 
 async fn signout(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
