@@ -49,14 +49,13 @@ struct Inner {
     store: Mutex<Box<dyn Store>>,
     /// Times (s) of the recent requests of each token hash / client address.
     recent: Mutex<std::collections::HashMap<String, std::collections::VecDeque<i64>>>,
-    /// Format checks running at once: one per core. Each holds a whole
-    /// parsed catalogue; more at once would only share the same cores and
-    /// multiply the memory (50 concurrent uploads peaked at 861 MiB).
-    checks: tokio::sync::Semaphore,
 }
 
 /// The window of the per-token and per-address rate limit.
 pub const RATE_WINDOW_S: i64 = 60;
+
+/// Tokens and addresses the rate limiter keeps before it drops the quiet ones.
+const MAX_RATE_KEYS: usize = 10_000;
 
 impl AppState {
     /// The state of a challenge (its own store connection).
@@ -67,9 +66,6 @@ impl AppState {
                 settings: ch.settings,
                 store: Mutex::new(ch.store),
                 recent: Mutex::new(std::collections::HashMap::new()),
-                checks: tokio::sync::Semaphore::new(
-                    std::thread::available_parallelism().map_or(1, |n| n.get()),
-                ),
             }),
         }
     }
@@ -233,8 +229,15 @@ async fn rate_limit(
             .recent
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
+        // Keys of clients quiet for a window are dropped once there are
+        // many: random forged tokens must not grow the map for ever.
+        if recent.len() > MAX_RATE_KEYS {
+            recent.retain(|_, t| t.back().is_some_and(|&x| x > now - RATE_WINDOW_S));
+        }
         for k in &keys {
-            let times = recent.entry(k.clone()).or_default();
+            let Some(times) = recent.get_mut(k) else {
+                continue;
+            };
             while times.front().is_some_and(|&t| t <= now - RATE_WINDOW_S) {
                 times.pop_front();
             }
@@ -629,6 +632,12 @@ async fn receive(
                 }
                 if field.name() != Some("file") {
                     // Read in chunks, capped: a huge field is refused, never buffered.
+                    if fields.len() >= MAX_FIELDS {
+                        return Err(ApiError::new(
+                            StatusCode::BAD_REQUEST,
+                            "the multipart form has too many or too large fields before `file`",
+                        ));
+                    }
                     let name = field.name().unwrap_or_default().to_string();
                     let mut value = Vec::new();
                     while let Some(chunk) = field
@@ -637,7 +646,7 @@ async fn receive(
                         .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
                     {
                         value.extend_from_slice(&chunk);
-                        if fields.len() >= MAX_FIELDS || value.len() > FIELD_MAX_BYTES {
+                        if value.len() > FIELD_MAX_BYTES {
                             return Err(ApiError::new(
                                 StatusCode::BAD_REQUEST,
                                 "the multipart form has too many or too large fields before `file`",
@@ -698,10 +707,13 @@ async fn receive(
 /// Refuses with 429 when a team has used its quota of accepted uploads, or
 /// its cap on refused ones, in the last 24 hours.
 fn check_limits(state: &AppState, team_id: i64) -> Result<(), ApiError> {
+    limits(state.store().as_ref(), &state.inner.settings, team_id)
+}
+
+/// [`check_limits`] on a store the caller holds.
+fn limits(store: &dyn Store, s: &crate::Settings, team_id: i64) -> Result<(), ApiError> {
     let now = crate::now_s();
     let since = now - QUOTA_WINDOW_S;
-    let s = &state.inner.settings;
-    let store = state.store();
     let used = store
         .accepted_since(team_id, since)
         .map_err(ApiError::internal)?;
@@ -790,12 +802,6 @@ pub(crate) async fn submit(
     // image of the run, as `stepsim score` does.
     let truth = state.inner.settings.truth_dir.clone();
     let tmp2 = tmp.clone();
-    let permit = state
-        .inner
-        .checks
-        .acquire()
-        .await
-        .map_err(ApiError::internal)?;
     let check = tokio::task::spawn_blocking(move || {
         let opts = stepsim_harness::pipeline::ScoreOptions::new(&truth, &tmp2);
         stepsim_harness::pipeline::prepare(&opts)
@@ -804,7 +810,6 @@ pub(crate) async fn submit(
     })
     .await
     .map_err(ApiError::internal)?;
-    drop(permit);
     if let Err(message) = check {
         let _ = tokio::fs::remove_file(&tmp).await;
         state
@@ -813,13 +818,25 @@ pub(crate) async fn submit(
             .map_err(ApiError::internal)?;
         return Err(ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, message));
     }
-    let dup = state
-        .store()
+    // The phase, the duplicate check, the quota and the insert again, in
+    // one hold of the store: the phase may have changed during a slow
+    // upload (a body sent until after the deadline or the reveal), and
+    // parallel uploads of one team must not all pass the quota.
+    let mut store = state.store();
+    let refuse = |e: ApiError| {
+        let _ = std::fs::remove_file(&tmp);
+        e
+    };
+    let phase = Phase::read(store.as_ref()).map_err(|e| refuse(ApiError::internal(e)))?;
+    if let Some(why) = phase.upload_refusal(crate::now_s()) {
+        return Err(refuse(ApiError::new(StatusCode::FORBIDDEN, why)));
+    }
+    let dup = store
         .find_duplicate(team.id, &sha)
-        .map_err(ApiError::internal)?;
+        .map_err(|e| refuse(ApiError::internal(e)))?;
     if let Some(id) = dup {
-        let _ = tokio::fs::remove_file(&tmp).await;
-        let s = state.store().submission(id).map_err(ApiError::internal)?;
+        let _ = std::fs::remove_file(&tmp);
+        let s = store.submission(id).map_err(ApiError::internal)?;
         let status = s.map(|s| s.status).unwrap_or_default();
         return Ok(Accepted {
             id,
@@ -827,19 +844,17 @@ pub(crate) async fn submit(
             duplicate: true,
         });
     }
+    limits(store.as_ref(), &state.inner.settings, team.id).map_err(refuse)?;
     let final_path = state.inner.dir.join("uploads").join(&sha);
     if final_path.exists() {
-        let _ = tokio::fs::remove_file(&tmp).await;
+        let _ = std::fs::remove_file(&tmp);
     } else {
-        tokio::fs::rename(&tmp, &final_path)
-            .await
-            .map_err(ApiError::internal)?;
+        std::fs::rename(&tmp, &final_path).map_err(|e| refuse(ApiError::internal(e)))?;
         if let Ok(d) = std::fs::File::open(state.inner.dir.join("uploads")) {
             let _ = d.sync_all();
         }
     }
-    let id = state
-        .store()
+    let id = store
         .insert_submission(team.id, &sha, size as i64, crate::now_s())
         .map_err(ApiError::internal)?;
     Ok(Accepted {

@@ -475,11 +475,17 @@ pub const ORGANISER_PASSWORD_KEY: &str = "organiser_password_phc";
 /// [`Challenge::set_organiser_password`]; false when none is set, the
 /// store fails or the hash cannot be read (never panics).
 pub fn verify_organiser_password(store: &dyn Store, password: &str) -> bool {
-    use argon2::password_hash::{PasswordHash, PasswordVerifier};
     let Ok(Some(phc)) = store.meta(ORGANISER_PASSWORD_KEY) else {
         return false;
     };
-    let Ok(hash) = PasswordHash::new(&phc) else {
+    verify_phc(&phc, password)
+}
+
+/// True when `password` matches the PHC hash `phc` (Argon2). Slow by
+/// design (tens of ms): callers do not hold the store while it runs.
+pub fn verify_phc(phc: &str, password: &str) -> bool {
+    use argon2::password_hash::{PasswordHash, PasswordVerifier};
+    let Ok(hash) = PasswordHash::new(phc) else {
         return false;
     };
     argon2::Argon2::default()

@@ -744,8 +744,22 @@ async fn organisers_signin(
         Err(page) => return page,
     };
     let password = fields.get("password").map(String::as_str).unwrap_or("");
-    let ok = !password.is_empty()
-        && crate::challenge::verify_organiser_password(state.store().as_ref(), password);
+    // The stored hash is read under the store's lock; the slow Argon2
+    // check runs without it, off the async threads.
+    let phc = state
+        .store()
+        .meta(crate::challenge::ORGANISER_PASSWORD_KEY)
+        .ok()
+        .flatten();
+    let ok = match (password.is_empty(), phc) {
+        (false, Some(phc)) => {
+            let password = password.to_owned();
+            tokio::task::spawn_blocking(move || crate::challenge::verify_phc(&phc, &password))
+                .await
+                .unwrap_or(false)
+        }
+        _ => false,
+    };
     if !ok {
         return organisers_form(
             &web,

@@ -42,9 +42,24 @@ pub fn score_entry(ch: &Challenge, sub: &Submission) -> Result<(String, Option<S
     let feedback =
         serde_json::to_string(&PublicFeedback::of_report(&public)).map_err(|e| e.to_string())?;
     let holdout = if ch.settings.holdout {
-        let report = score_part(&opts, Part::Holdout).map_err(msg)?;
-        write_outputs(&ch.entry_dir(sub.id, Part::Holdout), &report, true).map_err(msg)?;
-        Some(serde_json::to_string(&report.summary).map_err(|e| e.to_string())?)
+        // A failure on the held-out part must not show before reveal: a
+        // refused entry would tell the participant something about the
+        // held-out data. The entry is scored on its public part, and the
+        // failure is kept as the held-out result (`{"error": …}`, opened
+        // at reveal like any held-out figure).
+        let held = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let report = score_part(&opts, Part::Holdout).map_err(msg)?;
+            write_outputs(&ch.entry_dir(sub.id, Part::Holdout), &report, true).map_err(msg)?;
+            serde_json::to_string(&report.summary).map_err(|e| e.to_string())
+        }))
+        .unwrap_or_else(|_| Err("the scorer failed on the held-out part".into()));
+        Some(held.unwrap_or_else(|e| {
+            eprintln!(
+                "stepsim serve: entry {}: held-out part not scored: {e}",
+                sub.id
+            );
+            serde_json::json!({ "error": e }).to_string()
+        }))
     } else {
         None
     };

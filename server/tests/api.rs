@@ -1282,3 +1282,95 @@ fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
     let s = store.submission(1).unwrap().unwrap();
     assert!(!s.final_choice && s.has_score());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
+    let f = fixture(2, &["alpha"]);
+    let app = f.app();
+    let handles: Vec<_> = (0..6)
+        .map(|k| {
+            let (app, token) = (app.clone(), f.tokens[0].clone());
+            let text = catalogue(&f.all, 0.01 * f64::from(k));
+            tokio::spawn(async move { call(&app, upload(&token, text)).await.0 })
+        })
+        .collect();
+    let mut statuses = Vec::new();
+    for h in handles {
+        statuses.push(h.await.unwrap());
+    }
+    let n = |s: StatusCode| statuses.iter().filter(|&&x| x == s).count();
+    assert_eq!(
+        (n(StatusCode::ACCEPTED), n(StatusCode::TOO_MANY_REQUESTS)),
+        (2, 4),
+        "{statuses:?}"
+    );
+    let ch = Challenge::open(&f.state).unwrap();
+    let team = ch.store.team_by_name("alpha").unwrap().unwrap();
+    assert_eq!(ch.store.submissions_of(team.id).unwrap().len(), 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_upload_still_arriving_at_the_freeze_is_refused() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let text = catalogue(&f.all, 0.0).into_bytes();
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<axum::body::Bytes, std::io::Error>>(4);
+    let stream = futures_util::stream::unfold(rx, |mut rx| async move {
+        rx.recv().await.map(|chunk| (chunk, rx))
+    });
+    let (app2, token) = (app.clone(), f.tokens[0].clone());
+    let pending =
+        tokio::spawn(async move { call(&app2, upload(&token, Body::from_stream(stream))).await });
+    let half = text.len() / 2;
+    tx.send(Ok(text[..half].to_vec().into())).await.unwrap();
+    // The upload started while uploads were open; the challenge freezes
+    // before its body ends.
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    Challenge::open(&f.state).unwrap().freeze().unwrap();
+    tx.send(Ok(text[half..].to_vec().into())).await.unwrap();
+    drop(tx);
+    let (s, _, body) = pending.await.unwrap();
+    assert_eq!(s, StatusCode::FORBIDDEN, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("the challenge is frozen")
+    );
+    let ch = Challenge::open(&f.state).unwrap();
+    let team = ch.store.team_by_name("alpha").unwrap().unwrap();
+    assert!(ch.store.submissions_of(team.id).unwrap().is_empty());
+}
+
+#[tokio::test]
+async fn a_failure_on_the_held_out_part_does_not_show_before_reveal() {
+    let f = fixture(4, &["alpha"]);
+    let app = f.app();
+    let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
+    // The held-out truth becomes unreadable after the format check.
+    for im in &f.held.index().images {
+        std::fs::write(
+            f.truth.join("truth").join(format!("{}.fits", im.image)),
+            b"broken",
+        )
+        .unwrap();
+    }
+    f.score_queue();
+    let (s, _, body) = call(
+        &app,
+        get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK);
+    let v = json(&body);
+    assert_eq!(v["status"], "scored", "{body}");
+    assert!(v["public"]["m_mean"].is_number(), "{body}");
+    assert!(
+        v.get("holdout").is_none() && v.get("error").is_none_or(Value::is_null),
+        "{body}"
+    );
+    // Kept for after reveal.
+    let ch = Challenge::open(&f.state).unwrap();
+    let sub = ch.store.submission(id).unwrap().unwrap();
+    assert!(sub.holdout_json.unwrap().contains("\"error\""));
+}
