@@ -963,6 +963,31 @@ async fn entries_page(
     entries_response(&state, &web, &nav, &team, StatusCode::OK, notice.or(chosen))
 }
 
+/// The signed-in team of a form POST, with its page context, once the
+/// request passed the same-origin check; the refusal page otherwise
+/// (`what` names the action in the sign-in message).
+fn posting_team(
+    web: &Web,
+    state: &AppState,
+    headers: &HeaderMap,
+    what: &str,
+) -> Result<(Session, Team, Nav), Box<Response>> {
+    let Some((session, team)) = web.team_session(state, headers) else {
+        let nav = web.nav(state, headers, "entries");
+        return Err(Box::new(web.message(
+            &nav,
+            StatusCode::FORBIDDEN,
+            "Sign in first",
+            &format!("{what} needs a signed-in team: sign in with your team's token."),
+        )));
+    };
+    let nav = Nav::new(state, Some(&session), Some(&team), "entries");
+    if !same_origin(headers) {
+        return Err(Box::new(web.error(&nav, &origin_refused())));
+    }
+    Ok((session, team, nav))
+}
+
 /// The final-entries form (`POST /entries/final`, checkboxes `final`):
 /// [`crate::challenge::choose_final_entries`], the path of `PUT /api/final`.
 async fn choose_final(
@@ -971,19 +996,11 @@ async fn choose_final(
     req: Request,
 ) -> Response {
     let headers = req.headers().clone();
-    let Some((session, team)) = web.team_session(&state, &headers) else {
-        let nav = web.nav(&state, &headers, "entries");
-        return web.message(
-            &nav,
-            StatusCode::FORBIDDEN,
-            "Sign in first",
-            "choosing final entries needs a signed-in team: sign in with your team's token.",
-        );
+    let (session, team, nav) = match posting_team(&web, &state, &headers, "choosing final entries")
+    {
+        Ok(t) => t,
+        Err(page) => return *page,
     };
-    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
-    if !same_origin(&headers) {
-        return web.error(&nav, &origin_refused());
-    }
     let fields = match form_pairs(req).await {
         Ok(f) => f,
         Err(e) => return web.error(&nav, &e),
@@ -1030,19 +1047,11 @@ async fn choose_final(
 /// file is kept.
 async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
-    let Some((session, team)) = web.team_session(&state, &headers) else {
-        let nav = web.nav(&state, &headers, "entries");
-        return web.message(
-            &nav,
-            StatusCode::FORBIDDEN,
-            "Sign in first",
-            "uploading from the page needs a signed-in team: sign in with your team's token.",
-        );
+    let (session, team, nav) = match posting_team(&web, &state, &headers, "uploading from the page")
+    {
+        Ok(t) => t,
+        Err(page) => return *page,
     };
-    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
-    if !same_origin(&headers) {
-        return web.error(&nav, &origin_refused());
-    }
     let expected = session.csrf.clone();
     let check = move |fields: &crate::api::FormFields| {
         let sent = fields

@@ -11,28 +11,13 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use stepsim_harness::part::{Part, PublicFeedback, score_part};
 use stepsim_harness::pipeline::ScoreOptions;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::api::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
-/// A challenge run: public part (2 PSFs × 2 shears, fields 0-1) and
-/// held-out part (other shears, fields 2-3), written to `dir/run/private`.
-fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
-    let mut spec = SynthSpec::small(2);
-    spec.psfs.truncate(2);
-    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
-    let (_, held, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
-    all.write(&dir.join("run/private")).unwrap();
-    (all, held)
-}
-
-/// A catalogue of the whole run with m = `m`.
-fn catalogue(all: &SynthRun, m: f64) -> String {
-    let rows =
-        all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
-    submission_text(&all.index(), &rows)
-}
+mod common;
+use common::{catalogue, write_run};
 
 struct Fixture {
     _tmp: tempfile::TempDir,

@@ -18,7 +18,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::api::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
@@ -49,6 +49,9 @@ impl Drop for Driver {
     }
 }
 
+mod common;
+use common::catalogue_mc as catalogue;
+
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
@@ -58,15 +61,9 @@ fn free_port() -> u16 {
 }
 
 fn write_run(dir: &Path) -> SynthRun {
-    let mut spec = SynthSpec::small(2);
-    spec.psfs.truncate(2);
-    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
-    let (_, _, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
-    all.write(&dir.join("run/private")).unwrap();
-    std::fs::create_dir_all(dir.join("run/public")).unwrap();
-    std::fs::write(
-        dir.join("run/public/README.md"),
-        format!(
+    common::write_run_with_readme(
+        dir,
+        &format!(
             "# Simulated weak-lensing images\n\n\
              This directory holds simulated ground-based images in the style of the Shear \
              TEsting Programme (STEP1). Every image shows galaxies and stars seen through a \
@@ -77,15 +74,7 @@ fn write_run(dir: &Path) -> SynthRun {
             stepsim_contract::SUBMISSION_FORMAT_MD
         ),
     )
-    .unwrap();
-    all
-}
-
-fn catalogue(all: &SynthRun, m: f64, c: f64) -> String {
-    let rows = all.submission(&|t, _| {
-        (!t.is_star()).then_some(((1.0 + m) * t.e1 + c, (1.0 + m) * t.e2, 1.0))
-    });
-    submission_text(&all.index(), &rows)
+    .0
 }
 
 fn shots_dir() -> PathBuf {

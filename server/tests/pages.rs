@@ -8,7 +8,7 @@ use axum::http::{HeaderMap, Request, StatusCode, header};
 use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::api::{AppState, router};
 use stepsim_server::{Challenge, web, worker};
 use tower::ServiceExt;
@@ -17,28 +17,16 @@ const HOST: &str = "challenge.test";
 const ORIGIN: &str = "http://challenge.test";
 const HOSTILE: &str = "<script>alert(1)</script>";
 
-/// A challenge run (public part: 2 PSFs × 2 shears on fields 0-1; held-out
-/// part: other shears on fields 2-3) with a participants' README.
+mod common;
+use common::catalogue;
+
+/// The shared challenge run with a participants' README.
 fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
-    let mut spec = SynthSpec::small(2);
-    spec.psfs.truncate(2);
-    spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
-    let (_, held, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
-    all.write(&dir.join("run/private")).unwrap();
-    std::fs::create_dir_all(dir.join("run/public")).unwrap();
-    std::fs::write(
-        dir.join("run/public/README.md"),
+    common::write_run_with_readme(
+        dir,
         "# Simulated images\n\nMeasure the **shear**; columns `image x y e1 e2`.\n\n\
          - one <b>bold</b> claim\n",
     )
-    .unwrap();
-    (all, held)
-}
-
-fn catalogue(all: &SynthRun, m: f64) -> String {
-    let rows =
-        all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
-    submission_text(&all.index(), &rows)
 }
 
 struct Fixture {
