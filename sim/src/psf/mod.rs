@@ -272,10 +272,6 @@ pub fn build(spec: &PsfSpec) -> Result<Arc<dyn Psf>, PsfError> {
 
 /// [`build`] with explicit accuracy settings.
 pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
-    build_uncached(spec, accuracy)
-}
-
-fn build_uncached(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
     let (psf, telescope, pixel_scale_arcsec) =
         (&spec.entry, &spec.telescope, spec.pixel_scale_arcsec);
     match &psf.model {
