@@ -676,3 +676,68 @@ fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
         )
     );
 }
+
+#[test]
+fn combine_joins_reports_of_runs_with_different_psfs() {
+    // One run scored; a second report made from it by renaming its PSFs
+    // stands for a run of other PSFs. The combined summary is the summary
+    // of all four PSF rows; bad input exits 1 naming the file.
+    let fx = Fixture::new();
+    let sub = fx.submission("team.txt", 0.02);
+    let o = fx.score(&sub, "a", &["--bootstrap-resamples", "0"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(fx.path("a/report.json")).unwrap();
+    let mut b: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for p in b["psfs"].as_array_mut().unwrap() {
+        let name = format!("{}-b", p["psf"].as_str().unwrap());
+        p["psf"] = name.into();
+        p["m"] = (p["m"].as_f64().unwrap() + 0.1).into();
+    }
+    b["run"] = "sha256:other".into();
+    std::fs::create_dir(fx.path("b")).unwrap();
+    std::fs::write(fx.path("b/report.json"), b.to_string()).unwrap();
+    let (a_dir, b_json, out) = (fx.path("a"), fx.path("b/report.json"), fx.path("ab"));
+    let o = stepsim(&[&"score", &"--combine", &a_dir, &b_json, &"--out", &out]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let a: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(c["psfs"].as_array().unwrap().len(), 4);
+    // ⟨m⟩ over four PSFs: the first report's ⟨m⟩ + 0.05.
+    let want = a["summary"]["m_mean"].as_f64().unwrap() + 0.05;
+    assert!((c["summary"]["m_mean"].as_f64().unwrap() - want).abs() < 1e-12);
+    assert!(c["summary"].get("bootstrap").is_none());
+    assert!(c["run"].as_str().unwrap().starts_with("combined:sha256:"));
+    for f in ["report.md", "fig2_shear_response.png", "fig3_m_sigma_c.png"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    // The same PSF twice: refused, naming the second file; nothing written.
+    let out2 = fx.path("aa");
+    let o = stepsim(&[&"score", &"--combine", &a_dir, &a_dir, &"--out", &out2]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("is also in"), "{}", stderr(&o));
+    assert!(!out2.exists());
+    // Not a report: the file and the JSON position.
+    std::fs::write(fx.path("bad.json"), "{\"submission\": \n [").unwrap();
+    let bad = fx.path("bad.json");
+    let o = stepsim(&[&"score", &"--combine", &a_dir, &bad, &"--out", &out2]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("bad.json") && stderr(&o).contains("line 2"),
+        "{}",
+        stderr(&o)
+    );
+    // --combine with --truth is a usage error (exit 2).
+    let truth = fx.path("private");
+    let o = stepsim(&[
+        &"score",
+        &"--combine",
+        &a_dir,
+        &b_json,
+        &"--truth",
+        &truth,
+        &"--out",
+        &out2,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}

@@ -25,6 +25,7 @@
 #![deny(missing_docs)]
 
 pub mod bootstrap;
+pub mod combine;
 pub mod error;
 pub mod fit;
 pub mod fits_table;

@@ -8,12 +8,18 @@ use stepsim_harness::pipeline::{DEFAULT_MATCH_RADIUS_ARCSEC, ScoreOptions};
 #[command(after_long_help = stepsim_harness::SUBMISSION_FORMAT_MD)]
 pub struct Args {
     /// The private half of the run (`RUN/private`: datasets.json, truth/).
-    #[arg(long, value_name = "DIR")]
-    truth: PathBuf,
+    #[arg(long, value_name = "DIR", required_unless_present = "combine")]
+    truth: Option<PathBuf>,
     /// The submission: a table (whitespace with `#` header, CSV, FITS) or a
     /// directory of per-image tables `<image-id>.<ext>`.
-    #[arg(long, value_name = "PATH")]
-    submission: PathBuf,
+    #[arg(long, value_name = "PATH", required_unless_present = "combine")]
+    submission: Option<PathBuf>,
+    /// Instead of scoring: combine the reports (report directories or
+    /// report.json files) of runs that each hold some of the PSFs into one
+    /// report, its summary recomputed over all their PSFs (no bootstrap
+    /// intervals; docs/scoring.md).
+    #[arg(long, value_name = "REPORT", num_args = 2.., conflicts_with_all = ["truth", "submission", "allow_missing_images"])]
+    combine: Vec<PathBuf>,
     /// Where to write report.json, report.md and the plots.
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
@@ -38,15 +44,20 @@ pub struct Args {
 
 /// Scores and writes the report.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    super::fits_path("--truth", &args.truth)?;
-    super::fits_path("--submission", &args.submission)?;
     stepsim_harness::pipeline::check_outputs_free(&args.out, args.force)?;
-    let mut opts = ScoreOptions::new(&args.truth, &args.submission);
-    opts.name = args.name.clone();
-    opts.match_radius_arcsec = args.match_radius_arcsec;
-    opts.allow_missing_images = args.allow_missing_images;
-    opts.bootstrap_resamples = args.bootstrap_resamples;
-    let report = stepsim_harness::score(&opts)?;
+    let report = match (&args.truth, &args.submission) {
+        (Some(truth), Some(submission)) if args.combine.is_empty() => {
+            super::fits_path("--truth", truth)?;
+            super::fits_path("--submission", submission)?;
+            let mut opts = ScoreOptions::new(truth, submission);
+            opts.name = args.name.clone();
+            opts.match_radius_arcsec = args.match_radius_arcsec;
+            opts.allow_missing_images = args.allow_missing_images;
+            opts.bootstrap_resamples = args.bootstrap_resamples;
+            stepsim_harness::score(&opts)?
+        }
+        _ => stepsim_harness::combine::combine_files(&args.combine, args.name.as_deref())?,
+    };
     stepsim_harness::write_outputs(&args.out, &report, args.force)?;
     for w in &report.warnings {
         eprintln!("stepsim: warning: {w}");

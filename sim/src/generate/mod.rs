@@ -54,11 +54,13 @@ use crate::run_layout::{
     Manifest, ManifestImage,
 };
 use crate::seed::{SeedKey, Stream};
+use crate::truth::TruthRow;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -658,10 +660,23 @@ fn make_images(
     write_shared: impl Fn() -> Result<(), GenerateError>,
     progress: &(dyn Fn(Event) + Sync),
 ) -> Result<(), GenerateError> {
-    let mut by_field: BTreeMap<u32, Vec<&Job>> = BTreeMap::new();
-    for j in pending {
-        by_field.entry(j.field).or_default().push(j);
+    let mut jobs: Vec<&Job> = pending.to_vec();
+    jobs.sort_by(|a, b| (a.field, &a.image_id).cmp(&(b.field, &b.image_id)));
+    let fields = FieldPopulations::new(plan, &jobs);
+    // The first field is drawn before anything is written, so that a
+    // population error leaves the run as it was.
+    if let Some(first) = jobs.first() {
+        fields.get(first.field).map_err(|e| {
+            e.unwrap_or_else(|| {
+                IoError::format(
+                    &paths.private(),
+                    "the population of the first field could not be drawn",
+                )
+                .into()
+            })
+        })?;
     }
+    write_shared()?;
     let made = Made { config_sha256 };
     let cx = pipeline::Context {
         plan,
@@ -669,41 +684,139 @@ fn make_images(
         det: &psfs.det,
         made: &made,
     };
-    let mut shared_written = false;
-    for (&field, field_jobs) in &mut by_field {
-        field_jobs.sort_by(|a, b| a.image_id.cmp(&b.image_id));
-        let base = crate::population::base_field(plan, field)
-            .map_err(|source| GenerateError::Population { field, source })?;
-        if !shared_written {
-            write_shared()?;
-            shared_written = true;
-        }
-        let twin = field_jobs
-            .iter()
-            .any(|j| j.rotated)
-            .then(|| crate::population::rotated(&base));
-        // At most one image per thread in flight (a thread waiting inside an
-        // image's own parallel loop could otherwise steal further images and
-        // hold all their buffers at once).
-        for chunk in field_jobs.chunks(rayon::current_num_threads().max(1)) {
-            chunk.par_iter().try_for_each(|job| {
-                let rows = match (&twin, job.rotated) {
+    // One lane per thread; each lane takes the next image until none is
+    // left. A lane runs its images one after another, so at most one image
+    // per thread is in flight (the lanes are the only top-level tasks: a
+    // thread waiting inside an image's parallel loop can steal only that
+    // loop's work, never a further image). Unlike fixed batches, a lane
+    // does not wait for the others: the serial parts of an image (its
+    // files) overlap with the other lanes' parallel stages.
+    let lanes = rayon::current_num_threads().clamp(1, jobs.len().max(1));
+    let next = AtomicUsize::new(0);
+    let failed = Mutex::new(None::<GenerateError>);
+    (0..lanes).into_par_iter().for_each(|_| {
+        while failed.lock().is_ok_and(|f| f.is_none()) {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            let Some(job) = jobs.get(i) else { return };
+            let done = (|| {
+                // Draw the field `lanes` images ahead now if no lane has yet
+                // (this lane stays busy; the others need not wait for it).
+                if let Some(ahead) = jobs.get(i + lanes) {
+                    fields.get(ahead.field)?;
+                }
+                let population = fields.get(job.field)?;
+                let rows = match (&population.twin, job.rotated) {
                     (Some(twin), true) => twin,
-                    _ => &base,
+                    _ => &population.base,
                 };
                 let renderer = &psfs.renderers[&plan.datasets()[job.dataset as usize].psf];
                 let mut lap = pipeline::Lap::start(false);
                 let mut times = pipeline::StageTimes::default();
-                pipeline::make_image(&cx, job, rows, renderer, &mut lap, &mut times)?;
+                pipeline::make_image(&cx, job, rows, renderer, &mut lap, &mut times)
+                    .map_err(Some)?;
+                fields.finished(job.field);
                 progress(Event::ImageWritten);
-                Ok::<(), GenerateError>(())
-            })?;
+                Ok::<(), Option<GenerateError>>(())
+            })();
+            if let Err(e) = done {
+                // `None`: a population another lane failed to draw; that
+                // lane (or the first to see it) reports the error.
+                if let (Some(e), Ok(mut f)) = (e, failed.lock()) {
+                    f.get_or_insert(e);
+                }
+                return;
+            }
+        }
+    });
+    match failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        None => Ok(()),
+        Some(e) => Err(e),
+    }
+}
+
+/// The base field (and its 90°-rotated twin when a pending image needs it)
+/// of every field with pending images: drawn once by whichever lane needs
+/// it first, shared by all of that field's images, dropped after the last.
+struct FieldPopulations<'a> {
+    plan: &'a Plan,
+    fields: Mutex<BTreeMap<u32, FieldEntry>>,
+}
+
+struct FieldEntry {
+    /// Images of the field still to make.
+    remaining: usize,
+    /// Whether one of them is a rotated twin.
+    twin: bool,
+    /// The population once drawn (`None`: drawing it failed).
+    population: Arc<OnceLock<Option<Arc<Population>>>>,
+    /// The error of a failed draw, until one lane takes it to report it.
+    error: Arc<Mutex<Option<GenerateError>>>,
+}
+
+struct Population {
+    base: Vec<TruthRow>,
+    twin: Option<Vec<TruthRow>>,
+}
+
+impl<'a> FieldPopulations<'a> {
+    fn new(plan: &'a Plan, jobs: &[&Job]) -> Self {
+        let mut fields: BTreeMap<u32, FieldEntry> = BTreeMap::new();
+        for j in jobs {
+            let e = fields.entry(j.field).or_insert_with(|| FieldEntry {
+                remaining: 0,
+                twin: false,
+                population: Arc::default(),
+                error: Arc::default(),
+            });
+            e.remaining += 1;
+            e.twin |= j.rotated;
+        }
+        Self {
+            plan,
+            fields: Mutex::new(fields),
         }
     }
-    if !shared_written {
-        write_shared()?;
+
+    /// The population of `field`, drawn now if no lane has drawn it yet (a
+    /// lane that finds it being drawn waits for it). `Err(None)`: the draw
+    /// failed and its error went to another caller.
+    fn get(&self, field: u32) -> Result<Arc<Population>, Option<GenerateError>> {
+        let (cell, error, twin) = {
+            let fields = self.fields.lock().map_err(|_| None)?;
+            // A field still ahead of every lane is in the map until its last
+            // image is made; one that is not has nothing left to draw for.
+            let e = fields.get(&field).ok_or(None)?;
+            (e.population.clone(), e.error.clone(), e.twin)
+        };
+        let drawn = cell.get_or_init(|| match crate::population::base_field(self.plan, field) {
+            Ok(base) => {
+                let twin = twin.then(|| crate::population::rotated(&base));
+                Some(Arc::new(Population { base, twin }))
+            }
+            Err(source) => {
+                if let Ok(mut slot) = error.lock() {
+                    *slot = Some(GenerateError::Population { field, source });
+                }
+                None
+            }
+        });
+        match drawn {
+            Some(p) => Ok(p.clone()),
+            None => Err(error.lock().ok().and_then(|mut e| e.take())),
+        }
     }
-    Ok(())
+
+    /// One image of `field` is made; after its last, the population goes.
+    fn finished(&self, field: u32) {
+        if let Ok(mut fields) = self.fields.lock()
+            && let Some(e) = fields.get_mut(&field)
+        {
+            e.remaining -= 1;
+            if e.remaining == 0 {
+                fields.remove(&field);
+            }
+        }
+    }
 }
 
 /// Completion: a shard of several writes its done-marker, a whole run its

@@ -49,9 +49,11 @@ pub fn sersic_r2_over_re2(n: u32) -> f64 {
     (2 * n..4 * n).map(|j| f64::from(j) / b).product()
 }
 
-/// ⟨r²⟩ / r_e² of the de Vaucouleurs (n = 4) profile.
+/// ⟨r²⟩ / r_e² of the de Vaucouleurs (n = 4) profile: solved once per
+/// process (the truth tables need it for every galaxy of every dataset).
 pub fn devaucouleurs_r2_over_re2() -> f64 {
-    sersic_r2_over_re2(4)
+    static R2: std::sync::LazyLock<f64> = std::sync::LazyLock::new(|| sersic_r2_over_re2(4));
+    *R2
 }
 
 /// Slow reference for the profile moments: ⟨r²⟩ of a circular profile
@@ -114,5 +116,10 @@ mod tests {
     fn the_de_vaucouleurs_constant_is_the_root() {
         assert!((sersic_b(4) - DeVaucouleurs::B).abs() < 1e-12);
         assert_eq!(DeVaucouleurs::solve_b(), sersic_b(4));
+        // The value kept for the process is the one solved afresh.
+        assert_eq!(
+            devaucouleurs_r2_over_re2().to_bits(),
+            sersic_r2_over_re2(4).to_bits()
+        );
     }
 }

@@ -1,0 +1,369 @@
+//! One report from the reports of runs that each hold some of the PSFs
+//! (`stepsim score --combine`): the full STEP1 preset generated as six
+//! one-PSF runs, or a challenge scored run by run.
+//!
+//! What is combined, and how (docs/scoring.md, "Combining reports"):
+//!
+//! * `datasets` and `psfs`: the rows of every report, in the order given.
+//!   A PSF may appear in one report only.
+//! * `summary`: recomputed from the combined `psfs` rows by the same
+//!   [`crate::metrics::summarize`] a single score uses (⟨m⟩, σ_c, Q_c, …),
+//!   so a combined report of one-PSF runs has the summary a single run of
+//!   all the PSFs would have, given the same per-PSF rows. `pct_chance_match`
+//!   is the mean over the combined datasets.
+//! * No bootstrap intervals: they resample base fields across all PSFs at
+//!   once and need the images' sums, which a report does not hold. The
+//!   per-PSF rows keep their errors; a warning says so.
+//! * `by_magnitude`, `by_disk_size`: per bin, the mean over reports of the
+//!   bin's residual (each report's value is already a mean over its
+//!   datasets), its error √(Σ err²)/k, and the summed object count. The
+//!   bins must have the same edges in every report.
+//! * `run`: `combined:sha256:` + SHA-256 of the reports' sorted `run`
+//!   values, one per line, so that two combinations of the same runs rank
+//!   together on a leaderboard.
+//!
+//! Refused, naming the file: fewer than two reports, a report that cannot
+//! be read, the same PSF in two reports, different match radii, different
+//! submission names unless `name` is given, different bins.
+
+use crate::error::HarnessError;
+use crate::leaderboard::read_report;
+use crate::report::{BinReport, Binned, Report};
+use std::path::{Path, PathBuf};
+
+/// A report directory (its `report.json`) or a report file.
+pub fn report_file(path: &Path) -> PathBuf {
+    if path.is_dir() {
+        path.join(crate::pipeline::REPORT_JSON)
+    } else {
+        path.to_path_buf()
+    }
+}
+
+/// Reads the reports at `paths` (directories or `report.json` files) and
+/// combines them ([`combine`]).
+pub fn combine_files(paths: &[PathBuf], name: Option<&str>) -> Result<Report, HarnessError> {
+    let mut reports = Vec::with_capacity(paths.len());
+    for p in paths {
+        let file = report_file(p);
+        let r = read_report(&file)?;
+        reports.push((file, r));
+    }
+    combine(&reports, name)
+}
+
+/// One report from `reports` (file, report) as described in the module
+/// documentation; `name` is the combined submission's name (default: the
+/// reports' common name).
+pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Report, HarnessError> {
+    let refuse = |path: &Path, message: String| HarnessError::Report {
+        path: path.to_path_buf(),
+        message,
+    };
+    let Some((first_path, first)) = reports.first() else {
+        return Err(HarnessError::BadOption {
+            name: "--combine".into(),
+            message: "give at least two reports".into(),
+        });
+    };
+    if reports.len() < 2 {
+        return Err(refuse(
+            first_path,
+            "only one report given; --combine needs at least two".into(),
+        ));
+    }
+    for (j, (path, r)) in reports.iter().enumerate() {
+        if r.match_radius_arcsec != first.match_radius_arcsec {
+            return Err(refuse(
+                path,
+                format!(
+                    "match radius {} arcsec, but {} used {} arcsec; score both with the same radius",
+                    r.match_radius_arcsec,
+                    first_path.display(),
+                    first.match_radius_arcsec
+                ),
+            ));
+        }
+        if name.is_none() && r.submission != first.submission {
+            return Err(refuse(
+                path,
+                format!(
+                    "submission `{}`, but {} is `{}`; pass --name to name the combination",
+                    r.submission,
+                    first_path.display(),
+                    first.submission
+                ),
+            ));
+        }
+        for (pi, ri) in &reports[..j] {
+            for psf in &r.psfs {
+                if ri.psfs.iter().any(|q| q.psf == psf.psf) {
+                    return Err(refuse(
+                        path,
+                        format!(
+                            "PSF `{}` is also in {}; each PSF may come from one report only",
+                            psf.psf,
+                            pi.display()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    let psfs: Vec<_> = reports.iter().flat_map(|(_, r)| r.psfs.clone()).collect();
+    let datasets: Vec<_> = reports
+        .iter()
+        .flat_map(|(_, r)| r.datasets.clone())
+        .collect();
+    let mut summary = crate::metrics::summarize(&psfs);
+    let chance: Vec<f64> = datasets.iter().filter_map(|d| d.pct_chance_match).collect();
+    summary.pct_chance_match =
+        (!chance.is_empty()).then(|| chance.iter().sum::<f64>() / chance.len() as f64);
+    let mut runs: Vec<&str> = reports.iter().map(|(_, r)| r.run.as_str()).collect();
+    runs.sort_unstable();
+    let run = format!(
+        "combined:sha256:{}",
+        stepsim_contract::digest::sha256_hex(runs.join("\n").as_bytes())
+    );
+    let binned = |get: fn(&Report) -> &Binned| -> Result<Binned, HarnessError> {
+        let all: Vec<(&PathBuf, &Binned)> = reports.iter().map(|(p, r)| (p, get(r))).collect();
+        combine_binned(&all)
+    };
+    let mut warnings = vec![format!(
+        "combined from {} reports ({}); the summary is recomputed from their per-PSF rows; \
+         no bootstrap intervals (they need the images: score one run of all PSFs for them)",
+        reports.len(),
+        reports
+            .iter()
+            .map(|(p, _)| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )];
+    for (p, r) in reports {
+        warnings.extend(r.warnings.iter().map(|w| format!("{}: {w}", p.display())));
+    }
+    Ok(Report {
+        submission: name.map_or_else(|| first.submission.clone(), str::to_owned),
+        run,
+        match_radius_arcsec: first.match_radius_arcsec,
+        datasets,
+        psfs,
+        summary,
+        by_magnitude: binned(|r| &r.by_magnitude)?,
+        by_disk_size: binned(|r| &r.by_disk_size)?,
+        warnings,
+    })
+}
+
+/// A value and its error, either possibly missing.
+type ValueAndError = (Option<f64>, Option<f64>);
+
+/// Per bin: mean over reports of the residuals, error √(Σ err²)/k over the
+/// k reports that have a value, summed counts. The bins must agree.
+fn combine_binned(all: &[(&PathBuf, &Binned)]) -> Result<Binned, HarnessError> {
+    let (_, first) = all[0];
+    for (path, b) in &all[1..] {
+        let edges = |b: &Binned| -> Vec<(Option<f64>, Option<f64>)> {
+            b.bins.iter().map(|x| (x.lo, x.hi)).collect()
+        };
+        if b.variable != first.variable || edges(b) != edges(first) {
+            return Err(HarnessError::Report {
+                path: path.to_path_buf(),
+                message: format!(
+                    "its `{}` bins differ from the first report's; combine reports of one stepsim version",
+                    b.variable
+                ),
+            });
+        }
+    }
+    let one = |pick: &dyn Fn(&Binned) -> &BinReport| -> BinReport {
+        let bins: Vec<&BinReport> = all.iter().map(|(_, b)| pick(b)).collect();
+        let mean = |v: &dyn Fn(&BinReport) -> ValueAndError| {
+            let pairs: Vec<(f64, Option<f64>)> = bins
+                .iter()
+                .filter_map(|b| {
+                    let (x, e) = v(b);
+                    x.map(|x| (x, e))
+                })
+                .collect();
+            if pairs.is_empty() {
+                return (None, None);
+            }
+            let k = pairs.len() as f64;
+            let x = pairs.iter().map(|p| p.0).sum::<f64>() / k;
+            let err = pairs
+                .iter()
+                .map(|p| p.1.map(|e| e * e))
+                .sum::<Option<f64>>()
+                .map(|s| s.sqrt() / k);
+            (Some(x), err)
+        };
+        let (g1, g1_err) = mean(&|b| (b.g1_residual, b.g1_residual_err));
+        let (g2, g2_err) = mean(&|b| (b.g2_residual, b.g2_residual_err));
+        BinReport {
+            lo: bins[0].lo,
+            hi: bins[0].hi,
+            n_objects: bins.iter().map(|b| b.n_objects).sum(),
+            g1_residual: g1,
+            g1_residual_err: g1_err,
+            g2_residual: g2,
+            g2_residual_err: g2_err,
+        }
+    };
+    Ok(Binned {
+        variable: first.variable.clone(),
+        all: one(&|b| &b.all),
+        bins: (0..first.bins.len())
+            .map(|i| one(&move |b: &Binned| &b.bins[i]))
+            .collect(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::report::PsfReport;
+
+    fn psf(name: &str, m: f64, c1: f64, c2: f64) -> PsfReport {
+        let mut p: PsfReport = serde_json::from_value(serde_json::json!({
+            "psf": name, "m": m, "m_err": 0.01, "q": 0.0, "q_err": null,
+            "c1": c1, "c1_err": 0.001, "c2": c2, "c2_err": 0.001, "linear": true,
+            "m_uncontaminated": null, "m_uncontaminated_err": null,
+            "m_selc": null, "m_selc_err": null, "c1_selc": null, "c1_selc_err": null,
+            "c2_selc": null, "c2_selc_err": null, "m_weight": null, "m_weight_err": null,
+            "c1_weight": null, "c1_weight_err": null
+        }))
+        .unwrap();
+        p.m = Some(m);
+        p
+    }
+
+    fn binned(values: [f64; 2], n: u64) -> Binned {
+        let bin = |lo: Option<f64>, hi: Option<f64>, v: f64| BinReport {
+            lo,
+            hi,
+            n_objects: n,
+            g1_residual: Some(v),
+            g1_residual_err: Some(0.003),
+            g2_residual: Some(-v),
+            g2_residual_err: None,
+        };
+        Binned {
+            variable: "mag".into(),
+            all: bin(None, None, values[0] + values[1]),
+            bins: vec![
+                bin(None, Some(24.0), values[0]),
+                bin(Some(24.0), None, values[1]),
+            ],
+        }
+    }
+
+    fn report(run: &str, psfs: Vec<PsfReport>, bins: [f64; 2]) -> Report {
+        let summary = crate::metrics::summarize(&psfs);
+        Report {
+            submission: "ksb".into(),
+            run: run.into(),
+            match_radius_arcsec: 1.0,
+            datasets: vec![],
+            psfs,
+            summary,
+            by_magnitude: binned(bins, 10),
+            by_disk_size: binned(bins, 10),
+            warnings: vec!["w".into()],
+        }
+    }
+
+    #[test]
+    fn the_summary_is_that_of_the_combined_rows() {
+        let a = report(
+            "sha256:aa",
+            vec![psf("none", -0.10, 0.001, -0.002)],
+            [0.01, 0.03],
+        );
+        let b = report(
+            "sha256:bb",
+            vec![
+                psf("coma", -0.20, -0.003, 0.0),
+                psf("jitter", -0.30, 0.002, 0.004),
+            ],
+            [0.02, 0.05],
+        );
+        let c = combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        )
+        .unwrap();
+        assert_eq!(c.psfs.len(), 3);
+        // ⟨m⟩ over the three PSFs, not the mean of the two reports' means.
+        assert!((c.summary.m_mean.unwrap() - (-0.20)).abs() < 1e-15);
+        // σ_c: population standard deviation of the six c values.
+        let cs = [0.001, -0.002, -0.003, 0.0, 0.002, 0.004];
+        let mean = cs.iter().sum::<f64>() / 6.0;
+        let sd = (cs.iter().map(|c| (c - mean).powi(2)).sum::<f64>() / 6.0).sqrt();
+        assert!((c.summary.sigma_c.unwrap() - sd).abs() < 1e-15);
+        assert_eq!(c.summary.q_c, crate::metrics::q_c(&c.psfs));
+        assert!(c.summary.bootstrap.is_none());
+        // Bins: mean of the reports' values, counts summed, errors combined.
+        let b0 = &c.by_magnitude.bins[0];
+        assert!((b0.g1_residual.unwrap() - 0.015).abs() < 1e-15);
+        assert!(
+            (b0.g1_residual_err.unwrap() - (2.0f64 * 0.003 * 0.003).sqrt() / 2.0).abs() < 1e-15
+        );
+        assert_eq!(b0.g2_residual_err, None);
+        assert_eq!(b0.n_objects, 20);
+        // The identity does not depend on the order of the reports.
+        let d = combine(&[("b.json".into(), b), ("a.json".into(), a)], None).unwrap();
+        assert_eq!(c.run, d.run);
+        assert!(c.run.starts_with("combined:sha256:"));
+        assert_eq!(c.warnings.len(), 3);
+    }
+
+    #[test]
+    fn refusals_name_the_file() {
+        let a = report("sha256:aa", vec![psf("none", -0.1, 0.0, 0.0)], [0.0, 0.0]);
+        let mut b = report("sha256:bb", vec![psf("none", -0.2, 0.0, 0.0)], [0.0, 0.0]);
+        let msg = |r: Result<Report, HarnessError>| r.unwrap_err().to_string();
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        ));
+        assert!(
+            e.starts_with("b.json:") && e.contains("PSF `none` is also in a.json"),
+            "{e}"
+        );
+        b.psfs[0].psf = "coma".into();
+        b.match_radius_arcsec = 2.0;
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        ));
+        assert!(
+            e.starts_with("b.json:") && e.contains("match radius"),
+            "{e}"
+        );
+        b.match_radius_arcsec = 1.0;
+        b.submission = "other".into();
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        ));
+        assert!(e.contains("--name"), "{e}");
+        let named = combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            Some("x"),
+        );
+        assert_eq!(named.unwrap().submission, "x");
+        b.submission = "ksb".into();
+        b.by_magnitude.bins[1].lo = Some(23.0);
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b)],
+            None,
+        ));
+        assert!(
+            e.starts_with("b.json:") && e.contains("`mag` bins differ"),
+            "{e}"
+        );
+        let e = msg(combine(&[("a.json".into(), a)], None));
+        assert!(e.contains("at least two"), "{e}");
+    }
+}
