@@ -693,6 +693,7 @@ fn make_images(
     // files) overlap with the other lanes' parallel stages.
     let lanes = rayon::current_num_threads().clamp(1, jobs.len().max(1));
     let next = AtomicUsize::new(0);
+    let made = AtomicUsize::new(0);
     let failed = Mutex::new(None::<GenerateError>);
     (0..lanes).into_par_iter().for_each(|_| {
         while failed.lock().is_ok_and(|f| f.is_none()) {
@@ -702,7 +703,7 @@ fn make_images(
                 // Draw the field `lanes` images ahead now if no lane has yet
                 // (this lane stays busy; the others need not wait for it).
                 if let Some(ahead) = jobs.get(i + lanes) {
-                    fields.get(ahead.field)?;
+                    fields.draw_ahead(ahead.field)?;
                 }
                 let population = fields.get(job.field)?;
                 let rows = match (&population.twin, job.rotated) {
@@ -715,6 +716,7 @@ fn make_images(
                 pipeline::make_image(&cx, job, rows, renderer, &mut lap, &mut times)
                     .map_err(Some)?;
                 fields.finished(job.field);
+                made.fetch_add(1, Ordering::Relaxed);
                 progress(Event::ImageWritten);
                 Ok::<(), Option<GenerateError>>(())
             })();
@@ -729,8 +731,14 @@ fn make_images(
         }
     });
     match failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
-        None => Ok(()),
         Some(e) => Err(e),
+        // Every lane stopped without an error: every image must be made.
+        None if made.into_inner() == jobs.len() => Ok(()),
+        None => Err(IoError::format(
+            &paths.public(),
+            "an image worker stopped before its images were written; run generate again to finish them",
+        )
+        .into()),
     }
 }
 
@@ -803,6 +811,16 @@ impl<'a> FieldPopulations<'a> {
         match drawn {
             Some(p) => Ok(p.clone()),
             None => Err(error.lock().ok().and_then(|mut e| e.take())),
+        }
+    }
+
+    /// Draws the population of `field` if no lane has yet. A field whose
+    /// images are all made (other lanes got there first) has nothing to
+    /// draw; a draw that failed is reported by the lanes that need it.
+    fn draw_ahead(&self, field: u32) -> Result<(), Option<GenerateError>> {
+        match self.get(field) {
+            Ok(_) | Err(None) => Ok(()),
+            Err(Some(e)) => Err(Some(e)),
         }
     }
 
