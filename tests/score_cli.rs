@@ -693,6 +693,12 @@ fn combine_joins_reports_of_runs_with_different_psfs() {
         p["psf"] = name.into();
         p["m"] = (p["m"].as_f64().unwrap() + 0.1).into();
     }
+    for d in b["datasets"].as_array_mut().unwrap() {
+        let (id, psf) = (d["dataset"].as_str().unwrap(), d["psf"].as_str().unwrap());
+        let (id, psf) = (format!("{id}b"), format!("{psf}-b"));
+        d["dataset"] = id.into();
+        d["psf"] = psf.into();
+    }
     b["run"] = "sha256:other".into();
     std::fs::create_dir(fx.path("b")).unwrap();
     std::fs::write(fx.path("b/report.json"), b.to_string()).unwrap();
@@ -711,9 +717,18 @@ fn combine_joins_reports_of_runs_with_different_psfs() {
     for f in ["report.md", "fig2_shear_response.png", "fig3_m_sigma_c.png"] {
         assert!(out.join(f).is_file(), "{f}");
     }
-    // The same PSF twice: refused, naming the second file; nothing written.
+    // The same PSF in two reports (another run, other datasets): refused,
+    // naming the second file; nothing written.
+    let mut c: serde_json::Value = serde_json::from_str(&text).unwrap();
+    for d in c["datasets"].as_array_mut().unwrap() {
+        let id = format!("{}c", d["dataset"].as_str().unwrap());
+        d["dataset"] = id.into();
+    }
+    c["run"] = "sha256:third".into();
+    let c_json = fx.path("c.json");
+    std::fs::write(&c_json, c.to_string()).unwrap();
     let out2 = fx.path("aa");
-    let o = stepsim(&[&"score", &"--combine", &a_dir, &a_dir, &"--out", &out2]);
+    let o = stepsim(&[&"score", &"--combine", &a_dir, &c_json, &"--out", &out2]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("is also in"), "{}", stderr(&o));
     assert!(!out2.exists());
@@ -727,6 +742,29 @@ fn combine_joins_reports_of_runs_with_different_psfs() {
         "{}",
         stderr(&o)
     );
+    // A report given twice, even under two names: refused.
+    let o = stepsim(&[
+        &"score",
+        &"--combine",
+        &a_dir,
+        &fx.path("a/report.json"),
+        &"--out",
+        &out2,
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("given twice"), "{}", stderr(&o));
+    // --combine with a radius (the reports carry theirs) is a usage error.
+    let o = stepsim(&[
+        &"score",
+        &"--combine",
+        &a_dir,
+        &b_json,
+        &"--match-radius-arcsec",
+        &"2",
+        &"--out",
+        &out2,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     // --combine with --truth is a usage error (exit 2).
     let truth = fx.path("private");
     let o = stepsim(&[

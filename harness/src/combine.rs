@@ -15,16 +15,19 @@
 //!   once and need the images' sums, which a report does not hold. The
 //!   per-PSF rows keep their errors; a warning says so.
 //! * `by_magnitude`, `by_disk_size`: per bin, the mean over reports of the
-//!   bin's residual (each report's value is already a mean over its
-//!   datasets), its error √(Σ err²)/k, and the summed object count. The
-//!   bins must have the same edges in every report.
+//!   bin's residual weighted by each report's number of datasets (its value
+//!   is already a mean over them), its error √(Σ w² err²)/Σ w, and the
+//!   summed object count. The bins must have the same edges in every
+//!   report.
 //! * `run`: `combined:sha256:` + SHA-256 of the reports' sorted `run`
 //!   values, one per line, so that two combinations of the same runs rank
 //!   together on a leaderboard.
 //!
 //! Refused, naming the file: fewer than two reports, a report that cannot
-//! be read, the same PSF in two reports, different match radii, different
-//! submission names unless `name` is given, different bins.
+//! be read, a report without PSF rows or with a PSF twice, the same file or
+//! the same run twice, the same PSF or dataset in two reports, different
+//! match radii, different submission names unless `name` is given,
+//! different bins, counts that overflow, sums that are not finite.
 
 use crate::error::HarnessError;
 use crate::leaderboard::read_report;
@@ -72,7 +75,47 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
             "only one report given; --combine needs at least two".into(),
         ));
     }
+    let canonical: Vec<PathBuf> = reports
+        .iter()
+        .map(|(p, _)| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone()))
+        .collect();
     for (j, (path, r)) in reports.iter().enumerate() {
+        if r.psfs.is_empty() {
+            return Err(refuse(path, "the report has no PSF rows".into()));
+        }
+        for (i, p) in r.psfs.iter().enumerate() {
+            if r.psfs[..i].iter().any(|q| q.psf == p.psf) {
+                return Err(refuse(
+                    path,
+                    format!("PSF `{}` appears twice in the report", p.psf),
+                ));
+            }
+        }
+        for (i, (pi, ri)) in reports[..j].iter().enumerate() {
+            if canonical[i] == canonical[j] {
+                return Err(refuse(path, "the same report is given twice".into()));
+            }
+            if ri.run == r.run {
+                return Err(refuse(
+                    path,
+                    format!(
+                        "it scores the same run as {} (`{}`); combine reports of different runs",
+                        pi.display(),
+                        r.run
+                    ),
+                ));
+            }
+            if let Some(d) = r
+                .datasets
+                .iter()
+                .find(|d| ri.datasets.iter().any(|e| e.dataset == d.dataset))
+            {
+                return Err(refuse(
+                    path,
+                    format!("dataset `{}` is also in {}", d.dataset, pi.display()),
+                ));
+            }
+        }
         if r.match_radius_arcsec != first.match_radius_arcsec {
             return Err(refuse(
                 path,
@@ -126,7 +169,10 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         stepsim_contract::digest::sha256_hex(runs.join("\n").as_bytes())
     );
     let binned = |get: fn(&Report) -> &Binned| -> Result<Binned, HarnessError> {
-        let all: Vec<(&PathBuf, &Binned)> = reports.iter().map(|(p, r)| (p, get(r))).collect();
+        let all: Vec<(&PathBuf, &Binned, f64)> = reports
+            .iter()
+            .map(|(p, r)| (p, get(r), r.datasets.len().max(1) as f64))
+            .collect();
         combine_binned(&all)
     };
     let mut warnings = vec![format!(
@@ -141,6 +187,27 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
     )];
     for (p, r) in reports {
         warnings.extend(r.warnings.iter().map(|w| format!("{}: {w}", p.display())));
+    }
+    let s = &summary;
+    let figures = [
+        s.m_mean,
+        s.q_mean,
+        s.sigma_c,
+        s.m_uncontaminated_mean,
+        s.m_selc_mean,
+        s.sigma_c_selc,
+        s.m_weight_mean,
+        s.m_isolated_mean,
+        s.sigma_c_isolated,
+        s.q_c,
+        s.pct_chance_match,
+    ];
+    if figures.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(refuse(
+            first_path,
+            "the combined summary is not finite (values near the limit of a double in the reports)"
+                .into(),
+        ));
     }
     Ok(Report {
         submission: name.map_or_else(|| first.submission.clone(), str::to_owned),
@@ -158,71 +225,92 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
 /// A value and its error, either possibly missing.
 type ValueAndError = (Option<f64>, Option<f64>);
 
-/// Per bin: mean over reports of the residuals, error √(Σ err²)/k over the
-/// k reports that have a value, summed counts. The bins must agree.
-fn combine_binned(all: &[(&PathBuf, &Binned)]) -> Result<Binned, HarnessError> {
-    let (_, first) = all[0];
-    for (path, b) in &all[1..] {
+/// Per bin: the mean over reports of the residuals, each report weighted
+/// by its number of datasets (its value is a mean over them), error
+/// √(Σ w² σ²)/Σ w over the reports with a value; counts summed. The bins
+/// must agree.
+fn combine_binned(all: &[(&PathBuf, &Binned, f64)]) -> Result<Binned, HarnessError> {
+    let (_, first, _) = all[0];
+    let refuse = |path: &Path, message: String| HarnessError::Report {
+        path: path.to_path_buf(),
+        message,
+    };
+    for (path, b, _) in &all[1..] {
         let edges = |b: &Binned| -> Vec<(Option<f64>, Option<f64>)> {
             b.bins.iter().map(|x| (x.lo, x.hi)).collect()
         };
         if b.variable != first.variable || edges(b) != edges(first) {
-            return Err(HarnessError::Report {
-                path: path.to_path_buf(),
-                message: format!(
+            return Err(refuse(
+                path,
+                format!(
                     "its `{}` bins differ from the first report's; combine reports of one stepsim version",
                     b.variable
                 ),
-            });
+            ));
         }
     }
-    let one = |pick: &dyn Fn(&Binned) -> &BinReport| -> BinReport {
-        let bins: Vec<&BinReport> = all.iter().map(|(_, b)| pick(b)).collect();
-        let mean = |v: &dyn Fn(&BinReport) -> ValueAndError| {
-            let pairs: Vec<(f64, Option<f64>)> = bins
-                .iter()
-                .filter_map(|b| {
-                    let (x, e) = v(b);
-                    x.map(|x| (x, e))
-                })
-                .collect();
-            if pairs.is_empty() {
-                return (None, None);
-            }
-            let k = pairs.len() as f64;
-            let x = pairs.iter().map(|p| p.0).sum::<f64>() / k;
-            let err = pairs
-                .iter()
-                .map(|p| p.1.map(|e| e * e))
-                .sum::<Option<f64>>()
-                .map(|s| s.sqrt() / k);
-            (Some(x), err)
-        };
-        let (g1, g1_err) = mean(&|b| (b.g1_residual, b.g1_residual_err));
-        let (g2, g2_err) = mean(&|b| (b.g2_residual, b.g2_residual_err));
-        BinReport {
-            lo: bins[0].lo,
-            hi: bins[0].hi,
-            n_objects: bins.iter().map(|b| b.n_objects).sum(),
+    let one = |pick: &dyn Fn(&Binned) -> &BinReport| -> Result<BinReport, HarnessError> {
+        let bins: Vec<(&PathBuf, &BinReport, f64)> =
+            all.iter().map(|(p, b, w)| (*p, pick(b), *w)).collect();
+        let mut n_objects = 0u64;
+        for (path, b, _) in &bins {
+            n_objects = n_objects
+                .checked_add(b.n_objects)
+                .ok_or_else(|| refuse(path, "the objects counted in a bin overflow".into()))?;
+        }
+        let mean =
+            |v: &dyn Fn(&BinReport) -> ValueAndError| -> Result<ValueAndError, HarnessError> {
+                let parts: Vec<(f64, Option<f64>, f64)> = bins
+                    .iter()
+                    .filter_map(|(_, b, w)| {
+                        let (x, e) = v(b);
+                        x.map(|x| (x, e, *w))
+                    })
+                    .collect();
+                if parts.is_empty() {
+                    return Ok((None, None));
+                }
+                let total: f64 = parts.iter().map(|p| p.2).sum();
+                let x = parts.iter().map(|p| p.0 * p.2).sum::<f64>() / total;
+                let err = parts
+                    .iter()
+                    .map(|p| p.1.map(|e| (e * p.2).powi(2)))
+                    .sum::<Option<f64>>()
+                    .map(|s| s.sqrt() / total);
+                if !x.is_finite() || err.is_some_and(|e| !e.is_finite()) {
+                    return Err(refuse(
+                        bins[0].0,
+                        "a combined residual is not finite (values near the limit of a double)"
+                            .into(),
+                    ));
+                }
+                Ok((Some(x), err))
+            };
+        let (g1, g1_err) = mean(&|b| (b.g1_residual, b.g1_residual_err))?;
+        let (g2, g2_err) = mean(&|b| (b.g2_residual, b.g2_residual_err))?;
+        Ok(BinReport {
+            lo: bins[0].1.lo,
+            hi: bins[0].1.hi,
+            n_objects,
             g1_residual: g1,
             g1_residual_err: g1_err,
             g2_residual: g2,
             g2_residual_err: g2_err,
-        }
+        })
     };
     Ok(Binned {
         variable: first.variable.clone(),
-        all: one(&|b| &b.all),
+        all: one(&|b| &b.all)?,
         bins: (0..first.bins.len())
             .map(|i| one(&move |b: &Binned| &b.bins[i]))
-            .collect(),
+            .collect::<Result<_, _>>()?,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::PsfReport;
+    use crate::report::{DatasetReport, PsfReport};
 
     fn psf(name: &str, m: f64, c1: f64, c2: f64) -> PsfReport {
         let mut p: PsfReport = serde_json::from_value(serde_json::json!({
@@ -319,6 +407,51 @@ mod tests {
     }
 
     #[test]
+    fn bins_are_weighted_by_datasets_and_counts_may_not_overflow() {
+        let ds = |id: &str| -> DatasetReport {
+            serde_json::from_value(serde_json::json!({
+                "dataset": id, "psf": "x", "g1_true": 0.0, "g2_true": 0.0, "n_images": 1,
+                "n_objects": 1, "g1": null, "g1_err": null, "g2": null, "g2_err": null,
+                "ngal_per_arcmin2": 1.0, "pct_stars": 0.0, "pct_false": 0.0,
+                "pct_stars_weighted": null, "pct_false_weighted": null,
+                "snr": null, "sn_shot": null, "sn_shot_weighted": null
+            }))
+            .unwrap()
+        };
+        let mut a = report("sha256:aa", vec![psf("none", -0.1, 0.0, 0.0)], [0.01, 0.0]);
+        let mut b = report("sha256:bb", vec![psf("coma", -0.2, 0.0, 0.0)], [0.04, 0.0]);
+        a.datasets = vec![ds("d1")];
+        b.datasets = vec![ds("d2"), ds("d3"), ds("d4")];
+        let c = combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        )
+        .unwrap();
+        // (1 × 0.01 + 3 × 0.04) / 4
+        assert!((c.by_magnitude.bins[0].g1_residual.unwrap() - 0.0325).abs() < 1e-15);
+        let e = (0.003f64.powi(2) + (3.0 * 0.003f64).powi(2)).sqrt() / 4.0;
+        assert!((c.by_magnitude.bins[0].g1_residual_err.unwrap() - e).abs() < 1e-15);
+        // A dataset in both reports, and counts that overflow, are refused.
+        let mut dup = b.clone();
+        dup.datasets[0] = ds("d1");
+        let e = combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), dup)],
+            None,
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("dataset `d1` is also in a.json"),
+            "{e}"
+        );
+        a.by_magnitude.bins[0].n_objects = u64::MAX;
+        let e = combine(&[("a.json".into(), a), ("b.json".into(), b)], None).unwrap_err();
+        assert!(
+            e.to_string().starts_with("b.json:") && e.to_string().contains("overflow"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn refusals_name_the_file() {
         let a = report("sha256:aa", vec![psf("none", -0.1, 0.0, 0.0)], [0.0, 0.0]);
         let mut b = report("sha256:bb", vec![psf("none", -0.2, 0.0, 0.0)], [0.0, 0.0]);
@@ -363,7 +496,40 @@ mod tests {
             e.starts_with("b.json:") && e.contains("`mag` bins differ"),
             "{e}"
         );
-        let e = msg(combine(&[("a.json".into(), a)], None));
+        let e = msg(combine(&[("a.json".into(), a.clone())], None));
         assert!(e.contains("at least two"), "{e}");
+        // The same file, the same run, no PSF, a PSF twice in one report.
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("a.json".into(), a.clone())],
+            None,
+        ));
+        assert!(e.contains("given twice"), "{e}");
+        let mut c = report("sha256:aa", vec![psf("other", -0.1, 0.0, 0.0)], [0.0, 0.0]);
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("c.json".into(), c.clone())],
+            None,
+        ));
+        assert!(e.starts_with("c.json:") && e.contains("same run"), "{e}");
+        c.run = "sha256:cc".into();
+        c.psfs.clear();
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("c.json".into(), c.clone())],
+            None,
+        ));
+        assert!(e.starts_with("c.json:") && e.contains("no PSF rows"), "{e}");
+        c.psfs = vec![psf("p", 0.0, 0.0, 0.0), psf("p", 0.0, 0.0, 0.0)];
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("c.json".into(), c)],
+            None,
+        ));
+        assert!(e.contains("PSF `p` appears twice"), "{e}");
+        // Sums beyond the range of a double.
+        let mut big = report("sha256:dd", vec![psf("big", 1e308, 0.0, 0.0)], [0.0, 0.0]);
+        big.psfs.push(psf("big2", 1e308, 0.0, 0.0));
+        let e = msg(combine(
+            &[("a.json".into(), a), ("big.json".into(), big)],
+            None,
+        ));
+        assert!(e.contains("not finite"), "{e}");
     }
 }

@@ -18,7 +18,7 @@ pub struct Args {
     /// report.json files) of runs that each hold some of the PSFs into one
     /// report, its summary recomputed over all their PSFs (no bootstrap
     /// intervals; docs/scoring.md).
-    #[arg(long, value_name = "REPORT", num_args = 2.., conflicts_with_all = ["truth", "submission", "allow_missing_images"])]
+    #[arg(long, value_name = "REPORT", num_args = 2.., conflicts_with_all = ["truth", "submission", "allow_missing_images", "match_radius_arcsec", "bootstrap_resamples"])]
     combine: Vec<PathBuf>,
     /// Where to write report.json, report.md and the plots.
     #[arg(long, value_name = "DIR")]

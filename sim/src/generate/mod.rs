@@ -59,7 +59,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 
 /// Why a run failed.
@@ -685,12 +685,12 @@ fn make_images(
         made: &made,
     };
     // One lane per thread; each lane takes the next image until none is
-    // left. A lane runs its images one after another, so at most one image
-    // per thread is in flight (the lanes are the only top-level tasks: a
-    // thread waiting inside an image's parallel loop can steal only that
-    // loop's work, never a further image). Unlike fixed batches, a lane
-    // does not wait for the others: the serial parts of an image (its
-    // files) overlap with the other lanes' parallel stages.
+    // left and runs its images one after another, so at most `lanes` images
+    // are in flight. (A thread waiting inside an image's parallel loop may
+    // steal a lane that has not started yet, and run it to the end with the
+    // waiting image kept; the count in flight stays at most `lanes`.) Unlike
+    // fixed batches, a lane does not wait for the others: the serial parts
+    // of an image (its files) overlap with the other lanes' parallel stages.
     let lanes = rayon::current_num_threads().clamp(1, jobs.len().max(1));
     let next = AtomicUsize::new(0);
     let made = AtomicUsize::new(0);
@@ -743,8 +743,12 @@ fn make_images(
 }
 
 /// The base field (and its 90°-rotated twin when a pending image needs it)
-/// of every field with pending images: drawn once by whichever lane needs
-/// it first, shared by all of that field's images, dropped after the last.
+/// of every field with pending images, shared by all of that field's images
+/// and dropped after the last. Nothing here blocks a pool thread (which
+/// could deadlock if drawing ever used the pool itself): a lane that needs a
+/// population nobody has finished draws it (the draw is deterministic, so a
+/// second copy is the same rows) and the first copy stored wins; a lane
+/// drawing ahead skips a field another lane is already drawing.
 struct FieldPopulations<'a> {
     plan: &'a Plan,
     fields: Mutex<BTreeMap<u32, FieldEntry>>,
@@ -755,11 +759,14 @@ struct FieldEntry {
     remaining: usize,
     /// Whether one of them is a rotated twin.
     twin: bool,
+    /// Whether a lane has started drawing the population.
+    claimed: Arc<AtomicBool>,
     /// The population once drawn (`None`: drawing it failed).
-    population: Arc<OnceLock<Option<Arc<Population>>>>,
-    /// The error of a failed draw, until one lane takes it to report it.
-    error: Arc<Mutex<Option<GenerateError>>>,
+    population: Arc<PopulationCell>,
 }
+
+/// A field's population once drawn (`None` inside: drawing it failed).
+type PopulationCell = OnceLock<Option<Arc<Population>>>;
 
 struct Population {
     base: Vec<TruthRow>,
@@ -773,8 +780,8 @@ impl<'a> FieldPopulations<'a> {
             let e = fields.entry(j.field).or_insert_with(|| FieldEntry {
                 remaining: 0,
                 twin: false,
+                claimed: Arc::default(),
                 population: Arc::default(),
-                error: Arc::default(),
             });
             e.remaining += 1;
             e.twin |= j.rotated;
@@ -785,43 +792,54 @@ impl<'a> FieldPopulations<'a> {
         }
     }
 
-    /// The population of `field`, drawn now if no lane has drawn it yet (a
-    /// lane that finds it being drawn waits for it). `Err(None)`: the draw
-    /// failed and its error went to another caller.
-    fn get(&self, field: u32) -> Result<Arc<Population>, Option<GenerateError>> {
-        let (cell, error, twin) = {
-            let fields = self.fields.lock().map_err(|_| None)?;
-            // A field still ahead of every lane is in the map until its last
-            // image is made; one that is not has nothing left to draw for.
-            let e = fields.get(&field).ok_or(None)?;
-            (e.population.clone(), e.error.clone(), e.twin)
-        };
-        let drawn = cell.get_or_init(|| match crate::population::base_field(self.plan, field) {
+    /// The entry of `field` (`None`: no image of it is pending).
+    fn entry(&self, field: u32) -> Option<(Arc<AtomicBool>, Arc<PopulationCell>, bool)> {
+        let fields = self.fields.lock().ok()?;
+        let e = fields.get(&field)?;
+        Some((e.claimed.clone(), e.population.clone(), e.twin))
+    }
+
+    /// Draws the population of `field` and stores it unless another copy
+    /// was stored first. `Err` carries this draw's own error.
+    fn draw(&self, field: u32, twin: bool, cell: &PopulationCell) -> Result<(), GenerateError> {
+        match crate::population::base_field(self.plan, field) {
             Ok(base) => {
                 let twin = twin.then(|| crate::population::rotated(&base));
-                Some(Arc::new(Population { base, twin }))
+                let _ = cell.set(Some(Arc::new(Population { base, twin })));
+                Ok(())
             }
             Err(source) => {
-                if let Ok(mut slot) = error.lock() {
-                    *slot = Some(GenerateError::Population { field, source });
-                }
-                None
+                let _ = cell.set(None);
+                Err(GenerateError::Population { field, source })
             }
-        });
-        match drawn {
-            Some(p) => Ok(p.clone()),
-            None => Err(error.lock().ok().and_then(|mut e| e.take())),
         }
     }
 
-    /// Draws the population of `field` if no lane has yet. A field whose
-    /// images are all made (other lanes got there first) has nothing to
-    /// draw; a draw that failed is reported by the lanes that need it.
-    fn draw_ahead(&self, field: u32) -> Result<(), Option<GenerateError>> {
-        match self.get(field) {
-            Ok(_) | Err(None) => Ok(()),
-            Err(Some(e)) => Err(Some(e)),
+    /// The population of `field`, drawn now if no lane has finished drawing
+    /// it. `Err(None)`: it could not be drawn and a lane that drew it
+    /// reports why.
+    fn get(&self, field: u32) -> Result<Arc<Population>, Option<GenerateError>> {
+        let (claimed, cell, twin) = self.entry(field).ok_or(None)?;
+        if cell.get().is_none() {
+            claimed.store(true, Ordering::Relaxed);
+            self.draw(field, twin, &cell).map_err(Some)?;
         }
+        match cell.get() {
+            Some(Some(p)) => Ok(p.clone()),
+            _ => Err(None),
+        }
+    }
+
+    /// Draws the population of `field` if no lane has started to. A field
+    /// whose images are all made has nothing to draw.
+    fn draw_ahead(&self, field: u32) -> Result<(), Option<GenerateError>> {
+        let Some((claimed, cell, twin)) = self.entry(field) else {
+            return Ok(());
+        };
+        if claimed.swap(true, Ordering::Relaxed) {
+            return Ok(());
+        }
+        self.draw(field, twin, &cell).map_err(Some)
     }
 
     /// One image of `field` is made; after its last, the population goes.
