@@ -119,28 +119,23 @@ pub fn realise(model_e: &[f32], width: usize, det: &Detector, noise: Option<Seed
     out
 }
 
-/// Fast path of one block: reuses the Poisson distribution while the mean
-/// stays the same (every empty sky pixel has the same mean).
+/// Fast path of one block: the same draws as [`realise_reference`] (a
+/// Poisson of the pixel's mean, then read noise as σ × a standard normal)
+/// without its fresh `Normal` per pixel. No Poisson distribution is kept
+/// from pixel to pixel: galaxy light covers a STEP1 image, so the mean
+/// almost never repeats, and keeping the last one cost 7 % of the stage.
 fn noisy_block(dst: &mut [f32], src: &[f32], det: &Detector, rng: &mut SimRng) {
-    let mut last: Option<(f64, Poisson<f64>)> = None;
+    let ron = det.read_noise_e;
     for (d, &m) in dst.iter_mut().zip(src) {
         let lambda = expected_e(m, det.sky_e_per_px);
         let mut e = if lambda > 0.0 {
-            let dist = match &last {
-                Some((l, dist)) if *l == lambda => *dist,
-                _ => {
-                    let dist = poisson(lambda);
-                    last = Some((lambda, dist));
-                    dist
-                }
-            };
-            rng.sample(dist)
+            rng.sample(poisson(lambda))
         } else {
             0.0
         };
-        if det.read_noise_e > 0.0 {
+        if ron > 0.0 {
             let n: f64 = rng.sample(StandardNormal);
-            e += det.read_noise_e * n;
+            e += ron * n;
         }
         *d = to_adu(e, det);
     }
