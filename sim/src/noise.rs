@@ -98,25 +98,31 @@ fn to_adu(e: f64, det: &Detector) -> f32 {
 /// sky), divided by the gain and clipped at saturation. Parallel over blocks
 /// of [`BLOCK_ROWS`] rows; the result does not depend on the thread count.
 pub fn realise(model_e: &[f32], width: usize, det: &Detector, noise: Option<SeedKey>) -> Vec<f32> {
+    let mut out = model_e.to_vec();
+    realise_in_place(&mut out, width, det, noise);
+    out
+}
+
+/// [`realise`] into the model's own buffer: each model value is replaced by
+/// its pixel value (the same bits; one image-sized buffer fewer).
+pub fn realise_in_place(pixels: &mut [f32], width: usize, det: &Detector, noise: Option<SeedKey>) {
     assert!(
-        width > 0 && model_e.len() % width == 0,
+        width > 0 && pixels.len() % width == 0,
         "model length {} is not a multiple of width {width}",
-        model_e.len()
+        pixels.len()
     );
-    let mut out = vec![0f32; model_e.len()];
     let chunk = BLOCK_ROWS * width;
-    out.par_chunks_mut(chunk)
-        .zip(model_e.par_chunks(chunk))
+    pixels
+        .par_chunks_mut(chunk)
         .enumerate()
-        .for_each(|(block, (dst, src))| match noise {
+        .for_each(|(block, values)| match noise {
             None => {
-                for (d, &m) in dst.iter_mut().zip(src) {
-                    *d = to_adu(expected_e(m, det.sky_e_per_px), det);
+                for v in values.iter_mut() {
+                    *v = to_adu(expected_e(*v, det.sky_e_per_px), det);
                 }
             }
-            Some(key) => noisy_block(dst, src, det, &mut block_key(key, block).rng()),
+            Some(key) => noisy_block(values, det, &mut block_key(key, block).rng()),
         });
-    out
 }
 
 /// Fast path of one block: the same draws as [`realise_reference`] (a
@@ -124,10 +130,10 @@ pub fn realise(model_e: &[f32], width: usize, det: &Detector, noise: Option<Seed
 /// without its fresh `Normal` per pixel. No Poisson distribution is kept
 /// from pixel to pixel: galaxy light covers a STEP1 image, so the mean
 /// almost never repeats, and keeping the last one cost 7 % of the stage.
-fn noisy_block(dst: &mut [f32], src: &[f32], det: &Detector, rng: &mut SimRng) {
+fn noisy_block(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
     let ron = det.read_noise_e;
-    for (d, &m) in dst.iter_mut().zip(src) {
-        let lambda = expected_e(m, det.sky_e_per_px);
+    for d in values.iter_mut() {
+        let lambda = expected_e(*d, det.sky_e_per_px);
         let mut e = if lambda > 0.0 {
             rng.sample(poisson(lambda))
         } else {
@@ -338,6 +344,15 @@ mod tests {
                         .zip(&want)
                         .all(|(a, b)| a.to_bits() == b.to_bits()),
                     "threads {threads}"
+                );
+                let mut in_place = model.clone();
+                pool.install(|| realise_in_place(&mut in_place, w, &d, noise));
+                assert!(
+                    in_place
+                        .iter()
+                        .zip(&want)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "in place, threads {threads}"
                 );
             }
         }

@@ -184,7 +184,14 @@ pub(crate) fn make_image(
     let model = draw_model(renderer, &rows, w, h, lap, t).map_err(render_err)?;
 
     let noise_key = output.noise.then(|| job.noise_key(plan.seed()));
-    let pixels = noise::realise(&model, w as usize, det, noise_key);
+    // The model becomes the pixels in place unless it is written too.
+    let (pixels, model) = if output.write_model {
+        (noise::realise(&model, w as usize, det, noise_key), Some(model))
+    } else {
+        let mut pixels = model;
+        noise::realise_in_place(&mut pixels, w as usize, det, noise_key);
+        (pixels, None)
+    };
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
     let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
@@ -199,7 +206,7 @@ pub(crate) fn make_image(
     let truth_sha256 = write_truth_fits(&truth_path, &rows, &keywords)?;
     t.truth_s = lap.lap().0;
 
-    let model_sha256 = if output.write_model {
+    let model_sha256 = if let Some(model) = &model {
         let adu: Vec<f32> = model
             .iter()
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
