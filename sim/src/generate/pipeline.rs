@@ -186,7 +186,10 @@ pub(crate) fn make_image(
     let noise_key = output.noise.then(|| job.noise_key(plan.seed()));
     // The model becomes the pixels in place unless it is written too.
     let (pixels, model) = if output.write_model {
-        (noise::realise(&model, w as usize, det, noise_key), Some(model))
+        (
+            noise::realise(&model, w as usize, det, noise_key),
+            Some(model),
+        )
     } else {
         let mut pixels = model;
         noise::realise_in_place(&mut pixels, w as usize, det, noise_key);
