@@ -37,7 +37,7 @@ use super::{IoError, write_bytes_atomically};
 use crate::config::RawPsfModel;
 use crate::psf::calibrate::OpticalPsf;
 use crate::psf::optical::BandTransfer;
-use crate::psf::{Calibration, Psf, PsfAccuracy, PsfError, PsfSpec};
+use crate::psf::{Calibration, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec};
 use num_complex::Complex64;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -126,13 +126,7 @@ pub fn load_or_build(
     accuracy: &PsfAccuracy,
     dir: &Path,
 ) -> Result<(Arc<dyn Psf>, Origin), StoreError> {
-    let RawPsfModel::Optical {
-        aberration,
-        amplitude,
-        target_chi,
-        angle_deg,
-    } = &spec.entry.model
-    else {
+    let Some(request) = OpticalRequest::of(spec) else {
         return Ok((crate::psf::build_with(spec, accuracy)?, Origin::Built));
     };
     let digest = spec_digest(spec, accuracy);
@@ -148,18 +142,7 @@ pub fn load_or_build(
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
         Err(e) => Some(format!("could not be read: {e}")),
     };
-    let e = &spec.entry;
-    let (band, cal) = crate::psf::solve_optical(
-        &e.name,
-        e.fwhm_arcsec,
-        *aberration,
-        *amplitude,
-        *target_chi,
-        angle_deg.to_radians(),
-        &spec.telescope,
-        spec.pixel_scale_arcsec,
-        accuracy,
-    )?;
+    let (band, cal) = crate::psf::solve_optical(&request, accuracy)?;
     write_bytes_atomically(&file, &encode(&band, &cal, &digest))?;
     let psf = Arc::new(OpticalPsf::new(band, cal));
     let origin = match why {

@@ -305,34 +305,87 @@ pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>
             amplitude,
             target_chi,
             angle_deg,
-        } => Ok(Arc::new(build_optical(
-            &psf.name,
-            psf.fwhm_arcsec,
-            *aberration,
-            *amplitude,
-            *target_chi,
-            angle_deg.to_radians(),
-            telescope,
-            pixel_scale_arcsec,
-            accuracy,
-        )?)),
+        } => {
+            let request = OpticalRequest {
+                name: &psf.name,
+                fwhm_arcsec: psf.fwhm_arcsec,
+                aberration: *aberration,
+                amplitude: *amplitude,
+                target_chi: *target_chi,
+                angle_rad: angle_deg.to_radians(),
+                telescope,
+                pixel_scale_arcsec,
+            };
+            Ok(Arc::new(build_optical(&request, accuracy)?))
+        }
+    }
+}
+
+/// What an optical PSF is built from: the config entry's model and
+/// targets, the telescope and the pixel scale.
+#[derive(Debug, Clone, Copy)]
+pub struct OpticalRequest<'a> {
+    /// The PSF's name (in errors).
+    pub name: &'a str,
+    /// Target FWHM.
+    pub fwhm_arcsec: f64,
+    /// The aberration.
+    pub aberration: Aberration,
+    /// Its amplitude in waves (`None`: solved for `target_chi`).
+    pub amplitude: Option<f64>,
+    /// Target ellipticity χ.
+    pub target_chi: Option<f64>,
+    /// Orientation of the aberration.
+    pub angle_rad: f64,
+    /// Pupil and wavelength.
+    pub telescope: &'a RawTelescope,
+    /// Pixel scale of the images.
+    pub pixel_scale_arcsec: f64,
+}
+
+impl<'a> OpticalRequest<'a> {
+    /// The request of an optical `spec` (`None` for other models).
+    pub fn of(spec: &'a PsfSpec) -> Option<Self> {
+        let RawPsfModel::Optical {
+            aberration,
+            amplitude,
+            target_chi,
+            angle_deg,
+        } = &spec.entry.model
+        else {
+            return None;
+        };
+        Some(Self {
+            name: &spec.entry.name,
+            fwhm_arcsec: spec.entry.fwhm_arcsec,
+            aberration: *aberration,
+            amplitude: *amplitude,
+            target_chi: *target_chi,
+            angle_rad: angle_deg.to_radians(),
+            telescope: &spec.telescope,
+            pixel_scale_arcsec: spec.pixel_scale_arcsec,
+        })
     }
 }
 
 /// Builds and calibrates one optical PSF (see [`calibrate`]).
-#[allow(clippy::too_many_arguments)]
 pub fn build_optical(
-    name: &str,
-    fwhm_arcsec: f64,
-    aberration: Aberration,
-    amplitude: Option<f64>,
-    target_chi: Option<f64>,
-    angle_rad: f64,
-    telescope: &RawTelescope,
-    pixel_scale_arcsec: f64,
+    request: &OpticalRequest,
     accuracy: &PsfAccuracy,
 ) -> Result<OpticalPsf, PsfError> {
-    let (band, cal) = solve_optical(
+    let (band, cal) = solve_optical(request, accuracy)?;
+    Ok(OpticalPsf::new(band, cal))
+}
+
+/// The expensive part of [`build_optical`]: the solved calibration and the
+/// band-limited transfer function on the final grid, before
+/// [`OpticalPsf::new`] recentres and samples it (what
+/// [`crate::io::psf_store`] keeps).
+pub fn solve_optical(
+    request: &OpticalRequest,
+    accuracy: &PsfAccuracy,
+) -> Result<(optical::BandTransfer, Calibration), PsfError> {
+    let &OpticalRequest {
         name,
         fwhm_arcsec,
         aberration,
@@ -341,27 +394,7 @@ pub fn build_optical(
         angle_rad,
         telescope,
         pixel_scale_arcsec,
-        accuracy,
-    )?;
-    Ok(OpticalPsf::new(band, cal))
-}
-
-/// The expensive part of [`build_optical`]: the solved calibration and the
-/// band-limited transfer function on the final grid, before
-/// [`OpticalPsf::new`] recentres and samples it (what
-/// [`crate::io::psf_store`] keeps).
-#[allow(clippy::too_many_arguments)]
-pub fn solve_optical(
-    name: &str,
-    fwhm_arcsec: f64,
-    aberration: Aberration,
-    amplitude: Option<f64>,
-    target_chi: Option<f64>,
-    angle_rad: f64,
-    telescope: &RawTelescope,
-    pixel_scale_arcsec: f64,
-    accuracy: &PsfAccuracy,
-) -> Result<(optical::BandTransfer, Calibration), PsfError> {
+    } = request;
     let geometry = pupil::Pupil::from_telescope(telescope);
     let lambda_m = telescope.wavelength_um * 1e-6;
     let pupil = optical::SampledPupil::new(

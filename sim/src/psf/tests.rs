@@ -377,18 +377,18 @@ fn transfer_times_pixel_agrees_with_the_psf_pixel_image() {
     };
     // Same calibration (amplitude from the cached PSF), its band transfer.
     let cal = psf.calibration().unwrap();
-    let opt = build_optical(
-        "coma",
-        0.9,
+    let telescope = RawTelescope::default();
+    let request = OpticalRequest {
+        name: "coma",
+        fwhm_arcsec: 0.9,
         aberration,
-        Some(cal.amplitude),
+        amplitude: Some(cal.amplitude),
         target_chi,
-        0.0,
-        &RawTelescope::default(),
-        p,
-        &PsfAccuracy::default(),
-    )
-    .unwrap();
+        angle_rad: 0.0,
+        telescope: &telescope,
+        pixel_scale_arcsec: p,
+    };
+    let opt = build_optical(&request, &PsfAccuracy::default()).unwrap();
     let peak = img.iter().copied().fold(0.0, f64::max);
     let mut worst: f64 = 0.0;
     let c = n / 2;
@@ -449,7 +449,17 @@ fn unreachable_targets_are_errors_not_panics() {
     };
     // Builds PSF `name` (no rotation, 0.206″ pixels) and returns its error.
     let refuse = |name: &str, fwhm: f64, ab: Aberration, amplitude, target_chi| {
-        build_optical(name, fwhm, ab, amplitude, target_chi, 0.0, &t, 0.206, &acc).unwrap_err()
+        let request = OpticalRequest {
+            name,
+            fwhm_arcsec: fwhm,
+            aberration: ab,
+            amplitude,
+            target_chi,
+            angle_rad: 0.0,
+            telescope: &t,
+            pixel_scale_arcsec: 0.206,
+        };
+        build_optical(&request, &acc).unwrap_err()
     };
     let err = refuse("d", 0.9, Aberration::Defocus, Some(2.0), None);
     assert!(matches!(err, PsfError::Unreachable { .. }), "{err}");
@@ -475,19 +485,19 @@ fn builds_are_bit_reproducible() {
     };
     let t = RawTelescope::default();
     let make = || {
-        build_optical(
-            "c",
-            0.9,
-            Aberration::Coma,
-            Some(0.3),
-            None,
-            0.2,
-            &t,
-            0.206,
-            &acc,
-        )
-        .unwrap()
-        .transfer(StampGrid::new(32, 0.206))
+        let request = OpticalRequest {
+            name: "c",
+            fwhm_arcsec: 0.9,
+            aberration: Aberration::Coma,
+            amplitude: Some(0.3),
+            target_chi: None,
+            angle_rad: 0.2,
+            telescope: &t,
+            pixel_scale_arcsec: 0.206,
+        };
+        build_optical(&request, &acc)
+            .unwrap()
+            .transfer(StampGrid::new(32, 0.206))
     };
     let (a, b) = (make(), make());
     assert!(
