@@ -4,6 +4,10 @@
 //! line or key, and why); 2 usage error (from the argument parser).
 
 mod cmd;
+mod huge_pages;
+
+#[global_allocator]
+static ALLOCATOR: huge_pages::HugePageAlloc = huge_pages::HugePageAlloc;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -43,6 +47,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    huge_pages::configure();
     let cli = Cli::parse();
     // The global pool (score, leaderboard, catalog, psf) honours
     // RAYON_NUM_THREADS; bound it as `--threads` is bounded.

@@ -606,3 +606,30 @@ fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
         assert!(release(&d.join("one")) == release(&d.join("two")));
     }
 }
+
+#[test]
+fn huge_pages_on_and_off_write_identical_bytes() {
+    // 1024 × 768 images: the canvas, model and FITS buffers are 3 MB, so the
+    // allocator advises them (src/huge_pages.rs); the bytes must not care.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let config = r#"{
+      "run": {"seed": 424242},
+      "image": {"width_px": 1024, "height_px": 768, "n_images": 1},
+      "psfs": [{"name": "p", "model": "moffat", "beta": 3.5, "fwhm_arcsec": 0.85}],
+      "shears": [{"g1": 0.02, "g2": -0.01}]
+    }"#;
+    std::fs::write(d.join("c.json"), config).unwrap();
+    for (out, value) in [("on", "1"), ("off", "0")] {
+        let o = common::run_env(
+            &["generate", "--config", "c.json", "--out", out],
+            d,
+            &[("STEPSIM_HUGE_PAGES", value)],
+        );
+        assert!(o.status.success(), "{out}: {}", stderr(&o));
+    }
+    let (on, off) = (release(&d.join("on")), release(&d.join("off")));
+    // One image: the image, its truth table and sidecar, and five shared files.
+    assert_eq!(on.len(), 3 + 5, "{:?}", on.keys().collect::<Vec<_>>());
+    assert_eq!(on, off);
+}

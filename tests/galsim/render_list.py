@@ -9,7 +9,12 @@ gain 4, read noise 5 e-), a coma PSF comparable to stepsim's `coma`
 with coma), Poisson noise on sky + objects. One thread (GalSim draws
 object by object). Prints the wall and CPU seconds of the drawing.
 
-    python3 tests/galsim/render_list.py LIST WIDTH HEIGHT OUT.fits
+    python3 tests/galsim/render_list.py LIST WIDTH HEIGHT OUT.fits [REPEATS]
+
+With REPEATS > 1 the same image is drawn that many times in one process
+(the PSF object built once, as a run of many images would) and each
+image's seconds are printed: the first includes GalSim's PSF set-up, the
+later ones are the per-image cost of a long run.
 
 Needs `pip install galsim` (tested with GalSim 2.8.5). Not run by CI.
 """
@@ -72,11 +77,8 @@ def objects(path):
                 yield x, y, galsim.Add(parts), flux
 
 
-def main():
-    path, width, height, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
-    wall0, cpu0 = time.perf_counter(), time.process_time()
+def draw(path, width, height, out, p, seed):
     image = galsim.ImageF(width, height, scale=PIXEL_SCALE)
-    p = psf()
     star = p.withFlux(1.0)
     n = 0
     for x, y, gal, flux in objects(path):
@@ -87,14 +89,24 @@ def main():
             image[overlap] += stamp[overlap]
         n += 1
     image += SKY_E
-    rng = galsim.BaseDeviate(20060101)
+    rng = galsim.BaseDeviate(seed)
     image.addNoise(galsim.PoissonNoise(rng))
     image.addNoise(galsim.GaussianNoise(rng, sigma=READ_NOISE))
     image /= GAIN
     image.write(out)
-    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-    print(f"galsim {galsim.__version__}: {n} objects, {width} x {height}, "
-          f"wall {wall:.2f} s, cpu {cpu:.2f} s")
+    return n
+
+
+def main():
+    path, width, height, out = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+    repeats = int(sys.argv[5]) if len(sys.argv) > 5 else 1
+    p = psf()
+    for r in range(repeats):
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        n = draw(path, width, height, out, p, 20060101 + r)
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        print(f"galsim {galsim.__version__}: image {r + 1} of {repeats}: {n} objects, "
+              f"{width} x {height}, wall {wall:.2f} s, cpu {cpu:.2f} s")
 
 
 if __name__ == "__main__":

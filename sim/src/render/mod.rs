@@ -54,8 +54,8 @@ pub struct Accuracy {
     /// not lost: the stamp always holds the whole flux.
     pub folding_threshold: f64,
     /// k-space cut (default 1e-4, config `render.maxk_threshold`): where the
-    /// PSF ⊗ pixel transfer |T S| is below this, the galaxy transform is not
-    /// evaluated and the product is set to zero (stars are never cut).
+    /// PSF ⊗ pixel transfer |T S| is below this, the product is set to zero
+    /// (stars are never cut).
     /// Measured against the real-space twin: ≤ 1.3e-4 of the peak at 1e-4,
     /// ≤ 5e-4 at 1e-3 (docs/rendering.md).
     pub kvalue_threshold: f64,

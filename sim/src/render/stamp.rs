@@ -16,6 +16,7 @@
 //! real-space reference measures what this leaves out.
 
 use crate::profile::galaxy::Component;
+use crate::profile::{DeVaucouleurs, Exponential, ProfileKind};
 use num_complex::Complex32;
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, FftNum, RealFftPlanner};
@@ -120,7 +121,7 @@ impl<T: FftNum> FftCache<T> {
     }
 
     /// sinc(m / n) for the wrapped frequency index m of row/column 0..n.
-    fn sinc(&self, n: usize) -> Arc<Vec<f64>> {
+    pub(crate) fn sinc(&self, n: usize) -> Arc<Vec<f64>> {
         let mut map = self.sincs.lock().expect("sinc cache");
         map.entry(n)
             .or_insert_with(|| {
@@ -243,29 +244,33 @@ impl<T: FftNum> StampEngine<T> {
     }
 }
 
-/// Fills the `[u][v]` buffer with object × PSF × pixel × shift.
-///
-/// The Nyquist row and column hold what the samples of a real image hold
-/// there: both frequencies ±ν_N fall on the same cell, so the cell is the sum
-/// of the continuous transform at +ν_N and −ν_N (at the corner, of all four
-/// sign combinations); see [`nyquist_cell`].
-fn fill_kspace<T: FftNum>(
-    fill: &Fill,
-    transfer: &[Complex32],
-    sinc: &[f64],
-    buf: &mut [Complex<T>],
-) {
-    let n = fill.n;
-    let nc = n / 2 + 1;
-    assert_eq!(transfer.len(), n * nc, "PSF transfer of the wrong grid");
-    let dk = 1.0 / (n as f64 * fill.pixel_scale_arcsec);
-    // Shift phases e^{−2πi m d / n} per column and per row.
-    let px = phases(nc, n, fill.dx_px);
-    let pos_y = phases(n / 2 + 1, n, fill.dy_px);
-    let py: Vec<(f64, f64)> = {
-        // Rows 0..=n/2 are m = j; rows above are m = j − n, the conjugates
-        // of rows n − j.
-        (0..n)
+/// What both fills of one stamp derive from its [`Fill`] before their loops.
+struct Setup {
+    n: usize,
+    nc: usize,
+    /// Frequency step, cycles per arcsec.
+    dk: f64,
+    /// Shift phases e^{−2πi m d / n} along x for m = 0..=n/2.
+    px: Vec<(f64, f64)>,
+    /// The same along y.
+    pos_y: Vec<(f64, f64)>,
+    /// The phase of each row j: rows 0..=n/2 are m = j; rows above are
+    /// m = j − n, the conjugates of rows n − j.
+    py: Vec<(f64, f64)>,
+    /// Frequency v of each row j.
+    vs: Vec<f64>,
+    /// (law, flux, Gram matrix of the map) of each galaxy component.
+    comps: Vec<(ProfileKind, f64, [f64; 3])>,
+}
+
+impl Setup {
+    fn new(fill: &Fill, transfer: &[Complex32]) -> Self {
+        let n = fill.n;
+        let nc = n / 2 + 1;
+        assert_eq!(transfer.len(), n * nc, "PSF transfer of the wrong grid");
+        let dk = 1.0 / (n as f64 * fill.pixel_scale_arcsec);
+        let pos_y = phases(n / 2 + 1, n, fill.dy_px);
+        let py = (0..n)
             .map(|j| {
                 if j <= n / 2 {
                     pos_y[j]
@@ -274,68 +279,173 @@ fn fill_kspace<T: FftNum>(
                     (c, -s)
                 }
             })
-            .collect()
-    };
-    let vs: Vec<f64> = (0..n).map(|j| wrap(j, n) as f64 * dk).collect();
-    let comps: Vec<(crate::profile::ProfileKind, f64, [f64; 3])> = fill
-        .components
-        .iter()
-        .map(|c| (c.kind, c.flux_e, c.map.gram()))
-        .collect();
+            .collect();
+        Self {
+            n,
+            nc,
+            dk,
+            px: phases(nc, n, fill.dx_px),
+            pos_y,
+            py,
+            vs: (0..n).map(|j| wrap(j, n) as f64 * dk).collect(),
+            comps: fill
+                .components
+                .iter()
+                .map(|c| (c.kind, c.flux_e, c.map.gram()))
+                .collect(),
+        }
+    }
+
+    fn spectrum<'a>(
+        &'a self,
+        fill: &'a Fill,
+        transfer: &'a [Complex32],
+        sinc: &'a [f64],
+    ) -> Spectrum<'a> {
+        Spectrum {
+            fill,
+            transfer,
+            sinc,
+            px: &self.px,
+            py: &self.pos_y,
+            comps: &self.comps,
+            dk: self.dk,
+        }
+    }
+}
+
+/// amp · (tre + i tim) · (pxr + i pxi) · (pyr + i pyi) as (re, im): the
+/// galaxy transform times PSF ⊗ pixel times the shift phases.
+#[inline]
+fn shifted(
+    amp: f64,
+    (tre, tim): (f64, f64),
+    (pxr, pxi): (f64, f64),
+    (pyr, pyi): (f64, f64),
+) -> (f64, f64) {
+    let (ph_r, ph_i) = (pxr * pyr - pxi * pyi, pxr * pyi + pxi * pyr);
+    (
+        amp * (tre * ph_r - tim * ph_i),
+        amp * (tre * ph_i + tim * ph_r),
+    )
+}
+
+/// One grid cell in the FFT's precision.
+#[inline]
+fn cell<T: FftNum>((re, im): (f64, f64)) -> Complex<T> {
+    Complex::new(
+        T::from_f64(re).expect("float"),
+        T::from_f64(im).expect("float"),
+    )
+}
+
+/// Fills the `[u][v]` buffer with object × PSF × pixel × shift.
+///
+/// The Nyquist row and column hold what the samples of a real image hold
+/// there: both frequencies ±ν_N fall on the same cell, so the cell is the sum
+/// of the continuous transform at +ν_N and −ν_N (at the corner, of all four
+/// sign combinations); see [`nyquist_cell`].
+///
+/// A column at a time, in passes over plain arrays: the PSF ⊗ pixel
+/// transfer, then each galaxy component's transform (one loop per profile
+/// law, without branches, which the compiler turns into vector square roots
+/// and divisions), then the product with the shift phases. Each cell gets
+/// the same operations in the same order as in [`fill_kspace_reference`],
+/// so the same bits; the transform is also evaluated where the cut then
+/// zeroes the cell (at the STEP1 settings only cells near the grid's
+/// corners are cut).
+pub(crate) fn fill_kspace<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    let g = Setup::new(fill, transfer);
+    let (n, nc) = (g.n, g.nc);
+    let at = g.spectrum(fill, transfer, sinc);
     let is_star = fill.components.is_empty();
-    let cut = fill.cut;
-    let to_t = |x: f64| T::from_f64(x).expect("float");
-    let at = Spectrum {
-        fill,
-        transfer,
-        sinc,
-        px: &px,
-        py: &pos_y,
-        comps: &comps,
-        dk,
-    };
+    let (mut tre, mut tim, mut amp) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
     for i in 0..nc {
         let col = &mut buf[i * n..(i + 1) * n];
         if i == n / 2 {
-            for (j, cell) in col.iter_mut().enumerate() {
-                let (re, im) = nyquist_cell(&at, i, j);
-                *cell = Complex::new(to_t(re), to_t(im));
+            for (j, c) in col.iter_mut().enumerate() {
+                *c = cell(nyquist_cell(&at, i, j));
             }
             continue;
         }
-        let u = i as f64 * dk;
+        let u = i as f64 * g.dk;
         let su = sinc[i];
-        let (pxr, pxi) = px[i];
         for j in 0..n {
-            if j == n / 2 {
-                let (re, im) = nyquist_cell(&at, i, j);
-                col[j] = Complex::new(to_t(re), to_t(im));
-                continue;
-            }
             let tr = transfer[j * nc + i];
             let ts = su * sinc[j];
-            let (tre, tim) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
-            let amp = if is_star {
-                fill.star_flux_e
+            (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
+        }
+        if is_star {
+            amp.fill(fill.star_flux_e);
+        } else {
+            amp.fill(0.0);
+            for &(kind, flux, [a, b, c]) in &g.comps {
+                let t = |v: f64| a * u * u + 2.0 * b * u * v + c * v * v;
+                match kind {
+                    ProfileKind::Exponential => {
+                        for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                            *f += flux * Exponential::transform_k2(t(v));
+                        }
+                    }
+                    ProfileKind::DeVaucouleurs => {
+                        for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                            *f += flux * DeVaucouleurs::transform_k2(t(v));
+                        }
+                    }
+                }
+            }
+        }
+        for (j, c) in col.iter_mut().enumerate() {
+            *c = if j == n / 2 {
+                cell(nyquist_cell(&at, i, j))
+            } else if !is_star && tre[j].abs() + tim[j].abs() < fill.cut {
+                Complex::new(T::zero(), T::zero())
             } else {
-                if tre.abs() + tim.abs() < cut {
-                    col[j] = Complex::new(T::zero(), T::zero());
-                    continue;
-                }
-                let v = vs[j];
-                let mut g = 0.0;
-                for &(kind, flux, [a, b, c]) in &comps {
-                    let t = a * u * u + 2.0 * b * u * v + c * v * v;
-                    g += flux * kind.transform_k2(t);
-                }
-                g
+                cell(shifted(amp[j], (tre[j], tim[j]), g.px[i], g.py[j]))
             };
-            // amp · (tre + i tim) · (pxr + i pxi) · (pyr + i pyi)
-            let (pyr, pyi) = py[j];
-            let (ph_r, ph_i) = (pxr * pyr - pxi * pyi, pxr * pyi + pxi * pyr);
-            let re = amp * (tre * ph_r - tim * ph_i);
-            let im = amp * (tre * ph_i + tim * ph_r);
-            col[j] = Complex::new(to_t(re), to_t(im));
+        }
+    }
+}
+
+/// [`fill_kspace`]'s slow, obvious twin: every cell on its own, in order,
+/// with the same arithmetic; the two must agree bit for bit (tested).
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn fill_kspace_reference<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    let g = Setup::new(fill, transfer);
+    let (n, nc) = (g.n, g.nc);
+    let at = g.spectrum(fill, transfer, sinc);
+    for i in 0..nc {
+        for j in 0..n {
+            buf[i * n + j] = if i == n / 2 || j == n / 2 {
+                cell(nyquist_cell(&at, i, j))
+            } else {
+                let (u, v) = (i as f64 * g.dk, g.vs[j]);
+                let tr = transfer[j * nc + i];
+                let ts = sinc[i] * sinc[j];
+                let (tre, tim) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
+                if fill.components.is_empty() {
+                    cell(shifted(fill.star_flux_e, (tre, tim), g.px[i], g.py[j]))
+                } else if tre.abs() + tim.abs() < fill.cut {
+                    Complex::new(T::zero(), T::zero())
+                } else {
+                    let mut amp = 0.0;
+                    for &(kind, flux, [a, b, c]) in &g.comps {
+                        let t = a * u * u + 2.0 * b * u * v + c * v * v;
+                        amp += flux * kind.transform_k2(t);
+                    }
+                    cell(shifted(amp, (tre, tim), g.px[i], g.py[j]))
+                }
+            };
         }
     }
 }
@@ -350,7 +460,7 @@ struct Spectrum<'a> {
     px: &'a [(f64, f64)],
     /// Shift phases along y for m = 0..=n/2.
     py: &'a [(f64, f64)],
-    comps: &'a [(crate::profile::ProfileKind, f64, [f64; 3])],
+    comps: &'a [(ProfileKind, f64, [f64; 3])],
     dk: f64,
 }
 
@@ -401,13 +511,7 @@ impl Spectrum<'_> {
             let (c, s) = table[m.unsigned_abs() as usize];
             if m >= 0 { (c, s) } else { (c, -s) }
         };
-        let (pxr, pxi) = signed(self.px, mu);
-        let (pyr, pyi) = signed(self.py, mv);
-        let (ph_r, ph_i) = (pxr * pyr - pxi * pyi, pxr * pyi + pxi * pyr);
-        (
-            amp * (tre * ph_r - tim * ph_i),
-            amp * (tre * ph_i + tim * ph_r),
-        )
+        shifted(amp, (tre, tim), signed(self.px, mu), signed(self.py, mv))
     }
 }
 
