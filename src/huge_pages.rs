@@ -14,19 +14,21 @@
 //! bytes written are the same. `STEPSIM_HUGE_PAGES=0` turns it off (for a
 //! node where compaction stalls would hurt more than the faults).
 //!
-//! The same effect for every `malloc` of the process is glibc's tunable
-//! `GLIBC_TUNABLES=glibc.malloc.hugetlb=1`, which can only be set before
-//! the process starts; the allocator does it from inside.
+//! glibc's tunable `GLIBC_TUNABLES=glibc.malloc.hugetlb=1` does the like for
+//! every `malloc` of the process, C libraries included, but only if it is
+//! set before the process starts; this allocator does it from inside, for
+//! the Rust allocations (which hold the image buffers). Measured side by
+//! side, the tunable removed somewhat more system time (BENCHMARKS.md).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-/// Allocations of at least one huge page are advised (only from this size on
-/// can the aligned inside of a block hold a whole huge page).
-pub const MIN_ADVISED_BYTES: usize = 2 << 20;
-
 /// The huge page size the advice aligns to.
 const HUGE_PAGE: usize = 2 << 20;
+
+/// Allocations of at least one huge page are advised (only from this size on
+/// can the aligned inside of a block hold a whole huge page).
+pub const MIN_ADVISED_BYTES: usize = HUGE_PAGE;
 
 static ENABLED: AtomicBool = AtomicBool::new(true);
 
