@@ -11,6 +11,7 @@
 //! | [`robust`] | MAD-σ (1.4826 × median absolute deviation) | the counting median |
 //! | [`linalg`] | symmetric positive-definite solve and inverse (Cholesky) | Cramer's rule with cofactor determinants |
 //! | [`fit`] | linear least squares with κσ clipping (one rule) | the same rule written plainly with the slow twins |
+//! | [`simd`] | whether the CPU runs the AVX2 build of a hot loop | (each loop's own twin) |
 //!
 //! The crate depends on no other stepsim crate (only `libm`), so that the
 //! simulator, the scorer and the reference pipeline can all use it without
@@ -22,6 +23,7 @@ pub mod linalg;
 pub mod quad;
 pub mod robust;
 pub mod roots;
+pub mod simd;
 pub mod stats;
 
 /// A generator with a fixed seed for the crate's own tests.

@@ -26,8 +26,9 @@
 use crate::config::RawInstrument;
 use crate::seed::{SeedKey, SimRng};
 use rand::RngExt;
-use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
+use rand_distr::{Distribution, Exp1, Normal, Poisson, StandardNormal};
 use rayon::prelude::*;
+use std::f64::consts::PI;
 
 /// Rows per noise block (each block has its own generator). Part of the
 /// on-disk contract: changing it changes every noisy image.
@@ -131,11 +132,29 @@ pub fn realise_in_place(pixels: &mut [f32], width: usize, det: &Detector, noise:
 /// from pixel to pixel: galaxy light covers a STEP1 image, so the mean
 /// almost never repeats, and keeping the last one cost 7 % of the stage.
 fn noisy_block(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
+    #[cfg(target_arch = "x86_64")]
+    if stepsim_numerics::simd::has_avx2() {
+        // SAFETY: the CPU runs AVX2 (checked just above).
+        return unsafe { noisy_block_avx2(values, det, rng) };
+    }
+    noisy_block_body(values, det, rng);
+}
+
+/// [`noisy_block_body`] built for AVX2, where `floor` is one instruction
+/// instead of a library call (same bits; `stepsim_numerics::simd`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn noisy_block_avx2(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
+    noisy_block_body(values, det, rng);
+}
+
+#[inline(always)]
+fn noisy_block_body(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
     let ron = det.read_noise_e;
     for d in values.iter_mut() {
         let lambda = expected_e(*d, det.sky_e_per_px);
         let mut e = if lambda > 0.0 {
-            rng.sample(poisson(lambda))
+            poisson_count(lambda, rng)
         } else {
             0.0
         };
@@ -151,6 +170,155 @@ fn poisson(lambda: f64) -> Poisson<f64> {
     // λ is finite and > 0 here; beyond MAX_LAMBDA (1.8e19 e⁻, far above any
     // saturation level) the count is clipped anyway.
     Poisson::new(lambda.min(Poisson::<f64>::MAX_LAMBDA)).expect("0 < λ ≤ MAX_LAMBDA")
+}
+
+/// A Poisson(λ) count, λ > 0: the same draws and the same bits as
+/// `rng.sample(Poisson::new(λ))` of rand_distr 0.6, at about 0.6 of its
+/// cost (docs/noise.md, "Speed").
+///
+/// For λ ≥ 12 rand_distr uses the method of Ahrens & Dieter (1982, ACM TOMS
+/// 8, 163), "PD": a normal deviate g ~ N(λ, λ) gives the candidate ⌊g⌋,
+/// which is accepted at once when it is not below ⌊λ − 1.1484⌋ (step I, about
+/// half the draws) or after one uniform u when 6λ² u ≥ (λ − k)³ (step S,
+/// nearly all the rest at the sky's λ ≈ 80 000); only the few left over need
+/// the comparison with the Poisson probabilities (steps F and E). Building a
+/// `Poisson` sets up all of these steps for every pixel's λ, about ten
+/// divisions, square roots and products, although the first two steps use
+/// only √λ, ⌊λ − 1.1484⌋ and 6λ². Here those are all that is computed before
+/// the first two steps; the rest ([`pd_tail`]) is set up only when reached.
+/// Every operation is the one rand_distr does, in its order, so the results
+/// are bit for bit its results (tested, [`realise_reference`] keeps using
+/// rand_distr itself). Below λ = 12 rand_distr's own sampler is used.
+#[inline(always)]
+fn poisson_count(lambda: f64, rng: &mut SimRng) -> f64 {
+    if !(12.0..=Poisson::<f64>::MAX_LAMBDA).contains(&lambda) {
+        return rng.sample(poisson(lambda));
+    }
+    let s = lambda.sqrt();
+    // Step N: g = λ + s z, as `Normal::new(λ, s)` draws it.
+    let z: f64 = rng.sample(StandardNormal);
+    let g = lambda + s * z;
+    let mut u = None;
+    if g >= 0.0 {
+        let k = g.floor();
+        // Step I.
+        if k >= (lambda - 1.1484).floor() {
+            return k;
+        }
+        // Step S.
+        let uniform: f64 = rng.random();
+        if 6.0 * lambda.powi(2) * uniform >= (lambda - k).powi(3) {
+            return k;
+        }
+        u = Some((k, uniform));
+    }
+    pd_tail(lambda, s, u, rng)
+}
+
+/// Steps F (for the candidate `k` of step N and its uniform, when there is
+/// one) and E of Ahrens & Dieter's PD for λ ≥ 12, with √λ = `s`: what
+/// [`poisson_count`] leaves to the rare pixels that get past steps I and S.
+#[cold]
+#[inline(never)]
+fn pd_tail(lambda: f64, s: f64, candidate: Option<(f64, f64)>, rng: &mut SimRng) -> f64 {
+    #[cfg(test)]
+    tests::PD_TAILS.with(|n| n.set(n.get() + 1));
+    let pd = PdTail::new(lambda, s);
+    if let Some((k, u)) = candidate {
+        let (px, py, fx, fy) = pd.f(k);
+        if fy * (1.0 - u) <= py * (px - fx).exp() {
+            return k;
+        }
+    }
+    loop {
+        let e: f64 = rng.sample(Exp1);
+        let u: f64 = rng.random::<f64>() * 2.0 - 1.0;
+        let t = 1.8 + e * u.signum();
+        if t > -0.6744 {
+            let k = (lambda + s * t).floor();
+            let (px, py, fx, fy) = pd.f(k);
+            // Step H.
+            if pd.c * u.abs() <= py * (px + e).exp() - fy * (fx + e).exp() {
+                return k;
+            }
+        }
+    }
+}
+
+/// The constants of steps F and E for one λ (Ahrens & Dieter 1982, their
+/// notation): the coefficients c₀…c₃ of the normal density's correction,
+/// ω = 1 / √(2πλ) and c = 0.1069 / λ.
+struct PdTail {
+    lambda: f64,
+    s: f64,
+    c: f64,
+    c0: f64,
+    c1: f64,
+    c2: f64,
+    c3: f64,
+    omega: f64,
+}
+
+impl PdTail {
+    fn new(lambda: f64, s: f64) -> Self {
+        let b1 = (1.0 / 24.0) / lambda;
+        let b2 = 0.3 * b1 * b1;
+        let c3 = (1.0 / 7.0) * b1 * b2;
+        let c2 = b2 - 15.0 * c3;
+        let c1 = b1 - 6.0 * b2 + 45.0 * c3;
+        let c0 = 1.0 - b1 + 3.0 * b2 - 15.0 * c3;
+        Self {
+            lambda,
+            s,
+            c: 0.1069 / lambda,
+            c0,
+            c1,
+            c2,
+            c3,
+            omega: 1.0 / (2.0 * PI).sqrt() / lambda.sqrt(),
+        }
+    }
+
+    /// Step F: (p_x, p_y, f_x, f_y), the log of the Poisson probability of
+    /// `k` split as p_y e^{p_x}, and the corrected normal density at `k` as
+    /// f_y e^{f_x}.
+    fn f(&self, k: f64) -> (f64, f64, f64, f64) {
+        /// 0! … 9!.
+        const FACTORIAL: [f64; 10] = [
+            1.0, 1.0, 2.0, 6.0, 24.0, 120.0, 720.0, 5040.0, 40320.0, 362880.0,
+        ];
+        /// The coefficients a₀…a₉ of Ahrens & Dieter's Table 1.
+        const A: [f64; 10] = [
+            -0.5000000002,
+            0.3333333343,
+            -0.2499998565,
+            0.1999997049,
+            -0.1666848753,
+            0.1428833286,
+            -0.1241963125,
+            0.1101687109,
+            -0.1142650302,
+            0.1055093006,
+        ];
+        let lambda = self.lambda;
+        let (px, py) = if k < 10.0 {
+            (-lambda, lambda.powf(k) / FACTORIAL[k as usize])
+        } else {
+            let delta = (12.0 * k).recip();
+            let delta = delta - 4.8 * delta.powi(3);
+            let v = (lambda - k) / k;
+            let px = if v.abs() <= 0.25 {
+                k * v.powi(2) * A.iter().rev().fold(0.0, |sum, &a| sum * v + a) - delta
+            } else {
+                k * (1.0 + v).ln() - (lambda - k) - delta
+            };
+            (px, 1.0 / (2.0 * PI).sqrt() / k.sqrt())
+        };
+        let x = (k - lambda + 0.5) / self.s;
+        let fx = -0.5 * x * x;
+        let fy = self.omega * (((self.c3 * x * x + self.c2) * x * x + self.c1) * x * x + self.c0);
+        (px, py, fx, fy)
+    }
 }
 
 /// The slow, obvious twin of [`realise`]: one thread, blocks in order, pixels
@@ -318,6 +486,40 @@ mod tests {
         }
     }
 
+    thread_local! {
+        /// Calls of [`pd_tail`] (steps F and E) on this thread, to show a
+        /// test reached them.
+        pub(super) static PD_TAILS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+    }
+
+    #[test]
+    fn poisson_count_draws_what_rand_distr_draws_bit_for_bit() {
+        // From below the switch at λ = 12 (where steps F and E run for a
+        // large share of the draws) through the sky's λ ≈ 80 000 to λ far
+        // above saturation and beyond rand_distr's MAX_LAMBDA.
+        let mut lambdas = vec![0.3, 11.999, 12.0, 1e25];
+        lambdas.extend((0..400).map(|i| 12.0 + 0.0731 * f64::from(i)));
+        lambdas.extend((0..50).map(|i| 80_174.6 + 3.7 * f64::from(i)));
+        lambdas.extend([1e6, 3.3e9, 1e15]);
+        let before = PD_TAILS.with(std::cell::Cell::get);
+        let mut rng_a = key().rng();
+        let mut rng_b = key().rng();
+        let mut draws = 0;
+        for &lambda in &lambdas {
+            for _ in 0..200 {
+                let want: f64 = rng_a.sample(poisson(lambda));
+                let got = poisson_count(lambda, &mut rng_b);
+                assert_eq!(got.to_bits(), want.to_bits(), "λ = {lambda}");
+                draws += 1;
+            }
+        }
+        // The two generators are still in step.
+        assert_eq!(rng_a.random::<u64>(), rng_b.random::<u64>());
+        let tails = PD_TAILS.with(std::cell::Cell::get) - before;
+        eprintln!("{draws} draws, {tails} through steps F/E");
+        assert!(tails > 1000, "only {tails} draws reached steps F and E");
+    }
+
     #[test]
     fn fast_matches_reference_bit_for_bit_at_any_thread_count() {
         // Objects of all brightnesses (varying λ, including λ ≤ 0) over 3.5 blocks.
@@ -356,6 +558,17 @@ mod tests {
                 );
             }
         }
+        // The plain build of a block (the dispatched one above is the AVX2
+        // build where the CPU has it).
+        let mut plain = model[..BLOCK_ROWS * w].to_vec();
+        noisy_block_body(&mut plain, &d, &mut block_key(key(), 0).rng());
+        let want = realise_reference(&model, w, &d, Some(key()));
+        assert!(
+            plain
+                .iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
         // A different image key gives different noise.
         let a = realise(&model, w, &d, Some(key()));
         let b = realise(&model, w, &d, Some(key().with_index(1)));

@@ -147,7 +147,26 @@ fn touches(renderer: &Renderer, row: &TruthRow, w: usize, h: usize, shift: i64) 
 
 /// Adds the part of `s` (moved by `shift` pixels along both axes) that falls
 /// on the `w × h` canvas.
+/// Where the CPU runs AVX2 the same code runs built for it (eight f32 lanes
+/// instead of four; the same additions, `stepsim_numerics::simd`).
 fn add_stamp(canvas: &mut [f32], w: usize, h: usize, s: &Stamp, shift: i64) {
+    #[cfg(target_arch = "x86_64")]
+    if stepsim_numerics::simd::has_avx2() {
+        // SAFETY: the CPU runs AVX2 (checked just above).
+        return unsafe { add_stamp_avx2(canvas, w, h, s, shift) };
+    }
+    add_stamp_body(canvas, w, h, s, shift);
+}
+
+/// [`add_stamp_body`] built for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn add_stamp_avx2(canvas: &mut [f32], w: usize, h: usize, s: &Stamp, shift: i64) {
+    add_stamp_body(canvas, w, h, s, shift);
+}
+
+#[inline(always)]
+fn add_stamp_body(canvas: &mut [f32], w: usize, h: usize, s: &Stamp, shift: i64) {
     let (x0, y0) = (s.x0 + shift, s.y0 + shift);
     let j_lo = (-y0).max(0);
     let j_hi = (h as i64 - y0).min(s.ny as i64);
