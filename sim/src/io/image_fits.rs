@@ -20,7 +20,8 @@
 //! Files are written atomically ([`super::write_atomically`]).
 
 use super::IoError;
-use super::fits::{Primary, write_fits_hashed};
+use super::fits::{Primary, fits_bytes, write_fits_hashed};
+use super::write_atomically;
 use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
 use crate::wcs::TanWcs;
 use fitsio::FitsFile;
@@ -98,6 +99,24 @@ pub fn write_image_fits(
             "rice compression is only offered for int32 output",
         ));
     }
+    if format == SampleFormat::Float32 && compression == Compression::None {
+        return write_float32_streamed(path, pixels_adu, width, height, header);
+    }
+    write_image_fits_cfitsio(path, pixels_adu, width, height, header, format, compression)
+}
+
+/// [`write_image_fits`] with the whole file built by cfitsio in memory: the
+/// way int32 and Rice-compressed images are written, and the slow twin of
+/// [`write_float32_streamed`] (tested byte for byte).
+pub fn write_image_fits_cfitsio(
+    path: &Path,
+    pixels_adu: &[f32],
+    width: u32,
+    height: u32,
+    header: &ImageHeader,
+    format: SampleFormat,
+    compression: Compression,
+) -> Result<String, IoError> {
     let dims = [height as usize, width as usize];
     let desc = ImageDescription {
         data_type: match format {
@@ -116,9 +135,6 @@ pub fn write_image_fits(
         // primary when cfitsio tile-compresses it.
         let last = f.num_hdus().map_err(fe)? - 1;
         let hdu = f.hdu(last).map_err(fe)?;
-        // fitsio names the new HDU `_PRIMARY`; that is not a FITS keyword
-        // anyone needs, so remove it again.
-        delete_key(f, "EXTNAME").map_err(|e| IoError::format(path, e))?;
         match format {
             SampleFormat::Float32 => hdu.write_image(f, pixels_adu).map_err(fe)?,
             SampleFormat::Int32 => {
@@ -126,38 +142,136 @@ pub fn write_image_fits(
                 hdu.write_image(f, &ints).map_err(fe)?
             }
         }
-        let w = &header.wcs;
-        let s = |f: &mut FitsFile, k: &str, v: &str, c: &str| hdu.write_key(f, k, (v, c));
-        let d = |f: &mut FitsFile, k: &str, v: f64, c: &str| write_f64(f, k, v, c);
-        s(f, "BUNIT", "ADU", "pixel unit").map_err(fe)?;
-        s(f, "CTYPE1", "RA---TAN", "gnomonic projection").map_err(fe)?;
-        s(f, "CTYPE2", "DEC--TAN", "gnomonic projection").map_err(fe)?;
-        s(f, "CUNIT1", "deg", "").map_err(fe)?;
-        s(f, "CUNIT2", "deg", "").map_err(fe)?;
-        s(f, "RADESYS", "ICRS", "").map_err(fe)?;
-        d(f, "EQUINOX", 2000.0, "").map_err(fe)?;
-        d(f, "CRVAL1", w.crval1, "[deg] RA of reference point").map_err(fe)?;
-        d(f, "CRVAL2", w.crval2, "[deg] Dec of reference point").map_err(fe)?;
-        d(f, "CRPIX1", w.crpix1, "reference pixel x").map_err(fe)?;
-        d(f, "CRPIX2", w.crpix2, "reference pixel y").map_err(fe)?;
-        d(f, "CD1_1", w.cd1_1, "[deg/pixel]").map_err(fe)?;
-        d(f, "CD1_2", 0.0, "[deg/pixel]").map_err(fe)?;
-        d(f, "CD2_1", 0.0, "[deg/pixel]").map_err(fe)?;
-        d(f, "CD2_2", w.cd2_2, "[deg/pixel]").map_err(fe)?;
-        d(f, "GAIN", header.gain_e_per_adu, "[e-/ADU]").map_err(fe)?;
-        d(f, "RDNOISE", header.read_noise_e, "[e-] read noise").map_err(fe)?;
-        d(f, "SATURATE", header.saturation_adu, "[ADU] clip level").map_err(fe)?;
-        d(f, "EXPTIME", header.exposure_s, "[s] exposure").map_err(fe)?;
-        d(
-            f,
-            "MAGZERO",
-            header.magzero_adu,
-            "m = MAGZERO - 2.5 log10(ADU total)",
-        )
-        .map_err(fe)?;
-        d(f, "PIXSCALE", header.pixel_scale_arcsec, "[arcsec/pixel]").map_err(fe)?;
-        Ok(())
+        write_keywords(f, &hdu, header, path)
     })
+}
+
+/// The keywords of an image HDU after its structural ones (`EXTNAME`, which
+/// fitsio adds, removed again).
+fn write_keywords(
+    f: &mut FitsFile,
+    hdu: &fitsio::hdu::FitsHdu,
+    header: &ImageHeader,
+    path: &Path,
+) -> Result<(), IoError> {
+    let fe = |e: fitsio::errors::Error| IoError::fits(path, e);
+    // fitsio names the new HDU `_PRIMARY`; that is not a FITS keyword
+    // anyone needs, so remove it again.
+    delete_key(f, "EXTNAME").map_err(|e| IoError::format(path, e))?;
+    let w = &header.wcs;
+    let s = |f: &mut FitsFile, k: &str, v: &str, c: &str| hdu.write_key(f, k, (v, c));
+    let d = |f: &mut FitsFile, k: &str, v: f64, c: &str| write_f64(f, k, v, c);
+    s(f, "BUNIT", "ADU", "pixel unit").map_err(fe)?;
+    s(f, "CTYPE1", "RA---TAN", "gnomonic projection").map_err(fe)?;
+    s(f, "CTYPE2", "DEC--TAN", "gnomonic projection").map_err(fe)?;
+    s(f, "CUNIT1", "deg", "").map_err(fe)?;
+    s(f, "CUNIT2", "deg", "").map_err(fe)?;
+    s(f, "RADESYS", "ICRS", "").map_err(fe)?;
+    d(f, "EQUINOX", 2000.0, "").map_err(fe)?;
+    d(f, "CRVAL1", w.crval1, "[deg] RA of reference point").map_err(fe)?;
+    d(f, "CRVAL2", w.crval2, "[deg] Dec of reference point").map_err(fe)?;
+    d(f, "CRPIX1", w.crpix1, "reference pixel x").map_err(fe)?;
+    d(f, "CRPIX2", w.crpix2, "reference pixel y").map_err(fe)?;
+    d(f, "CD1_1", w.cd1_1, "[deg/pixel]").map_err(fe)?;
+    d(f, "CD1_2", 0.0, "[deg/pixel]").map_err(fe)?;
+    d(f, "CD2_1", 0.0, "[deg/pixel]").map_err(fe)?;
+    d(f, "CD2_2", w.cd2_2, "[deg/pixel]").map_err(fe)?;
+    d(f, "GAIN", header.gain_e_per_adu, "[e-/ADU]").map_err(fe)?;
+    d(f, "RDNOISE", header.read_noise_e, "[e-] read noise").map_err(fe)?;
+    d(f, "SATURATE", header.saturation_adu, "[ADU] clip level").map_err(fe)?;
+    d(f, "EXPTIME", header.exposure_s, "[s] exposure").map_err(fe)?;
+    d(
+        f,
+        "MAGZERO",
+        header.magzero_adu,
+        "m = MAGZERO - 2.5 log10(ADU total)",
+    )
+    .map_err(fe)?;
+    d(f, "PIXSCALE", header.pixel_scale_arcsec, "[arcsec/pixel]").map_err(fe)?;
+    Ok(())
+}
+
+/// FITS block size: headers and data units are padded to whole blocks.
+const BLOCK: usize = 2880;
+
+/// An uncompressed float32 image written without building the file in
+/// memory: the same bytes as [`write_image_fits_cfitsio`] (tested), hashed
+/// as they are written.
+///
+/// cfitsio builds the header: the same keywords for a 1 × 1 image, whose
+/// `NAXIS1` and `NAXIS2` values are then replaced by the true ones (an
+/// integer card's value is right-justified in columns 11–30, the comment
+/// does not depend on it). The data follow in slices of 256 kB: big-endian
+/// IEEE floats, as cfitsio writes them, then zeros to a whole block. In
+/// memory the file took a 67 MB buffer for a 4096² image that cfitsio first
+/// zero-filled and then copied the data into.
+fn write_float32_streamed(
+    path: &Path,
+    pixels_adu: &[f32],
+    width: u32,
+    height: u32,
+    header: &ImageHeader,
+) -> Result<String, IoError> {
+    use sha2::{Digest, Sha256};
+    use std::io::Write as _;
+    let head = float32_header(path, width, height, header)?;
+    let mut sha = Sha256::new();
+    write_atomically(path, |tmp| {
+        let os = |e| IoError::os(tmp, e);
+        let mut file = std::fs::File::create(tmp).map_err(os)?;
+        sha.update(&head);
+        file.write_all(&head).map_err(os)?;
+        let mut bytes = Vec::new();
+        for chunk in pixels_adu.chunks(1 << 16) {
+            bytes.resize(chunk.len() * 4, 0);
+            for (b, v) in bytes.chunks_exact_mut(4).zip(chunk) {
+                b.copy_from_slice(&v.to_be_bytes());
+            }
+            sha.update(&bytes);
+            file.write_all(&bytes).map_err(os)?;
+        }
+        let pad = vec![0u8; (BLOCK - pixels_adu.len() * 4 % BLOCK) % BLOCK];
+        sha.update(&pad);
+        file.write_all(&pad).map_err(os)?;
+        file.flush().map_err(os)
+    })?;
+    Ok(stepsim_contract::digest::hex(&sha.finalize()))
+}
+
+/// The header of a float32 image of `width × height` pixels with
+/// `header`'s keywords, as cfitsio writes it (whole blocks, ending in `END`).
+fn float32_header(
+    path: &Path,
+    width: u32,
+    height: u32,
+    header: &ImageHeader,
+) -> Result<Vec<u8>, IoError> {
+    let desc = ImageDescription {
+        data_type: ImageType::Float,
+        dimensions: &[1, 1],
+    };
+    let primary = Primary {
+        image: Some(&desc),
+        rice: false,
+    };
+    let file = fits_bytes(path, primary, |f| {
+        let hdu = f.hdu(0).map_err(|e| IoError::fits(path, e))?;
+        write_keywords(f, &hdu, header, path)
+    })?;
+    let bytes = file.as_slice();
+    let cards = bytes.len().saturating_sub(BLOCK) / 80;
+    let end = (0..cards)
+        .find(|&i| bytes[i * 80..(i + 1) * 80].starts_with(b"END "))
+        .ok_or_else(|| IoError::format(path, "cfitsio wrote a header without END"))?;
+    let mut head = bytes[..(end + 1) * 80].to_vec();
+    head.resize(head.len().div_ceil(BLOCK) * BLOCK, b' ');
+    for (key, value) in [("NAXIS1", width), ("NAXIS2", height)] {
+        let card = (0..=end)
+            .find(|&i| head[i * 80..i * 80 + 8] == *format!("{key:<8}").as_bytes())
+            .ok_or_else(|| IoError::format(path, format!("cfitsio wrote no {key} card")))?;
+        head[card * 80 + 10..card * 80 + 30].copy_from_slice(format!("{value:>20}").as_bytes());
+    }
+    Ok(head)
 }
 
 /// The shortest text of `value` that reads back exactly, as a FITS real
@@ -243,6 +357,46 @@ mod tests {
         let mut f = FitsFile::open(path).unwrap();
         let h = f.hdu(hdu).unwrap();
         h.read_key(&mut f, key).unwrap()
+    }
+
+    #[test]
+    fn streamed_float32_files_are_cfitsios_byte_for_byte() {
+        let dir = tempfile::tempdir().unwrap();
+        let h = header();
+        // One pixel; sizes whose data end inside a block and on its edge
+        // (720 × 4 bytes = one block); an axis of 7 digits; odd values
+        // (negative zero, subnormal, huge, NaN).
+        for (w, ht) in [
+            (1, 1),
+            (7, 3),
+            (720, 1),
+            (40, 30),
+            (1_000_003, 2),
+            (333, 257),
+        ] {
+            let n = w as usize * ht as usize;
+            let mut px: Vec<f32> = (0..n)
+                .map(|i| 20_000.0 + ((i * 7919) % 1000) as f32 * 0.37 - 150.0)
+                .collect();
+            for (k, v) in [-0.0, 1e-40, 3e38, f32::NAN].into_iter().enumerate() {
+                if k < n {
+                    px[k * n / 4] = v;
+                }
+            }
+            let (a, b) = (dir.path().join("a.fits"), dir.path().join("b.fits"));
+            let none = Compression::None;
+            let sha_a = write_image_fits(&a, &px, w, ht, &h, SampleFormat::Float32, none).unwrap();
+            let sha_b =
+                write_image_fits_cfitsio(&b, &px, w, ht, &h, SampleFormat::Float32, none).unwrap();
+            let (bytes_a, bytes_b) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+            assert_eq!(bytes_a.len(), bytes_b.len(), "{w} × {ht}");
+            assert!(bytes_a == bytes_b, "{w} × {ht}: the bytes differ");
+            assert_eq!(sha_a, sha_b);
+            assert_eq!(sha_a, stepsim_contract::digest::sha256_hex(&bytes_a));
+            assert_eq!(bytes_a.len() % BLOCK, 0);
+            std::fs::remove_file(&a).unwrap();
+            std::fs::remove_file(&b).unwrap();
+        }
     }
 
     #[test]
