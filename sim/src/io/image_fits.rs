@@ -107,7 +107,7 @@ pub fn write_image_fits(
 
 /// [`write_image_fits`] with the whole file built by cfitsio in memory: the
 /// way int32 and Rice-compressed images are written, and the slow twin of
-/// [`write_float32_streamed`] (tested byte for byte).
+/// the streamed float32 writer (tested byte for byte).
 pub fn write_image_fits_cfitsio(
     path: &Path,
     pixels_adu: &[f32],
