@@ -72,8 +72,9 @@ pub fn adu_to_i32(v: f32) -> i32 {
 }
 
 /// Writes an image atomically and returns the SHA-256 (hex) of the file's
-/// bytes, hashed as written ([`write_fits_hashed`]). `pixels_adu` has
-/// `width × height` values.
+/// bytes, hashed as written: uncompressed float32 images streamed to disk,
+/// the others built by cfitsio in memory ([`write_image_fits_cfitsio`]).
+/// `pixels_adu` has `width × height` values.
 pub fn write_image_fits(
     path: &Path,
     pixels_adu: &[f32],
