@@ -32,6 +32,11 @@ fn refused_quickly(path: &Path, bytes: &[u8]) -> String {
         .unwrap_err()
         .to_string();
     let took = t.elapsed();
+    eprintln!(
+        "{}: {} bytes refused in {took:?}",
+        path.display(),
+        bytes.len()
+    );
     assert!(took < QUICK, "{} bytes refused in {took:?}", bytes.len());
     e
 }
@@ -276,4 +281,101 @@ fn a_fits_table_of_999_columns_is_read_and_its_extras_ignored() {
     assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
     assert_eq!(fr.rows.len(), 2);
     assert_eq!(fr.ignored_columns.len(), 994);
+}
+
+/// What the reader must say about a header of `names` (lower-case
+/// comparison), by the rules of docs/scoring.md, written out plainly.
+fn expected(names: &[String]) -> Result<(), String> {
+    if names.len() > MAX_COLUMNS {
+        return Err(format!("the header names {} columns", names.len()));
+    }
+    let lower: Vec<String> = names.iter().map(|n| n.to_ascii_lowercase()).collect();
+    for (i, n) in lower.iter().enumerate() {
+        if n.is_empty() {
+            return Err(format!("column {} of the header has no name", i + 1));
+        }
+        if lower[..i].contains(n) {
+            return Err(format!("column `{n}`: column named twice"));
+        }
+    }
+    for r in ["x", "y", "e1", "e2", "image"] {
+        if !lower.iter().any(|n| n == r) {
+            return Err(format!("column `{r}`: required column missing"));
+        }
+    }
+    Ok(())
+}
+
+#[test]
+fn random_header_shapes_end_as_the_rules_say() {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = stepsim_sim::seed::SimRng::seed_from_u64(2323);
+    let pool = [
+        "image", "x", "y", "e1", "e2", "weight", "flags", "X", "E1", "Image", "mag", "",
+    ];
+    let mut outcomes = [0usize; 2];
+    for case in 0..400 {
+        let csv = rng.random_bool(0.5);
+        let n = match rng.random_range(0..10) {
+            0 => rng.random_range(MAX_COLUMNS - 3..MAX_COLUMNS + 4),
+            1 => rng.random_range(2000..6000),
+            _ => rng.random_range(2..10),
+        };
+        let mut names: Vec<String> = (0..n)
+            .map(|_| match rng.random_range(0..4) {
+                0 => format!("c{}", rng.random_range(0..20_000)),
+                1 if csv => format!("q,{}", rng.random_range(0..50)),
+                _ => pool[rng.random_range(0..pool.len())].to_owned(),
+            })
+            .collect();
+        if !csv {
+            names.retain(|s| !s.is_empty());
+        }
+        if rng.random_bool(0.5) && names.len() >= 5 {
+            // Often a valid core, to reach the later checks.
+            for (k, r) in ["image", "x", "y", "e1", "e2"].iter().enumerate() {
+                names[k] = (*r).to_owned();
+            }
+        }
+        let quote = |s: &String| {
+            if s.contains(',') {
+                format!("\"{s}\"")
+            } else {
+                s.clone()
+            }
+        };
+        let value = |s: &String| match s.to_ascii_lowercase().as_str() {
+            "image" => "imA".to_owned(),
+            _ => "1".to_owned(),
+        };
+        let (head, row) = if csv {
+            (
+                names.iter().map(quote).collect::<Vec<_>>().join(","),
+                names.iter().map(value).collect::<Vec<_>>().join(","),
+            )
+        } else {
+            (
+                format!("# {}", names.join(" ")),
+                names.iter().map(value).collect::<Vec<_>>().join(" "),
+            )
+        };
+        let text = format!("{head}\n{row}\n");
+        let t = Instant::now();
+        let got = parse_file(Path::new("h.txt"), text.as_bytes(), &index(), None);
+        assert!(t.elapsed() < QUICK, "case {case}: {:?}", t.elapsed());
+        match (expected(&names), got) {
+            (Ok(()), Ok(fr)) => {
+                assert_eq!(fr.rows.len(), 1, "case {case}");
+                outcomes[0] += 1;
+            }
+            (Err(want), Err(e)) => {
+                let e = e.to_string();
+                assert!(e.starts_with("h.txt: line 1"), "case {case}: {e}");
+                assert!(e.contains(&want), "case {case}: want `{want}`, got {e}");
+                outcomes[1] += 1;
+            }
+            (want, got) => panic!("case {case} {names:?}: want {want:?}, got {got:?}"),
+        }
+    }
+    assert!(outcomes.iter().all(|&k| k > 40), "{outcomes:?}");
 }
