@@ -189,7 +189,7 @@ fn a_finish_that_fails_removes_the_manifest_written_before() {
     generate(d, "whole", &[]);
     assert!(d.join("whole/public/manifest.json").is_file());
     let truth = d.join("whole/private/truth").join(
-        Path::new(&image_files(&d.join("whole"))[&(0, 0, true)])
+        Path::new(&image_files(&d.join("whole"))[&(0, 0, false)])
             .file_name()
             .unwrap(),
     );
