@@ -27,7 +27,7 @@ use crate::config::{
 };
 use crate::config::{Part, RawChallenge};
 use crate::io::IoError;
-use crate::io::psf_fits::read_psf_fits;
+use crate::io::psf_fits::read_psf_fits_and_bytes;
 use crate::io::skymaker::{ListError, ListObject, read_list_and_bytes};
 use crate::noise::{Detector, sky_e_per_pixel};
 use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
@@ -204,10 +204,7 @@ impl Plan {
                         name: p.name.clone(),
                         source: e,
                     };
-                    let (values, nx, ny) = read_psf_fits(&path).map_err(err)?;
-                    // cfitsio reads the file by name; its bytes are read
-                    // again for the run's copy.
-                    let bytes = std::fs::read(&path).map_err(|e| err(IoError::os(&path, e)))?;
+                    let ((values, nx, ny), bytes) = read_psf_fits_and_bytes(&path).map_err(err)?;
                     inputs.push(RunInput {
                         name: run_psf_path(index),
                         source: path.clone(),
