@@ -324,3 +324,175 @@ fn a_run_without_seed_draws_a_secret_one_and_its_private_half_reproduces_it() {
         assert!(fc[k] == *v, "{} differs", k.display());
     }
 }
+
+/// The header cards of a FITS file's primary HDU, grouped by keyword (a
+/// keyword that repeats, e.g. `COMMENT`, keeps every card in order). The
+/// whole 80-character card is the value: a comment that varied would tell
+/// as much as a value.
+fn cards(bytes: &[u8]) -> BTreeMap<String, String> {
+    let mut out: BTreeMap<String, String> = BTreeMap::new();
+    for card in header(bytes).chunks(80) {
+        let text = String::from_utf8_lossy(card).into_owned();
+        out.entry(text[..8].trim_end().to_string())
+            .or_default()
+            .push_str(&text);
+    }
+    out
+}
+
+/// The partition of `0..n` joined by shared values: items `i` and `j` are in
+/// one block when some value is in both `values[i]` and `values[j]`, or
+/// through a chain of such items. Blocks as sorted lists, sorted.
+fn partition(values: &[Vec<String>]) -> Vec<Vec<usize>> {
+    let n = values.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    let mut first: BTreeMap<&str, usize> = BTreeMap::new();
+    for (i, vs) in values.iter().enumerate() {
+        for v in vs {
+            let j = *first.entry(v.as_str()).or_insert(i);
+            let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+            parent[a] = b;
+        }
+    }
+    let mut blocks: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for i in 0..n {
+        let r = root(&mut parent, i);
+        blocks.entry(r).or_default().push(i);
+    }
+    let mut out: Vec<Vec<usize>> = blocks.into_values().collect();
+    out.sort();
+    out
+}
+
+/// The labellings (of `labels`, by name) that a partition gives away: it
+/// tells something about a labelling when it is neither one block nor all
+/// singletons and one of its blocks of two or more items has one label.
+fn given_away(blocks: &[Vec<usize>], labels: &[(&str, Vec<String>)]) -> Vec<String> {
+    let n: usize = blocks.iter().map(Vec::len).sum();
+    if blocks.len() == 1 || blocks.len() == n {
+        return Vec::new();
+    }
+    labels
+        .iter()
+        .filter(|(_, l)| {
+            blocks
+                .iter()
+                .any(|b| b.len() >= 2 && b.iter().all(|&i| l[i] == l[b[0]]))
+        })
+        .map(|(name, _)| (*name).to_string())
+        .collect()
+}
+
+#[test]
+fn partition_and_what_it_gives_away_on_known_cases() {
+    let v = |s: &[&str]| s.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+    // 0–1 share "a", 1–2 share "b": one chain; 3 alone.
+    assert_eq!(
+        partition(&[v(&["a"]), v(&["a", "b"]), v(&["b"]), v(&["c"])]),
+        vec![vec![0, 1, 2], vec![3]]
+    );
+    let part = ("part", v(&["p", "p", "h", "h"]));
+    let psf = ("psf", v(&["x", "y", "x", "y"]));
+    let labels = [part, psf];
+    assert_eq!(
+        given_away(&[vec![0, 1], vec![2, 3]], &labels),
+        vec!["part".to_string()]
+    );
+    assert_eq!(
+        given_away(&[vec![0, 2], vec![1, 3]], &labels),
+        vec!["psf".to_string()]
+    );
+    assert!(given_away(&[vec![0, 1, 2, 3]], &labels).is_empty());
+    assert!(given_away(&[vec![0], vec![1], vec![2], vec![3]], &labels).is_empty());
+}
+
+#[test]
+fn no_header_keyword_groups_datasets_by_part_psf_or_shear() {
+    // A challenge run: 30 public datasets (6 PSFs × 5 shears) on one base
+    // field and 30 held-out ones (the same PSFs, random shears) on the
+    // other, each with the field's rotated twin, as `--set challenge.holdout_fields=1` makes of
+    // configs/step1-mini.json. Before the fix every image's CRVAL1 was its
+    // base field's, so grouping the public images by CRVAL1 gave two groups
+    // of 30 datasets: exactly the two parts (issue #23).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("c.json"), thirty_datasets(2)).unwrap();
+    generate(
+        d,
+        "c.json",
+        "run",
+        &[
+            "--set",
+            "run.seed=2718",
+            "--set",
+            "challenge.holdout_fields=1",
+            "--set",
+            "population.rotated_pairs=true",
+        ],
+    );
+    let run = d.join("run");
+    let datasets: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("private/datasets.json")).unwrap()).unwrap();
+    let datasets = datasets["datasets"].as_array().unwrap();
+    assert_eq!(datasets.len(), 60);
+    let mut index: BTreeMap<String, usize> = BTreeMap::new();
+    let (mut part, mut psf, mut shear) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, ds) in datasets.iter().enumerate() {
+        index.insert(ds["dataset"].as_str().unwrap().into(), i);
+        part.push(ds["part"].as_str().unwrap_or("public").to_string());
+        psf.push(ds["psf_id"].to_string());
+        shear.push(format!("{} {}", ds["g1"], ds["g2"]));
+    }
+    assert_eq!(part.iter().filter(|p| *p == "holdout").count(), 30);
+    let labels = [("part", part), ("psf", psf), ("shear", shear)];
+    // Every public image's header cards, by dataset and keyword.
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("public/manifest.json")).unwrap()).unwrap();
+    let images = manifest["images"].as_array().unwrap();
+    assert_eq!(images.len(), 120);
+    let mut by_dataset: Vec<Vec<BTreeMap<String, String>>> = vec![Vec::new(); 60];
+    let mut keywords = std::collections::BTreeSet::new();
+    for im in images {
+        let bytes = std::fs::read(run.join("public").join(im["file"].as_str().unwrap())).unwrap();
+        let c = cards(&bytes);
+        keywords.extend(c.keys().cloned());
+        by_dataset[index[im["dataset"].as_str().unwrap()]].push(c);
+    }
+    for k in [
+        "CRVAL1", "CRVAL2", "CRPIX1", "CD1_1", "GAIN", "MAGZERO", "NAXIS1",
+    ] {
+        assert!(keywords.contains(k), "no {k} in {keywords:?}");
+    }
+    let mut leaks = Vec::new();
+    for k in &keywords {
+        let values: Vec<Vec<String>> = by_dataset
+            .iter()
+            .map(|imgs| {
+                imgs.iter()
+                    .map(|c| c.get(k).cloned().unwrap_or_else(|| "<absent>".into()))
+                    .collect()
+            })
+            .collect();
+        let blocks = partition(&values);
+        let sizes: Vec<usize> = blocks.iter().map(Vec::len).collect();
+        let away = given_away(&blocks, &labels);
+        eprintln!(
+            "{k}: {} blocks of {sizes:?}; gives away {away:?}",
+            blocks.len()
+        );
+        if !away.is_empty() {
+            leaks.push(format!("{k} ({} blocks) gives away {away:?}", blocks.len()));
+        }
+    }
+    assert!(
+        leaks.is_empty(),
+        "header keywords group datasets: {leaks:?}"
+    );
+}

@@ -152,6 +152,81 @@ fn finish_refuses_listing_the_missing_images_and_a_rerun_shard_completes() {
 }
 
 #[test]
+fn a_finish_that_fails_removes_the_manifest_written_before() {
+    // Issue #23: a run finished once, then one image altered: --finish
+    // refused it but left the old manifest, which still claimed a run that
+    // is no longer what it says (its checksum of that image is wrong).
+    let dir = setup();
+    let d = dir.path();
+    generate(d, "sh", &["--shard", "1/2"]);
+    generate(d, "sh", &["--shard", "2/2"]);
+    generate(d, "sh", &["--finish"]);
+    let manifest_path = d.join("sh/public/manifest.json");
+    assert!(manifest_path.is_file());
+    let file = image_files(&d.join("sh"))[&(1, 1, false)].clone();
+    let path = d.join("sh/public").join(&file);
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[3000] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let o = run(
+        &["generate", "--config", "c.json", "--out", "sh", "--finish"],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(e.contains("1 of 8 images") && e.contains(&file), "{e}");
+    assert!(e.contains("the manifest written before was removed"), "{e}");
+    assert!(!manifest_path.exists(), "a stale manifest is left");
+    // Refused again: nothing to remove, and it does not say so.
+    let o = run(
+        &["generate", "--config", "c.json", "--out", "sh", "--finish"],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!stderr(&o).contains("was removed"), "{}", stderr(&o));
+    // A whole run finished, then a truth table removed: --finish fails on
+    // it and removes the manifest too.
+    generate(d, "whole", &[]);
+    assert!(d.join("whole/public/manifest.json").is_file());
+    let truth = d.join("whole/private/truth").join(
+        Path::new(&image_files(&d.join("whole"))[&(0, 0, false)])
+            .file_name()
+            .unwrap(),
+    );
+    std::fs::remove_file(&truth).unwrap();
+    let o = run(
+        &[
+            "generate", "--config", "c.json", "--out", "whole", "--finish",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!d.join("whole/public/manifest.json").exists());
+    // Another config is not the run's: refused before, the manifest stays.
+    generate(d, "other", &[]);
+    let o = run(
+        &[
+            "generate",
+            "--config",
+            "c.json",
+            "--out",
+            "other",
+            "--finish",
+            "--set",
+            "run.seed=1",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(d.join("other/public/manifest.json").is_file());
+    // The image made again, --finish writes the manifest again.
+    generate(d, "sh", &["--shard", "2/2"]);
+    generate(d, "sh", &["--shard", "1/2"]);
+    generate(d, "sh", &["--finish"]);
+    assert!(manifest_path.is_file());
+}
+
+#[test]
 fn shard_auto_outside_a_slurm_array_is_a_usage_error_and_inside_one_works() {
     let dir = setup();
     let d = dir.path();
@@ -632,4 +707,136 @@ fn huge_pages_on_and_off_write_identical_bytes() {
     // One image: the image, its truth table and sidecar, and five shared files.
     assert_eq!(on.len(), 3 + 5, "{:?}", on.keys().collect::<Vec<_>>());
     assert_eq!(on, off);
+}
+
+/// A Gaussian PSF image of σ = 0.2″ sampled at 0.05″ (49²), as a FITS file.
+fn write_gaussian_psf(path: &Path) {
+    let n = 49;
+    let mut v = vec![0.0; n * n];
+    for j in 0..n {
+        for i in 0..n {
+            let (x, y) = ((i as f64 - 24.0) * 0.05, (j as f64 - 24.0) * 0.05);
+            v[j * n + i] = (-(x * x + y * y) / (2.0 * 0.2f64.powi(2))).exp();
+        }
+    }
+    let image = stepsim_sim::io::psf_fits::PsfImage {
+        data: &v,
+        n,
+        scale_arcsec: 0.05,
+    };
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    stepsim_sim::io::psf_fits::write_psf_fits(path, "g", image, image, 1, &[]).unwrap();
+}
+
+#[test]
+fn the_private_config_reproduces_a_run_with_relative_inputs_from_anywhere() {
+    // Issue #23: a config naming a SkyMaker list and a FITS PSF by paths
+    // relative to itself. Its private copy lives in RUN/private, where those
+    // paths led nowhere ("looking for run/private/first/field_000.list"), so
+    // the documented reproduction failed.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = d.join("cfg");
+    std::fs::create_dir_all(&cfg).unwrap();
+    std::fs::write(
+        cfg.join("base.json"),
+        r#"{"run": {"seed": 5}, "image": {"width_px": 64, "height_px": 48, "n_images": 2, "margin_arcsec": 1.0},
+            "population": {"galaxies": {"mag_faint": 23.5}}}"#,
+    )
+    .unwrap();
+    common::run_ok(
+        &["catalog", "--config", "cfg/base.json", "--out", "cfg/first"],
+        d,
+    );
+    write_gaussian_psf(&cfg.join("psfs/g.fits"));
+    std::fs::write(
+        cfg.join("c.json"),
+        r#"{
+  "run": {"seed": 424242},
+  "image": {"width_px": 64, "height_px": 48, "n_images": 2, "margin_arcsec": 1.0},
+  "population": {"source": {"skymaker_list": {"path": "first/field_00{field}.list"}}},
+  "psfs": [
+    {"name": "file", "model": "fits", "path": "psfs/g.fits", "pixel_scale_arcsec": 0.05},
+    {"name": "gauss", "model": "gaussian", "fwhm_arcsec": 0.8}
+  ],
+  "shears": [{"g1": 0.0}, {"g1": 0.04, "g2": 0.01}]
+}"#,
+    )
+    .unwrap();
+    common::run_ok(&["generate", "--config", "cfg/c.json", "--out", "run"], d);
+    // Reproduced from another working directory, into another directory:
+    // the same bytes in public/ and private/ (PSF store aside).
+    let elsewhere = d.join("elsewhere/deeper");
+    std::fs::create_dir_all(&elsewhere).unwrap();
+    common::run_ok(
+        &[
+            "generate",
+            "--config",
+            "../../run/private/config.json",
+            "--out",
+            "../run2",
+        ],
+        &elsewhere,
+    );
+    let (a, b) = (release(&d.join("run")), release(&d.join("elsewhere/run2")));
+    // public: 8 images, README, manifest; private: config, datasets, key,
+    // 8 truth tables, 8 sidecars, 3 copies of inputs.
+    assert_eq!(a.len(), 8 + 2 + 3 + 8 * 2 + 3, "{:?}", a.keys());
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(b[k] == *v, "{} differs", k.display());
+    }
+    // The private config names the run's copies, relative to itself; the
+    // copies are the inputs' bytes.
+    let private = d.join("run/private");
+    let config: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(private.join("config.json")).unwrap()).unwrap();
+    assert_eq!(
+        config["population"]["source"]["skymaker_list"]["path"],
+        "inputs/list_{field}.list"
+    );
+    assert_eq!(config["psfs"][0]["path"], "inputs/psf_0.fits");
+    for (copy, input) in [
+        ("inputs/list_0.list", "cfg/first/field_000.list"),
+        ("inputs/list_1.list", "cfg/first/field_001.list"),
+        ("inputs/psf_0.fits", "cfg/psfs/g.fits"),
+    ] {
+        assert!(
+            std::fs::read(private.join(copy)).unwrap() == std::fs::read(d.join(input)).unwrap(),
+            "{copy}"
+        );
+    }
+    // The original inputs moved away: the run is continued from its private
+    // config alone, and from the original config the run is refused when an
+    // input's bytes changed since (the copy pins them).
+    std::fs::rename(&cfg, d.join("gone")).unwrap();
+    let o = common::run_ok(
+        &[
+            "generate",
+            "--config",
+            "run/private/config.json",
+            "--out",
+            "run",
+        ],
+        d,
+    );
+    assert!(
+        stderr(&o).contains("0 images written, 8 already"),
+        "{}",
+        stderr(&o)
+    );
+    std::fs::rename(d.join("gone"), &cfg).unwrap();
+    let list = cfg.join("first/field_001.list");
+    let mut text = std::fs::read_to_string(&list).unwrap();
+    text.push_str("# one more line\n");
+    std::fs::write(&list, text).unwrap();
+    let o = run(&["generate", "--config", "cfg/c.json", "--out", "run"], d);
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains("inputs/list_1.list")
+            && e.contains("field_001.list")
+            && e.contains("other bytes"),
+        "{e}"
+    );
 }

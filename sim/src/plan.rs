@@ -13,11 +13,13 @@
 //!
 //! After that nothing reads the config again: consumers ask the plan for
 //! ready collaborators ([`Plan::detector`], [`Plan::accuracy`],
-//! [`Plan::field_wcs`], [`Plan::placement_area`], [`Plan::psf_spec`],
+//! [`Plan::image_wcs`], [`Plan::placement_area`], [`Plan::psf_spec`],
 //! [`Plan::skymaker_list`], ...) and for the validated values of a section
 //! ([`Plan::image`], [`Plan::output`], ...). The resolved config's JSON
-//! ([`Plan::config_json`]) is what `RUN/private/config.json` holds; its paths
-//! are kept as written.
+//! ([`Plan::config_json`]) keeps its paths as written; what
+//! `RUN/private/config.json` holds is [`Plan::run_config_json`], whose
+//! input paths name the copies of the inputs the run keeps beside it
+//! ([`Plan::run_inputs`]), so that it reproduces the run from anywhere.
 
 use crate::config::{
     ConfigError, RawConfig, RawImage, RawInstrument, RawOutput, RawPopulation, RawPsf, RawPsfModel,
@@ -25,8 +27,8 @@ use crate::config::{
 };
 use crate::config::{Part, RawChallenge};
 use crate::io::IoError;
-use crate::io::psf_fits::read_psf_fits;
-use crate::io::skymaker::{ListError, ListObject, read_list};
+use crate::io::psf_fits::read_psf_fits_and_bytes;
+use crate::io::skymaker::{ListError, ListObject, read_list_and_bytes};
 use crate::noise::{Detector, sky_e_per_pixel};
 use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
 use crate::render::{Accuracy, Renderer};
@@ -97,6 +99,37 @@ pub struct Placement {
     pub y_px: (f64, f64),
 }
 
+/// An input file of a run (a SkyMaker list, the image of a `fits` PSF) as
+/// the plan read it: the run keeps a copy in `RUN/private/` under `name`
+/// ([`Plan::run_inputs`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RunInput {
+    /// Path of the copy relative to `RUN/private/` (see [`RUN_INPUTS_DIR`]).
+    pub name: String,
+    /// The file read (resolved against the config's directory).
+    pub source: PathBuf,
+    /// The file's bytes.
+    pub bytes: Arc<Vec<u8>>,
+}
+
+/// Directory of `RUN/private/` that holds the copies of a run's inputs:
+/// `inputs/list_<field>.list` (the SkyMaker list of base field `field`) and
+/// `inputs/psf_<index>.fits` (the image of `fits` PSF `index`, in config
+/// order).
+pub const RUN_INPUTS_DIR: &str = "inputs";
+
+/// The path pattern, relative to `RUN/private/`, of the copies of a run's
+/// SkyMaker lists.
+fn run_list_pattern() -> String {
+    format!("{RUN_INPUTS_DIR}/list_{{field}}.list")
+}
+
+/// The path, relative to `RUN/private/`, of the copy of the image of `fits`
+/// PSF `index`.
+fn run_psf_path(index: usize) -> String {
+    format!("{RUN_INPUTS_DIR}/psf_{index}.fits")
+}
+
 /// A validated, resolved run (see the module docs). Cheap to clone: the
 /// files it read are shared.
 #[derive(Debug, Clone)]
@@ -112,6 +145,8 @@ pub struct Plan {
     /// One slot per PSF, filled the first time [`Plan::psf`] builds it;
     /// shared by the plan's clones.
     psfs: Arc<Vec<OnceLock<Arc<dyn Psf>>>>,
+    /// The input files read, as a run keeps them.
+    inputs: Arc<Vec<RunInput>>,
 }
 
 impl Plan {
@@ -134,16 +169,25 @@ impl Plan {
             }
         };
         let datasets = challenge_datasets(&config);
+        let mut inputs = Vec::new();
         let lists = match &config.population.source {
             Source::Stuff => None,
             Source::SkymakerList { path } => {
-                let read = (0..config.image.n_images)
-                    .map(|field| read_list(&list_path(source, path, field)))
-                    .collect::<Result<Vec<_>, _>>()
-                    .map_err(|e| PlanError::List {
-                        config: source.into(),
-                        source: e,
-                    })?;
+                let mut read = Vec::new();
+                for field in 0..config.image.n_images {
+                    let file = list_path(source, path, field);
+                    let (objects, bytes) =
+                        read_list_and_bytes(&file).map_err(|e| PlanError::List {
+                            config: source.into(),
+                            source: e,
+                        })?;
+                    read.push(objects);
+                    inputs.push(RunInput {
+                        name: run_list_pattern().replace("{field}", &field.to_string()),
+                        source: file,
+                        bytes: Arc::new(bytes),
+                    });
+                }
                 Some(Arc::new(read))
             }
         };
@@ -154,13 +198,18 @@ impl Plan {
             .map(|(index, p)| match &p.model {
                 RawPsfModel::Fits { path, .. } => {
                     let path = resolve(source, Path::new(path));
-                    let (values, nx, ny) =
-                        read_psf_fits(&path).map_err(|e| PlanError::PsfFile {
-                            config: source.into(),
-                            index,
-                            name: p.name.clone(),
-                            source: e,
-                        })?;
+                    let err = |e| PlanError::PsfFile {
+                        config: source.into(),
+                        index,
+                        name: p.name.clone(),
+                        source: e,
+                    };
+                    let ((values, nx, ny), bytes) = read_psf_fits_and_bytes(&path).map_err(err)?;
+                    inputs.push(RunInput {
+                        name: run_psf_path(index),
+                        source: path.clone(),
+                        bytes: Arc::new(bytes),
+                    });
                     Ok(Some(Arc::new(PsfFileImage {
                         path,
                         values,
@@ -179,6 +228,7 @@ impl Plan {
             lists,
             psfs: Arc::new(psf_images.iter().map(|_| OnceLock::new()).collect()),
             psf_images,
+            inputs: Arc::new(inputs),
         })
     }
 
@@ -255,6 +305,36 @@ impl Plan {
         self.config.to_json()
     }
 
+    /// The resolved config of a run, `RUN/private/config.json`:
+    /// [`Plan::config_json`] with every input path naming the run's copy of
+    /// that input ([`Plan::run_inputs`], relative to `RUN/private/`, where
+    /// the config lives). It therefore reproduces the run from any working
+    /// directory and on any machine, reads the very bytes the run was made
+    /// with, and does not depend on where the inputs were: the same config
+    /// and inputs give the same `private/config.json` (and so the same
+    /// blinding key) wherever they lie. A config without input files is
+    /// [`Plan::config_json`] itself.
+    pub fn run_config_json(&self) -> String {
+        let mut c = self.config.clone();
+        if let Source::SkymakerList { path } = &mut c.population.source {
+            *path = run_list_pattern();
+        }
+        for (index, p) in c.psfs.iter_mut().enumerate() {
+            if let RawPsfModel::Fits { path, .. } = &mut p.model {
+                *path = run_psf_path(index);
+            }
+        }
+        c.to_json()
+    }
+
+    /// The input files the plan read (SkyMaker lists in field order, then
+    /// the images of `fits` PSFs in config order), each with the name of
+    /// the copy a run keeps under `RUN/private/` ([`Plan::run_config_json`]
+    /// names them).
+    pub fn run_inputs(&self) -> &[RunInput] {
+        &self.inputs
+    }
+
     /// [`Plan::config_json`] as the user gave it: with the seed when the
     /// config (or a `--set`) gave one, without it when [`Plan::new`] drew it.
     pub fn config_json_as_given(&self) -> String {
@@ -325,9 +405,10 @@ impl Plan {
         Accuracy::from_config(&self.config.render)
     }
 
-    /// The TAN WCS of base field `field`.
-    pub fn field_wcs(&self, field: u32) -> TanWcs {
-        TanWcs::for_field(&self.config.image, field)
+    /// The TAN WCS of every image (one for all base fields: see
+    /// [`crate::wcs`]).
+    pub fn image_wcs(&self) -> TanWcs {
+        TanWcs::of_images(&self.config.image)
     }
 
     /// Where objects are placed: the image plus `image.margin_arcsec` on

@@ -1,10 +1,15 @@
-//! TAN (gnomonic) world coordinate system of a base field (FITS WCS paper II).
+//! TAN (gnomonic) world coordinate system of the images (FITS WCS paper II).
 //!
-//! Every image of base field k shares one WCS: the reference pixel is the
-//! image centre, the reference point lies `k × field_spacing_deg` east of
-//! field 0, north is +y and east is −x (the usual sky orientation), and the
-//! scale is the pixel scale with no rotation:
-//! CD = [[−s, 0], [0, s]] with s in degrees.
+//! Every image of a run has the same WCS: the reference pixel is the image
+//! centre, the reference point is (`image.field_ra_deg`,
+//! `image.field_dec_deg`) whatever the base field, north is +y and east is
+//! −x (the usual sky orientation), and the scale is the pixel scale with no
+//! rotation: CD = [[−s, 0], [0, s]] with s in degrees.
+//!
+//! One position for all, not one per base field: a run with held-out
+//! datasets puts them on base fields of their own, so a per-field position
+//! grouped the public images into exactly the public and the held-out
+//! datasets (issue #23). With one WCS every public header is the same.
 
 use crate::config::RawImage;
 
@@ -26,16 +31,12 @@ pub struct TanWcs {
 }
 
 impl TanWcs {
-    /// The WCS of base field `field`.
-    pub fn for_field(image: &RawImage, field: u32) -> Self {
-        let dec = image.field_dec_deg;
-        let ra = (image.field_ra_deg
-            + f64::from(field) * image.field_spacing_deg / dec.to_radians().cos())
-        .rem_euclid(360.0);
+    /// The WCS of every image of `image`'s geometry.
+    pub fn of_images(image: &RawImage) -> Self {
         let s = image.pixel_scale_arcsec / 3600.0;
         Self {
-            crval1: ra,
-            crval2: dec,
+            crval1: image.field_ra_deg,
+            crval2: image.field_dec_deg,
             crpix1: (f64::from(image.width_px) + 1.0) / 2.0,
             crpix2: (f64::from(image.height_px) + 1.0) / 2.0,
             cd1_1: -s,
@@ -76,10 +77,11 @@ mod tests {
     #[test]
     fn reference_pixel_maps_to_reference_point_and_round_trips() {
         let img = RawImage::default();
-        let w = TanWcs::for_field(&img, 3);
+        let w = TanWcs::of_images(&img);
         let (ra, dec) = w.pixel_to_sky(w.crpix1, w.crpix2);
         assert!((ra - w.crval1).abs() < 1e-12 && (dec - w.crval2).abs() < 1e-12);
-        assert!((w.crval1 - (150.0 + 3.0 / 2f64.to_radians().cos())).abs() < 1e-12);
+        assert_eq!((w.crval1, w.crval2), (150.0, 2.0));
+        assert_eq!((w.crpix1, w.crpix2), (2048.5, 2048.5));
         for (x, y) in [
             (1.0, 1.0),
             (4096.0, 1.0),
@@ -97,7 +99,7 @@ mod tests {
 
     #[test]
     fn scale_and_orientation() {
-        let w = TanWcs::for_field(&RawImage::default(), 0);
+        let w = TanWcs::of_images(&RawImage::default());
         // One pixel north (+y) is 0.206″ of declination.
         let (_, d0) = w.pixel_to_sky(w.crpix1, w.crpix2);
         let (_, d1) = w.pixel_to_sky(w.crpix1, w.crpix2 + 1.0);

@@ -148,6 +148,7 @@ fn finish(args: &Args, plan: &stepsim_sim::plan::Plan, threads: usize) -> anyhow
             missing,
             total,
             rerun,
+            removed_manifest,
         }) => {
             for file in &missing {
                 eprintln!("stepsim: missing or unverified: public/{file}");
@@ -157,6 +158,7 @@ fn finish(args: &Args, plan: &stepsim_sim::plan::Plan, threads: usize) -> anyhow
                 missing,
                 total,
                 rerun,
+                removed_manifest,
             })
             .with_context(|| format!("finishing {}", args.out.display()))
         }

@@ -21,12 +21,15 @@ pub struct RawImage {
     /// Objects are placed over the image plus this margin on every side, so
     /// that objects near the edge are partly on the image.
     pub margin_arcsec: f64,
-    /// Right ascension of the centre of base field 0 (TAN WCS reference).
+    /// Right ascension of the TAN WCS reference point of every image.
     pub field_ra_deg: f64,
-    /// Declination of the centre of base field 0.
+    /// Declination of the TAN WCS reference point of every image.
     pub field_dec_deg: f64,
-    /// Base field k is centred `k × field_spacing_deg` east of field 0
-    /// (along the declination circle).
+    /// Accepted (and range-checked) so that older configs still parse, but
+    /// it has no effect since output version 3: every image has the same
+    /// reference point ([`crate::wcs`]). It used to put base field k
+    /// `k × field_spacing_deg` east of field 0, which told the held-out
+    /// datasets from the public ones (issue #23).
     pub field_spacing_deg: f64,
 }
 

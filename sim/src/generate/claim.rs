@@ -42,9 +42,10 @@ pub struct Claim {
     pub created: bool,
 }
 
-/// The resolved config as written to `private/config.json`.
+/// The resolved config as written to `private/config.json`
+/// ([`Plan::run_config_json`]: input paths name the run's copies).
 pub fn config_json(plan: &Plan) -> String {
-    format!("{}\n", plan.config_json())
+    format!("{}\n", plan.run_config_json())
 }
 
 /// Claims `out` for `plan`, or joins the run already there if it has the

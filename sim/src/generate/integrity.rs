@@ -3,7 +3,7 @@
 //! Every sidecar records what made it (the SHA-256 of the resolved config and
 //! [`OUTPUT_VERSION`]); a sidecar made by anything else is refused by name.
 //! So is any file under `public/`, `private/truth`, `private/model`,
-//! `private/done` or `private/psf` (apart from the PSF store `private/psf/cache/`)
+//! `private/done`, `private/inputs` or `private/psf` (apart from the PSF store `private/psf/cache/`)
 //! whose name is not one of this run's (a
 //! leftover of another config, for instance after `private/config.json` was
 //! deleted), and a `private/blinding.key` or `private/datasets.json` with
@@ -19,7 +19,7 @@ use std::path::Path;
 /// Version of what `generate` writes: bumped whenever the bytes of a run's
 /// files change on purpose, so that a rerun refuses the files of an older
 /// stepsim instead of mixing them with new ones.
-pub const OUTPUT_VERSION: u32 = 2;
+pub const OUTPUT_VERSION: u32 = 3;
 
 /// Refuses, naming it, the first file or directory (in sorted order) that
 /// does not belong to the run of `all`.
@@ -74,6 +74,39 @@ pub fn refuse_foreign_files(
         let store = name == "cache" && file.is_dir();
         if !store && (file.is_dir() || !psfs.contains(&name)) {
             return Err(foreign(&file));
+        }
+    }
+    let inputs: HashSet<&str> = plan.run_inputs().iter().map(|i| i.name.as_str()).collect();
+    for file in listing(&private.join(crate::plan::RUN_INPUTS_DIR))? {
+        let name = format!("{}/{}", crate::plan::RUN_INPUTS_DIR, file_name(&file));
+        if file.is_dir() || !inputs.contains(name.as_str()) {
+            return Err(foreign(&file));
+        }
+    }
+    Ok(())
+}
+
+/// Keeps the run's copies of its inputs ([`Plan::run_inputs`]) in
+/// `RUN/private/`: writes those missing (atomically) and refuses
+/// ([`GenerateError::InputChanged`]) a copy whose bytes differ from the
+/// file the plan read, so that a run is never continued with other inputs
+/// than it was made with.
+pub fn keep_inputs(plan: &Plan, paths: &RunPaths) -> Result<(), GenerateError> {
+    let private = paths.private();
+    for input in plan.run_inputs() {
+        let copy = private.join(&input.name);
+        match std::fs::read(&copy) {
+            Ok(bytes) if bytes == *input.bytes => {}
+            Ok(_) => {
+                return Err(GenerateError::InputChanged {
+                    copy,
+                    source_file: input.source.clone(),
+                });
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                crate::io::write_bytes_atomically(&copy, &input.bytes)?;
+            }
+            Err(e) => return Err(IoError::os(&copy, e).into()),
         }
     }
     Ok(())

@@ -113,6 +113,17 @@ pub enum GenerateError {
         /// The file or directory.
         path: PathBuf,
     },
+    /// The copy of an input kept in `RUN/private/inputs/` differs from the
+    /// file the config names now: the run was made with other bytes.
+    #[error(
+        "{copy} differs from {source_file}: the run was made with other bytes of this input than the config names now; restore the input the run was made with (the copy is it), or use another --out"
+    )]
+    InputChanged {
+        /// The run's copy.
+        copy: PathBuf,
+        /// The file the config names.
+        source_file: PathBuf,
+    },
     /// A sidecar was made by another config or output version.
     #[error("{path} is refused: {why}; use another --out, or delete the whole run directory")]
     ForeignSidecar {
@@ -128,7 +139,7 @@ pub enum GenerateError {
         path: PathBuf,
     },
     /// `--finish` found images missing or failing verification.
-    #[error("{}", incomplete_message(.run, .missing, .total, .rerun))]
+    #[error("{}", incomplete_message(.run, .missing, .total, .rerun, *.removed_manifest))]
     Incomplete {
         /// The run directory.
         run: PathBuf,
@@ -139,6 +150,8 @@ pub enum GenerateError {
         total: usize,
         /// The shards that own them (when the done-markers agree on N).
         rerun: Vec<Shard>,
+        /// True when a `public/manifest.json` from before was removed.
+        removed_manifest: bool,
     },
     /// Two opaque ids collided (practically impossible; change `run.seed`).
     #[error("opaque id {id} is not unique; choose another run.seed")]
@@ -148,7 +161,13 @@ pub enum GenerateError {
     },
 }
 
-fn incomplete_message(run: &Path, missing: &[String], total: &usize, rerun: &[Shard]) -> String {
+fn incomplete_message(
+    run: &Path,
+    missing: &[String],
+    total: &usize,
+    rerun: &[Shard],
+    removed_manifest: bool,
+) -> String {
     const SHOWN: usize = 10;
     let mut list: Vec<&str> = missing.iter().take(SHOWN).map(String::as_str).collect();
     let more = missing.len().saturating_sub(SHOWN);
@@ -164,8 +183,13 @@ fn incomplete_message(run: &Path, missing: &[String], total: &usize, rerun: &[Sh
         let names: Vec<String> = rerun.iter().map(Shard::to_string).collect();
         format!("rerun shard {}", names.join(", "))
     };
+    let removed = if removed_manifest {
+        "; the manifest written before was removed"
+    } else {
+        ""
+    };
     format!(
-        "{} of {total} images of {} are missing or fail verification ({}{more}); {hint}, then --finish again (nothing was written)",
+        "{} of {total} images of {} are missing or fail verification ({}{more}); {hint}, then --finish again (nothing was written{removed})",
         missing.len(),
         run.display(),
         list.join(", ")
@@ -497,8 +521,9 @@ pub fn generate(
     })
 }
 
-/// Refuses files and shared contents another run left in the directory; a
-/// claim made just now is undone, leaving the directory as it was found.
+/// Refuses files and shared contents another run left in the directory,
+/// and keeps the run's copies of its inputs ([`integrity::keep_inputs`]); a
+/// claim made just now is undone on failure.
 fn refuse_foreign_or_undo_claim(
     plan: &Plan,
     paths: &RunPaths,
@@ -506,9 +531,11 @@ fn refuse_foreign_or_undo_claim(
     all: &[Job],
     claimed_now: bool,
 ) -> Result<(), GenerateError> {
-    let checked = integrity::refuse_foreign_files(plan, paths, all).and_then(|()| {
-        integrity::refuse_other_contents(&paths.private(), &private_shared(plan, key, all))
-    });
+    let checked = integrity::refuse_foreign_files(plan, paths, all)
+        .and_then(|()| {
+            integrity::refuse_other_contents(&paths.private(), &private_shared(plan, key, all))
+        })
+        .and_then(|()| integrity::keep_inputs(plan, paths));
     if checked.is_err() && claimed_now {
         let _ = std::fs::remove_file(paths.config());
     }
@@ -935,6 +962,12 @@ pub struct Finished {
 /// image is missing or fails verification nothing is written and the images
 /// are listed ([`GenerateError::Incomplete`]), with the shards to rerun when
 /// the done-markers name one shard count. Parallel in the current rayon pool.
+///
+/// Whenever it fails after joining the run (an image missing or altered, a
+/// foreign file, an unreadable sidecar), a `public/manifest.json` already
+/// there (from an earlier `--finish` or whole run) is removed: it would
+/// claim a run that is no longer what it says. A config that is not the
+/// run's is refused before, and touches nothing.
 pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
     let paths = RunPaths { root: out.into() };
     if !paths.config().is_file() {
@@ -943,18 +976,54 @@ pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
         });
     }
     let claim = claim::claim(plan, out)?;
+    match finish_claimed(&claim, &paths, out) {
+        Ok(f) => Ok(f),
+        Err(e) => {
+            let manifest = paths.public().join("manifest.json");
+            let removed = match std::fs::remove_file(&manifest) {
+                Ok(()) => true,
+                Err(r) if r.kind() == std::io::ErrorKind::NotFound => false,
+                Err(r) => return Err(IoError::os(&manifest, r).into()),
+            };
+            Err(match e {
+                GenerateError::Incomplete {
+                    run,
+                    missing,
+                    total,
+                    rerun,
+                    ..
+                } => GenerateError::Incomplete {
+                    run,
+                    missing,
+                    total,
+                    rerun,
+                    removed_manifest: removed,
+                },
+                e => e,
+            })
+        }
+    }
+}
+
+/// [`finish`] once the run is joined.
+fn finish_claimed(
+    claim: &claim::Claim,
+    paths: &RunPaths,
+    out: &Path,
+) -> Result<Finished, GenerateError> {
     let plan = &claim.plan;
     let config_sha256 = config_sha256(plan);
     let key = blinding_key(plan);
     let all = jobs(plan, &key)?;
-    integrity::refuse_foreign_files(plan, &paths, &all)?;
+    integrity::refuse_foreign_files(plan, paths, &all)?;
     integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))?;
+    integrity::keep_inputs(plan, paths)?;
     let want_model = plan.output().write_model;
     let ok: Vec<bool> = all
         .par_iter()
-        .map(|j| verify(&paths, j, want_model, &config_sha256))
+        .map(|j| verify(paths, j, want_model, &config_sha256))
         .collect::<Result<_, _>>()?;
-    let markers = marker_names(&paths)?;
+    let markers = marker_names(paths)?;
     let missing: Vec<&Job> = all.iter().filter(|j| !ok[j.order]).collect();
     let readme = paths.public().join("README.md");
     if missing.is_empty() && !readme.is_file() {
@@ -986,9 +1055,10 @@ pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
             missing: missing.iter().map(|j| j.public_file()).collect(),
             total: all.len(),
             rerun,
+            removed_manifest: false,
         });
     }
-    let (_, written) = write_manifest_if_complete(plan, &paths, &all, &config_sha256)?;
+    let (_, written) = write_manifest_if_complete(plan, paths, &all, &config_sha256)?;
     debug_assert!(written);
     times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
     Ok(Finished {
@@ -1434,7 +1504,7 @@ mod tests {
             &pixels,
             w,
             h,
-            &ImageHeader::new(p.image(), p.instrument(), 1),
+            &ImageHeader::new(p.image(), p.instrument()),
             SampleFormat::Float32,
             crate::config::Compression::None,
         )

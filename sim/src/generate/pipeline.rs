@@ -197,7 +197,7 @@ pub(crate) fn make_image(
     };
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
-    let header = ImageHeader::new(plan.image(), plan.instrument(), job.field);
+    let header = ImageHeader::new(plan.image(), plan.instrument());
     let image_path = paths.image(job);
     let format = (output.format, output.compression);
     let image_sha256 = write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;

@@ -51,9 +51,9 @@ back a catalogue.
 - `<dataset-id>/<image-id>.fits`: the images, {n_datasets} datasets of {n_per}
   images each. All images of one dataset share the same PSF and the same
   shear. Ids are opaque: they say nothing about the PSF or the shear.
-- Images of different datasets with the same sky position (header `CRVAL1`,
-  `CRVAL2`) show the same galaxies, as in STEP1; only shear, PSF and noise
-  differ.
+- As in STEP1, the same galaxies appear in images of several datasets (only
+  shear, PSF and noise differ), but nothing tells which images share them:
+  every image has the same header.
 
 ## The images
 
@@ -68,8 +68,9 @@ back a catalogue.
   {zp} − 2.5 log10(electrons per second).
 - Pixels at or above {saturation} ADU (`SATURATE`) are clipped (saturated).
 - Stars (point sources) are in every image: use them to model the PSF.
-- Every image carries a TAN WCS (`CTYPE`, `CRVAL`, `CRPIX`, `CD`): north up,
-  east left.
+- Every image carries the same TAN WCS (`CTYPE`, `CRVAL`, `CRPIX`, `CD`):
+  north up, east left. Its reference point is a convention, the same for
+  every image, not the image's own place on the sky.
 
 ## Conventions
 
@@ -126,12 +127,14 @@ mod tests {
             "30 datasets of 64",
             "SUBMIT-PARAGRAPH",
             "(1.0, 1.0)",
+            "every image has the same header",
         ] {
             assert!(text.contains(fact), "missing {fact:?}");
         }
         // Sky 80 174.6 e⁻ / 4 = 20 043.66 ADU; σ = sqrt(80 174.6 + 25) / 4 = 70.80 ADU.
         assert!(text.contains("about\n  20043.7 ADU"), "{text}");
         assert!(text.contains("σ ≈ 70.80 ADU"), "{text}");
+        assert!(!text.contains("same sky position"), "{text}");
         for secret in [
             "secretname",
             "97531",

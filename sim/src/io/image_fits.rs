@@ -33,7 +33,7 @@ pub use stepsim_contract::io::image::{FitsImage, read_image_fits};
 /// What goes into the header of an image besides its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImageHeader {
-    /// The TAN WCS of the image's base field.
+    /// The TAN WCS (the same for every image of a run: [`crate::wcs`]).
     pub wcs: TanWcs,
     /// GAIN, e⁻/ADU.
     pub gain_e_per_adu: f64,
@@ -50,10 +50,11 @@ pub struct ImageHeader {
 }
 
 impl ImageHeader {
-    /// The header of every image of base field `field`.
-    pub fn new(image: &RawImage, instrument: &RawInstrument, field: u32) -> Self {
+    /// The header of every image of a run: one for all base fields,
+    /// datasets and twins, so that no keyword groups the images.
+    pub fn new(image: &RawImage, instrument: &RawInstrument) -> Self {
         Self {
-            wcs: TanWcs::for_field(image, field),
+            wcs: TanWcs::of_images(image),
             gain_e_per_adu: instrument.gain_e_per_adu,
             read_noise_e: instrument.read_noise_e,
             saturation_adu: instrument.saturation_adu,
@@ -345,7 +346,7 @@ mod tests {
             height_px: 30,
             ..Default::default()
         };
-        ImageHeader::new(&img, &RawInstrument::default(), 2)
+        ImageHeader::new(&img, &RawInstrument::default())
     }
 
     fn pixels() -> Vec<f32> {

@@ -160,6 +160,18 @@ pub fn read_psf_fits(path: &Path) -> Result<(Vec<f64>, usize, usize), IoError> {
     read_image_hdu(path, None)
 }
 
+/// A PSF image as [`read_psf_fits`] returns it: row-major values, nx, ny.
+pub type PsfValues = (Vec<f64>, usize, usize);
+
+/// [`read_psf_fits`], also handing back the file's bytes (what a run keeps
+/// a copy of). cfitsio reads the file by name, so the bytes are a second
+/// read of it.
+pub fn read_psf_fits_and_bytes(path: &Path) -> Result<(PsfValues, Vec<u8>), IoError> {
+    let image = read_psf_fits(path)?;
+    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
+    Ok((image, bytes))
+}
+
 /// Reads a 2-D image HDU (`None`: the primary, else by EXTNAME).
 pub fn read_image_hdu(
     path: &Path,

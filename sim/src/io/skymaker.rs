@@ -221,8 +221,24 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
 
 /// Reads a list file.
 pub fn read_list(path: &Path) -> Result<Vec<ListObject>, ListError> {
-    let text = std::fs::read_to_string(path).map_err(|e| IoError::os(path, e))?;
-    parse_list(&text, path)
+    Ok(read_list_and_bytes(path)?.0)
+}
+
+/// [`read_list`], also handing back the file's bytes (what a run keeps a
+/// copy of): one read, so the objects are those of the bytes.
+pub fn read_list_and_bytes(path: &Path) -> Result<(Vec<ListObject>, Vec<u8>), ListError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| {
+        IoError::os(
+            path,
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("not UTF-8 text (byte {})", e.valid_up_to()),
+            ),
+        )
+    })?;
+    let objects = parse_list(text, path)?;
+    Ok((objects, bytes))
 }
 
 /// Formats truth rows as a list. Galaxies get `t_types[hubble_type]` in

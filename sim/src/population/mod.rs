@@ -90,15 +90,16 @@ pub fn galaxy_placement_area(plan: &Plan) -> Placement {
 
 /// The galaxies of `rows` with their positions lensed by (g1, g2) about
 /// [`Plan::lensing_centre`] ([`crate::shear::lens_offset`]), sky coordinates
-/// recomputed from the field's WCS; stars unchanged. Galaxies that land
+/// recomputed from the images' WCS ([`Plan::image_wcs`], the same for
+/// every base field: `_field` is unused); stars unchanged. Galaxies that land
 /// beyond the image and its margin ([`Plan::placement_area`]) are left out, so
 /// every dataset has the density of an unlensed one.
-pub fn lensed(plan: &Plan, field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
+pub fn lensed(plan: &Plan, _field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
     let Placement {
         x_px: xr, y_px: yr, ..
     } = plan.placement_area();
     let (cx, cy) = plan.lensing_centre();
-    let wcs = plan.field_wcs(field);
+    let wcs = plan.image_wcs();
     rows.iter()
         .filter_map(|r| {
             if r.is_star() {
@@ -140,7 +141,7 @@ pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationEr
             field,
             n_fields: plan.n_fields(),
         })?;
-        return Ok(from_list(plan, field, objects));
+        return Ok(from_list(plan, objects));
     }
     let mut rows = galaxies(plan, field)?;
     let first_star = rows.len() as i64 + 1;
@@ -207,7 +208,7 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
     let mut rng = SeedKey::base(plan.seed(), field, Stream::Galaxies).rng();
     let n = poisson(&mut rng, expected);
     let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
-    let wcs = plan.field_wcs(field);
+    let wcs = plan.image_wcs();
     let ins = plan.instrument();
     let sz = &g.sizes;
     let h = model.cosmo.h();
@@ -298,7 +299,7 @@ fn stars_of_field(
     }
     let mut rng = SeedKey::base(plan.seed(), field, Stream::Stars).rng();
     let n = poisson(&mut rng, expected);
-    let wcs = plan.field_wcs(field);
+    let wcs = plan.image_wcs();
     let ins = plan.instrument();
     Ok((0..n)
         .map(|k| {
@@ -347,8 +348,8 @@ fn poisson(rng: &mut crate::seed::SimRng, mean: f64) -> usize {
 }
 
 /// Truth rows from a SkyMaker list (ids = 1-based object order in the file).
-pub fn from_list(plan: &Plan, field: u32, objects: &[ListObject]) -> Vec<TruthRow> {
-    let wcs = plan.field_wcs(field);
+pub fn from_list(plan: &Plan, objects: &[ListObject]) -> Vec<TruthRow> {
+    let wcs = plan.image_wcs();
     let ins = plan.instrument();
     let types = &plan.population().galaxies.types;
     objects

@@ -133,7 +133,7 @@ fn base_field_rows_are_consistent() {
     let crate::plan::Placement {
         x_px: xr, y_px: yr, ..
     } = plan.placement_area();
-    let wcs = plan.field_wcs(3);
+    let wcs = plan.image_wcs();
     let ins = &plan.instrument();
     for (i, r) in rows.iter().enumerate() {
         assert_eq!(r.id, i as i64 + 1);
