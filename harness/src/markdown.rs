@@ -178,10 +178,10 @@ pub fn distinct_resamples(n: usize) -> u64 {
 /// each; families without a recorded model, as in reports written before
 /// it was, are left out).
 fn fit_models(o: &mut String, r: &Report) {
-    use crate::report::{FitChoice, FitKind};
+    use crate::report::FitKind;
     let mut rows = Vec::new();
     for p in &r.psfs {
-        let families: [(&str, &Option<FitChoice>, Option<f64>, Option<f64>); 6] = [
+        let families = [
             ("γ1 (m, c1)", &p.fit, p.q, p.q_err),
             ("γ2 (m2, c2)", &p.fit2, p.q2, p.q2_err),
             (

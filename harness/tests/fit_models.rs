@@ -8,9 +8,12 @@ use stepsim_harness::metrics::score_tables;
 use stepsim_harness::report::{FitKind, PsfReport};
 use synth_stats::{Case, stats};
 
-/// The (model, q, q_err, reason) of the six families of `p`, γ2 left out
-/// (γ2_true is constant here, so it is not fitted).
-fn families(p: &PsfReport) -> Vec<(&'static str, FitKind, Option<f64>, Option<f64>, String)> {
+/// A family's (name, model, q, q_err, reason).
+type Family = (&'static str, FitKind, Option<f64>, Option<f64>, String);
+
+/// The families of `p`, γ2 left out (γ2_true is constant here, so it is
+/// not fitted).
+fn families(p: &PsfReport) -> Vec<Family> {
     let row = |name, f: &Option<stepsim_harness::report::FitChoice>, q, qe| {
         let f = f
             .clone()
