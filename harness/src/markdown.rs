@@ -174,6 +174,51 @@ pub fn distinct_resamples(n: usize) -> u64 {
     c
 }
 
+/// The model of every fitted family of every PSF, its q and why (one row
+/// each; families without a recorded model, as in reports written before
+/// it was, are left out).
+fn fit_models(o: &mut String, r: &Report) {
+    use crate::report::FitKind;
+    let mut rows = Vec::new();
+    for p in &r.psfs {
+        let families = [
+            ("γ1 (m, c1)", &p.fit, p.q, p.q_err),
+            ("γ2 (m2, c2)", &p.fit2, p.q2, p.q2_err),
+            (
+                "uncontaminated",
+                &p.fit_uncontaminated,
+                p.q_uncontaminated,
+                p.q_uncontaminated_err,
+            ),
+            ("isolated", &p.fit_isolated, p.q_isolated, p.q_isolated_err),
+            ("selection (selc)", &p.fit_selc, p.q_selc, p.q_selc_err),
+            ("weight", &p.fit_weight, p.q_weight, p.q_weight_err),
+        ];
+        for (family, choice, q, qe) in families {
+            if let Some(c) = choice {
+                rows.push(vec![
+                    escape(&p.psf),
+                    family.to_owned(),
+                    match c.model {
+                        FitKind::Linear => "linear".to_owned(),
+                        FitKind::Quadratic => "quadratic".to_owned(),
+                    },
+                    pm(q, qe, 3),
+                    escape(&c.reason),
+                ]);
+            }
+        }
+    }
+    if rows.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        o,
+        "\n## Fit model of every family\n\nOne rule for all: the quadratic q γ_true² + m γ_true + c is fitted only with at least 4 distinct shears (so that the data can test it) and kept when |q| ≥ 2σ_q; otherwise the fit is linear and q = 0.\n"
+    );
+    table(o, &["PSF", "fit", "model", "q", "why"], "lllrl", rows);
+}
+
 /// The Markdown report.
 pub fn report_markdown(r: &Report) -> String {
     let mut o = String::new();
@@ -200,9 +245,19 @@ pub fn report_markdown(r: &Report) -> String {
             Some([a, b]) => format!("[{}, {}]", fixed(a, d), fixed(b, d)),
             None => "—".into(),
         };
+        let widened = match (b.base_fields, b.widening) {
+            (Some(f), Some(k)) => format!(
+                " of {f} base field{}, widened ×{} for Student's t with {} degree{} of freedom",
+                if f == 1 { "" } else { "s" },
+                fixed(k, 3),
+                f - 1,
+                if f == 2 { "" } else { "s" }
+            ),
+            _ => " of base fields".to_owned(),
+        };
         rows.push(vec![
             format!(
-                "{:.0} % interval ({} resamples of base fields)",
+                "{:.0} % interval ({} resamples{widened})",
                 100.0 * b.confidence,
                 b.n_resamples
             ),
@@ -267,6 +322,7 @@ pub fn report_markdown(r: &Report) -> String {
             ]
         }),
     );
+    fit_models(&mut o, r);
     let _ = writeln!(
         o,
         "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
@@ -437,6 +493,8 @@ mod tests {
             n_resamples: 200,
             seed: 1,
             confidence: 0.95,
+            base_fields: None,
+            widening: None,
             m_mean: Some([-0.1, 0.1]),
             q_mean: None,
             sigma_c: None,
@@ -467,6 +525,42 @@ mod tests {
     }
 
     #[test]
+    fn every_family_says_its_fit_model_and_why() {
+        use crate::report::{FitChoice, FitKind};
+        let mut r: Report =
+            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+        // A report written before the models were recorded: no table.
+        assert!(!report_markdown(&r).contains("Fit model of every family"));
+        let p = &mut r.psfs[0];
+        p.fit = Some(FitChoice {
+            model: FitKind::Linear,
+            reason: "linear: 3 distinct shears, …".into(),
+        });
+        p.fit_isolated = Some(FitChoice {
+            model: FitKind::Quadratic,
+            reason: "quadratic: |q| = 2.6 σ_q ≥ 2 σ_q".into(),
+        });
+        (p.q_isolated, p.q_isolated_err) = (Some(-1.25), Some(0.48));
+        let psf = escape(&p.psf);
+        let md = report_markdown(&r);
+        assert!(md.contains("## Fit model of every family"), "{md}");
+        assert!(
+            md.contains(&format!(
+                "| {psf} | γ1 (m, c1) | linear | 0.000 | linear: 3 distinct shears, … |"
+            )),
+            "{md}"
+        );
+        assert!(
+            md.contains(&format!(
+                "| {psf} | isolated | quadratic | -1.250 ± 0.480 | quadratic: \\|q\\| = 2.6 σ\\_q ≥ 2 σ\\_q |"
+            )),
+            "{md}"
+        );
+        // Families without a model recorded are left out.
+        assert!(!md.contains("| weight |"), "{md}");
+    }
+
+    #[test]
     fn isolated_galaxy_figures_carry_their_bootstrap_intervals() {
         let mut r: Report =
             serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
@@ -481,6 +575,8 @@ mod tests {
             n_resamples: 200,
             seed: 1,
             confidence: 0.95,
+            base_fields: None,
+            widening: None,
             m_mean: None,
             q_mean: None,
             sigma_c: None,

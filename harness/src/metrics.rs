@@ -10,7 +10,7 @@
 use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
 use crate::isolation::ISOLATION_FLUX_FRACTION;
 use crate::matching::match_nearest;
-use crate::report::{BinReport, Binned, DatasetReport, PsfReport, Summary};
+use crate::report::{BinReport, Binned, DatasetReport, FitChoice, FitKind, PsfReport, Summary};
 use crate::submission::SubRow;
 use stepsim_contract::run_layout::Datasets;
 use stepsim_contract::truth::TruthRow;
@@ -461,6 +461,51 @@ fn dataset_numbers(
     (rep, core)
 }
 
+/// The least number of distinct shears at which the quadratic is fitted:
+/// with three, q γ² + m γ + c passes through every point, so the data
+/// cannot test it (no residual degree of freedom).
+pub const MIN_SHEARS_QUADRATIC: usize = 4;
+
+/// The quadratic is kept when |q| ≥ `Q_SIGNIFICANCE` σ_q.
+pub const Q_SIGNIFICANCE: f64 = 2.0;
+
+/// Why a fit is linear or quadratic ([`Response::why`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub enum ModelWhy {
+    /// Fewer than [`MIN_SHEARS_QUADRATIC`] distinct shears (the count):
+    /// linear.
+    FewShears(usize),
+    /// |q| / σ_q of the quadratic fit, at least [`Q_SIGNIFICANCE`]: kept.
+    Significant(f64),
+    /// |q| / σ_q below [`Q_SIGNIFICANCE`]: refitted with q = 0.
+    NotSignificant(f64),
+    /// σ_q could not be determined: refitted with q = 0.
+    NoQError,
+    /// The caller fixed the model (the bootstrap keeps the full data's).
+    #[default]
+    Fixed,
+}
+
+impl ModelWhy {
+    /// One lower-case sentence for the report.
+    pub fn sentence(&self) -> String {
+        match *self {
+            Self::FewShears(n) => format!(
+                "linear: {n} distinct shear{}, and the quadratic is fitted only from {MIN_SHEARS_QUADRATIC} on (with 3 it passes through every point and cannot be tested)",
+                if n == 1 { "" } else { "s" }
+            ),
+            Self::Significant(z) => {
+                format!("quadratic: |q| = {z:.1} σ_q ≥ {Q_SIGNIFICANCE} σ_q")
+            }
+            Self::NotSignificant(z) => {
+                format!("linear: |q| = {z:.1} σ_q < {Q_SIGNIFICANCE} σ_q, refitted with q = 0")
+            }
+            Self::NoQError => "linear: σ_q undetermined, refitted with q = 0".to_owned(),
+            Self::Fixed => "fixed by the caller".to_owned(),
+        }
+    }
+}
+
 /// The fitted response of one component: γ − γ_true = q γ_true² + m γ_true + c.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Response {
@@ -472,15 +517,33 @@ pub struct Response {
     pub c: (Option<f64>, Option<f64>),
     /// True when the linear model was kept.
     pub linear: bool,
+    /// Why that model.
+    pub why: ModelWhy,
+}
+
+impl Response {
+    /// The model and its reason as the report states them.
+    pub fn choice(&self) -> FitChoice {
+        FitChoice {
+            model: if self.linear {
+                FitKind::Linear
+            } else {
+                FitKind::Quadratic
+            },
+            reason: self.why.sentence(),
+        }
+    }
 }
 
 fn coef(f: &PolyFit, k: usize) -> (Option<f64>, Option<f64>) {
     (Some(f.coef[k]), f.err[k])
 }
 
-/// Fits γ − γ_true = q γ_true² + m γ_true + c over points (γ_true, γ, σ).
-/// Quadratic first (with ≥ 3 points); when |q| < 2σ_q, or σ_q is unknown,
-/// refits with q = 0. With one point only c = γ − γ_true. The errors are
+/// Fits γ − γ_true = q γ_true² + m γ_true + c over points (γ_true, γ, σ),
+/// by the one rule of every fitted family: the quadratic is fitted only
+/// with at least [`MIN_SHEARS_QUADRATIC`] distinct shears, and kept when
+/// |q| ≥ [`Q_SIGNIFICANCE`] σ_q; otherwise (or when σ_q is unknown) the fit
+/// is linear, q = 0. With one point only c = γ − γ_true. The errors are
 /// those of the weighted fit ([`fit_poly`]), the points taken as
 /// independent; the scoring uses [`fit_response_fields`].
 pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
@@ -498,6 +561,14 @@ pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
 /// bootstrap keeps the model of the full data in every resample.
 pub fn fit_response_fields(x: &[f64], series: &[&FieldSeries], linear: Option<bool>) -> Response {
     let (x, y, s, kept) = fit_inputs(x, series, |x| x);
+    response(&x, &y, &s, Some(&kept), linear)
+}
+
+/// The same rule for a quantity that is not a shear estimate (the
+/// selection and weight biases): y = q γ_true² + m γ_true + c fitted to
+/// the series' means themselves.
+fn fit_bias_fields(x: &[f64], series: &[&FieldSeries], linear: Option<bool>) -> Response {
+    let (x, y, s, kept) = fit_inputs(x, series, |_| 0.0);
     response(&x, &y, &s, Some(&kept), linear)
 }
 
@@ -553,6 +624,14 @@ fn fit_fields(
     Some(f)
 }
 
+/// The number of distinct values of `x`.
+fn distinct(x: &[f64]) -> usize {
+    let mut v = x.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    v.len()
+}
+
 fn response(
     x: &[f64],
     y: &[f64],
@@ -560,22 +639,40 @@ fn response(
     series: Option<&[&FieldSeries]>,
     linear: Option<bool>,
 ) -> Response {
-    let quadratic = if x.len() >= 3 && linear != Some(true) {
-        fit_fields(x, y, s, series, 3)
-    } else {
-        None
+    let n_shears = distinct(x);
+    let try_quadratic = match linear {
+        Some(l) => !l && x.len() >= 3,
+        None => n_shears >= MIN_SHEARS_QUADRATIC,
     };
-    let keep = |f: &PolyFit| match linear {
-        Some(l) => !l,
-        None => f.err[2].is_some_and(|qe| f.coef[2].abs() >= 2.0 * qe),
+    let mut why = match linear {
+        Some(_) => ModelWhy::Fixed,
+        None => ModelWhy::FewShears(n_shears),
     };
-    if let Some(f) = quadratic.filter(keep) {
-        return Response {
-            m: coef(&f, 1),
-            q: coef(&f, 2),
-            c: coef(&f, 0),
-            linear: false,
+    if let Some(f) = try_quadratic
+        .then(|| fit_fields(x, y, s, series, 3))
+        .flatten()
+    {
+        let z = f.err[2].map(|qe| f.coef[2].abs() / qe);
+        let keep = match linear {
+            Some(l) => !l,
+            None => z.is_some_and(|z| z >= Q_SIGNIFICANCE),
         };
+        if linear.is_none() {
+            why = match z {
+                Some(z) if keep => ModelWhy::Significant(z),
+                Some(z) => ModelWhy::NotSignificant(z),
+                None => ModelWhy::NoQError,
+            };
+        }
+        if keep {
+            return Response {
+                m: coef(&f, 1),
+                q: coef(&f, 2),
+                c: coef(&f, 0),
+                linear: false,
+                why,
+            };
+        }
     }
     if let Some(f) = fit_fields(x, y, s, series, 2) {
         return Response {
@@ -583,6 +680,7 @@ fn response(
             q: (Some(0.0), None),
             c: coef(&f, 0),
             linear: true,
+            why,
         };
     }
     let (c, ce) = plain_mean(y, s, series);
@@ -591,21 +689,12 @@ fn response(
         q: (None, None),
         c: (c, ce),
         linear: true,
+        why,
     }
 }
 
 /// A value and its error, either possibly missing.
 pub type ValErr = (Option<f64>, Option<f64>);
-
-/// Straight-line fit y = m x + c of the series' means against `x`: (m, c),
-/// errors from the fields.
-fn fit_linear(x: &[f64], series: &[&FieldSeries]) -> (ValErr, ValErr) {
-    let (x, y, s, kept) = fit_inputs(x, series, |_| 0.0);
-    match fit_fields(&x, &y, &s, Some(&kept), 2) {
-        Some(f) => (coef(&f, 1), coef(&f, 0)),
-        None => ((None, None), plain_mean(&y, &s, Some(&kept))),
-    }
-}
 
 /// Plain mean of `y`; its error from the fields when `series` is given and
 /// it is defined, else sqrt(Σσ²)/n when every σ is known.
@@ -637,6 +726,22 @@ pub struct FitModel {
     pub g1u_linear: bool,
     /// γ1 response of the rows matched to isolated galaxies.
     pub g1iso_linear: bool,
+    /// Selection bias, ⟨e1_int⟩ against γ1_true.
+    pub selc_linear: bool,
+    /// Weight bias against γ1_true.
+    pub weight_linear: bool,
+}
+
+impl FitModel {
+    /// Every family linear.
+    pub const LINEAR: Self = Self {
+        g1_linear: true,
+        g2_linear: None,
+        g1u_linear: true,
+        g1iso_linear: true,
+        selc_linear: true,
+        weight_linear: true,
+    };
 }
 
 fn psf_numbers(
@@ -664,17 +769,19 @@ fn psf_numbers(
         let (_, y, s, kept) = fit_inputs(&g2, &pick(|c| &c.g2iso), |x| x);
         plain_mean(&y, &s, Some(&kept))
     };
-    let (m_selc, c1_selc) = fit_linear(&g1, &pick(|c| &c.e1s));
+    let rs = fit_bias_fields(&g1, &pick(|c| &c.e1s), model.map(|m| m.selc_linear));
     let c2_selc = {
         let (_, y, s, kept) = fit_inputs(&g1, &pick(|c| &c.e2s), |_| 0.0);
         plain_mean(&y, &s, Some(&kept))
     };
-    let (m_weight, c1_weight) = fit_linear(&g1, &pick(|c| &c.dw));
+    let rw = fit_bias_fields(&g1, &pick(|c| &c.dw), model.map(|m| m.weight_linear));
     let used = FitModel {
         g1_linear: r1.linear,
         g2_linear: r2.as_ref().map(|r| r.linear),
         g1u_linear: ru.linear,
         g1iso_linear: ri.linear,
+        selc_linear: rs.linear,
+        weight_linear: rw.linear,
     };
     let rep = PsfReport {
         psf: name.to_owned(),
@@ -687,24 +794,38 @@ fn psf_numbers(
         c2: c2.0,
         c2_err: c2.1,
         linear: r1.linear,
+        fit: Some(r1.choice()),
+        fit2: r2.as_ref().map(Response::choice),
         m2: r2.as_ref().and_then(|r| r.m.0),
         m2_err: r2.as_ref().and_then(|r| r.m.1),
         q2: r2.as_ref().and_then(|r| r.q.0),
         q2_err: r2.as_ref().and_then(|r| r.q.1),
         m_uncontaminated: ru.m.0,
         m_uncontaminated_err: ru.m.1,
-        m_selc: m_selc.0,
-        m_selc_err: m_selc.1,
-        c1_selc: c1_selc.0,
-        c1_selc_err: c1_selc.1,
+        q_uncontaminated: ru.q.0,
+        q_uncontaminated_err: ru.q.1,
+        fit_uncontaminated: Some(ru.choice()),
+        m_selc: rs.m.0,
+        m_selc_err: rs.m.1,
+        q_selc: rs.q.0,
+        q_selc_err: rs.q.1,
+        fit_selc: Some(rs.choice()),
+        c1_selc: rs.c.0,
+        c1_selc_err: rs.c.1,
         c2_selc: c2_selc.0,
         c2_selc_err: c2_selc.1,
-        m_weight: m_weight.0,
-        m_weight_err: m_weight.1,
-        c1_weight: c1_weight.0,
-        c1_weight_err: c1_weight.1,
+        m_weight: rw.m.0,
+        m_weight_err: rw.m.1,
+        q_weight: rw.q.0,
+        q_weight_err: rw.q.1,
+        fit_weight: Some(rw.choice()),
+        c1_weight: rw.c.0,
+        c1_weight_err: rw.c.1,
         m_isolated: ri.m.0,
         m_isolated_err: ri.m.1,
+        q_isolated: ri.q.0,
+        q_isolated_err: ri.q.1,
+        fit_isolated: Some(ri.choice()),
         c1_isolated: ri.c.0,
         c1_isolated_err: ri.c.1,
         c2_isolated: c2_iso.0,
@@ -1112,36 +1233,11 @@ mod tests {
         let p = PsfReport {
             psf: "a".into(),
             m: Some(0.0),
-            m_err: None,
             q: Some(0.0),
-            q_err: None,
             c1: Some(0.0),
-            c1_err: None,
             c2: Some(0.0),
-            c2_err: None,
             linear: true,
-            m2: None,
-            m2_err: None,
-            q2: None,
-            q2_err: None,
-            m_uncontaminated: None,
-            m_uncontaminated_err: None,
-            m_selc: None,
-            m_selc_err: None,
-            c1_selc: None,
-            c1_selc_err: None,
-            c2_selc: None,
-            c2_selc_err: None,
-            m_weight: None,
-            m_weight_err: None,
-            c1_weight: None,
-            c1_weight_err: None,
-            m_isolated: None,
-            m_isolated_err: None,
-            c1_isolated: None,
-            c1_isolated_err: None,
-            c2_isolated: None,
-            c2_isolated_err: None,
+            ..PsfReport::default()
         };
         assert!((q_c(std::slice::from_ref(&p)).unwrap() - 1232.0).abs() < 1e-9);
         let p2 = PsfReport {

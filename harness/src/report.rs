@@ -4,7 +4,8 @@
 //! γ1_true = 0, a fit with too few datasets) are JSON `null`. Keys beyond
 //! SPEC §7: the `*_err` of every fitted parameter (SPEC asks for errors on
 //! every parameter), `m2`/`q2` only when component 2 is fitted, `q_c` and
-//! `bootstrap` in `summary`, and `warnings` at the top level (ignored
+//! `bootstrap` in `summary`, the `q_*` and `fit*` model of every fitted
+//! family in `psfs`, and `warnings` at the top level (ignored
 //! columns, images skipped), and `run`, the run's identity. See
 //! `docs/scoring.md`.
 
@@ -83,8 +84,34 @@ pub struct DatasetReport {
     pub sn_shot_weighted: Option<f64>,
 }
 
-/// Per-PSF fits.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// The model of a fitted family.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FitKind {
+    /// y = m γ_true + c (q = 0).
+    #[default]
+    Linear,
+    /// y = q γ_true² + m γ_true + c.
+    Quadratic,
+}
+
+/// Which model a family was fitted with, and why (the rule of
+/// `docs/scoring.md`: the quadratic only with at least 4 distinct shears,
+/// kept when |q| ≥ 2σ_q).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FitChoice {
+    /// `"linear"` or `"quadratic"`.
+    pub model: FitKind,
+    /// Why, one lower-case sentence (`"linear: 3 distinct shears, …"`).
+    pub reason: String,
+}
+
+/// Per-PSF fits. Every fitted family (γ1 and, when fitted, γ2; the
+/// uncontaminated, isolated, selection and weight families) has its m, q
+/// and c with errors and a `fit*` [`FitChoice`] saying which model was
+/// used and why; the `q*` and `fit*` keys are absent from (and `null` when
+/// reading) reports written before they existed.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct PsfReport {
     /// PSF name.
     pub psf: String,
@@ -104,8 +131,14 @@ pub struct PsfReport {
     pub c2: Option<f64>,
     /// Its error.
     pub c2_err: Option<f64>,
-    /// True when q was consistent with 0 (|q| < 2σ_q) and the fit is linear.
+    /// True when the γ1 fit is linear (`fit` says why).
     pub linear: bool,
+    /// The γ1 fit's model and why.
+    #[serde(default)]
+    pub fit: Option<FitChoice>,
+    /// The γ2 fit's model and why (only when component 2 is fitted).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fit2: Option<FitChoice>,
     /// m2 (only when g2_true varies over the PSF's shears).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub m2: Option<f64>,
@@ -122,10 +155,28 @@ pub struct PsfReport {
     pub m_uncontaminated: Option<f64>,
     /// Its error.
     pub m_uncontaminated_err: Option<f64>,
+    /// Quadratic term of the uncontaminated fit (0 when linear).
+    #[serde(default)]
+    pub q_uncontaminated: Option<f64>,
+    /// Its error (`null` when linear).
+    #[serde(default)]
+    pub q_uncontaminated_err: Option<f64>,
+    /// The uncontaminated fit's model and why.
+    #[serde(default)]
+    pub fit_uncontaminated: Option<FitChoice>,
     /// Selection bias slope.
     pub m_selc: Option<f64>,
     /// Its error.
     pub m_selc_err: Option<f64>,
+    /// Quadratic term of the selection-bias fit (0 when linear).
+    #[serde(default)]
+    pub q_selc: Option<f64>,
+    /// Its error (`null` when linear).
+    #[serde(default)]
+    pub q_selc_err: Option<f64>,
+    /// The selection-bias fit's model and why.
+    #[serde(default)]
+    pub fit_selc: Option<FitChoice>,
     /// Selection bias offset, component 1.
     pub c1_selc: Option<f64>,
     /// Its error.
@@ -138,6 +189,15 @@ pub struct PsfReport {
     pub m_weight: Option<f64>,
     /// Its error.
     pub m_weight_err: Option<f64>,
+    /// Quadratic term of the weight-bias fit (0 when linear).
+    #[serde(default)]
+    pub q_weight: Option<f64>,
+    /// Its error (`null` when linear).
+    #[serde(default)]
+    pub q_weight_err: Option<f64>,
+    /// The weight-bias fit's model and why.
+    #[serde(default)]
+    pub fit_weight: Option<FitChoice>,
     /// Weight bias offset.
     pub c1_weight: Option<f64>,
     /// Its error.
@@ -150,6 +210,15 @@ pub struct PsfReport {
     /// Its error.
     #[serde(default)]
     pub m_isolated_err: Option<f64>,
+    /// Quadratic term of the isolated-galaxy fit (0 when linear).
+    #[serde(default)]
+    pub q_isolated: Option<f64>,
+    /// Its error (`null` when linear).
+    #[serde(default)]
+    pub q_isolated_err: Option<f64>,
+    /// The isolated-galaxy fit's model and why.
+    #[serde(default)]
+    pub fit_isolated: Option<FitChoice>,
     /// c1 from the same rows.
     #[serde(default)]
     pub c1_isolated: Option<f64>,
@@ -206,6 +275,16 @@ pub struct BootstrapCi {
     pub seed: u64,
     /// Central probability of the intervals (0.95).
     pub confidence: f64,
+    /// Base fields resampled (F; absent from reports written before the
+    /// key existed).
+    #[serde(default)]
+    pub base_fields: Option<usize>,
+    /// Factor by which the percentile intervals were widened about the
+    /// resamples' median, t_{(1+C)/2, F−1} / z_{(1+C)/2} · √(F/(F − 1))
+    /// (`null` below 2 base fields, and in older reports: plain
+    /// percentiles).
+    #[serde(default)]
+    pub widening: Option<f64>,
     /// Interval [low, high] of each summary figure (`null` when undefined).
     pub m_mean: Option<[f64; 2]>,
     /// See `m_mean`.

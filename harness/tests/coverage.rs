@@ -73,12 +73,7 @@ fn stats(run: &SynthRun, m0: f64, c: (f64, f64), key: u64) -> Vec<ImageStats> {
 }
 
 /// The model of the truth (q = 0).
-const LINEAR: FitModel = FitModel {
-    g1_linear: true,
-    g2_linear: None,
-    g1u_linear: true,
-    g1iso_linear: true,
-};
+const LINEAR: FitModel = FitModel::LINEAR;
 
 /// Fractions of realisations whose ±1σ and ±1.96σ intervals cover the truth,
 /// for m, c1 and c2, and the fraction where the quadratic was chosen. With

@@ -5,7 +5,8 @@
 //!
 //! | module | tool | slow twin |
 //! | --- | --- | --- |
-//! | [`stats`] | median, erfc, normal CDF, Kolmogorov–Smirnov test | counting median, Maclaurin erfc, integrated density, O(n²) KS |
+//! | [`stats`] | median, erfc, normal CDF and quantile, Kolmogorov–Smirnov test | counting median, Maclaurin erfc, integrated density, O(n²) KS |
+//! | [`student_t`] | Student's t density, CDF (Abramowitz & Stegun 26.7.3–4 series) and quantile (bracketed Newton) | bisection on the numerically integrated density |
 //! | [`quad`] | composite Simpson's rule | Richardson's combination of two trapezoid sums |
 //! | [`roots`] | bisection of a monotone predicate | a scan of a fine grid |
 //! | [`robust`] | MAD-σ (1.4826 × median absolute deviation) | the counting median |
@@ -25,6 +26,7 @@ pub mod robust;
 pub mod roots;
 pub mod simd;
 pub mod stats;
+pub mod student_t;
 
 /// A generator with a fixed seed for the crate's own tests.
 #[cfg(test)]

@@ -45,6 +45,24 @@ pub fn normal_cdf(x: f64) -> f64 {
     0.5 * erfc(-x / std::f64::consts::SQRT_2)
 }
 
+/// The standard normal quantile Φ⁻¹(p): bisection ([`crate::roots::Bisection`],
+/// to machine precision) of [`normal_cdf`] on [−40, 40]. NaN for p outside
+/// [0, 1]; ±∞ at p = 0, 1.
+pub fn normal_quantile(p: f64) -> f64 {
+    if !(0.0..=1.0).contains(&p) {
+        return f64::NAN;
+    }
+    if p == 0.0 || p == 1.0 {
+        return if p == 1.0 {
+            f64::INFINITY
+        } else {
+            f64::NEG_INFINITY
+        };
+    }
+    let (lo, hi) = crate::roots::Bisection::halvings(200).run(-40.0, 40.0, |x| normal_cdf(x) >= p);
+    0.5 * (lo + hi)
+}
+
 /// Slow reference for [`normal_cdf`]: composite Simpson integration
 /// ([`crate::quad::simpson`]) of the density from −10 to `x` with 20 000
 /// intervals.
@@ -188,6 +206,16 @@ mod tests {
         }
         assert!((normal_cdf(1.959_963_985) - 0.975).abs() < 1e-7);
         assert!((normal_cdf(0.0) - 0.5).abs() < 1e-7);
+    }
+
+    #[test]
+    fn normal_quantile_inverts_the_cdf() {
+        assert!((normal_quantile(0.975) - 1.959_963_984_540_054).abs() < 1e-12);
+        assert!((normal_quantile(0.841_344_746_068_542_9) - 1.0).abs() < 1e-12);
+        assert!((normal_quantile(0.16) + 0.994_457_883_209_753).abs() < 1e-12);
+        assert!(normal_quantile(0.5).abs() < 1e-15);
+        assert!(normal_quantile(-0.1).is_nan() && normal_quantile(f64::NAN).is_nan());
+        assert_eq!(normal_quantile(1.0), f64::INFINITY);
     }
 
     #[test]
