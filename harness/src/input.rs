@@ -7,12 +7,16 @@
 //! read goes through [`read_regular_file`]: the path must name a regular file
 //! (checked on the metadata before opening, then again on the opened handle,
 //! which is opened non-blocking), and at most `cap` bytes are read; a larger
-//! file is refused naming the file and the cap. [`gunzip_bounded`] inflates a
-//! gzip stream (every member) and stops at its own cap.
+//! file is refused naming the file and the cap. [`open_regular`] and
+//! [`CappedReader`] do the same for a file read as a stream. [`GzReader`]
+//! inflates a gzip stream as it is read (every member, each CRC-32 and size
+//! checked, at most [`MAX_GZIP_MEMBERS`]) and stops at its own cap;
+//! [`gunzip_bounded`] is it read to the end.
 //!
-//! The caps (see `docs/scoring.md`): [`MAX_SUBMISSION_BYTES`] for a whole
-//! submission (the sum over the files of a directory, raw and after
-//! decompression), [`MAX_REPORT_BYTES`] for one `report.json`,
+//! The caps (see `docs/scoring.md`): [`MAX_SUBMISSION_BYTES`], the floor of
+//! a run's submission limit (`truth_set::run_submission_limit`; the sum over
+//! the files of a directory, raw and after decompression),
+//! [`MAX_REPORT_BYTES`] for one `report.json`,
 //! [`MAX_DATASETS_JSON_BYTES`] for the truth's `datasets.json`.
 
 use std::io::Read;
@@ -21,9 +25,11 @@ use std::path::Path;
 /// One mebibyte.
 const MIB: u64 = 1 << 20;
 
-/// Largest submission read, in bytes: the sum over its files, counted both
-/// as stored and after gzip decompression (256 MiB; about 3 million rows of
-/// text).
+/// Smallest submission limit of a run, in bytes, and the limit of
+/// [`crate::submission::read_submission`]: the sum over its files, counted
+/// both as stored and after gzip decompression (256 MiB; about 3 million
+/// rows of text). A run's own limit grows with its truth
+/// (`truth_set::run_submission_limit`).
 pub const MAX_SUBMISSION_BYTES: u64 = 256 * MIB;
 
 /// Largest `report.json` the leaderboard reads (16 MiB; a report is tens of
