@@ -5,6 +5,9 @@
 //! ```sh
 //! cargo run --release -p stepsim-harness --example full_catalogue -- OUT [N_FIELDS] [OBJECTS] [KEEP]
 //! stepsim score --truth OUT/private --submission OUT/catalogue.txt --out OUT/report
+//! # or, the same stages as `stepsim score` through the library (streamed,
+//! # or `whole`: the whole-file twin, the reader before issue #23):
+//! full_catalogue score OUT/private OUT/catalogue.txt REPORT_DIR [whole]
 //! ```
 //!
 //! Defaults: 6 PSFs × 5 shears × 64 fields = 1920 images of 4096² at 0.2″;
@@ -42,8 +45,36 @@ impl Rng {
     }
 }
 
+/// `score TRUTH SUBMISSION OUT [whole]`: what `stepsim score` does (the
+/// run's own limit, 200 bootstrap resamples, every output written).
+fn score(args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
+    use stepsim_harness::pipeline::{ScoreOptions, score, score_whole, write_outputs};
+    let [truth, sub, out, rest @ ..] = args else {
+        return Err("usage: full_catalogue score TRUTH SUBMISSION OUT [whole]".into());
+    };
+    let opts = ScoreOptions::new(truth, sub);
+    let t = std::time::Instant::now();
+    let report = if rest.first().map(String::as_str) == Some("whole") {
+        score_whole(&opts)?
+    } else {
+        score(&opts)?
+    };
+    std::fs::create_dir_all(out)?;
+    write_outputs(Path::new(out), &report, true)?;
+    println!(
+        "scored in {:.1} s: <m> = {:?}, sigma_c = {:?}",
+        t.elapsed().as_secs_f64(),
+        report.summary.m_mean,
+        report.summary.sigma_c
+    );
+    Ok(())
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
+    if args.get(1).map(String::as_str) == Some("score") {
+        return score(&args[2..]);
+    }
     let out = Path::new(args.get(1).ok_or("usage: full_catalogue OUT [N_FIELDS] [OBJECTS] [KEEP]")?);
     let n_fields: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
     let n_objects: usize = args.get(3).map_or(Ok(10_000), |s| s.parse())?;

@@ -83,13 +83,14 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         if r.psfs.is_empty() {
             return Err(refuse(path, "the report has no PSF rows".into()));
         }
-        for (i, p) in r.psfs.iter().enumerate() {
-            if r.psfs[..i].iter().any(|q| q.psf == p.psf) {
-                return Err(refuse(
-                    path,
-                    format!("PSF `{}` appears twice in the report", p.psf),
-                ));
-            }
+        // Names are compared as sets and the smallest is named, so that no
+        // message follows the order of a report's rows (that of the run's
+        // private `datasets.json`).
+        if let Some(psf) = smallest_repeated(r.psfs.iter().map(|p| p.psf.as_str())) {
+            return Err(refuse(
+                path,
+                format!("PSF `{psf}` appears twice in the report"),
+            ));
         }
         for (i, (pi, ri)) in reports[..j].iter().enumerate() {
             if canonical[i] == canonical[j] {
@@ -105,14 +106,13 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
                     ),
                 ));
             }
-            if let Some(d) = r
-                .datasets
-                .iter()
-                .find(|d| ri.datasets.iter().any(|e| e.dataset == d.dataset))
-            {
+            if let Some(d) = smallest_shared(
+                r.datasets.iter().map(|d| d.dataset.as_str()),
+                ri.datasets.iter().map(|d| d.dataset.as_str()),
+            ) {
                 return Err(refuse(
                     path,
-                    format!("dataset `{}` is also in {}", d.dataset, pi.display()),
+                    format!("dataset `{d}` is also in {}", pi.display()),
                 ));
             }
         }
@@ -139,17 +139,17 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
             ));
         }
         for (pi, ri) in &reports[..j] {
-            for psf in &r.psfs {
-                if ri.psfs.iter().any(|q| q.psf == psf.psf) {
-                    return Err(refuse(
-                        path,
-                        format!(
-                            "PSF `{}` is also in {}; each PSF may come from one report only",
-                            psf.psf,
-                            pi.display()
-                        ),
-                    ));
-                }
+            if let Some(psf) = smallest_shared(
+                r.psfs.iter().map(|p| p.psf.as_str()),
+                ri.psfs.iter().map(|p| p.psf.as_str()),
+            ) {
+                return Err(refuse(
+                    path,
+                    format!(
+                        "PSF `{psf}` is also in {}; each PSF may come from one report only",
+                        pi.display()
+                    ),
+                ));
             }
         }
     }
@@ -220,6 +220,22 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         by_disk_size: binned(|r| &r.by_disk_size)?,
         warnings,
     })
+}
+
+/// The smallest name (in byte order) that `names` holds more than once.
+fn smallest_repeated<'a>(names: impl Iterator<Item = &'a str>) -> Option<&'a str> {
+    let mut v: Vec<&str> = names.collect();
+    v.sort_unstable();
+    v.windows(2).find(|w| w[0] == w[1]).map(|w| w[0])
+}
+
+/// The smallest name (in byte order) in both `a` and `b`.
+fn smallest_shared<'a>(
+    a: impl Iterator<Item = &'a str>,
+    b: impl Iterator<Item = &'a str>,
+) -> Option<&'a str> {
+    let b: std::collections::BTreeSet<&str> = b.collect();
+    a.filter(|n| b.contains(n)).min()
 }
 
 /// A value and its error, either possibly missing.
@@ -449,6 +465,41 @@ mod tests {
             e.to_string().starts_with("b.json:") && e.to_string().contains("overflow"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn refusals_name_the_smallest_name_whatever_the_order_of_the_rows() {
+        assert_eq!(
+            smallest_repeated(["c", "b", "a", "c", "b"].into_iter()),
+            Some("b")
+        );
+        assert_eq!(smallest_repeated(["c", "b", "a"].into_iter()), None);
+        assert_eq!(
+            smallest_shared(["z", "m", "b"].into_iter(), ["b", "z"].into_iter()),
+            Some("b")
+        );
+        let a = report(
+            "sha256:aa",
+            vec![psf("p2", -0.1, 0.0, 0.0), psf("p1", -0.1, 0.0, 0.0)],
+            [0.0, 0.0],
+        );
+        let mut b = report(
+            "sha256:bb",
+            vec![psf("p2", -0.2, 0.0, 0.0), psf("p1", -0.2, 0.0, 0.0)],
+            [0.0, 0.0],
+        );
+        let msg = |a: &Report, b: &Report| {
+            combine(
+                &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+                None,
+            )
+            .unwrap_err()
+            .to_string()
+        };
+        let first = msg(&a, &b);
+        assert!(first.contains("PSF `p1` is also in a.json"), "{first}");
+        b.psfs.reverse();
+        assert_eq!(msg(&a, &b), first);
     }
 
     #[test]

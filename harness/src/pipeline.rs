@@ -104,12 +104,15 @@ fn prepare_with(opts: &ScoreOptions, read: Reader) -> Result<Prepared, HarnessEr
     let mut warnings = Vec::new();
     if !missing.is_empty() {
         if !opts.allow_missing_images {
-            return Err(HarnessError::MissingImages {
-                path: opts.submission.clone(),
-                n_missing: missing.len(),
-                n_total: truth.index.images.len(),
-                first: truth.index.images[missing[0]].image.clone(),
-            });
+            // Named by the smallest ids, not the first in `datasets.json`
+            // order, which is private (issue #23).
+            return Err(HarnessError::missing_images(
+                &opts.submission,
+                missing
+                    .iter()
+                    .map(|&i| truth.index.images[i].image.as_str()),
+                truth.index.images.len(),
+            ));
         }
         warnings.push(format!(
             "{} of {} images have no rows and are not scored",

@@ -27,7 +27,8 @@
 //! are ignored and reported as warnings.
 //!
 //! Refused, naming file, line (FITS: row) and column: an unknown image id, a
-//! missing required column, a repeated column, a required FITS column of
+//! missing required column, a repeated column, a header of more than
+//! [`MAX_COLUMNS`] columns, a required FITS column of
 //! the wrong type, a value that does not parse, NaN or infinity, x or y off
 //! the image (the half-pixel border, 0.5 ≤ x ≤ width + 0.5, is on the
 //! image), a negative weight, |e1| or |e2| above [`MAX_ABS_SHEAR`], weights
@@ -38,7 +39,7 @@
 //! directory, and more bytes than the limit ([`crate::input`]). The
 //! submission is only read.
 
-use crate::error::HarnessError;
+use crate::error::{HarnessError, show_text};
 use crate::fits_table::{ColumnKind, Table};
 use crate::input::{
     CappedReader, GzReader, InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, input_error,
@@ -48,7 +49,7 @@ use crate::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
 use crate::markdown::show_number;
 use crate::truth_set::ImageIndex;
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
@@ -870,59 +871,143 @@ struct Layout {
 
 const REQUIRED: [&str; 4] = ["x", "y", "e1", "e2"];
 
+/// Columns a table may have: more names on the header line of a text
+/// table (or a FITS table with more `TFIELDS`, which the FITS standard caps
+/// at 999) are refused, naming the file, the line and the count, before any
+/// name is looked at. A submission needs seven at most (`image`, `x`, `y`,
+/// `e1`, `e2`, `weight`, `flags`); 1024 leaves room for a pipeline's own.
+pub const MAX_COLUMNS: usize = 1024;
+
+/// Names of a header quoted in a message about it.
+const HEADER_NAMES_SHOWN: usize = 16;
+
+/// The refusal of a header of `n` > [`MAX_COLUMNS`] columns.
+fn too_many_columns(path: &Path, header_line: Option<u64>, n: usize) -> HarnessError {
+    let what = if header_line.is_some() {
+        "the header names"
+    } else {
+        "the table has"
+    };
+    HarnessError::submission(
+        path,
+        header_line,
+        None,
+        format!("{what} {n} columns, more than the {MAX_COLUMNS} a submission may have"),
+    )
+}
+
+/// The (lower-case) names of a header as a message quotes them: the first
+/// [`HEADER_NAMES_SHOWN`], each cut by [`show_text`], then the count.
+fn show_header(lower: &[String]) -> String {
+    let mut s = lower
+        .iter()
+        .take(HEADER_NAMES_SHOWN)
+        .map(|n| show_text(n))
+        .collect::<Vec<_>>()
+        .join(" ");
+    if lower.len() > HEADER_NAMES_SHOWN {
+        s.push_str(&format!(" … ({} columns)", lower.len()));
+    }
+    s
+}
+
+/// Refuses the first column, from the left, that has no name or repeats
+/// an earlier one (one pass with a hash set: linear in the header's size).
+fn check_names(
+    path: &Path,
+    header_line: Option<u64>,
+    lower: &[String],
+) -> Result<(), HarnessError> {
+    let mut seen: HashSet<&str> = HashSet::with_capacity(lower.len());
+    for (i, n) in lower.iter().enumerate() {
+        if n.is_empty() {
+            return Err(unnamed_column(path, header_line, i));
+        }
+        if !seen.insert(n.as_str()) {
+            return Err(repeated_column(path, header_line, n));
+        }
+    }
+    Ok(())
+}
+
+/// The obvious twin of [`check_names`] (quadratic: each name against all
+/// before it), compared with it in the tests.
+#[cfg(test)]
+fn check_names_slow(
+    path: &Path,
+    header_line: Option<u64>,
+    lower: &[String],
+) -> Result<(), HarnessError> {
+    for (i, n) in lower.iter().enumerate() {
+        if n.is_empty() {
+            return Err(unnamed_column(path, header_line, i));
+        }
+        if lower[..i].contains(n) {
+            return Err(repeated_column(path, header_line, n));
+        }
+    }
+    Ok(())
+}
+
+fn unnamed_column(path: &Path, header_line: Option<u64>, i: usize) -> HarnessError {
+    HarnessError::submission(
+        path,
+        header_line,
+        None,
+        format!("column {} of the header has no name", i + 1),
+    )
+}
+
+fn repeated_column(path: &Path, header_line: Option<u64>, name: &str) -> HarnessError {
+    HarnessError::submission(
+        path,
+        header_line,
+        Some(name),
+        "column named twice in the header",
+    )
+}
+
+/// Maps the header's names to the columns used. Linear in the size of
+/// the header; refuses more than [`MAX_COLUMNS`] names.
 fn layout(
     path: &Path,
     header_line: Option<u64>,
     names: &[String],
     fixed: Option<usize>,
 ) -> Result<Layout, HarnessError> {
-    let lower: Vec<String> = names.iter().map(|n| n.to_ascii_lowercase()).collect();
-    for (i, n) in lower.iter().enumerate() {
-        if n.is_empty() {
-            return Err(HarnessError::submission(
-                path,
-                header_line,
-                None,
-                format!("column {} of the header has no name", i + 1),
-            ));
-        }
-        if lower[..i].contains(n) {
-            return Err(HarnessError::submission(
-                path,
-                header_line,
-                Some(n),
-                "column named twice in the header",
-            ));
-        }
+    if names.len() > MAX_COLUMNS {
+        return Err(too_many_columns(path, header_line, names.len()));
     }
+    let lower: Vec<String> = names.iter().map(|n| n.to_ascii_lowercase()).collect();
+    check_names(path, header_line, &lower)?;
     let find = |n: &str| lower.iter().position(|c| c == n);
+    let missing = |name: &str| {
+        HarnessError::submission(
+            path,
+            header_line,
+            Some(name),
+            format!(
+                "required column missing (header has: {})",
+                show_header(&lower)
+            ),
+        )
+    };
     let mut req = [0usize; 4];
     for (k, name) in REQUIRED.iter().enumerate() {
-        req[k] = find(name).ok_or_else(|| {
-            HarnessError::submission(
-                path,
-                header_line,
-                Some(name),
-                format!("required column missing (header has: {})", lower.join(" ")),
-            )
-        })?;
+        req[k] = find(name).ok_or_else(|| missing(name))?;
     }
     let image = find("image");
     if image.is_none() && fixed.is_none() {
-        return Err(HarnessError::submission(
-            path,
-            header_line,
-            Some("image"),
-            format!("required column missing (header has: {})", lower.join(" ")),
-        ));
+        return Err(missing("image"));
     }
     // `flags` is documented (the pipeline's own bits, e.g. `stepsim
     // measure`'s): accepted and not used, so not reported as ignored.
+    // Ignored names are kept as a message quotes them.
     let known = ["image", "x", "y", "e1", "e2", "weight", "flags"];
     let ignored = lower
         .iter()
         .filter(|n| !known.contains(&n.as_str()))
-        .cloned()
+        .map(|n| show_text(n))
         .collect();
     Ok(Layout {
         image,
@@ -1014,7 +1099,8 @@ fn resolve_image(
                 Err(err(
                     "image",
                     format!(
-                        "image `{id}` in the file of image `{}`",
+                        "image `{}` in the file of image `{}`",
+                        show_text(id),
                         index.images[f].image
                     ),
                 ))
@@ -1024,7 +1110,7 @@ fn resolve_image(
             .by_id
             .get(id)
             .copied()
-            .ok_or_else(|| err("image", format!("unknown image id `{id}`"))),
+            .ok_or_else(|| err("image", format!("unknown image id `{}`", show_text(id)))),
         (None, Some(f)) => Ok(f),
         (None, None) => Err(err("image", "no image id".into())),
     }
@@ -1129,11 +1215,19 @@ impl<'a> TextParser<'a> {
                      (whitespace) or `image,x,y,e1,e2,weight` (CSV)",
                 ));
             }
+            // The count is checked before a name is copied or compared.
             let names: Vec<String> = if csv {
                 csv_fields(&self.csv_reader, body, &mut self.record);
+                if self.record.len() > MAX_COLUMNS {
+                    return Err(too_many_columns(path, Some(line_no), self.record.len()));
+                }
                 self.record.iter().map(|s| unquote(s).to_owned()).collect()
             } else {
-                body.split_whitespace().map(str::to_owned).collect()
+                let words: Vec<&str> = body.split_whitespace().collect();
+                if words.len() > MAX_COLUMNS {
+                    return Err(too_many_columns(path, Some(line_no), words.len()));
+                }
+                words.into_iter().map(str::to_owned).collect()
             };
             let lay = layout(path, Some(line_no), &names, self.fixed)?;
             self.header = Some((lay, names.len(), csv));
@@ -1158,9 +1252,12 @@ impl<'a> TextParser<'a> {
         }
         let err = |c: &str, m: String| HarnessError::submission(path, Some(line_no), Some(c), m);
         let num = |col: usize, name: &str| -> Result<f64, HarnessError> {
-            fields[col]
-                .parse::<f64>()
-                .map_err(|_| err(name, format!("cannot read `{}` as a number", fields[col])))
+            fields[col].parse::<f64>().map_err(|_| {
+                err(
+                    name,
+                    format!("cannot read `{}` as a number", show_text(fields[col])),
+                )
+            })
         };
         let image = resolve_image(self.index, self.fixed, lay.image.map(|c| fields[c]), &err)?;
         let vals = [
@@ -1416,5 +1513,47 @@ fn overflow_error(
         HarnessError::submission(path, Some(r.line), Some("weight"), msg)
     } else {
         HarnessError::submission_row(path, r.line, Some("weight"), msg)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn the_name_check_agrees_with_its_quadratic_twin() {
+        let mut rng = stepsim_contract::seed::SimRng::seed_from_u64(23);
+        let alphabet = ["", "x", "y", "e1", "E1", "image", "a", "b", "weight", "ab"];
+        let path = Path::new("h.txt");
+        let mut refused = 0;
+        for _ in 0..2000 {
+            let n = rng.random_range(0..12);
+            let names: Vec<String> = (0..n)
+                .map(|_| {
+                    if rng.random_bool(0.7) {
+                        format!("c{}", rng.random_range(0..40))
+                    } else {
+                        alphabet[rng.random_range(0..alphabet.len())].to_owned()
+                    }
+                })
+                .collect();
+            let fast = check_names(path, Some(3), &names).map_err(|e| e.to_string());
+            let slow = check_names_slow(path, Some(3), &names).map_err(|e| e.to_string());
+            assert_eq!(fast, slow, "{names:?}");
+            refused += usize::from(fast.is_err());
+        }
+        assert!(refused > 200 && refused < 1800, "{refused}");
+    }
+
+    #[test]
+    fn headers_quote_at_most_sixteen_names() {
+        let names: Vec<String> = (0..40).map(|i| format!("c{i}")).collect();
+        let s = show_header(&names);
+        assert!(
+            s.starts_with("c0 c1 ") && s.ends_with("c15 … (40 columns)"),
+            "{s}"
+        );
+        assert_eq!(show_header(&names[..2]), "c0 c1");
     }
 }
