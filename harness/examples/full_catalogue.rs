@@ -23,9 +23,7 @@
 use fitsio::tables::{ColumnDataType, ColumnDescription};
 use std::io::Write;
 use std::path::Path;
-use stepsim_contract::run_layout::{
-    DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part,
-};
+use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part};
 
 /// SplitMix64: a small deterministic generator.
 struct Rng(u64);
@@ -75,13 +73,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if args.get(1).map(String::as_str) == Some("score") {
         return score(&args[2..]);
     }
-    let out = Path::new(args.get(1).ok_or("usage: full_catalogue OUT [N_FIELDS] [OBJECTS] [KEEP]")?);
+    let out = Path::new(
+        args.get(1)
+            .ok_or("usage: full_catalogue OUT [N_FIELDS] [OBJECTS] [KEEP]")?,
+    );
     let n_fields: u32 = args.get(2).map_or(Ok(64), |s| s.parse())?;
     let n_objects: usize = args.get(3).map_or(Ok(10_000), |s| s.parse())?;
     let keep: f64 = args.get(4).map_or(Ok(0.96), |s| s.parse())?;
     let (size, scale) = (4096u32, 0.2);
     let psfs = ["none", "coma", "jitter", "defocus", "astig", "trefoil"];
-    let shears = [(0.0, 0.0), (0.005, 0.0), (0.01, 0.0), (0.05, 0.0), (0.1, 0.0)];
+    let shears = [
+        (0.0, 0.0),
+        (0.005, 0.0),
+        (0.01, 0.0),
+        (0.05, 0.0),
+        (0.1, 0.0),
+    ];
     let mut datasets = Vec::new();
     for (p, psf) in psfs.iter().enumerate() {
         for (s, &(g1, g2)) in shears.iter().enumerate() {
@@ -95,7 +102,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 g2,
                 images: (0..n_fields)
                     .map(|f| DatasetImage {
-                        image: format!("im{:06x}", (d as u64 * 1000 + u64::from(f)) * 104_729 % 0xff_ffff),
+                        image: format!(
+                            "im{:06x}",
+                            (d as u64 * 1000 + u64::from(f)) * 104_729 % 0xff_ffff
+                        ),
                         field: f,
                         rotated: false,
                     })
@@ -112,7 +122,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let private = out.join("private");
     std::fs::create_dir_all(private.join("truth"))?;
-    std::fs::write(private.join("datasets.json"), serde_json::to_string_pretty(&ds)?)?;
+    std::fs::write(
+        private.join("datasets.json"),
+        serde_json::to_string_pretty(&ds)?,
+    )?;
     let cat = std::fs::File::create(out.join("catalogue.txt"))?;
     let mut cat = std::io::BufWriter::with_capacity(1 << 20, cat);
     writeln!(cat, "# image x y e1 e2 weight flags")?;
@@ -180,7 +193,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             let hdu = f.create_table(stepsim_contract::io::truth::TRUTH_EXTNAME, &descs)?;
             hdu.write_col(&mut f, "kind", &kind)?;
-            for (name, c) in stepsim_harness::truth_set::SCORING_COLUMNS[1..].iter().zip(&cols) {
+            for (name, c) in stepsim_harness::truth_set::SCORING_COLUMNS[1..]
+                .iter()
+                .zip(&cols)
+            {
                 hdu.write_col(&mut f, *name, c)?;
             }
         }

@@ -205,7 +205,9 @@ impl<R: Read> Read for CappedReader<R> {
         }
         // One byte more than allowed tells a file of exactly `cap` bytes
         // from a longer one.
-        let want = buf.len().min(usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX));
+        let want = buf
+            .len()
+            .min(usize::try_from(self.left.saturating_add(1)).unwrap_or(usize::MAX));
         let n = self.inner.read(&mut buf[..want])?;
         if n as u64 > self.left {
             return Err(std::io::Error::other(InputError::TooLarge {
@@ -593,7 +595,9 @@ mod tests {
 
     #[test]
     fn a_trickled_stream_inflates_as_a_whole_one() {
-        let a: Vec<u8> = (0..200_000u32).flat_map(|k| k.wrapping_mul(2_654_435_761).to_le_bytes()).collect();
+        let a: Vec<u8> = (0..200_000u32)
+            .flat_map(|k| k.wrapping_mul(2_654_435_761).to_le_bytes())
+            .collect();
         let mut two = gzip(&a);
         two.extend(gzip(b"tail"));
         for out in [1usize, 9, 1000, 1 << 16] {

@@ -232,7 +232,10 @@ mod tests {
             for (a, b) in got.iter().zip(rows) {
                 assert_eq!(a.x.to_bits(), b.x.to_bits());
                 assert_eq!(a.y.to_bits(), b.y.to_bits());
-                assert_eq!((a.e1, a.e2, a.weight, a.line), (b.e1, b.e2, b.weight, b.line));
+                assert_eq!(
+                    (a.e1, a.e2, a.weight, a.line),
+                    (b.e1, b.e2, b.weight, b.line)
+                );
             }
             assert_eq!(got.len(), rows.len());
         }

@@ -42,11 +42,11 @@
 use crate::error::{HarnessError, show_text};
 use crate::fits_table::{ColumnKind, Table};
 use crate::input::{
-    CappedReader, GzReader, InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, input_error,
-    is_gzip, kind_of, open_regular, read_entry_file, read_regular_file, show_bytes,
+    CappedReader, GzReader, InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, input_error, is_gzip,
+    kind_of, open_regular, read_entry_file, read_regular_file, show_bytes,
 };
-use crate::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
 use crate::markdown::show_number;
+use crate::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
 use crate::truth_set::ImageIndex;
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
@@ -313,7 +313,10 @@ pub fn read_submission_spilled(
         let st = stream_table(p, index, max_bytes, &mut writer)?;
         (st.ignored, Some(st.text))
     } else {
-        (stream_directory(&files, index, max_bytes, &mut writer)?, None)
+        (
+            stream_directory(&files, index, max_bytes, &mut writer)?,
+            None,
+        )
     };
     let rows = writer.finish().map_err(spill)?;
     if let Some(text) = table {
@@ -367,7 +370,11 @@ pub fn read_submission_whole(
     }
     ignored.sort();
     ignored.dedup();
-    Ok(Submission::from_rows(path.to_path_buf(), per_image, ignored))
+    Ok(Submission::from_rows(
+        path.to_path_buf(),
+        per_image,
+        ignored,
+    ))
 }
 
 /// [`read_regular_file`], or [`read_entry_file`] (links refused) unless
@@ -380,9 +387,10 @@ fn read_file(path: &Path, cap: u64, follow: bool) -> Result<Vec<u8>, InputError>
     }
 }
 
-/// Longest line of a text table the streaming reader takes (1 MiB; a row
-/// is tens of bytes).
-pub const MAX_LINE_BYTES: usize = 1 << 20;
+/// Longest line of a text table the streaming reader takes (16 MiB; a row
+/// is tens of bytes, and a header of [`MAX_COLUMNS`] names of up to 16 KiB
+/// each fits).
+pub const MAX_LINE_BYTES: usize = 16 << 20;
 
 /// Rows of a FITS table read at a time by the streaming reader.
 const FITS_CHUNK_ROWS: usize = 1 << 16;
@@ -506,7 +514,8 @@ fn stream_lines(
     r: &mut dyn Read,
     f: &mut dyn FnMut(u64, &[u8]) -> Result<(), HarnessError>,
 ) -> Result<(), HarnessError> {
-    let io = |e: std::io::Error| HarnessError::submission(path, None, None, input_error(e).to_string());
+    let io =
+        |e: std::io::Error| HarnessError::submission(path, None, None, input_error(e).to_string());
     let mut buf = vec![0u8; MAX_LINE_BYTES + (1 << 16)];
     let (mut start, mut len, mut eof, mut first) = (0usize, 0usize, false, true);
     let mut line_no = 0u64;
@@ -555,7 +564,8 @@ fn stream_lines(
                     }
                     line_no += 1;
                     f(line_no, &buf[start..e])?;
-                    start = e + if buf[e] == b'\r' && buf.get(e + 1) == Some(&b'\n') && e + 1 < len {
+                    start = e + if buf[e] == b'\r' && buf.get(e + 1) == Some(&b'\n') && e + 1 < len
+                    {
                         2
                     } else {
                         1
@@ -1367,8 +1377,13 @@ fn open_table<'p>(
             e
         } else {
             let m = e.to_string();
-            let m = m.replace(&open_path.display().to_string(), &path.display().to_string());
-            let m = m.strip_prefix(&format!("{}: ", path.display())).unwrap_or(&m);
+            let m = m.replace(
+                &open_path.display().to_string(),
+                &path.display().to_string(),
+            );
+            let m = m
+                .strip_prefix(&format!("{}: ", path.display()))
+                .unwrap_or(&m);
             HarnessError::submission(path, None, None, m.to_owned())
         }
     })?;

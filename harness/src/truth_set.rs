@@ -235,9 +235,9 @@ pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
         .map(|im| {
             let path = truth.truth_path(&im.image);
             let mut f = stepsim_contract::io::fits::open_fits(&path)?;
-            let hdu = f.hdu(TRUTH_EXTNAME).map_err(|e| {
-                HarnessError::truth(&path, crate::fits_table::fitsio_sentence(&e))
-            })?;
+            let hdu = f
+                .hdu(TRUTH_EXTNAME)
+                .map_err(|e| HarnessError::truth(&path, crate::fits_table::fitsio_sentence(&e)))?;
             match hdu.info {
                 HduInfo::TableInfo { num_rows, .. } => Ok(num_rows as u64),
                 _ => Err(HarnessError::truth(

@@ -148,7 +148,14 @@ fn unsorted(text: &str) -> String {
     let mut keyed: Vec<(u64, &str)> = lines
         .iter()
         .enumerate()
-        .map(|(k, l)| ((k as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15).rotate_left(17), *l))
+        .map(|(k, l)| {
+            (
+                (k as u64)
+                    .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+                    .rotate_left(17),
+                *l,
+            )
+        })
         .collect();
     keyed.sort();
     let mut s = format!("{header}\n");
@@ -251,15 +258,25 @@ fn streamed_and_whole_readers_refuse_alike() {
         ("bad.txt", bad_row.join("\n")),
         ("empty.txt", "# image x y e1 e2\n\n".into()),
         ("none.txt", "\n\n".into()),
-        ("long.txt", format!("# image x y e1 e2\n{}\n", "x".repeat(2 << 20))),
+        (
+            "long.txt",
+            format!("# image x y e1 e2\n{}\n", "x".repeat(17 << 20)),
+        ),
     ];
     for (name, body) in cases {
         let p = fx.path(name);
         std::fs::write(&p, &body).unwrap();
-        let a = read_submission_limited(&p, &idx, 64 << 20).unwrap_err().to_string();
-        let b = read_submission_whole(&p, &idx, 64 << 20).unwrap_err().to_string();
+        let a = read_submission_limited(&p, &idx, 64 << 20)
+            .unwrap_err()
+            .to_string();
+        let b = read_submission_whole(&p, &idx, 64 << 20)
+            .unwrap_err()
+            .to_string();
         if name == "long.txt" {
-            assert!(a.contains("line 2") && a.contains("longer than 1 MiB"), "{a}");
+            assert!(
+                a.contains("line 2") && a.contains("longer than 16 MiB"),
+                "{a}"
+            );
             continue;
         }
         assert_eq!(a, b, "{name}");
@@ -321,10 +338,13 @@ fn the_limit_follows_the_run_and_the_option_overrides_it() {
     let fx = Fixture::new();
     let truth = load_truth_set(&fx.private()).unwrap();
     let n_truth: usize = fx.run.truth.iter().map(Vec::len).sum();
-    let formula =
-        SUBMISSION_BYTES_PER_TRUTH_ROW * n_truth as u64 + SUBMISSION_BYTES_PER_IMAGE * 60;
+    let formula = SUBMISSION_BYTES_PER_TRUTH_ROW * n_truth as u64 + SUBMISSION_BYTES_PER_IMAGE * 60;
     assert!(formula < 256 << 20);
-    assert_eq!(run_submission_limit(&truth).unwrap(), 256 << 20, "the floor");
+    assert_eq!(
+        run_submission_limit(&truth).unwrap(),
+        256 << 20,
+        "the floor"
+    );
     // A gzip submission that inflates to 300 MiB (blank lines after the
     // rows): refused at the small run's limit, 256 MiB, and scored when the
     // limit allows it.
@@ -438,7 +458,9 @@ fn gzip_members_are_checked_and_bounded() {
     let k = g.len() / 2;
     g[k] ^= 0x10;
     std::fs::write(&p, &g).unwrap();
-    let e = read_submission_limited(&p, &idx, 64 << 20).unwrap_err().to_string();
+    let e = read_submission_limited(&p, &idx, 64 << 20)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not a valid gzip file"), "{e}");
     // 400 000 empty members (8 MB): refused at the member bound, at once.
     let empty = gzip(b"");
@@ -450,7 +472,9 @@ fn gzip_members_are_checked_and_bounded() {
     let p = fx.path("members.txt.gz");
     std::fs::File::create(&p).unwrap().write_all(&bomb).unwrap();
     let t = Instant::now();
-    let e = read_submission_limited(&p, &idx, 64 << 20).unwrap_err().to_string();
+    let e = read_submission_limited(&p, &idx, 64 << 20)
+        .unwrap_err()
+        .to_string();
     let secs = t.elapsed().as_secs_f64();
     assert_eq!(
         e,
