@@ -505,6 +505,9 @@ fn stream_file(
     })
 }
 
+/// What [`stream_lines`] hands each line to: its number and its bytes.
+type LineSink<'a> = dyn FnMut(u64, &[u8]) -> Result<(), HarnessError> + 'a;
+
 /// Splits a text stream into lines exactly as [`parse_file`] does (LF, CR
 /// LF or a lone CR; a UTF-16 start refused, a UTF-8 byte-order mark
 /// skipped), handing each to `f` with its 1-based number. Holds at most
@@ -512,7 +515,7 @@ fn stream_file(
 fn stream_lines(
     path: &Path,
     r: &mut dyn Read,
-    f: &mut dyn FnMut(u64, &[u8]) -> Result<(), HarnessError>,
+    f: &mut LineSink<'_>,
 ) -> Result<(), HarnessError> {
     let io =
         |e: std::io::Error| HarnessError::submission(path, None, None, input_error(e).to_string());
