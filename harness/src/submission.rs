@@ -512,11 +512,7 @@ type LineSink<'a> = dyn FnMut(u64, &[u8]) -> Result<(), HarnessError> + 'a;
 /// LF or a lone CR; a UTF-16 start refused, a UTF-8 byte-order mark
 /// skipped), handing each to `f` with its 1-based number. Holds at most
 /// [`MAX_LINE_BYTES`] of a line and 64 KiB more.
-fn stream_lines(
-    path: &Path,
-    r: &mut dyn Read,
-    f: &mut LineSink<'_>,
-) -> Result<(), HarnessError> {
+fn stream_lines(path: &Path, r: &mut dyn Read, f: &mut LineSink<'_>) -> Result<(), HarnessError> {
     let io =
         |e: std::io::Error| HarnessError::submission(path, None, None, input_error(e).to_string());
     let mut buf = vec![0u8; MAX_LINE_BYTES + (1 << 16)];
