@@ -25,7 +25,8 @@ fn fits(rows: &[Row]) -> Vec<u8> {
     ])
 }
 
-/// (exit code, normalised stderr, files written) of `stepsim score`.
+/// (exit code, stderr with the truth and output paths replaced, files
+/// written) of `stepsim score`.
 fn score(truth: &Path, sub: &Path, out: &Path) -> (Option<i32>, String, usize) {
     let o = run_with(
         stepsim()
@@ -37,7 +38,8 @@ fn score(truth: &Path, sub: &Path, out: &Path) -> (Option<i32>, String, usize) {
             .arg(out),
     );
     let written = std::fs::read_dir(out).map_or(0, |d| d.count());
-    (o.status.code(), normalise(&stderr(&o), truth), written)
+    let message = normalise(&stderr(&o), truth).replace(&out.display().to_string(), "<out>");
+    (o.status.code(), message, written)
 }
 
 #[test]

@@ -113,6 +113,16 @@ pub fn round_to(v: Option<f64>, decimals: i32) -> Option<f64> {
     Some(if r == 0.0 { 0.0 } else { r })
 }
 
+/// The mean of `v`, summed in ascending order: the same bits whatever the
+/// order of `v` (which follows the private order of the datasets), so that
+/// not even the last bit of a figure, nor its rounding, depends on it.
+/// `None` when `v` is empty.
+fn order_free_mean(mut v: Vec<f64>) -> Option<f64> {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    (n > 0).then(|| v.iter().sum::<f64>() / n as f64)
+}
+
 impl PublicFeedback {
     /// The rounded aggregate of a report (of the public part).
     pub fn of_report(report: &Report) -> Self {
@@ -123,8 +133,7 @@ impl PublicFeedback {
             ..
         } = report.summary;
         let mean = |f: fn(&crate::report::DatasetReport) -> f64| {
-            let n = report.datasets.len();
-            (n > 0).then(|| report.datasets.iter().map(f).sum::<f64>() / n as f64)
+            order_free_mean(report.datasets.iter().map(f).collect())
         };
         let d = |k: &str| {
             FEEDBACK_DECIMALS
@@ -155,5 +164,26 @@ mod tests {
         assert_eq!(round_to(Some(812.6), 0), Some(813.0));
         assert_eq!(round_to(Some(f64::NAN), 3), None);
         assert_eq!(round_to(None, 3), None);
+    }
+
+    #[test]
+    fn the_mean_over_datasets_does_not_depend_on_their_order() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = stepsim_contract::seed::SimRng::seed_from_u64(23);
+        let v: Vec<f64> = (0..30).map(|_| rng.random_range(0.0..100.0)).collect();
+        let mut w = v.clone();
+        w.reverse();
+        w.rotate_left(7);
+        // A plain sum in the two orders differs in its last bits here …
+        assert_ne!(
+            v.iter().sum::<f64>().to_bits(),
+            w.iter().sum::<f64>().to_bits()
+        );
+        // … the mean does not.
+        let m = order_free_mean(v.clone()).unwrap();
+        assert_eq!(m.to_bits(), order_free_mean(w).unwrap().to_bits());
+        assert!((m - v.iter().sum::<f64>() / 30.0).abs() < 1e-12);
+        assert_eq!(order_free_mean(vec![1.0, 2.0, 4.5]), Some(2.5));
+        assert_eq!(order_free_mean(Vec::new()), None);
     }
 }
