@@ -779,3 +779,32 @@ fn combine_joins_reports_of_runs_with_different_psfs() {
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
+
+#[test]
+fn the_submission_limit_follows_the_option() {
+    // The run's own limit (256 MiB for this small run, the floor) is
+    // overridden by --max-submission-bytes: a file of exactly the limit is
+    // scored, one byte more is refused naming the file and the limit.
+    let fx = Fixture::new();
+    let sub = fx.submission("limit.txt", 0.0);
+    let n = std::fs::metadata(&sub).unwrap().len();
+    let at = n.to_string();
+    let o = fx.score(&sub, "ok", &["--max-submission-bytes", &at]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(fx.path("ok/report.json").exists());
+    let below = (n - 1).to_string();
+    let o = fx.score(&sub, "no", &["--max-submission-bytes", &below]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains(&format!(
+            "limit.txt: larger than the limit of {} (the file); refused without reading it",
+            stepsim_harness::input::show_bytes(n - 1)
+        )),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!fx.path("no").exists(), "nothing written");
+    // Not a number of bytes: a usage error.
+    let o = fx.score(&sub, "bad", &["--max-submission-bytes", "lots"]);
+    assert_eq!(o.status.code(), Some(2));
+}

@@ -307,20 +307,32 @@ impl<'a> Table<'a> {
     /// Reads a [`ColumnKind::Number`] column (scaled by TSCALn/TZEROn);
     /// undefined values (TNULLn) become NaN.
     pub fn numbers(&mut self, col: &Column) -> Result<Vec<f64>, HarnessError> {
+        self.numbers_range(col, 0, self.n_rows)
+    }
+
+    /// Rows `first .. first + n` (0-based) of a [`ColumnKind::Number`]
+    /// column, as [`Table::numbers`] reads them; `n` is cut at the last row.
+    pub fn numbers_range(
+        &mut self,
+        col: &Column,
+        first: usize,
+        n: usize,
+    ) -> Result<Vec<f64>, HarnessError> {
         debug_assert_eq!(col.kind, ColumnKind::Number);
-        let mut out = vec![0.0f64; self.n_rows];
-        if self.n_rows == 0 {
+        let n = n.min(self.n_rows.saturating_sub(first));
+        let mut out = vec![0.0f64; n];
+        if n == 0 {
             return Ok(out);
         }
         let (mut anynul, mut status) = (0, 0);
-        // SAFETY: `out` holds n_rows values, one per row of a scalar column.
+        // SAFETY: `out` holds n values, one per row of a scalar column.
         unsafe {
             sys::ffgcvd(
                 self.file.as_raw(),
                 col.number,
+                first as i64 + 1,
                 1,
-                1,
-                self.n_rows as i64,
+                n as i64,
                 f64::NAN,
                 out.as_mut_ptr(),
                 &mut anynul,
@@ -335,15 +347,27 @@ impl<'a> Table<'a> {
 
     /// Reads a [`ColumnKind::Text`] column, each value trimmed of blanks.
     pub fn strings(&mut self, col: &Column) -> Result<Vec<String>, HarnessError> {
+        self.strings_range(col, 0, self.n_rows)
+    }
+
+    /// Rows `first .. first + n` (0-based) of a [`ColumnKind::Text`]
+    /// column, as [`Table::strings`] reads them; `n` is cut at the last row.
+    pub fn strings_range(
+        &mut self,
+        col: &Column,
+        first: usize,
+        n: usize,
+    ) -> Result<Vec<String>, HarnessError> {
         debug_assert_eq!(col.kind, ColumnKind::Text);
+        let end = first.saturating_add(n).min(self.n_rows);
         let len = col.string_len + 1;
-        let mut out = Vec::with_capacity(self.n_rows);
+        let mut out = Vec::with_capacity(end.saturating_sub(first));
         // In blocks, so that the buffer stays small whatever the row count.
         let block = (1usize << 20) / len.max(1) + 1;
-        let mut buf = vec![0 as c_char; block * len];
-        let mut first = 0usize;
-        while first < self.n_rows {
-            let n = block.min(self.n_rows - first);
+        let mut buf = vec![0 as c_char; block.min(end.saturating_sub(first)).max(1) * len];
+        let mut first = first;
+        while first < end {
+            let n = block.min(end - first);
             buf.iter_mut().for_each(|b| *b = 0);
             let mut ptrs: Vec<*mut c_char> = (0..n).map(|k| buf[k * len..].as_mut_ptr()).collect();
             let (mut anynul, mut status) = (0, 0);

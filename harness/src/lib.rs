@@ -39,6 +39,7 @@ pub mod part;
 pub mod pipeline;
 pub mod plots;
 pub mod report;
+pub mod spill;
 pub mod submission;
 pub mod synthetic;
 pub mod truth_set;

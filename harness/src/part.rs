@@ -52,20 +52,13 @@ pub fn restrict(p: Prepared, part: Part) -> Result<Prepared, HarnessError> {
     }
     let index = ImageIndex::new(&datasets, &path)?;
     let old = &p.truth.index;
-    let per_image = index
-        .images
-        .iter()
-        .map(|im| p.submission.per_image[old.by_id[&im.image]].clone())
-        .collect();
+    let which: Vec<usize> = index.images.iter().map(|im| old.by_id[&im.image]).collect();
+    let submission = p.submission.select(&which);
     let truth = TruthSet {
         datasets,
         index,
         dir: p.truth.dir.clone(),
         run: format!("{}#{}", p.truth.run, part.name()),
-    };
-    let submission = crate::submission::Submission {
-        per_image,
-        ..p.submission
     };
     Ok(Prepared {
         truth,

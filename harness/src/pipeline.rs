@@ -9,8 +9,8 @@ use crate::metrics::{
     score_tables,
 };
 use crate::report::Report;
-use crate::submission::{Submission, read_submission};
-use crate::truth_set::{TruthSet, load_truth_set};
+use crate::submission::{Submission, read_submission_limited};
+use crate::truth_set::{TruthSet, load_truth_set, run_submission_limit};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -34,6 +34,10 @@ pub struct ScoreOptions {
     pub bootstrap_resamples: usize,
     /// Bootstrap seed.
     pub bootstrap_seed: u64,
+    /// Largest submission read, in bytes, as stored and after gzip
+    /// decompression (`None`: the run's own limit,
+    /// [`crate::truth_set::run_submission_limit`]).
+    pub max_submission_bytes: Option<u64>,
 }
 
 impl ScoreOptions {
@@ -47,6 +51,7 @@ impl ScoreOptions {
             allow_missing_images: false,
             bootstrap_resamples: DEFAULT_RESAMPLES,
             bootstrap_seed: DEFAULT_SEED,
+            max_submission_bytes: None,
         }
     }
 }
@@ -62,8 +67,26 @@ pub struct Prepared {
     pub warnings: Vec<String>,
 }
 
-/// Stage 1: reads and checks the truth set and the submission.
+/// Stage 1: reads and checks the truth set and the submission, streamed
+/// ([`read_submission_limited`]: the rows are spilled by image to a
+/// temporary file, so memory holds no more than one table's buffer and the
+/// files being read, whatever the catalogue's size). This is also the
+/// server's format check.
 pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
+    prepare_with(opts, read_submission_limited)
+}
+
+/// [`prepare`] reading the submission whole into memory
+/// ([`crate::submission::read_submission_whole`]): the slow twin of the
+/// streamed path, kept to test that both give the same report.
+pub fn prepare_whole(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
+    prepare_with(opts, crate::submission::read_submission_whole)
+}
+
+/// Reads a submission against an index within a byte limit.
+type Reader = fn(&Path, &crate::truth_set::ImageIndex, u64) -> Result<Submission, HarnessError>;
+
+fn prepare_with(opts: &ScoreOptions, read: Reader) -> Result<Prepared, HarnessError> {
     let r = opts.match_radius_arcsec;
     if !(r > 0.0 && r.is_finite()) {
         return Err(HarnessError::BadOption {
@@ -72,7 +95,11 @@ pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
         });
     }
     let truth = load_truth_set(&opts.truth_dir)?;
-    let submission = read_submission(&opts.submission, &truth.index)?;
+    let limit = match opts.max_submission_bytes {
+        Some(n) => n,
+        None => run_submission_limit(&truth)?,
+    };
+    let submission = read(&opts.submission, &truth.index, limit)?;
     let missing = submission.missing_images();
     let mut warnings = Vec::new();
     if !missing.is_empty() {
@@ -107,10 +134,11 @@ pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
 }
 
 /// Stage 2: reads the truth table of every submitted image, matches its rows
-/// and reduces it to [`ImageStats`] (in parallel, in image order).
+/// and reduces it to [`ImageStats`] (in parallel, in image order; each
+/// worker holds one image's rows and truth table at a time).
 pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>, HarnessError> {
     let which: Vec<usize> = (0..p.truth.index.images.len())
-        .filter(|&i| !p.submission.per_image[i].is_empty())
+        .filter(|&i| p.submission.image_len(i) > 0)
         .collect();
     let radius_px = radius_arcsec / p.truth.index.pixel_scale_arcsec;
     which
@@ -119,11 +147,11 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
             let info = &p.truth.index.images[i];
             let path = p.truth.truth_path(&info.image);
             let truth = crate::truth_set::read_scoring_columns(&path)?;
-            let rows = &p.submission.per_image[i];
+            let rows = p.submission.image_rows(i)?;
             Ok(match_image(
                 info.dataset,
                 info.field,
-                rows,
+                &rows,
                 &truth,
                 radius_px,
                 (p.truth.index.width_px, p.truth.index.height_px),
@@ -179,6 +207,14 @@ pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> 
 /// All three stages.
 pub fn score(opts: &ScoreOptions) -> Result<Report, HarnessError> {
     let p = prepare(opts)?;
+    let stats = match_images(&p, opts.match_radius_arcsec)?;
+    Ok(build_report(&p, &stats, opts))
+}
+
+/// [`score`] with the submission read whole ([`prepare_whole`]): the slow
+/// twin, whose report the streamed one must equal.
+pub fn score_whole(opts: &ScoreOptions) -> Result<Report, HarnessError> {
+    let p = prepare_whole(opts)?;
     let stats = match_images(&p, opts.match_radius_arcsec)?;
     Ok(build_report(&p, &stats, opts))
 }

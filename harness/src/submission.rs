@@ -42,13 +42,15 @@
 use crate::error::{HarnessError, show_text};
 use crate::fits_table::{ColumnKind, Table};
 use crate::input::{
-    InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, is_gzip, kind_of, read_entry_file,
-    read_regular_file, show_bytes,
+    CappedReader, GzReader, InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, input_error, is_gzip,
+    kind_of, open_regular, read_entry_file, read_regular_file, show_bytes,
 };
 use crate::markdown::show_number;
+use crate::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
 use crate::truth_set::ImageIndex;
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// One submitted object.
@@ -68,29 +70,107 @@ pub struct SubRow {
     pub line: u64,
 }
 
-/// A whole submission, rows grouped by image.
+/// A whole submission, rows grouped by image: spilled to disk by the
+/// streaming reader ([`read_submission_limited`], one image read back at a
+/// time), or held in memory by its slow twin ([`read_submission_whole`]).
 #[derive(Debug, Clone)]
 pub struct Submission {
     /// The file or directory given.
     pub path: PathBuf,
-    /// Rows of image `i` of the [`ImageIndex`] (empty when not submitted).
-    pub per_image: Vec<Vec<SubRow>>,
+    rows: Rows,
     /// Columns present but not used (sorted, unique).
     pub ignored_columns: Vec<String>,
 }
 
+#[derive(Debug, Clone)]
+enum Rows {
+    Memory(Vec<Vec<SubRow>>),
+    Spilled(SpilledRows),
+}
+
 impl Submission {
+    /// A submission held in memory: `per_image[i]` the rows of image `i` of
+    /// the [`ImageIndex`].
+    pub fn from_rows(path: PathBuf, per_image: Vec<Vec<SubRow>>, ignored: Vec<String>) -> Self {
+        Self {
+            path,
+            rows: Rows::Memory(per_image),
+            ignored_columns: ignored,
+        }
+    }
+
+    /// Number of images of the index it was read against.
+    pub fn n_images(&self) -> usize {
+        match &self.rows {
+            Rows::Memory(v) => v.len(),
+            Rows::Spilled(s) => s.n_images(),
+        }
+    }
+
+    /// Rows of image `i`.
+    pub fn image_len(&self, i: usize) -> usize {
+        match &self.rows {
+            Rows::Memory(v) => v[i].len(),
+            Rows::Spilled(s) => s.len(i),
+        }
+    }
+
     /// Total number of rows.
     pub fn n_rows(&self) -> usize {
-        self.per_image.iter().map(Vec::len).sum()
+        (0..self.n_images()).map(|i| self.image_len(i)).sum()
     }
 
     /// Indices of images with no rows.
     pub fn missing_images(&self) -> Vec<usize> {
-        (0..self.per_image.len())
-            .filter(|&i| self.per_image[i].is_empty())
+        (0..self.n_images())
+            .filter(|&i| self.image_len(i) == 0)
             .collect()
     }
+
+    /// The rows of image `i` in file order (read back from the spill file).
+    pub fn image_rows(&self, i: usize) -> Result<Vec<SubRow>, HarnessError> {
+        match &self.rows {
+            Rows::Memory(v) => Ok(v[i].clone()),
+            Rows::Spilled(s) => s.read(i).map_err(|e| spill_error(&self.path, &e)),
+        }
+    }
+
+    /// The images `which` (indices into this submission's images), in that
+    /// order: image `k` of the result is image `which[k]` of this one.
+    pub fn select(&self, which: &[usize]) -> Self {
+        let rows = match &self.rows {
+            Rows::Memory(v) => Rows::Memory(which.iter().map(|&i| v[i].clone()).collect()),
+            Rows::Spilled(s) => Rows::Spilled(s.select(which)),
+        };
+        Self {
+            path: self.path.clone(),
+            rows,
+            ignored_columns: self.ignored_columns.clone(),
+        }
+    }
+
+    /// For a spilled submission, the most rows its reader held in memory at
+    /// once (`None` for one held in memory).
+    pub fn max_rows_held(&self) -> Option<usize> {
+        match &self.rows {
+            Rows::Memory(_) => None,
+            Rows::Spilled(s) => Some(s.max_rows_held()),
+        }
+    }
+}
+
+/// The error of the spill file (the harness's own temporary file; no
+/// participant data in the message).
+fn spill_error(path: &Path, e: &std::io::Error) -> HarnessError {
+    HarnessError::submission(
+        path,
+        None,
+        None,
+        format!(
+            "cannot use the temporary file that holds the rows while scoring (in {}): {e}",
+            std::env::temp_dir().display()
+        ),
+    )
 }
 
 /// Rows read from one file: (image index, row).
@@ -107,13 +187,20 @@ pub struct FileRows {
 
 pub use stepsim_contract::MAX_ABS_SHEAR;
 
-/// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`].
+/// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`]
+/// (streamed: [`read_submission_limited`]).
 pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, HarnessError> {
     read_submission_limited(path, index, MAX_SUBMISSION_BYTES)
 }
 
 /// Reads a submission file or directory of at most `max_bytes` bytes (the
-/// sum over its files, both as stored and after gzip decompression).
+/// sum over its files, both as stored and after gzip decompression),
+/// streamed: the rows are checked as they are read and spilled by image to
+/// a temporary file ([`crate::spill`]), so that memory holds at most
+/// [`DEFAULT_BUFFER_ROWS`] rows of a single table (and, for a directory,
+/// the rows of the files being read, one image each), never the catalogue.
+/// The checks and messages are those of [`read_submission_whole`], its
+/// slow twin; a text line longer than [`MAX_LINE_BYTES`] is refused.
 ///
 /// The top-level `path` may be a symbolic link (it is followed: the organiser
 /// named it). In a directory, entries whose names start with `.` and
@@ -125,9 +212,19 @@ pub fn read_submission_limited(
     index: &ImageIndex,
     max_bytes: u64,
 ) -> Result<Submission, HarnessError> {
+    read_submission_spilled(path, index, max_bytes, DEFAULT_BUFFER_ROWS)
+}
+
+/// The files of a submission: the file itself, or the entries of a
+/// directory with their image (checked, sorted, sizes within `max_bytes`).
+fn submission_files(
+    path: &Path,
+    index: &ImageIndex,
+    max_bytes: u64,
+) -> Result<Vec<(PathBuf, Option<usize>)>, HarnessError> {
     let at = |p: &Path, m: String| HarnessError::submission(p, None, None, m);
     let meta = std::fs::metadata(path).map_err(|e| at(path, format!("cannot read: {e}")))?;
-    let files: Vec<(PathBuf, Option<usize>)> = if meta.is_dir() {
+    Ok(if meta.is_dir() {
         let mut entries = Vec::new();
         let rd = std::fs::read_dir(path).map_err(|e| at(path, format!("cannot list: {e}")))?;
         for entry in rd {
@@ -198,7 +295,50 @@ pub fn read_submission_limited(
         entries
     } else {
         vec![(path.to_path_buf(), None)]
+    })
+}
+
+/// [`read_submission_limited`] with a buffer of `buffer_rows` rows before
+/// each spill (at least 1).
+pub fn read_submission_spilled(
+    path: &Path,
+    index: &ImageIndex,
+    max_bytes: u64,
+    buffer_rows: usize,
+) -> Result<Submission, HarnessError> {
+    let files = submission_files(path, index, max_bytes)?;
+    let spill = |e: std::io::Error| spill_error(path, &e);
+    let mut writer = SpillWriter::new(index.images.len(), buffer_rows).map_err(spill)?;
+    let (ignored, table) = if let [(p, None)] = &files[..] {
+        let st = stream_table(p, index, max_bytes, &mut writer)?;
+        (st.ignored, Some(st.text))
+    } else {
+        (
+            stream_directory(&files, index, max_bytes, &mut writer)?,
+            None,
+        )
     };
+    let rows = writer.finish().map_err(spill)?;
+    if let Some(text) = table {
+        check_spilled(path, &rows, index, text)?;
+    }
+    Ok(Submission {
+        path: path.to_path_buf(),
+        rows: Rows::Spilled(rows),
+        ignored_columns: ignored,
+    })
+}
+
+/// Reads a submission whole, every row held in memory: the slow, obvious
+/// twin of [`read_submission_limited`] (same checks, same messages, same
+/// rows), kept to test it.
+pub fn read_submission_whole(
+    path: &Path,
+    index: &ImageIndex,
+    max_bytes: u64,
+) -> Result<Submission, HarnessError> {
+    let at = |p: &Path, m: String| HarnessError::submission(p, None, None, m);
+    let files = submission_files(path, index, max_bytes)?;
     let follow = files.len() == 1 && files[0].1.is_none();
     let parsed: Vec<Result<FileRows, HarnessError>> = files
         .par_iter()
@@ -230,11 +370,11 @@ pub fn read_submission_limited(
     }
     ignored.sort();
     ignored.dedup();
-    Ok(Submission {
-        path: path.to_path_buf(),
+    Ok(Submission::from_rows(
+        path.to_path_buf(),
         per_image,
-        ignored_columns: ignored,
-    })
+        ignored,
+    ))
 }
 
 /// [`read_regular_file`], or [`read_entry_file`] (links refused) unless
@@ -245,6 +385,416 @@ fn read_file(path: &Path, cap: u64, follow: bool) -> Result<Vec<u8>, InputError>
     } else {
         read_entry_file(path, cap)
     }
+}
+
+/// Longest line of a text table the streaming reader takes (16 MiB; a row
+/// is tens of bytes, and a header of [`MAX_COLUMNS`] names of up to 16 KiB
+/// each fits).
+pub const MAX_LINE_BYTES: usize = 16 << 20;
+
+/// Rows of a FITS table read at a time by the streaming reader.
+const FITS_CHUNK_ROWS: usize = 1 << 16;
+
+/// What the streaming reader learnt of one file.
+struct Streamed {
+    ignored: Vec<String>,
+    uncompressed_bytes: u64,
+    n_rows: u64,
+    text: bool,
+}
+
+/// A reader that counts the bytes read through it.
+struct Counting<R> {
+    inner: R,
+    n: u64,
+}
+
+impl<R: Read> Read for Counting<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.n += n as u64;
+        Ok(n)
+    }
+}
+
+/// The first `n` bytes of `r` (fewer at its end).
+fn peek<R: Read>(r: &mut R, n: usize) -> std::io::Result<Vec<u8>> {
+    let mut head = Vec::with_capacity(n);
+    r.take(n as u64).read_to_end(&mut head)?;
+    Ok(head)
+}
+
+/// Reads one file (any accepted form) as a stream, handing each row to
+/// `sink` in file order; the checks of [`parse_file_limited`] that need
+/// only the row itself. A gzip FITS file is inflated to a temporary file
+/// (removed when read) for cfitsio.
+fn stream_file(
+    path: &Path,
+    index: &ImageIndex,
+    fixed: Option<usize>,
+    max_bytes: u64,
+    follow: bool,
+    sink: &mut dyn FnMut(usize, SubRow) -> Result<(), HarnessError>,
+) -> Result<Streamed, HarnessError> {
+    let at = |e: InputError| HarnessError::submission(path, None, None, e.to_string());
+    let io = |e: std::io::Error| at(input_error(e));
+    let (file, len) = open_regular(path, max_bytes, follow).map_err(at)?;
+    let mut raw = CappedReader::new(file, max_bytes, "the file");
+    let magic = peek(&mut raw, 2).map_err(io)?;
+    let gz = is_gzip(&magic);
+    let raw = std::io::Cursor::new(magic).chain(raw);
+    let decoded: Box<dyn Read> = if gz {
+        Box::new(GzReader::new(raw, max_bytes))
+    } else {
+        Box::new(raw)
+    };
+    let mut data = Counting {
+        inner: decoded,
+        n: 0,
+    };
+    let head = peek(&mut data, 9).map_err(io)?;
+    if head.starts_with(b"SIMPLE  =") {
+        let mut n_rows = 0u64;
+        let ignored = if gz {
+            let mut tmp = tempfile::NamedTempFile::new().map_err(|e| spill_error(path, &e))?;
+            let mut all = std::io::Cursor::new(head).chain(&mut data);
+            std::io::copy(&mut all, tmp.as_file_mut()).map_err(io)?;
+            stream_fits(path, tmp.path(), data.n, index, fixed, &mut |i, r| {
+                n_rows += 1;
+                sink(i, r)
+            })?
+        } else {
+            stream_fits(path, path, len, index, fixed, &mut |i, r| {
+                n_rows += 1;
+                sink(i, r)
+            })?
+        };
+        let uncompressed_bytes = if gz { data.n } else { len };
+        return Ok(Streamed {
+            ignored,
+            uncompressed_bytes,
+            n_rows,
+            text: false,
+        });
+    }
+    let mut all = std::io::Cursor::new(head).chain(&mut data);
+    let mut parser = TextParser::new(path, index, fixed);
+    let mut n_rows = 0u64;
+    let read = stream_lines(path, &mut all, &mut |line_no, raw| {
+        if let Some((i, r)) = parser.line(line_no, raw)? {
+            n_rows += 1;
+            sink(i, r)?;
+        }
+        Ok(())
+    });
+    if let Err(e) = read {
+        // A corrupt gzip file is told as such (as the whole-file reader,
+        // which inflates first, tells it), not by the garbled line it gave:
+        // the rest is inflated (within the cap) to check it.
+        if gz {
+            std::io::copy(&mut all, &mut std::io::sink()).map_err(io)?;
+        }
+        return Err(e);
+    }
+    let ignored = parser.finish()?;
+    Ok(Streamed {
+        ignored,
+        uncompressed_bytes: data.n,
+        n_rows,
+        text: true,
+    })
+}
+
+/// What [`stream_lines`] hands each line to: its number and its bytes.
+type LineSink<'a> = dyn FnMut(u64, &[u8]) -> Result<(), HarnessError> + 'a;
+
+/// Splits a text stream into lines exactly as [`parse_file`] does (LF, CR
+/// LF or a lone CR; a UTF-16 start refused, a UTF-8 byte-order mark
+/// skipped), handing each to `f` with its 1-based number. Holds at most
+/// [`MAX_LINE_BYTES`] of a line and 64 KiB more.
+fn stream_lines(path: &Path, r: &mut dyn Read, f: &mut LineSink<'_>) -> Result<(), HarnessError> {
+    let io =
+        |e: std::io::Error| HarnessError::submission(path, None, None, input_error(e).to_string());
+    let mut buf = vec![0u8; MAX_LINE_BYTES + (1 << 16)];
+    let (mut start, mut len, mut eof, mut first) = (0usize, 0usize, false, true);
+    let mut line_no = 0u64;
+    loop {
+        if !eof {
+            buf.copy_within(start..len, 0);
+            len -= start;
+            start = 0;
+            if len > MAX_LINE_BYTES {
+                return Err(HarnessError::submission(
+                    path,
+                    Some(line_no + 1),
+                    None,
+                    format!(
+                        "the line is longer than {} (not a table of rows?)",
+                        show_bytes(MAX_LINE_BYTES as u64)
+                    ),
+                ));
+            }
+            let n = loop {
+                match r.read(&mut buf[len..]) {
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    other => break other.map_err(io)?,
+                }
+            };
+            if n == 0 {
+                eof = true;
+            }
+            len += n;
+        }
+        if first {
+            if len < 3 && !eof {
+                continue;
+            }
+            first = false;
+            let rest = text_start(path, &buf[..len])?;
+            start = len - rest.len();
+        }
+        loop {
+            let rest = &buf[start..len];
+            match rest.iter().position(|&c| c == b'\n' || c == b'\r') {
+                Some(rel) => {
+                    let e = start + rel;
+                    if buf[e] == b'\r' && e + 1 == len && !eof {
+                        break;
+                    }
+                    line_no += 1;
+                    f(line_no, &buf[start..e])?;
+                    start = e + if buf[e] == b'\r' && buf.get(e + 1) == Some(&b'\n') && e + 1 < len
+                    {
+                        2
+                    } else {
+                        1
+                    };
+                }
+                None => {
+                    if eof {
+                        if start < len {
+                            line_no += 1;
+                            f(line_no, &buf[start..len])?;
+                        }
+                        return Ok(());
+                    }
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// The rows of the first table of a FITS file, [`FITS_CHUNK_ROWS`] at a
+/// time (the checks of [`parse_file`]); returns the ignored columns.
+fn stream_fits(
+    path: &Path,
+    open_path: &Path,
+    len: u64,
+    index: &ImageIndex,
+    fixed: Option<usize>,
+    sink: &mut dyn FnMut(usize, SubRow) -> Result<(), HarnessError>,
+) -> Result<Vec<String>, HarnessError> {
+    let (mut t, lay, cols) = open_table(path, open_path, len, fixed)?;
+    let mut first = 0usize;
+    while first < t.n_rows {
+        let n = FITS_CHUNK_ROWS.min(t.n_rows - first);
+        let xs = t.numbers_range(&cols[lay.x], first, n)?;
+        let ys = t.numbers_range(&cols[lay.y], first, n)?;
+        let e1s = t.numbers_range(&cols[lay.e1], first, n)?;
+        let e2s = t.numbers_range(&cols[lay.e2], first, n)?;
+        let ws = match lay.weight {
+            Some(c) => Some(t.numbers_range(&cols[c], first, n)?),
+            None => None,
+        };
+        let ids = match lay.image {
+            Some(c) => Some(t.strings_range(&cols[c], first, n)?),
+            None => None,
+        };
+        for k in 0..n {
+            let row_no = (first + k) as u64 + 1;
+            let err = |c: &str, m: String| HarnessError::submission_row(path, row_no, Some(c), m);
+            let id = ids.as_ref().map(|v| v[k].as_str());
+            let image = resolve_image(index, fixed, id, &err)?;
+            let vals = [
+                xs[k],
+                ys[k],
+                e1s[k],
+                e2s[k],
+                ws.as_ref().map_or(1.0, |w| w[k]),
+            ];
+            let (i, row) = make_row(index, image, vals, row_no, &err)?;
+            sink(i, row)?;
+        }
+        first += n;
+    }
+    Ok(lay.ignored)
+}
+
+/// The single table of a submission, streamed into `writer`; returns the
+/// ignored columns and whether it is text.
+fn stream_table(
+    path: &Path,
+    index: &ImageIndex,
+    max_bytes: u64,
+    writer: &mut SpillWriter,
+) -> Result<Streamed, HarnessError> {
+    let st = stream_file(path, index, None, max_bytes, true, &mut |i, r| {
+        writer.push(i, r).map_err(|e| spill_error(path, &e))
+    })?;
+    if st.n_rows == 0 {
+        return Err(HarnessError::submission(
+            path,
+            None,
+            None,
+            "no rows (empty table)",
+        ));
+    }
+    Ok(st)
+}
+
+/// The per-image files of a directory, read in parallel (each file's rows,
+/// one image's, held while it is checked) and spilled one image each;
+/// errors and sizes in file order as [`read_submission_whole`] reports
+/// them. Returns the ignored columns.
+fn stream_directory(
+    files: &[(PathBuf, Option<usize>)],
+    index: &ImageIndex,
+    max_bytes: u64,
+    writer: &mut SpillWriter,
+) -> Result<Vec<String>, HarnessError> {
+    let writer = std::sync::Mutex::new(writer);
+    let results: Vec<Result<Streamed, HarnessError>> = files
+        .par_iter()
+        .map(|(p, fixed)| {
+            let mut rows = Vec::new();
+            let st = stream_file(p, index, *fixed, max_bytes, false, &mut |i, r| {
+                rows.push((i, r));
+                Ok(())
+            })?;
+            if rows.is_empty() {
+                return Err(HarnessError::submission(
+                    p,
+                    None,
+                    None,
+                    "no rows (empty table)",
+                ));
+            }
+            check_duplicates(p, &rows, index, st.text)?;
+            check_sums(p, &rows, index, st.text)?;
+            let image = rows[0].0;
+            let only: Vec<SubRow> = rows.into_iter().map(|(_, r)| r).collect();
+            writer
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .push_image(image, &only)
+                .map_err(|e| spill_error(p, &e))?;
+            Ok(st)
+        })
+        .collect();
+    let mut ignored = Vec::new();
+    let mut total = 0u64;
+    for ((p, _), r) in files.iter().zip(results) {
+        let st = r?;
+        total = total.saturating_add(st.uncompressed_bytes);
+        if total > max_bytes {
+            return Err(HarnessError::submission(
+                p,
+                None,
+                None,
+                format!(
+                    "the submission's files together are larger than the limit of {} \
+                     after gzip decompression",
+                    show_bytes(max_bytes)
+                ),
+            ));
+        }
+        ignored.extend(st.ignored);
+    }
+    ignored.sort();
+    ignored.dedup();
+    Ok(ignored)
+}
+
+/// The checks of a whole table that need all of an image's rows, run on the
+/// spilled rows one image at a time: the row reported is the one the whole
+/// table's check ([`parse_file`]) reports, the first in file order, and a
+/// duplicate comes before an overflow.
+fn check_spilled(
+    path: &Path,
+    rows: &SpilledRows,
+    index: &ImageIndex,
+    text: bool,
+) -> Result<(), HarnessError> {
+    type Found = (Option<(u64, HarnessError)>, Option<(u64, HarnessError)>);
+    let found: Vec<Result<Found, HarnessError>> = (0..rows.n_images())
+        .into_par_iter()
+        .map(|i| {
+            if rows.len(i) == 0 {
+                return Ok((None, None));
+            }
+            let v = rows.read(i).map_err(|e| spill_error(path, &e))?;
+            Ok((
+                first_duplicate(path, i, &v, index, text),
+                first_overflow(path, i, &v, index, text),
+            ))
+        })
+        .collect();
+    let mut dup: Option<(u64, HarnessError)> = None;
+    let mut over: Option<(u64, HarnessError)> = None;
+    for r in found {
+        let (d, o) = r?;
+        for (best, new) in [(&mut dup, d), (&mut over, o)] {
+            if let Some((line, e)) = new
+                && best.as_ref().is_none_or(|(l, _)| line < *l)
+            {
+                *best = Some((line, e));
+            }
+        }
+    }
+    match dup.or(over) {
+        Some((_, e)) => Err(e),
+        None => Ok(()),
+    }
+}
+
+/// The first row of image `i` (rows in file order) with the x and y of an
+/// earlier one: its line and error.
+fn first_duplicate(
+    path: &Path,
+    i: usize,
+    rows: &[SubRow],
+    index: &ImageIndex,
+    text: bool,
+) -> Option<(u64, HarnessError)> {
+    let mut seen: HashMap<(u64, u64), u64> = HashMap::with_capacity(rows.len());
+    for r in rows {
+        let key = ((r.x + 0.0).to_bits(), (r.y + 0.0).to_bits());
+        if let Some(first) = seen.insert(key, r.line) {
+            return Some((r.line, duplicate_error(path, i, r, first, index, text)));
+        }
+    }
+    None
+}
+
+/// The first row of image `i` at which its weighted sums overflow.
+fn first_overflow(
+    path: &Path,
+    i: usize,
+    rows: &[SubRow],
+    index: &ImageIndex,
+    text: bool,
+) -> Option<(u64, HarnessError)> {
+    let mut s = [0.0f64; 3];
+    for r in rows {
+        s[0] += r.weight;
+        s[1] += r.weight * r.e1.abs();
+        s[2] += r.weight * r.e2.abs();
+        if s.iter().any(|v| !v.is_finite()) {
+            return Some((r.line, overflow_error(path, i, r, index, text)));
+        }
+    }
+    None
 }
 
 /// Parses the bytes of one submission file (any accepted form), within
@@ -311,18 +861,7 @@ fn check_sums(
         s[1] += r.weight * r.e1.abs();
         s[2] += r.weight * r.e2.abs();
         if s.iter().any(|v| !v.is_finite()) {
-            let msg = format!(
-                "weight {} makes the weighted sums of image `{}` overflow (larger than \
-                 {:e}); scale the weights down",
-                show_number(r.weight),
-                index.images[*i].image,
-                f64::MAX
-            );
-            return Err(if text {
-                HarnessError::submission(path, Some(r.line), Some("weight"), msg)
-            } else {
-                HarnessError::submission_row(path, r.line, Some("weight"), msg)
-            });
+            return Err(overflow_error(path, *i, r, index, text));
         }
     }
     Ok(())
@@ -592,10 +1131,25 @@ fn parse_text(
     index: &ImageIndex,
     fixed: Option<usize>,
 ) -> Result<FileRows, HarnessError> {
-    let mut header: Option<(Layout, usize, bool)> = None; // layout, n columns, csv?
+    let bytes = text_start(path, bytes)?;
+    let mut parser = TextParser::new(path, index, fixed);
     let mut rows = Vec::new();
-    let mut record = csv::StringRecord::new();
-    let csv_reader = csv_line_reader();
+    for (k, raw) in Lines(bytes).enumerate() {
+        if let Some(row) = parser.line(k as u64 + 1, raw)? {
+            rows.push(row);
+        }
+    }
+    Ok(FileRows {
+        rows,
+        ignored_columns: parser.finish()?,
+        uncompressed_bytes: 0,
+    })
+}
+
+/// Refuses UTF-16 text and skips a UTF-8 byte-order mark: the start of the
+/// text (at least its first 3 bytes, or all of it) in, the text to split
+/// into lines out.
+fn text_start<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a [u8], HarnessError> {
     if bytes.starts_with(&[0xff, 0xfe]) || bytes.starts_with(&[0xfe, 0xff]) {
         return Err(HarnessError::submission(
             path,
@@ -604,9 +1158,37 @@ fn parse_text(
             "the file is UTF-16 text; save it as UTF-8",
         ));
     }
-    let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
-    for (k, raw) in Lines(bytes).enumerate() {
-        let line_no = k as u64 + 1;
+    Ok(bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes))
+}
+
+/// The rows of a text table, one line at a time (the whole file read by
+/// [`parse_file`] and the stream read by [`read_submission_limited`] share
+/// it): the header, then a row or nothing for each line.
+struct TextParser<'a> {
+    path: &'a Path,
+    index: &'a ImageIndex,
+    fixed: Option<usize>,
+    /// Layout, number of columns, CSV?
+    header: Option<(Layout, usize, bool)>,
+    record: csv::StringRecord,
+    csv_reader: csv::ReaderBuilder,
+}
+
+impl<'a> TextParser<'a> {
+    fn new(path: &'a Path, index: &'a ImageIndex, fixed: Option<usize>) -> Self {
+        Self {
+            path,
+            index,
+            fixed,
+            header: None,
+            record: csv::StringRecord::new(),
+            csv_reader: csv_line_reader(),
+        }
+    }
+
+    /// Reads line `line_no` (1-based, without its end).
+    fn line(&mut self, line_no: u64, raw: &[u8]) -> Result<Option<(usize, SubRow)>, HarnessError> {
+        let path = self.path;
         if let Some(c) = raw.iter().find(|&&c| c < 0x20 && c != b'\t' || c == 0x7f) {
             let what = if *c == 0 {
                 "a NUL byte".to_owned()
@@ -625,9 +1207,9 @@ fn parse_text(
         })?;
         let text = text.trim();
         if text.is_empty() {
-            continue;
+            return Ok(None);
         }
-        let Some((lay, ncol, csv)) = &header else {
+        let Some((lay, ncol, csv)) = &self.header else {
             let (body, hash) = match text.strip_prefix('#') {
                 Some(rest) => (rest, true),
                 None => (text, false),
@@ -644,11 +1226,11 @@ fn parse_text(
             }
             // The count is checked before a name is copied or compared.
             let names: Vec<String> = if csv {
-                csv_fields(&csv_reader, body, &mut record);
-                if record.len() > MAX_COLUMNS {
-                    return Err(too_many_columns(path, Some(line_no), record.len()));
+                csv_fields(&self.csv_reader, body, &mut self.record);
+                if self.record.len() > MAX_COLUMNS {
+                    return Err(too_many_columns(path, Some(line_no), self.record.len()));
                 }
-                record.iter().map(|s| unquote(s).to_owned()).collect()
+                self.record.iter().map(|s| unquote(s).to_owned()).collect()
             } else {
                 let words: Vec<&str> = body.split_whitespace().collect();
                 if words.len() > MAX_COLUMNS {
@@ -656,16 +1238,16 @@ fn parse_text(
                 }
                 words.into_iter().map(str::to_owned).collect()
             };
-            let lay = layout(path, Some(line_no), &names, fixed)?;
-            header = Some((lay, names.len(), csv));
-            continue;
+            let lay = layout(path, Some(line_no), &names, self.fixed)?;
+            self.header = Some((lay, names.len(), csv));
+            return Ok(None);
         };
         if !*csv && text.starts_with('#') {
-            continue;
+            return Ok(None);
         }
         let fields: Vec<&str> = if *csv {
-            csv_fields(&csv_reader, text, &mut record);
-            record.iter().map(unquote).collect()
+            csv_fields(&self.csv_reader, text, &mut self.record);
+            self.record.iter().map(unquote).collect()
         } else {
             text.split_whitespace().collect()
         };
@@ -686,7 +1268,7 @@ fn parse_text(
                 )
             })
         };
-        let image = resolve_image(index, fixed, lay.image.map(|c| fields[c]), &err)?;
+        let image = resolve_image(self.index, self.fixed, lay.image.map(|c| fields[c]), &err)?;
         let vals = [
             num(lay.x, "x")?,
             num(lay.y, "y")?,
@@ -697,21 +1279,21 @@ fn parse_text(
                 None => 1.0,
             },
         ];
-        rows.push(make_row(index, image, vals, line_no, &err)?);
+        make_row(self.index, image, vals, line_no, &err).map(Some)
     }
-    let Some((lay, _, _)) = header else {
-        return Err(HarnessError::submission(
-            path,
-            None,
-            None,
-            "empty file (no header, no rows)",
-        ));
-    };
-    Ok(FileRows {
-        rows,
-        ignored_columns: lay.ignored,
-        uncompressed_bytes: 0,
-    })
+
+    /// The ignored columns; refuses a text without a header.
+    fn finish(self) -> Result<Vec<String>, HarnessError> {
+        match self.header {
+            Some((lay, _, _)) => Ok(lay.ignored),
+            None => Err(HarnessError::submission(
+                self.path,
+                None,
+                None,
+                "empty file (no header, no rows)",
+            )),
+        }
+    }
 }
 
 /// The lines of a text, ended by LF, CR LF or a lone CR (without the ends).
@@ -769,12 +1351,15 @@ fn unquote(s: &str) -> &str {
         .unwrap_or(s)
 }
 
-fn parse_fits(
-    path: &Path,
-    data: &[u8],
-    index: &ImageIndex,
+/// Opens the first table of the FITS file `open_path` (`path` itself, or
+/// the inflated copy of a gzip `path`; `len` its bytes) and checks its
+/// columns; errors name `path`.
+fn open_table<'p>(
+    path: &'p Path,
+    open_path: &Path,
+    len: u64,
     fixed: Option<usize>,
-) -> Result<FileRows, HarnessError> {
+) -> Result<(Table<'p>, Layout, Vec<crate::fits_table::Column>), HarnessError> {
     if path.to_str().is_none() {
         // fitsio panics converting such a name for cfitsio.
         return Err(HarnessError::submission(
@@ -784,8 +1369,24 @@ fn parse_fits(
             "the file name is not valid UTF-8, which cfitsio cannot open; rename the file",
         ));
     }
-    let f = stepsim_contract::io::fits::open_fits(path)?;
-    let mut t = Table::first_table(f, path, data.len() as u64)?;
+    let f = stepsim_contract::io::fits::open_fits(open_path).map_err(|e| {
+        // The message of an inflated copy names the copy: name the file.
+        let e = HarnessError::from(e);
+        if open_path == path {
+            e
+        } else {
+            let m = e.to_string();
+            let m = m.replace(
+                &open_path.display().to_string(),
+                &path.display().to_string(),
+            );
+            let m = m
+                .strip_prefix(&format!("{}: ", path.display()))
+                .unwrap_or(&m);
+            HarnessError::submission(path, None, None, m.to_owned())
+        }
+    })?;
+    let t = Table::first_table(f, path, len)?;
     let names: Vec<String> = t.columns.iter().map(|c| c.name.clone()).collect();
     let lay = layout(path, None, &names, fixed)?;
     let used = [
@@ -824,6 +1425,16 @@ fn parse_fits(
         }
     }
     let cols = t.columns.clone();
+    Ok((t, lay, cols))
+}
+
+fn parse_fits(
+    path: &Path,
+    data: &[u8],
+    index: &ImageIndex,
+    fixed: Option<usize>,
+) -> Result<FileRows, HarnessError> {
+    let (mut t, lay, cols) = open_table(path, path, data.len() as u64, fixed)?;
     let xs = t.numbers(&cols[lay.x])?;
     let ys = t.numbers(&cols[lay.y])?;
     let e1s = t.numbers(&cols[lay.e1])?;
@@ -870,19 +1481,53 @@ fn check_duplicates(
         // +0.0 and -0.0 are the same position.
         let key = (*i, (r.x + 0.0).to_bits(), (r.y + 0.0).to_bits());
         if let Some(first) = seen.insert(key, r.line) {
-            let what = if text { "line" } else { "row" };
-            let msg = format!(
-                "duplicate row: image `{}` x = {} y = {} already given at {what} {first}",
-                index.images[*i].image, r.x, r.y
-            );
-            return Err(if text {
-                HarnessError::submission(path, Some(r.line), Some("x"), msg)
-            } else {
-                HarnessError::submission_row(path, r.line, Some("x"), msg)
-            });
+            return Err(duplicate_error(path, *i, r, first, index, text));
         }
     }
     Ok(())
+}
+
+/// The error for row `r` of image `i`, a duplicate of the row at `first`.
+fn duplicate_error(
+    path: &Path,
+    i: usize,
+    r: &SubRow,
+    first: u64,
+    index: &ImageIndex,
+    text: bool,
+) -> HarnessError {
+    let what = if text { "line" } else { "row" };
+    let msg = format!(
+        "duplicate row: image `{}` x = {} y = {} already given at {what} {first}",
+        index.images[i].image, r.x, r.y
+    );
+    if text {
+        HarnessError::submission(path, Some(r.line), Some("x"), msg)
+    } else {
+        HarnessError::submission_row(path, r.line, Some("x"), msg)
+    }
+}
+
+/// The error for row `r` of image `i`, at which the weighted sums overflow.
+fn overflow_error(
+    path: &Path,
+    i: usize,
+    r: &SubRow,
+    index: &ImageIndex,
+    text: bool,
+) -> HarnessError {
+    let msg = format!(
+        "weight {} makes the weighted sums of image `{}` overflow (larger than \
+         {:e}); scale the weights down",
+        show_number(r.weight),
+        index.images[i].image,
+        f64::MAX
+    );
+    if text {
+        HarnessError::submission(path, Some(r.line), Some("weight"), msg)
+    } else {
+        HarnessError::submission_row(path, r.line, Some("weight"), msg)
+    }
 }
 
 #[cfg(test)]

@@ -208,6 +208,56 @@ pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> 
     Ok(rows)
 }
 
+/// Bytes of submission allowed per truth object by [`run_submission_limit`]:
+/// 256. A text row of `stepsim measure`'s catalogue takes about 65 bytes, and
+/// one with every number at full precision (`%.17g`) and a long image id
+/// about 128; a catalogue may list up to twice as many rows as the truth
+/// has objects (stars, noise peaks, split objects), hence 2 × 128.
+pub const SUBMISSION_BYTES_PER_TRUTH_ROW: u64 = 256;
+
+/// Bytes of submission allowed per image on top of the rows (64 KiB: the
+/// header and comments of a file in a per-image directory).
+pub const SUBMISSION_BYTES_PER_IMAGE: u64 = 64 << 10;
+
+/// The largest submission a run takes, in bytes (as stored and after gzip
+/// decompression): [`SUBMISSION_BYTES_PER_TRUTH_ROW`] × the objects of its
+/// truth tables + [`SUBMISSION_BYTES_PER_IMAGE`] × its images, and never
+/// less than [`crate::input::MAX_SUBMISSION_BYTES`] (256 MiB). The object
+/// counts come from the NAXIS2 of each truth table's header (no rows are
+/// read). Errors name the truth table.
+pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
+    use fitsio::hdu::HduInfo;
+    use stepsim_contract::io::truth::TRUTH_EXTNAME;
+    let rows: Vec<Result<u64, HarnessError>> = truth
+        .index
+        .images
+        .par_iter()
+        .map(|im| {
+            let path = truth.truth_path(&im.image);
+            let mut f = stepsim_contract::io::fits::open_fits(&path)?;
+            let hdu = f
+                .hdu(TRUTH_EXTNAME)
+                .map_err(|e| HarnessError::truth(&path, crate::fits_table::fitsio_sentence(&e)))?;
+            match hdu.info {
+                HduInfo::TableInfo { num_rows, .. } => Ok(num_rows as u64),
+                _ => Err(HarnessError::truth(
+                    &path,
+                    format!("the `{TRUTH_EXTNAME}` extension is not a table"),
+                )),
+            }
+        })
+        .collect();
+    let mut n_rows = 0u64;
+    for r in rows {
+        n_rows = n_rows.saturating_add(r?);
+    }
+    let n_images = truth.index.images.len() as u64;
+    Ok(SUBMISSION_BYTES_PER_TRUTH_ROW
+        .saturating_mul(n_rows)
+        .saturating_add(SUBMISSION_BYTES_PER_IMAGE.saturating_mul(n_images))
+        .max(crate::input::MAX_SUBMISSION_BYTES))
+}
+
 impl TruthSet {
     /// Path of the truth table of an image.
     pub fn truth_path(&self, image: &str) -> PathBuf {

@@ -159,7 +159,7 @@ fn mutate_header(r: &mut SimRng, v: &mut [u8]) {
 fn gzip(data: &[u8]) -> Vec<u8> {
     let mut v = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3];
     v.extend(miniz_oxide::deflate::compress_to_vec(data, 1));
-    v.extend([0u8; 4]);
+    v.extend(crc32fast::hash(data).to_le_bytes());
     v.extend((data.len() as u32).to_le_bytes());
     v
 }

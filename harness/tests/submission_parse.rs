@@ -168,9 +168,9 @@ fn a_directory_of_per_image_tables() {
     )
     .unwrap();
     let sub = read_submission(dir.path(), &index()).unwrap();
-    assert_eq!(sub.per_image[0].len(), 2);
-    assert_eq!(sub.per_image[1].len(), 1);
-    assert_eq!(sub.per_image[1][0].e2, 0.6);
+    assert_eq!(sub.image_len(0), 2);
+    assert_eq!(sub.image_len(1), 1);
+    assert_eq!(sub.image_rows(1).unwrap()[0].e2, 0.6);
     assert!(sub.missing_images().is_empty());
     // A file whose image column disagrees with its name.
     std::fs::write(

@@ -37,6 +37,12 @@ pub struct Args {
     /// the intervals out (a faster score, e.g. while developing a method).
     #[arg(long, value_name = "N", default_value_t = stepsim_harness::bootstrap::DEFAULT_RESAMPLES)]
     bootstrap_resamples: usize,
+    /// Largest submission read, in bytes, as stored and after gzip
+    /// decompression (the sum over a directory's files). Default: the run's
+    /// own limit, 256 bytes per truth object and 64 KiB per image, at least
+    /// 256 MiB (docs/scoring.md).
+    #[arg(long, value_name = "N", conflicts_with = "combine")]
+    max_submission_bytes: Option<u64>,
     /// Overwrite the files of an earlier report in --out.
     #[arg(long)]
     force: bool,
@@ -54,6 +60,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             opts.match_radius_arcsec = args.match_radius_arcsec;
             opts.allow_missing_images = args.allow_missing_images;
             opts.bootstrap_resamples = args.bootstrap_resamples;
+            opts.max_submission_bytes = args.max_submission_bytes;
             stepsim_harness::score(&opts)?
         }
         _ => stepsim_harness::combine::combine_files(&args.combine, args.name.as_deref())?,
