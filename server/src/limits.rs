@@ -109,9 +109,13 @@ mod tests {
             body_grace: Duration::from_secs(10),
             ..Limits::default()
         };
-        // Early on, the stall timeout.
+        // Nothing yet: the grace and the time for one byte (10.001 s),
+        // shorter than the stall timeout.
+        let w = l.body_wait(0, Duration::ZERO).unwrap();
+        assert!((w.as_secs_f64() - 10.001).abs() < 1e-9, "{w:?}");
+        // Early on with some bytes, the stall timeout.
         assert_eq!(
-            l.body_wait(0, Duration::ZERO),
+            l.body_wait(100_000, Duration::from_secs(1)),
             Some(Duration::from_secs(30))
         );
         // 1000 bytes by 10.5 s: too slow from 11.001 s on.

@@ -550,3 +550,185 @@ async fn the_csv_export_neutralises_team_names_a_spreadsheet_would_run() {
     let j: Value = json(&std::fs::read_to_string(&e.json).unwrap());
     assert_eq!(j["rows"][0]["team"], evil);
 }
+
+// ---- f. refusals do not depend on the private order of datasets ----
+
+/// Two challenges on the same run whose `datasets.json` list the datasets
+/// in two orders (same ids, same truth files).
+fn permuted_pair() -> (Fixture, Fixture) {
+    let a = fixture(4, &["a"]);
+    let tmp = tempfile::tempdir().unwrap();
+    let (all, _) = write_run(tmp.path());
+    let p = tmp.path().join("run/private/datasets.json");
+    let mut v: Value = json(&std::fs::read_to_string(&p).unwrap());
+    let list = v["datasets"].as_array_mut().unwrap();
+    assert!(list.len() >= 4);
+    list.reverse();
+    list.swap(0, 1);
+    std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+    let state = tmp.path().join("state");
+    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
+    let tokens = vec![ch.add_team("a").unwrap()];
+    let b = Fixture {
+        _tmp: tmp,
+        state,
+        all,
+        tokens,
+    };
+    (a, b)
+}
+
+#[tokio::test]
+async fn refusals_are_byte_identical_whatever_the_private_order_of_datasets() {
+    let (a, b) = permuted_pair();
+    let good = catalogue(&a.all, 0.0);
+    let lines: Vec<&str> = good.lines().collect();
+    let images: Vec<&str> = {
+        let mut v: Vec<&str> = lines[1..]
+            .iter()
+            .map(|l| l.split_whitespace().next().unwrap())
+            .collect();
+        v.dedup();
+        v
+    };
+    let without = |drop: &[&str]| -> String {
+        let mut t: String = lines
+            .iter()
+            .filter(|l| !drop.contains(&l.split_whitespace().next().unwrap()))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        t.truncate(t.len());
+        t
+    };
+    let n = images.len();
+    let mut bad_row: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    let mut f: Vec<String> = bad_row[3].split_whitespace().map(String::from).collect();
+    f[3] = "abc".into();
+    bad_row[3] = f.join(" ");
+    let uploads = [
+        ("one image missing", without(&[images[n - 1]])),
+        (
+            "images missing here and there",
+            without(&[images[1], images[n / 2], images[n - 2]]),
+        ),
+        ("every image but one missing", without(&images[1..])),
+        (
+            "an unknown image id",
+            format!("{good}no_such_image 1 1 0.1 0.1 1\n"),
+        ),
+        ("a bad value on line 4", bad_row.join("\n") + "\n"),
+        ("an empty file", String::new()),
+    ];
+    let (app_a, app_b) = (
+        a.app(Limits::default(), None),
+        b.app(Limits::default(), None),
+    );
+    let mut differ = Vec::new();
+    for (what, text) in uploads {
+        let ra = call(
+            &app_a,
+            upload(&format!("Bearer {}", a.tokens[0]), text.clone()),
+        )
+        .await;
+        let rb = call(&app_b, upload(&format!("Bearer {}", b.tokens[0]), text)).await;
+        assert_eq!(ra.0, StatusCode::UNPROCESSABLE_ENTITY, "{what}: {}", ra.1);
+        if ra != rb {
+            differ.push(format!("{what}:\n  {:?}\n  {:?}", ra, rb));
+        }
+    }
+    assert!(
+        differ.is_empty(),
+        "answers differ with the order of datasets:\n{}",
+        differ.join("\n")
+    );
+}
+
+// ---- h. the final board says when rows are tied within the intervals ----
+
+#[tokio::test]
+async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
+    let f = fixture(4, &["exact", "close", "far"]);
+    let app = f.app(Limits::default(), None);
+    // Catalogues with measurement noise (a fixed pseudo-random number per
+    // object; the same for the first two teams), so that the bootstrap
+    // intervals have a width.
+    let noisy = |m: f64, seed: u64| {
+        let rows = f.all.submission(&|t, _| {
+            let mut h = (t.id as u64 ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15))
+                .wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            let mut u = || {
+                h ^= h >> 31;
+                h = h.wrapping_mul(0x94d0_49bb_1331_11eb);
+                (h >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            };
+            (!t.is_star()).then(|| {
+                (
+                    (1.0 + m) * t.e1 + 0.2 * u(),
+                    (1.0 + m) * t.e2 + 0.2 * u(),
+                    1.0,
+                )
+            })
+        });
+        stepsim_harness::synthetic::submission_text(&f.all.index(), &rows)
+    };
+    for (i, m) in [0.0, 0.0005, 0.5].into_iter().enumerate() {
+        let (s, body) = call(
+            &app,
+            upload(&format!("Bearer {}", f.tokens[i]), noisy(m, [1, 1, 3][i])),
+        )
+        .await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{body}");
+    }
+    f.score_queue();
+    let rows = |revealed: bool| {
+        let ch = Challenge::open(&f.state).unwrap();
+        let teams = ch.store.teams().unwrap();
+        let subs = ch.store.all_submissions().unwrap();
+        stepsim_server::api::leaderboard_rows(&teams, &subs, revealed)
+    };
+    // Before reveal no interval and no tie is shown.
+    assert!(rows(false).iter().all(|r| r.get("tied_above").is_none()));
+    Challenge::open(&f.state).unwrap().reveal().unwrap();
+    let r = rows(true);
+    let summary: Vec<(String, Option<[f64; 2]>, bool)> = r
+        .iter()
+        .map(|r| {
+            (
+                r["team"].as_str().unwrap().to_string(),
+                stepsim_server::api::q_c_interval(&r["holdout"]),
+                r["tied_above"].as_bool().unwrap(),
+            )
+        })
+        .collect();
+    eprintln!("{summary:?}");
+    let teams: Vec<&str> = summary.iter().map(|s| s.0.as_str()).collect();
+    assert_eq!(teams, ["exact", "close", "far"], "{summary:?}");
+    let [a, b, c] = [
+        summary[0].1.unwrap(),
+        summary[1].1.unwrap(),
+        summary[2].1.unwrap(),
+    ];
+    assert!(!summary[0].2);
+    assert_eq!(summary[1].2, a[0] <= b[1] && b[0] <= a[1], "{summary:?}");
+    assert!(
+        summary[1].2,
+        "m = 0 and m = 0.0005 are not ranked apart: {summary:?}"
+    );
+    assert!(!summary[2].2, "m = 0.5 is ranked below: {summary:?}");
+    assert!(c[1] < b[0], "{summary:?}");
+    // The page says so.
+    let resp = app
+        .clone()
+        .oneshot(Request::get("/leaderboard").body(Body::empty()).unwrap())
+        .await
+        .unwrap();
+    let html =
+        String::from_utf8_lossy(&resp.into_body().collect().await.unwrap().to_bytes()).into_owned();
+    assert_eq!(
+        html.matches("<span class=\"tag tied\">tied within the intervals</span>")
+            .count(),
+        1,
+        "{html}"
+    );
+    assert!(html.contains("this board does not rank them apart"));
+}
