@@ -14,7 +14,7 @@
 //!   idle_timeout` (a backstop: every handler is bounded below that);
 //!
 //! a request body that stalls or arrives too slowly is cut off by
-//! [`guard_body`] (the upload answers 408). Connections past
+//! the body guard (`guard_body`; the upload answers 408). Connections past
 //! `max_connections`, or past `max_connections_per_addr` from one address,
 //! are answered 503 and closed at once, before a byte is read.
 
