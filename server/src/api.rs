@@ -23,6 +23,7 @@ use crate::challenge::{
     Challenge, ChoiceError, Phase, QUOTA_WINDOW_S, choose_final_entries, final_entries_or_default,
     hex, parse_figures, rank_key, token_hash,
 };
+use crate::limits::Limits;
 use crate::store::{Role, Store, Submission, Team};
 use axum::Router;
 use axum::body::Body;
@@ -34,6 +35,7 @@ use http_body_util::BodyExt;
 use serde_json::{Value, json};
 use sha2::{Digest, Sha256};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::io::AsyncWriteExt;
 
@@ -46,7 +48,17 @@ pub struct AppState {
 struct Inner {
     dir: PathBuf,
     settings: crate::Settings,
+    limits: Limits,
     store: Mutex<Box<dyn Store>>,
+    /// Live scoring workers, when the server runs its own (`None`: the
+    /// caller scores the queue, as tests do).
+    workers: Option<Arc<AtomicUsize>>,
+    /// Uploads of each team being received or checked now.
+    uploads: Mutex<std::collections::HashMap<i64, usize>>,
+    /// Uploads being received or checked now, all teams.
+    uploads_all: Arc<tokio::sync::Semaphore>,
+    /// Format checks running now.
+    checks: Arc<tokio::sync::Semaphore>,
     /// Times (s) of the recent requests of each token hash / client address.
     recent: Mutex<std::collections::HashMap<String, std::collections::VecDeque<i64>>>,
 }
@@ -58,16 +70,35 @@ pub const RATE_WINDOW_S: i64 = 60;
 const MAX_RATE_KEYS: usize = 10_000;
 
 impl AppState {
-    /// The state of a challenge (its own store connection).
+    /// The state of a challenge (its own store connection), with the
+    /// default [`Limits`] and no workers of its own (the caller scores the
+    /// queue).
     pub fn new(ch: Challenge) -> Self {
+        Self::with_limits(ch, Limits::default(), None)
+    }
+
+    /// The state of a challenge under `limits`; `workers` counts the live
+    /// scoring workers ([`crate::worker::WorkerPool::live`]): while it is
+    /// 0, uploads are refused with 503.
+    pub fn with_limits(ch: Challenge, limits: Limits, workers: Option<Arc<AtomicUsize>>) -> Self {
         Self {
             inner: Arc::new(Inner {
                 dir: ch.dir,
                 settings: ch.settings,
                 store: Mutex::new(ch.store),
+                workers,
+                uploads: Mutex::new(std::collections::HashMap::new()),
+                uploads_all: Arc::new(tokio::sync::Semaphore::new(limits.uploads_at_once.max(1))),
+                checks: Arc::new(tokio::sync::Semaphore::new(limits.checks_at_once.max(1))),
+                limits,
                 recent: Mutex::new(std::collections::HashMap::new()),
             }),
         }
+    }
+
+    /// The server's limits.
+    pub fn limits(&self) -> &Limits {
+        &self.inner.limits
     }
 
     /// The store (one connection, locked while the guard lives: keep it
@@ -166,6 +197,10 @@ pub fn router(state: AppState) -> Router {
         .fallback(|| async { ApiError::not_found() })
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
+            crate::net::guard_body,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
             rate_limit,
         ))
         .layer(axum::extract::DefaultBodyLimit::disable())
@@ -213,12 +248,19 @@ async fn rate_limit(
     {
         keys.push(format!("addr {}", info.0.ip()));
     }
-    if let Some(v) = req
-        .headers()
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-    {
-        keys.push(format!("token {}", token_hash(v)));
+    if let Some(v) = req.headers().get(header::AUTHORIZATION) {
+        // The token itself is the key, however the header is spelt: a
+        // malformed header (refused with 401 anyway) counts against the
+        // token it carries, not a fresh key.
+        let token = match bearer_token(v.as_bytes()) {
+            Some(t) => t.to_string(),
+            None => String::from_utf8_lossy(v.as_bytes())
+                .split_ascii_whitespace()
+                .last()
+                .unwrap_or_default()
+                .to_string(),
+        };
+        keys.push(format!("token {}", token_hash(&token)));
     }
     let limit = state.inner.settings.requests_per_minute as usize;
     let now = crate::now_s();
@@ -268,6 +310,23 @@ async fn rate_limit(
     }
 }
 
+/// The token of an `Authorization` header value, read strictly: the scheme
+/// `Bearer` (any case), one space, then a token of RFC 6750's `b64token`
+/// characters (letters, digits, `-._~+/`, then `=` only) and nothing after
+/// it. `None` for anything else (which is answered 401).
+pub fn bearer_token(value: &[u8]) -> Option<&str> {
+    let (scheme, token) = (value.get(..7)?, value.get(7..)?);
+    if !scheme.eq_ignore_ascii_case(b"bearer ") || token.is_empty() {
+        return None;
+    }
+    let body = token.len() - token.iter().rev().take_while(|&&c| c == b'=').count();
+    let ok = body > 0
+        && token[..body]
+            .iter()
+            .all(|&c| c.is_ascii_alphanumeric() || b"-._~+/".contains(&c));
+    ok.then(|| std::str::from_utf8(token).ok()).flatten()
+}
+
 /// The team of a request's bearer token, or 401.
 fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
     let unauthorized = || {
@@ -276,14 +335,9 @@ fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
             "a valid token is needed: send `Authorization: Bearer TOKEN`",
         )
     };
-    let value = headers
+    let token = headers
         .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .ok_or_else(unauthorized)?;
-    let token = value
-        .strip_prefix("Bearer ")
-        .map(str::trim)
-        .filter(|t| !t.is_empty())
+        .and_then(|v| bearer_token(v.as_bytes()))
         .ok_or_else(unauthorized)?;
     state
         .store()
@@ -489,7 +543,10 @@ async fn leaderboard(State(state): State<AppState>) -> ApiResult {
 /// with `finals` (the ids that counted) and `holdout`. Every row has `rank`,
 /// `team`, `role`, `entries` (how many scored), `entry` and `public`.
 /// Participants are ranked 1, 2, ...; the organisers' and the baseline's
-/// rows are placed where their figures put them with `rank: null`.
+/// rows are placed where their figures put them with `rank: null`. After
+/// reveal each row also has `tied_above`: true when its held-out Q_c
+/// interval ([`q_c_interval`]) overlaps that of the row above it (the
+/// board does not rank the two apart).
 pub fn leaderboard_rows(teams: &[Team], subs: &[Submission], revealed: bool) -> Vec<Value> {
     let mut rows: Vec<(Value, (f64, f64), i64)> = Vec::new();
     for team in teams {
@@ -540,6 +597,7 @@ pub fn leaderboard_rows(teams: &[Team], subs: &[Submission], revealed: bool) -> 
             .then(a.2.cmp(&b.2))
     });
     let mut rank = 0;
+    let mut above: Option<[f64; 2]> = None;
     rows.into_iter()
         .map(|(mut r, _, _)| {
             if r["role"] == Role::Participant.name() {
@@ -548,9 +606,28 @@ pub fn leaderboard_rows(teams: &[Team], subs: &[Submission], revealed: bool) -> 
             } else {
                 r["rank"] = Value::Null;
             }
+            if revealed {
+                // Rows whose held-out Q_c intervals (95 %, bootstrap over
+                // base fields) overlap are not ranked apart by this board.
+                let ci = q_c_interval(&r["holdout"]);
+                let tied =
+                    matches!((above, ci), (Some(a), Some(b)) if a[0] <= b[1] && b[0] <= a[1]);
+                r["tied_above"] = json!(tied);
+                above = ci;
+            }
             r
         })
         .collect()
+}
+
+/// The 95 % bootstrap interval of Q_c in a part's summary figures, when
+/// the report has one.
+pub fn q_c_interval(figures: &Value) -> Option<[f64; 2]> {
+    let ci = figures.get("bootstrap")?.get("q_c")?.as_array()?;
+    match (ci.first()?.as_f64(), ci.get(1)?.as_f64()) {
+        (Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() => Some([lo, hi]),
+        _ => None,
+    }
 }
 
 /// The small form fields sent before a multipart upload's `file` (name,
@@ -573,6 +650,28 @@ async fn receive(
     check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<(PathBuf, String, u64), ApiError> {
     let mut check = Some(check);
+    let cut = req
+        .extensions()
+        .get::<crate::net::BodyCut>()
+        .map(|c| c.0.clone());
+    let limits = state.inner.limits.clone();
+    // A body error: 408 when the body guard cut it off, else 400.
+    let broke = |text: String| {
+        if cut.as_ref().is_some_and(|c| c.load(Ordering::SeqCst)) {
+            ApiError::new(
+                StatusCode::REQUEST_TIMEOUT,
+                format!(
+                    "the upload arrived too slowly and was cut off: nothing for {} s, or less \
+                     than {} bytes per second on average after the first {} s",
+                    limits.body_stall_timeout.as_secs(),
+                    limits.body_min_bytes_per_s,
+                    limits.body_grace.as_secs()
+                ),
+            )
+        } else {
+            ApiError::new(StatusCode::BAD_REQUEST, text)
+        }
+    };
     let too_big = || {
         ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
@@ -619,14 +718,10 @@ async fn receive(
         if multipart {
             let mut mp = axum::extract::Multipart::from_request(req, state)
                 .await
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?;
+                .map_err(|e| broke(e.body_text()))?;
             let mut found = false;
             let mut fields: Vec<(String, String)> = Vec::new();
-            while let Some(mut field) = mp
-                .next_field()
-                .await
-                .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
-            {
+            while let Some(mut field) = mp.next_field().await.map_err(|e| broke(e.body_text()))? {
                 if found {
                     continue;
                 }
@@ -640,11 +735,7 @@ async fn receive(
                     }
                     let name = field.name().unwrap_or_default().to_string();
                     let mut value = Vec::new();
-                    while let Some(chunk) = field
-                        .chunk()
-                        .await
-                        .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
-                    {
+                    while let Some(chunk) = field.chunk().await.map_err(|e| broke(e.body_text()))? {
                         value.extend_from_slice(&chunk);
                         if value.len() > FIELD_MAX_BYTES {
                             return Err(ApiError::new(
@@ -660,11 +751,7 @@ async fn receive(
                 if let Some(c) = check.take() {
                     c(&fields)?;
                 }
-                while let Some(chunk) = field
-                    .chunk()
-                    .await
-                    .map_err(|e| ApiError::new(StatusCode::BAD_REQUEST, e.body_text()))?
-                {
+                while let Some(chunk) = field.chunk().await.map_err(|e| broke(e.body_text()))? {
                     sink(chunk.as_ref()).await?;
                 }
             }
@@ -680,12 +767,7 @@ async fn receive(
             }
             let mut body: Body = req.into_body();
             while let Some(frame) = body.frame().await {
-                let frame = frame.map_err(|e| {
-                    ApiError::new(
-                        StatusCode::BAD_REQUEST,
-                        format!("the upload broke off: {e}"),
-                    )
-                })?;
+                let frame = frame.map_err(|e| broke(format!("the upload broke off: {e}")))?;
                 if let Some(data) = frame.data_ref() {
                     sink(data.as_ref()).await?;
                 }
@@ -704,31 +786,56 @@ async fn receive(
     }
 }
 
-/// Refuses with 429 when a team has used its quota of accepted uploads, or
-/// its cap on refused ones, in the last 24 hours.
-fn check_limits(state: &AppState, team_id: i64) -> Result<(), ApiError> {
-    limits(state.store().as_ref(), &state.inner.settings, team_id)
+/// Refuses with 429 when a team has used its quota of accepted uploads
+/// (counting `in_flight` other uploads of it still arriving or being
+/// checked), or its cap on refused ones, in the last 24 hours.
+fn check_limits(state: &AppState, team_id: i64, in_flight: usize) -> Result<(), ApiError> {
+    limits(
+        state.store().as_ref(),
+        &state.inner.settings,
+        team_id,
+        in_flight,
+    )
 }
 
 /// [`check_limits`] on a store the caller holds.
-fn limits(store: &dyn Store, s: &crate::Settings, team_id: i64) -> Result<(), ApiError> {
+fn limits(
+    store: &dyn Store,
+    s: &crate::Settings,
+    team_id: i64,
+    in_flight: usize,
+) -> Result<(), ApiError> {
     let now = crate::now_s();
     let since = now - QUOTA_WINDOW_S;
     let used = store
         .accepted_since(team_id, since)
         .map_err(ApiError::internal)?;
-    if used.len() >= s.quota as usize {
-        let reset = used[used.len() - s.quota as usize] + QUOTA_WINDOW_S;
+    let quota = s.quota as usize;
+    if used.len() + in_flight >= quota {
+        // The slot that frees first: the oldest counted upload leaving the
+        // window, unless uploads still arriving hold the quota.
+        let k = used.len() + in_flight - quota;
+        let reset = used.get(k).map(|t| t + QUOTA_WINDOW_S);
+        let counting = if in_flight > 0 {
+            format!(", counting {in_flight} upload(s) of your team still arriving or being checked")
+        } else {
+            String::new()
+        };
+        let message = match reset {
+            Some(r) => format!(
+                "the quota of {} scored submissions per 24 hours is used{counting}; the next is \
+                 possible at {}",
+                s.quota,
+                crate::utc_text(r)
+            ),
+            None => format!(
+                "the quota of {} scored submissions per 24 hours is used{counting}",
+                s.quota
+            ),
+        };
         return Err(ApiError {
-            reset_s: Some(reset),
-            ..ApiError::new(
-                StatusCode::TOO_MANY_REQUESTS,
-                format!(
-                    "the quota of {} scored submissions per 24 hours is used; the next is possible at {}",
-                    s.quota,
-                    crate::utc_text(reset)
-                ),
-            )
+            reset_s: reset,
+            ..ApiError::new(StatusCode::TOO_MANY_REQUESTS, message)
         });
     }
     let failed = store
@@ -750,6 +857,127 @@ fn limits(store: &dyn Store, s: &crate::Settings, team_id: i64) -> Result<(), Ap
         });
     }
     Ok(())
+}
+
+/// An upload of one team counted as in flight (being received or
+/// checked) until it is dropped; holds a turn of all uploads at once.
+struct UploadSlot {
+    state: AppState,
+    team_id: i64,
+    _all: tokio::sync::OwnedSemaphorePermit,
+}
+
+impl UploadSlot {
+    /// Takes a slot for `team_id`: 429 when the team has
+    /// `uploads_per_team` in flight, 503 when the server has
+    /// `uploads_at_once`. Returns it with the count of the team's other
+    /// uploads in flight.
+    fn take(state: &AppState, team_id: i64) -> Result<(Self, usize), ApiError> {
+        let l = &state.inner.limits;
+        let mut map = state
+            .inner
+            .uploads
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let n = map.get(&team_id).copied().unwrap_or(0);
+        if n >= l.uploads_per_team.max(1) {
+            return Err(ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "{n} upload(s) of your team are still arriving or being checked; at most {} \
+                     at once: send the next when it is answered",
+                    l.uploads_per_team.max(1)
+                ),
+            ));
+        }
+        let all = state
+            .inner
+            .uploads_all
+            .clone()
+            .try_acquire_owned()
+            .map_err(|_| ApiError {
+                reset_s: Some(crate::now_s() + 60),
+                ..ApiError::new(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    format!(
+                        "the server is receiving {} uploads already; send yours again in a minute \
+                         (nothing was counted)",
+                        l.uploads_at_once.max(1)
+                    ),
+                )
+            })?;
+        map.insert(team_id, n + 1);
+        Ok((
+            Self {
+                state: state.clone(),
+                team_id,
+                _all: all,
+            },
+            n,
+        ))
+    }
+}
+
+impl Drop for UploadSlot {
+    fn drop(&mut self) {
+        let mut map = self
+            .state
+            .inner
+            .uploads
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(n) = map.get_mut(&self.team_id) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                map.remove(&self.team_id);
+            }
+        }
+    }
+}
+
+/// The harness's format check of the upload at `tmp`, at most
+/// `checks_at_once` at a time, within `check_budget` of wall-clock time
+/// (its wait for a turn included). `Ok(Err(message))` is the harness's
+/// refusal; `Err` is the server's (the budget, 503), not the participant's.
+async fn format_check(
+    state: &AppState,
+    tmp: &std::path::Path,
+) -> Result<Result<(), String>, ApiError> {
+    let l = &state.inner.limits;
+    let settings = state.inner.settings.clone();
+    let checks = state.inner.checks.clone();
+    let tmp2 = tmp.to_path_buf();
+    let run = async move {
+        let permit = checks.acquire_owned().await.map_err(ApiError::internal)?;
+        // The harness call cannot be stopped: past the budget it goes on
+        // (holding its turn, so checks at once stay bounded) and its
+        // result is dropped.
+        tokio::task::spawn_blocking(move || {
+            let _turn = permit;
+            let opts = crate::worker::upload_options(&settings, &tmp2);
+            stepsim_harness::pipeline::prepare(&opts)
+                .map(drop)
+                .map_err(|e| {
+                    crate::worker::participant_message(&e.to_string(), &tmp2, &settings.truth_dir)
+                })
+        })
+        .await
+        .map_err(ApiError::internal)
+    };
+    match tokio::time::timeout(l.check_budget, run).await {
+        Ok(r) => r,
+        Err(_) => Err(ApiError {
+            reset_s: Some(crate::now_s() + 60),
+            ..ApiError::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!(
+                    "the server could not check the upload within {} s (it is busy); it was not \
+                     kept and not counted against your team: send it again later",
+                    l.check_budget.as_secs()
+                ),
+            )
+        }),
+    }
 }
 
 async fn post_submission(State(state): State<AppState>, req: Request) -> ApiResult {
@@ -791,25 +1019,35 @@ pub(crate) async fn submit(
     req: Request,
     check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<Accepted, ApiError> {
+    if let Some(live) = &state.inner.workers
+        && live.load(Ordering::SeqCst) == 0
+    {
+        eprintln!("stepsim serve: no scoring worker runs; uploads are refused");
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the scoring queue is not running, so uploads are not accepted; nothing was \
+             counted. The organisers have been told by the server's log",
+        ));
+    }
     let phase = Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
     if let Some(why) = phase.upload_refusal(crate::now_s()) {
         return Err(ApiError::new(StatusCode::FORBIDDEN, why));
     }
-    check_limits(state, team.id)?;
+    // Before a byte of the body is read: a turn among the team's and all
+    // uploads at once, and the quota counting the team's uploads in flight.
+    let (_slot, in_flight) = UploadSlot::take(state, team.id)?;
+    check_limits(state, team.id, in_flight)?;
     let max = state.inner.settings.max_upload_bytes;
     let (tmp, sha, size) = receive(state, req, max, check).await?;
     // The format check: the harness reads the whole upload against every
     // image of the run, as `stepsim score` does.
-    let truth = state.inner.settings.truth_dir.clone();
-    let tmp2 = tmp.clone();
-    let check = tokio::task::spawn_blocking(move || {
-        let opts = stepsim_harness::pipeline::ScoreOptions::new(&truth, &tmp2);
-        stepsim_harness::pipeline::prepare(&opts)
-            .map(drop)
-            .map_err(|e| crate::worker::participant_message(&e.to_string(), &tmp2, &truth))
-    })
-    .await
-    .map_err(ApiError::internal)?;
+    let check = match format_check(state, &tmp).await {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = tokio::fs::remove_file(&tmp).await;
+            return Err(e);
+        }
+    };
     if let Err(message) = check {
         let _ = tokio::fs::remove_file(&tmp).await;
         state
@@ -844,7 +1082,7 @@ pub(crate) async fn submit(
             duplicate: true,
         });
     }
-    limits(store.as_ref(), &state.inner.settings, team.id).map_err(refuse)?;
+    limits(store.as_ref(), &state.inner.settings, team.id, in_flight).map_err(refuse)?;
     let final_path = state.inner.dir.join("uploads").join(&sha);
     if final_path.exists() {
         let _ = std::fs::remove_file(&tmp);
@@ -864,28 +1102,22 @@ pub(crate) async fn submit(
     })
 }
 
-/// Serves the API on `listen` with `workers` scoring workers until the
-/// process ends. Jobs left `scoring` by a stopped server are queued again.
+/// Serves the API on `listen` with `workers` scoring workers under
+/// `limits` until the process ends ([`crate::net::serve_with_limits`]).
+/// Jobs left `scoring` by a stopped server are queued again.
 pub async fn serve(
     dir: PathBuf,
     listen: &str,
     workers: usize,
     timeout: std::time::Duration,
+    limits: Limits,
 ) -> Result<(), crate::ChallengeError> {
     let mut ch = Challenge::open(&dir)?;
     let n = ch.store.requeue_interrupted()?;
     if n > 0 {
         eprintln!("stepsim serve: {n} interrupted scoring jobs queued again");
     }
-    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    for _ in 0..workers.max(1) {
-        let (d, s) = (dir.clone(), stop.clone());
-        std::thread::spawn(move || {
-            if let Err(e) = crate::worker::run_worker(&d, s, timeout) {
-                eprintln!("stepsim serve: worker stopped: {e}");
-            }
-        });
-    }
+    let pool = crate::worker::WorkerPool::start(&dir, workers, timeout);
     let listener = tokio::net::TcpListener::bind(listen)
         .await
         .map_err(|e| crate::ChallengeError::Run(format!("cannot listen on {listen}: {e}")))?;
@@ -893,12 +1125,10 @@ pub async fn serve(
         .local_addr()
         .map_err(|e| crate::ChallengeError::Run(e.to_string()))?;
     eprintln!("stepsim serve: listening on http://{addr}");
-    axum::serve(
-        listener,
-        router(AppState::new(ch)).into_make_service_with_connect_info::<std::net::SocketAddr>(),
-    )
-    .await
-    .map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
+    let state = AppState::with_limits(ch, limits.clone(), Some(pool.live()));
+    let result = crate::net::serve_with_limits(listener, router(state), limits).await;
+    pool.stop();
+    result.map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
 }
 
 /// [`serve`] on a runtime of its own (for the command line).
@@ -907,11 +1137,12 @@ pub fn serve_blocking(
     listen: &str,
     workers: usize,
     timeout: std::time::Duration,
+    limits: Limits,
 ) -> Result<(), crate::ChallengeError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .map_err(|e| crate::ChallengeError::Run(format!("cannot start the server: {e}")))?;
-    rt.block_on(serve(dir, listen, workers, timeout))
+    rt.block_on(serve(dir, listen, workers, timeout, limits))
 }

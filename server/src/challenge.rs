@@ -374,12 +374,20 @@ pub const EXPORT_CSV_COLUMNS: [&str; 9] = [
     "rank", "team", "entry", "part", "m_mean", "sigma_c", "q_c", "report", "role",
 ];
 
-/// Quotes a CSV field when it holds a comma, quote or line break.
-fn csv_field(s: &str) -> String {
+/// A text field of the CSV export: neutralised when a spreadsheet would
+/// read it as a formula (it starts with `=`, `+`, `-`, `@`, a tab or a
+/// carriage return: a `'` goes first, as OWASP advises for CSV injection),
+/// then quoted when it holds a comma, quote or line break.
+pub fn csv_field(s: &str) -> String {
+    let s = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        format!("'{s}")
+    } else {
+        s.to_string()
+    };
     if s.contains([',', '"', '\n', '\r']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {
-        s.to_string()
+        s
     }
 }
 
@@ -640,5 +648,30 @@ pub fn final_entries_or_default<'a>(subs: &[&'a Submission]) -> Vec<&'a Submissi
         best_public(subs).into_iter().collect()
     } else {
         chosen
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::csv_field;
+
+    #[test]
+    fn csv_fields_that_a_spreadsheet_would_run_are_neutralised() {
+        assert_eq!(
+            csv_field("=HYPERLINK(\"http://x\",\"a\")"),
+            "\"'=HYPERLINK(\"\"http://x\"\",\"\"a\"\")\""
+        );
+        for (t, want) in [
+            ("+1", "'+1"),
+            ("-1+2", "'-1+2"),
+            ("@SUM(A1)", "'@SUM(A1)"),
+            ("\tx", "'\tx"),
+            ("\rx", "\"'\rx\""),
+            ("Lensing Group A", "Lensing Group A"),
+            ("a=b", "a=b"),
+            ("a,b", "\"a,b\""),
+        ] {
+            assert_eq!(csv_field(t), want, "{t:?}");
+        }
     }
 }

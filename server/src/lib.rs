@@ -8,7 +8,10 @@
 //! challenge.rs  a challenge's directory: init, teams and tokens, reveal
 //! api.rs        the JSON API (axum): uploads, entries, finals, leaderboard
 //! data.rs       the run's public files, as its manifest lists them
-//! worker.rs     the scoring queue: claims jobs, calls the harness, records
+//! worker.rs     the scoring queue: claims jobs, calls the harness, records;
+//!               store errors are waited out, never end a worker
+//! limits.rs     the limits on connections, bodies, uploads, format checks
+//! net.rs        the connection layer (hyper): timeouts, caps per address
 //! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
 //!
@@ -20,6 +23,8 @@
 pub mod api;
 pub mod challenge;
 pub mod data;
+pub mod limits;
+pub mod net;
 pub mod store;
 pub mod web;
 pub mod worker;

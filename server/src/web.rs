@@ -1102,6 +1102,10 @@ struct BoardRow {
     h_m_mean: String,
     h_sigma_c: String,
     h_q_c: String,
+    /// After reveal: the held-out Q_c's 95 % interval (`lo–hi`).
+    h_q_c_ci: String,
+    /// After reveal: its interval overlaps the row above's.
+    tied_above: bool,
 }
 
 /// The leaderboard rows (as the API ranks them) and whether revealed.
@@ -1156,6 +1160,10 @@ async fn leaderboard_page(
                 h_m_mean: signed(n("holdout", "m_mean"), 4),
                 h_sigma_c: fixed(n("holdout", "sigma_c"), 5),
                 h_q_c: fixed(n("holdout", "q_c"), 1),
+                h_q_c_ci: crate::api::q_c_interval(&r["holdout"])
+                    .map(|[lo, hi]| format!("{}–{}", fixed(Some(lo), 1), fixed(Some(hi), 1)))
+                    .unwrap_or_default(),
+                tied_above: r["tied_above"].as_bool().unwrap_or(false),
             }
         })
         .collect();

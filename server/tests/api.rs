@@ -1271,7 +1271,18 @@ fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
     let f = fixture(2, &["alpha"]);
-    let app = f.app();
+    // Six at once allowed per team (the default is one: the rest would be
+    // refused before their bodies, hardening.rs), so that all six reach
+    // the quota's check in the store.
+    let app = router(AppState::with_limits(
+        Challenge::open(&f.state).unwrap(),
+        stepsim_server::limits::Limits {
+            uploads_per_team: 6,
+            uploads_at_once: 6,
+            ..Default::default()
+        },
+        None,
+    ));
     let handles: Vec<_> = (0..6)
         .map(|k| {
             let (app, token) = (app.clone(), f.tokens[0].clone());

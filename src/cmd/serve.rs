@@ -1,8 +1,10 @@
 //! `stepsim serve`: the challenge's web server and scoring workers.
 
 use std::path::PathBuf;
+use std::time::Duration;
+use stepsim_server::limits as l;
 
-/// Arguments of `stepsim serve`.
+/// Arguments of `stepsim serve` (the limits: docs/server.md, "Threat model").
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// The challenge's state directory (`stepsim challenge init`).
@@ -17,15 +19,64 @@ pub struct Args {
     /// Give up a scoring job after this many seconds.
     #[arg(long, value_name = "S", default_value_t = 600)]
     timeout_s: u64,
+    /// Close a connection whose request headers take longer (from their first byte).
+    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_HEADER_TIMEOUT.as_secs())]
+    header_timeout_s: u64,
+    /// Close a connection with no request in flight and no traffic for this long.
+    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_IDLE_TIMEOUT.as_secs())]
+    idle_timeout_s: u64,
+    /// Cut off a request body that sends nothing for this long (408).
+    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_BODY_STALL_TIMEOUT.as_secs())]
+    body_stall_s: u64,
+    /// Cut off a request body slower than this on average after the first body-grace seconds.
+    #[arg(long, value_name = "BYTES", default_value_t = l::DEFAULT_BODY_MIN_BYTES_PER_S)]
+    body_min_bytes_per_s: u64,
+    /// See --body-min-bytes-per-s.
+    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_BODY_GRACE.as_secs())]
+    body_grace_s: u64,
+    /// Connections open at once, all clients.
+    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_MAX_CONNECTIONS)]
+    max_connections: usize,
+    /// Connections open at once from one client address (raise it behind a proxy).
+    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_MAX_CONNECTIONS_PER_ADDR)]
+    max_connections_per_addr: usize,
+    /// Uploads of one team received or checked at once.
+    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_UPLOADS_PER_TEAM)]
+    uploads_per_team: usize,
+    /// Uploads received or checked at once, all teams.
+    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_UPLOADS_AT_ONCE)]
+    uploads_at_once: usize,
+    /// Format checks at once (default: one per core).
+    #[arg(long, value_name = "N")]
+    checks_at_once: Option<usize>,
+    /// Wall-clock budget of one format check, its wait for a turn included.
+    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_CHECK_BUDGET.as_secs())]
+    check_budget_s: u64,
 }
 
 /// Serves until the process ends.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    let limits = l::Limits {
+        header_timeout: Duration::from_secs(args.header_timeout_s),
+        idle_timeout: Duration::from_secs(args.idle_timeout_s),
+        body_stall_timeout: Duration::from_secs(args.body_stall_s),
+        body_min_bytes_per_s: args.body_min_bytes_per_s,
+        body_grace: Duration::from_secs(args.body_grace_s),
+        max_connections: args.max_connections,
+        max_connections_per_addr: args.max_connections_per_addr,
+        uploads_per_team: args.uploads_per_team,
+        uploads_at_once: args.uploads_at_once,
+        checks_at_once: args
+            .checks_at_once
+            .unwrap_or_else(l::default_checks_at_once),
+        check_budget: Duration::from_secs(args.check_budget_s),
+    };
     stepsim_server::api::serve_blocking(
         args.state.clone(),
         &args.listen,
         args.workers,
-        std::time::Duration::from_secs(args.timeout_s),
+        Duration::from_secs(args.timeout_s),
+        limits,
     )?;
     Ok(())
 }
