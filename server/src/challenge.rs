@@ -10,7 +10,11 @@ use stepsim_harness::truth_set::load_truth_set;
 pub const DB_FILE: &str = "challenge.db";
 /// Default rolling 24-hour quota of scored submissions per team.
 pub const DEFAULT_QUOTA: u32 = 4;
-/// Default cap on one upload, in bytes (the harness's own limit).
+/// The floor of the cap on one upload, in bytes: the harness's own floor.
+/// The cap recorded at `init` is the run's own limit
+/// (`stepsim_harness::truth_set::run_submission_limit`: 256 bytes per truth
+/// object and 64 KiB per image, never below this), unless the organiser
+/// sets another (`challenge init --max-upload-bytes`).
 pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::input::MAX_SUBMISSION_BYTES;
 /// Uploads refused by the format check allowed per team per 24 hours.
 pub const DEFAULT_FORMAT_FAILURE_CAP: u32 = 20;
@@ -128,11 +132,13 @@ impl Challenge {
         }
         let truth_dir = std::fs::canonicalize(&truth_dir)
             .map_err(|e| ChallengeError::Run(format!("{}: {e}", truth_dir.display())))?;
+        let max_upload_bytes = stepsim_harness::truth_set::run_submission_limit(&truth)
+            .map_err(|e| ChallengeError::Run(e.to_string()))?;
         let mut store = SqliteStore::open(&dir.join(DB_FILE), true)?;
         let settings = Settings {
             truth_dir,
             quota,
-            max_upload_bytes: DEFAULT_MAX_UPLOAD_BYTES,
+            max_upload_bytes,
             format_failure_cap: DEFAULT_FORMAT_FAILURE_CAP,
             requests_per_minute: DEFAULT_REQUESTS_PER_MINUTE,
             holdout,
@@ -278,6 +284,21 @@ impl Challenge {
             ));
         }
         Ok(self.store.set_meta("name", name)?)
+    }
+
+    /// Sets the cap on one upload in bytes (stored and after gzip
+    /// decompression), replacing the run's own limit chosen at `init`; it
+    /// takes effect when the server next starts.
+    pub fn set_max_upload_bytes(&mut self, bytes: u64) -> Result<(), ChallengeError> {
+        if bytes == 0 {
+            return Err(ChallengeError::Run(
+                "--max-upload-bytes must be at least 1".into(),
+            ));
+        }
+        self.store
+            .set_meta("max_upload_bytes", &bytes.to_string())?;
+        self.settings.max_upload_bytes = bytes;
+        Ok(())
     }
 
     /// Sets (or, with `None`, removes) the deadline (Unix seconds): uploads

@@ -32,7 +32,9 @@ pub fn participant_message(message: &str, upload: &Path, truth_dir: &Path) -> St
 /// check of an upload (`api::submit`) and the worker build them, so that a
 /// limit set here holds for both.
 pub fn upload_options(settings: &Settings, upload: &Path) -> ScoreOptions {
-    ScoreOptions::new(&settings.truth_dir, upload)
+    let mut opts = ScoreOptions::new(&settings.truth_dir, upload);
+    opts.max_submission_bytes = Some(settings.max_upload_bytes);
+    opts
 }
 
 /// Scores entry `sub` of `ch`: the public part (feedback), and the held-out

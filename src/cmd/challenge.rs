@@ -48,6 +48,11 @@ enum Command {
         /// directory's name).
         #[arg(long, value_name = "TEXT")]
         name: Option<String>,
+        /// Cap on one upload in bytes, as stored and after gzip
+        /// decompression (default: the run's own limit, 256 bytes per truth
+        /// object and 64 KiB per image, at least 256 MiB).
+        #[arg(long, value_name = "BYTES")]
+        max_upload_bytes: Option<u64>,
     },
     /// Set the deadline: uploads are refused from then on.
     Deadline {
@@ -157,6 +162,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             no_holdout,
             deadline,
             name,
+            max_upload_bytes,
         } => {
             if let Some(n) = name {
                 let n = n.trim();
@@ -173,11 +179,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             if deadline.is_some() {
                 ch.set_deadline(*deadline)?;
             }
+            if let Some(b) = max_upload_bytes {
+                ch.set_max_upload_bytes(*b)?;
+            }
             eprintln!(
-                "stepsim: challenge in {} for {} (quota {} per 24 h{})",
+                "stepsim: challenge in {} for {} (quota {} per 24 h, uploads up to {}{})",
                 state.display(),
                 ch.settings.truth_dir.display(),
                 ch.settings.quota,
+                stepsim_harness::input::show_bytes(ch.settings.max_upload_bytes),
                 if ch.settings.holdout {
                     ", held-out part scored at reveal"
                 } else {

@@ -9,7 +9,12 @@ use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_
 /// 2 shears on fields 0-1) and the held-out part (other shears on fields
 /// 2-3). Returns the whole run and its held-out part.
 pub fn write_run(dir: &Path) -> (SynthRun, SynthRun) {
-    let mut spec = SynthSpec::small(2);
+    write_run_of_fields(dir, 2)
+}
+
+/// [`write_run`] with `fields` base fields in each part.
+pub fn write_run_of_fields(dir: &Path, fields: u32) -> (SynthRun, SynthRun) {
+    let mut spec = SynthSpec::small(fields);
     spec.psfs.truncate(2);
     spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
     let (_, held, all) = challenge_run(&spec, &[(0.0371, -0.0523), (-0.0617, 0.0289)], 7);
