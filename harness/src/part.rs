@@ -41,7 +41,7 @@ pub fn has_holdout(datasets: &Datasets) -> bool {
 /// Refuses a run without datasets of that part. The run identity becomes
 /// `<identity>#<part>`, so that a leaderboard never ranks a part's report
 /// with a whole run's.
-pub fn restrict(p: Prepared, part: Part) -> Result<Prepared, HarnessError> {
+pub fn restrict(p: &Prepared, part: Part) -> Result<Prepared, HarnessError> {
     let datasets = part_datasets(&p.truth.datasets, part);
     let path = p.truth.dir.join("datasets.json");
     if datasets.datasets.is_empty() {
@@ -63,14 +63,24 @@ pub fn restrict(p: Prepared, part: Part) -> Result<Prepared, HarnessError> {
     Ok(Prepared {
         truth,
         submission,
-        warnings: p.warnings,
+        warnings: p.warnings.clone(),
     })
 }
 
 /// Scores the datasets of `part` only (the same stages as
 /// [`crate::pipeline::score`]).
 pub fn score_part(opts: &ScoreOptions, part: Part) -> Result<Report, HarnessError> {
-    let p = restrict(prepare(opts)?, part)?;
+    score_prepared_part(&prepare(opts)?, part, opts)
+}
+
+/// [`score_part`] of a submission already read ([`prepare`]): a caller
+/// that scores both parts reads and checks the file once.
+pub fn score_prepared_part(
+    p: &Prepared,
+    part: Part,
+    opts: &ScoreOptions,
+) -> Result<Report, HarnessError> {
+    let p = restrict(p, part)?;
     let stats = match_images(&p, opts.match_radius_arcsec)?;
     Ok(build_report(&p, &stats, opts))
 }

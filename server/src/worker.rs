@@ -9,8 +9,8 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Duration;
-use stepsim_harness::part::{Part, PublicFeedback, score_part};
-use stepsim_harness::pipeline::ScoreOptions;
+use stepsim_harness::part::{Part, PublicFeedback, score_prepared_part};
+use stepsim_harness::pipeline::{ScoreOptions, prepare};
 use stepsim_harness::write_outputs;
 
 /// Recorded with every score: a scorer change shows in the database.
@@ -62,7 +62,9 @@ pub fn score_upload(
     opts.name = Some(format!("entry {}", sub.id));
     let msg =
         |e: stepsim_harness::HarnessError| participant_message(&e.to_string(), &upload, truth);
-    let public = score_part(&opts, Part::Public).map_err(msg)?;
+    // The upload is read and checked once; both parts are scored from it.
+    let prepared = prepare(&opts).map_err(msg)?;
+    let public = score_prepared_part(&prepared, Part::Public, &opts).map_err(msg)?;
     write_outputs(&entry_dir(Part::Public), &public, true).map_err(msg)?;
     let feedback =
         serde_json::to_string(&PublicFeedback::of_report(&public)).map_err(|e| e.to_string())?;
@@ -73,7 +75,7 @@ pub fn score_upload(
         // failure is kept as the held-out result (`{"error": …}`, opened
         // at reveal like any held-out figure).
         let held = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            let report = score_part(&opts, Part::Holdout).map_err(msg)?;
+            let report = score_prepared_part(&prepared, Part::Holdout, &opts).map_err(msg)?;
             write_outputs(&entry_dir(Part::Holdout), &report, true).map_err(msg)?;
             serde_json::to_string(&report.summary).map_err(|e| e.to_string())
         }))
