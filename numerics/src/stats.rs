@@ -45,19 +45,27 @@ pub fn normal_cdf(x: f64) -> f64 {
     0.5 * erfc(-x / std::f64::consts::SQRT_2)
 }
 
+/// The quantile of a distribution on the whole real line at a `p` that is
+/// not inside (0, 1): NaN outside [0, 1], −∞ at 0, +∞ at 1; `None` for p in
+/// (0, 1), which the distribution's own quantile answers.
+pub(crate) fn quantile_outside_open_unit(p: f64) -> Option<f64> {
+    if !(0.0..=1.0).contains(&p) {
+        Some(f64::NAN)
+    } else if p == 0.0 {
+        Some(f64::NEG_INFINITY)
+    } else if p == 1.0 {
+        Some(f64::INFINITY)
+    } else {
+        None
+    }
+}
+
 /// The standard normal quantile Φ⁻¹(p): bisection ([`crate::roots::Bisection`],
 /// to machine precision) of [`normal_cdf`] on [−40, 40]. NaN for p outside
 /// [0, 1]; ±∞ at p = 0, 1.
 pub fn normal_quantile(p: f64) -> f64 {
-    if !(0.0..=1.0).contains(&p) {
-        return f64::NAN;
-    }
-    if p == 0.0 || p == 1.0 {
-        return if p == 1.0 {
-            f64::INFINITY
-        } else {
-            f64::NEG_INFINITY
-        };
+    if let Some(q) = quantile_outside_open_unit(p) {
+        return q;
     }
     let (lo, hi) = crate::roots::Bisection::halvings(200).run(-40.0, 40.0, |x| normal_cdf(x) >= p);
     0.5 * (lo + hi)

@@ -78,15 +78,11 @@ pub fn t_cdf(t: f64, nu: u32) -> f64 {
 /// The `p` quantile of Student's t with `nu` degrees of freedom: the t with
 /// [`t_cdf`]`(t, ν) = p`. NaN for ν = 0 or p outside (0, 1); ±∞ at p = 0, 1.
 pub fn t_quantile(p: f64, nu: u32) -> f64 {
-    if nu == 0 || !(0.0..=1.0).contains(&p) {
+    if nu == 0 {
         return f64::NAN;
     }
-    if p == 0.0 || p == 1.0 {
-        return if p == 1.0 {
-            f64::INFINITY
-        } else {
-            f64::NEG_INFINITY
-        };
+    if let Some(q) = crate::stats::quantile_outside_open_unit(p) {
+        return q;
     }
     if p < 0.5 {
         return -t_quantile(1.0 - p, nu);
