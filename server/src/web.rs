@@ -1160,9 +1160,15 @@ async fn leaderboard_page(
                 h_m_mean: signed(n("holdout", "m_mean"), 4),
                 h_sigma_c: fixed(n("holdout", "sigma_c"), 5),
                 h_q_c: fixed(n("holdout", "q_c"), 1),
+                // An interval of no width at the precision shown (the
+                // bootstrap found no spread: one base field, or resamples
+                // that all agree) says nothing of the uncertainty: "—", as
+                // for none.
                 h_q_c_ci: crate::api::q_c_interval(&r["holdout"])
-                    .map(|[lo, hi]| format!("{}–{}", fixed(Some(lo), 1), fixed(Some(hi), 1)))
-                    .unwrap_or_default(),
+                    .map(|[lo, hi]| (fixed(Some(lo), 1), fixed(Some(hi), 1)))
+                    .filter(|(lo, hi)| lo != hi)
+                    .map(|(lo, hi)| format!("{lo}–{hi}"))
+                    .unwrap_or_else(|| "—".to_owned()),
                 tied_above: r["tied_above"].as_bool().unwrap_or(false),
             }
         })

@@ -536,6 +536,13 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
     // figures; the other entry for its own team only.
     let r = anyone.get("/leaderboard").await;
     assert!(r.body.contains("Final leaderboard"));
+    // The noise-free catalogue's bootstrap has no spread: its interval is
+    // shown as "—", not as "Q–Q".
+    assert!(
+        r.body.contains("<td class=\"num muted\">—</td>"),
+        "{}",
+        r.body
+    );
     assert!(r.body.contains("href=\"/entries/1/report\""), "{}", r.body);
     let r = anyone.get("/entries/1/report").await;
     assert_eq!(r.status, StatusCode::OK, "{}", r.body);
