@@ -19,8 +19,13 @@ fn stepsim(args: &[&str]) -> std::process::Output {
     out
 }
 
-/// Starts `stepsim serve` on a free port; returns the child and its address.
-fn serve(state: &Path) -> (Child, String) {
+/// The lines a server wrote to its standard error, as they come.
+type Log = std::sync::Arc<std::sync::Mutex<Vec<String>>>;
+
+/// Starts `stepsim serve` on a free port (its log as JSON with `json`);
+/// returns the child, its address and its log.
+fn serve(state: &Path, json: bool) -> (Child, String, Log) {
+    let format = if json { "json" } else { "plain" };
     let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
         .args([
             "serve",
@@ -28,6 +33,8 @@ fn serve(state: &Path) -> (Child, String) {
             state.to_str().unwrap(),
             "--listen",
             "127.0.0.1:0",
+            "--log-format",
+            format,
         ])
         .stderr(Stdio::piped())
         .stdout(Stdio::null())
@@ -41,8 +48,14 @@ fn serve(state: &Path) -> (Child, String) {
         }
     };
     // Keep draining stderr so the server never blocks on it.
-    std::thread::spawn(move || for _ in lines {});
-    (child, addr)
+    let log = Log::default();
+    let log2 = log.clone();
+    std::thread::spawn(move || {
+        for l in lines.map_while(Result::ok) {
+            log2.lock().unwrap().push(l);
+        }
+    });
+    (child, addr, log)
 }
 
 /// One HTTP/1.1 request; returns (status, body).
@@ -112,7 +125,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     let token = stdout.lines().last().unwrap().to_string();
     assert!(token.starts_with("stp_") && token.len() == 68, "{stdout}");
 
-    let (mut server, addr) = serve(&state);
+    let (mut server, addr, _) = serve(&state, false);
     let mut ids = Vec::new();
     let mut files = Vec::new();
     for m in [0.0, 0.01, 0.02] {
@@ -131,7 +144,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     server.kill().unwrap(); // SIGKILL
     server.wait().unwrap();
 
-    let (mut server, addr) = serve(&state);
+    let (mut server, addr, log) = serve(&state, true);
     let mut done = false;
     for _ in 0..1200 {
         let statuses: Vec<String> = ids
@@ -152,6 +165,29 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     server.kill().unwrap();
     server.wait().unwrap();
     assert!(done, "every accepted upload is scored");
+    // The JSON log: a line per request (method, path, status, ms, team)
+    // and per scoring job, each one JSON object.
+    let log: Vec<serde_json::Value> = log
+        .lock()
+        .unwrap()
+        .iter()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l}: {e}")))
+        .collect();
+    let first = &ids[0].to_string();
+    let request = log
+        .iter()
+        .find(|v| v["message"] == "request" && v["path"] == format!("/api/submissions/{first}"))
+        .unwrap_or_else(|| panic!("no request line: {log:?}"));
+    assert_eq!(request["method"], "GET", "{request}");
+    assert_eq!(request["status"], 200, "{request}");
+    assert_eq!(request["team"], "1", "{request}");
+    assert!(request["ms"].as_str().unwrap().parse::<f64>().unwrap() >= 0.0);
+    // Every job this server started (those the killed one had not
+    // finished) ended scored, each with its line.
+    let count = |m: &str| log.iter().filter(|v| v["message"] == m).count();
+    let started = count("scoring started");
+    assert!(started <= ids.len(), "{log:?}");
+    assert_eq!(count("scoring ended: scored"), started, "{log:?}");
     let ch = stepsim_server::Challenge::open(&state).unwrap();
     let truth = run.join("private");
     for (id, file) in ids.iter().zip(&files) {
@@ -181,7 +217,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
         .unwrap()
         .to_string();
     assert_ne!(new_token, token);
-    let (mut server, addr) = serve(&state);
+    let (mut server, addr, _) = serve(&state, false);
     assert_eq!(http(&addr, "GET", "/api/submissions", &token, b"").0, 401);
     assert_eq!(
         http(&addr, "GET", "/api/submissions", &new_token, b"").0,

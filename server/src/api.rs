@@ -61,6 +61,11 @@ struct Inner {
     checks: Arc<tokio::sync::Semaphore>,
     /// Times (s) of the recent requests of each token hash / client address.
     recent: Mutex<std::collections::HashMap<String, std::collections::VecDeque<i64>>>,
+    /// The counters behind `/metrics` (shared with the server's workers).
+    metrics: Arc<crate::observe::Metrics>,
+    /// `/metrics` answers anyone (`serve --open-metrics`), not only the
+    /// organisers.
+    open_metrics: bool,
 }
 
 /// The window of the per-token and per-address rate limit.
@@ -81,6 +86,28 @@ impl AppState {
     /// scoring workers ([`crate::worker::WorkerPool::live`]): while it is
     /// 0, uploads are refused with 503.
     pub fn with_limits(ch: Challenge, limits: Limits, workers: Option<Arc<AtomicUsize>>) -> Self {
+        Self::build(ch, limits, workers, Arc::default(), false)
+    }
+
+    /// The state of a server running `pool`'s workers: uploads are refused
+    /// while none is alive, `/metrics` counts their jobs, and answers
+    /// anyone when `open_metrics`.
+    pub fn serving(
+        ch: Challenge,
+        limits: Limits,
+        pool: &crate::worker::WorkerPool,
+        open_metrics: bool,
+    ) -> Self {
+        Self::build(ch, limits, Some(pool.live()), pool.metrics(), open_metrics)
+    }
+
+    fn build(
+        ch: Challenge,
+        limits: Limits,
+        workers: Option<Arc<AtomicUsize>>,
+        metrics: Arc<crate::observe::Metrics>,
+        open_metrics: bool,
+    ) -> Self {
         Self {
             inner: Arc::new(Inner {
                 dir: ch.dir,
@@ -92,8 +119,28 @@ impl AppState {
                 checks: Arc::new(tokio::sync::Semaphore::new(limits.checks_at_once.max(1))),
                 limits,
                 recent: Mutex::new(std::collections::HashMap::new()),
+                metrics,
+                open_metrics,
             }),
         }
+    }
+
+    /// The server's counters (`/metrics`).
+    pub fn metrics(&self) -> &crate::observe::Metrics {
+        &self.inner.metrics
+    }
+
+    /// True when `/metrics` answers anyone (`serve --open-metrics`).
+    pub fn open_metrics(&self) -> bool {
+        self.inner.open_metrics
+    }
+
+    /// The live scoring workers of this server, when it runs its own.
+    pub fn live_workers(&self) -> Option<usize> {
+        self.inner
+            .workers
+            .as_ref()
+            .map(|w| w.load(Ordering::SeqCst))
     }
 
     /// The server's limits.
@@ -146,7 +193,7 @@ impl ApiError {
     }
     /// A 500 whose cause goes to the server's log only.
     pub fn internal(e: impl std::fmt::Display) -> Self {
-        eprintln!("stepsim serve: internal error: {e}");
+        tracing::error!(error = %e, "internal error");
         Self::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             "the server failed; the organisers can see why in its log",
@@ -223,6 +270,10 @@ pub fn router(state: AppState) -> Router {
         .layer(H::overriding(
             header::CACHE_CONTROL,
             HeaderValue::from_static("no-store"),
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.inner.metrics.clone(),
+            crate::observe::log_requests,
         ))
         .with_state(state)
 }
@@ -339,11 +390,13 @@ fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
         .get(header::AUTHORIZATION)
         .and_then(|v| bearer_token(v.as_bytes()))
         .ok_or_else(unauthorized)?;
-    state
+    let team = state
         .store()
         .team_by_token(&token_hash(token))
         .map_err(ApiError::internal)?
-        .ok_or_else(unauthorized)
+        .ok_or_else(unauthorized)?;
+    crate::observe::note_team(team.id);
+    Ok(team)
 }
 
 /// One entry as its team sees it: `id`, `status`, `created`, `sha256`,
@@ -1019,10 +1072,43 @@ pub(crate) async fn submit(
     req: Request,
     check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<Accepted, ApiError> {
+    let result = receive_and_queue(state, team, req, check).await;
+    let status = match &result {
+        Ok(a) if a.duplicate => StatusCode::OK,
+        Ok(_) => StatusCode::ACCEPTED,
+        Err(e) => e.status,
+    };
+    state.metrics().upload(status.as_u16());
+    match &result {
+        Ok(a) if a.duplicate => {
+            tracing::info!(
+                team = team.id,
+                entry = a.id,
+                "upload: a duplicate of an entry"
+            );
+        }
+        Ok(a) => tracing::info!(team = team.id, entry = a.id, "upload accepted and queued"),
+        Err(e) => tracing::info!(
+            team = team.id,
+            status = e.status.as_u16(),
+            reason = %crate::observe::first_line(&e.message),
+            "upload refused"
+        ),
+    }
+    result
+}
+
+/// [`submit`]'s work, before it is logged and counted.
+async fn receive_and_queue(
+    state: &AppState,
+    team: &Team,
+    req: Request,
+    check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
+) -> Result<Accepted, ApiError> {
     if let Some(live) = &state.inner.workers
         && live.load(Ordering::SeqCst) == 0
     {
-        eprintln!("stepsim serve: no scoring worker runs; uploads are refused");
+        tracing::error!("no scoring worker runs; uploads are refused");
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             "the scoring queue is not running, so uploads are not accepted; nothing was \
@@ -1082,7 +1168,11 @@ pub(crate) async fn submit(
             duplicate: true,
         });
     }
-    limits(store.as_ref(), &state.inner.settings, team.id, in_flight).map_err(refuse)?;
+    // Only accepted entries count here: the uploads that were in flight
+    // when this one took its slot have been counted before its body was
+    // read, and those that finished since are in the store (counting them
+    // again refused the second of two parallel uploads under a quota of 2).
+    limits(store.as_ref(), &state.inner.settings, team.id, 0).map_err(refuse)?;
     let final_path = state.inner.dir.join("uploads").join(&sha);
     if final_path.exists() {
         let _ = std::fs::remove_file(&tmp);
@@ -1103,7 +1193,8 @@ pub(crate) async fn submit(
 }
 
 /// Serves the API on `listen` with `workers` scoring workers under
-/// `limits` until the process ends ([`crate::net::serve_with_limits`]).
+/// `limits` until the process ends ([`crate::net::serve_with_limits`]);
+/// `/metrics` answers anyone when `open_metrics`, else the organisers.
 /// Jobs left `scoring` by a stopped server are queued again.
 pub async fn serve(
     dir: PathBuf,
@@ -1111,11 +1202,12 @@ pub async fn serve(
     workers: usize,
     timeout: std::time::Duration,
     limits: Limits,
+    open_metrics: bool,
 ) -> Result<(), crate::ChallengeError> {
     let mut ch = Challenge::open(&dir)?;
     let n = ch.store.requeue_interrupted()?;
     if n > 0 {
-        eprintln!("stepsim serve: {n} interrupted scoring jobs queued again");
+        tracing::warn!(jobs = n, "interrupted scoring jobs queued again");
     }
     let pool = crate::worker::WorkerPool::start(&dir, workers, timeout);
     let listener = tokio::net::TcpListener::bind(listen)
@@ -1125,7 +1217,7 @@ pub async fn serve(
         .local_addr()
         .map_err(|e| crate::ChallengeError::Run(e.to_string()))?;
     eprintln!("stepsim serve: listening on http://{addr}");
-    let state = AppState::with_limits(ch, limits.clone(), Some(pool.live()));
+    let state = AppState::serving(ch, limits.clone(), &pool, open_metrics);
     let result = crate::net::serve_with_limits(listener, router(state), limits).await;
     pool.stop();
     result.map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
@@ -1138,11 +1230,12 @@ pub fn serve_blocking(
     workers: usize,
     timeout: std::time::Duration,
     limits: Limits,
+    open_metrics: bool,
 ) -> Result<(), crate::ChallengeError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .map_err(|e| crate::ChallengeError::Run(format!("cannot start the server: {e}")))?;
-    rt.block_on(serve(dir, listen, workers, timeout, limits))
+    rt.block_on(serve(dir, listen, workers, timeout, limits, open_metrics))
 }

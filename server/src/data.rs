@@ -95,7 +95,7 @@ pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String>
 fn files_of(state: &AppState) -> Result<(PathBuf, Vec<PublicFile>), ApiError> {
     let public = public_dir(&state.settings().truth_dir);
     let files = public_files(&public).map_err(|e| {
-        eprintln!("stepsim serve: public data: {e}");
+        tracing::error!(error = %e, "public data");
         ApiError::new(
             StatusCode::NOT_FOUND,
             "the public data is not served here; the organisers hand it out",

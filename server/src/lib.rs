@@ -12,6 +12,8 @@
 //!               store errors are waited out, never end a worker
 //! limits.rs     the limits on connections, bodies, uploads, format checks
 //! net.rs        the connection layer (hyper): timeouts, caps per address
+//! observe.rs    what the organisers see: a log line per request and per
+//!               upload, refusal and scoring job; the counters of /metrics
 //! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
 //!
@@ -25,6 +27,7 @@ pub mod challenge;
 pub mod data;
 pub mod limits;
 pub mod net;
+pub mod observe;
 pub mod store;
 pub mod web;
 pub mod worker;

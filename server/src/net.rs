@@ -272,7 +272,7 @@ pub async fn serve_with_limits(
         let (stream, addr) = match listener.accept().await {
             Ok(x) => x,
             Err(e) => {
-                eprintln!("stepsim serve: cannot accept a connection: {e}");
+                tracing::warn!(error = %e, "cannot accept a connection");
                 tokio::time::sleep(Duration::from_millis(100)).await;
                 continue;
             }

@@ -201,6 +201,34 @@ impl Submission {
     }
 }
 
+/// An upload the format check refused: never an entry, but counted
+/// against its team's cap on refused uploads.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FormatFailure {
+    /// The team.
+    pub team_id: i64,
+    /// When (Unix seconds).
+    pub created_s: i64,
+    /// The harness's message, as the team was shown it.
+    pub error: String,
+}
+
+/// How many entries are in each state, and how many uploads the format
+/// check refused (what the organisers' page and `/metrics` show).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct QueueCounts {
+    /// Entries waiting for a worker.
+    pub queued: u64,
+    /// Entries being scored.
+    pub scoring: u64,
+    /// Entries scored.
+    pub scored: u64,
+    /// Entries the scorer refused.
+    pub refused: u64,
+    /// Uploads refused by the format check (never entries).
+    pub format_refusals: u64,
+}
+
 /// The challenge's storage. Every method is one transaction.
 pub trait Store: Send {
     /// A setting (`run`, `quota`, `revealed`, ...).
@@ -246,6 +274,15 @@ pub trait Store: Send {
     ) -> Result<(), StoreError>;
     /// Times of a team's refused uploads since `since_s`.
     fn format_failures_since(&self, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError>;
+    /// The newest `limit` refused uploads, of one team or (`None`) of all,
+    /// newest first.
+    fn format_failures(
+        &self,
+        team_id: Option<i64>,
+        limit: usize,
+    ) -> Result<Vec<FormatFailure>, StoreError>;
+    /// Entries by state and the count of refused uploads.
+    fn queue_counts(&self) -> Result<QueueCounts, StoreError>;
     /// Takes the oldest queued job of a team that has none scoring.
     fn claim_job(&mut self, now_s: i64) -> Result<Option<Submission>, StoreError>;
     /// Ends a job: `scored` with its feedback, or `refused` with a message.
@@ -571,6 +608,61 @@ impl Store for SqliteStore {
             team_id,
             since_s,
         )
+    }
+
+    fn format_failures(
+        &self,
+        team_id: Option<i64>,
+        limit: usize,
+    ) -> Result<Vec<FormatFailure>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT team_id, created_s, error FROM format_failures \
+                 WHERE ?1 IS NULL OR team_id = ?1 ORDER BY created_s DESC, id DESC LIMIT ?2",
+            )
+            .map_err(|e| self.err(e))?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let rows = st
+            .query_map(params![team_id, limit], |r| {
+                Ok(FormatFailure {
+                    team_id: r.get(0)?,
+                    created_s: r.get(1)?,
+                    error: r.get(2)?,
+                })
+            })
+            .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>());
+        rows.map_err(|e| self.err(e))
+    }
+
+    fn queue_counts(&self) -> Result<QueueCounts, StoreError> {
+        let mut c = QueueCounts::default();
+        let mut st = self
+            .conn
+            .prepare_cached("SELECT status, COUNT(*) FROM submissions GROUP BY status")
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, i64>(1)?)))
+            .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>())
+            .map_err(|e| self.err(e))?;
+        for (status, n) in rows {
+            let n = n.max(0) as u64;
+            match status.as_str() {
+                "queued" => c.queued = n,
+                "scoring" => c.scoring = n,
+                "scored" => c.scored = n,
+                "refused" => c.refused = n,
+                _ => {}
+            }
+        }
+        c.format_refusals = self
+            .conn
+            .query_row("SELECT COUNT(*) FROM format_failures", [], |r| {
+                r.get::<_, i64>(0)
+            })
+            .map_err(|e| self.err(e))?
+            .max(0) as u64;
+        Ok(c)
     }
 
     fn claim_job(&mut self, now_s: i64) -> Result<Option<Submission>, StoreError> {

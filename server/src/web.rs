@@ -28,7 +28,7 @@ pub use markdown::{escape, markdown_html};
 
 use crate::api::{ApiError, AppState};
 use crate::challenge::{hex, token_hash};
-use crate::store::Team;
+use crate::store::{Role, Team};
 use axum::Router;
 use axum::body::Body;
 use axum::extract::{Extension, Path as UrlPath, Request, State};
@@ -136,6 +136,7 @@ pub fn routes(state: &AppState) -> Router<AppState> {
         .route("/entries/final", post(choose_final))
         .route("/organisers", get(organisers_page))
         .route("/organisers/signin", post(organisers_signin))
+        .route("/metrics", get(metrics))
         .route("/leaderboard", get(leaderboard_page))
         .route("/entries/{id}/report", get(report_page))
         .route("/entries/{id}/figures/{part}/{file}", get(figure))
@@ -315,7 +316,7 @@ impl Web {
             )
                 .into_response(),
             Err(e) => {
-                eprintln!("stepsim serve: page {name} failed: {e}");
+                tracing::error!(page = name, error = %e, "page failed");
                 (
                     StatusCode::INTERNAL_SERVER_ERROR,
                     [(header::CONTENT_TYPE, "text/plain; charset=utf-8")],
@@ -366,7 +367,10 @@ impl Web {
             .then(|| state.store().team_by_token(&s.token_sha256).ok().flatten())
             .flatten();
         match team {
-            Some(t) => Some((s, Some(t))),
+            Some(t) => {
+                crate::observe::note_team(t.id);
+                Some((s, Some(t)))
+            }
             None => {
                 sessions.remove(&key);
                 None
@@ -669,13 +673,66 @@ fn organisers_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>
     resp
 }
 
+/// `GET /metrics`: the server's counters in the Prometheus text format
+/// ([`crate::observe::Metrics::render`]), for the organisers (the token of
+/// a team marked `organisers`, or the organisers' signed-in session), or
+/// for anyone under `serve --open-metrics`; 401 otherwise.
+async fn metrics(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    let session = matches!(web.session(&state, &headers), Some((s, None)) if s.organiser);
+    let token = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| crate::api::bearer_token(v.as_bytes()))
+        .and_then(|t| state.team_of_token(t).ok().flatten())
+        .is_some_and(|t| t.role == Role::Organisers);
+    if !(state.open_metrics() || session || token) {
+        return ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "the metrics are the organisers': send the token of a team marked `organisers`, \
+             or sign in on /organisers",
+        )
+        .into_response();
+    }
+    let counts = state.store().queue_counts();
+    match counts {
+        Ok(c) => (
+            [(
+                header::CONTENT_TYPE,
+                "text/plain; version=0.0.4; charset=utf-8",
+            )],
+            state.metrics().render(c, state.live_workers()),
+        )
+            .into_response(),
+        Err(e) => ApiError::internal(e).into_response(),
+    }
+}
+
+/// How many refused uploads the organisers' page lists at most.
+const ORGANISER_REFUSALS_SHOWN: usize = 200;
+
 fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
-    let (teams, subs) = {
+    let (teams, subs, counts, failures) = {
         let store = state.store();
-        match (store.teams(), store.all_submissions()) {
-            (Ok(t), Ok(s)) => (t, s),
-            (Err(e), _) | (_, Err(e)) => return web.error(nav, &ApiError::internal(e)),
+        match (
+            store.teams(),
+            store.all_submissions(),
+            store.queue_counts(),
+            store.format_failures(None, usize::MAX),
+        ) {
+            (Ok(t), Ok(s), Ok(c), Ok(f)) => (t, s, c, f),
+            (Err(e), ..) | (_, Err(e), ..) | (.., Err(e), _) | (.., Err(e)) => {
+                return web.error(nav, &ApiError::internal(e));
+            }
         }
+    };
+    let team_name = |id: i64| {
+        teams
+            .iter()
+            .find(|t| t.id == id)
+            .map_or(String::new(), |t| t.name.clone())
     };
     let mut team_rows = Vec::new();
     let mut counted: Vec<i64> = Vec::new();
@@ -694,7 +751,8 @@ fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
             "revoked": t.revoked,
             "entries": own.len(),
             "scored": own.iter().filter(|s| s.has_score()).count(),
-            "refused": own.iter().filter(|s| s.status == "refused").count(),
+            "refused": own.iter().filter(|s| s.status == "refused").count()
+                + failures.iter().filter(|f| f.team_id == t.id).count(),
             "finals": if finals.is_empty() {
                 "—".to_string()
             } else {
@@ -723,10 +781,33 @@ fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
         })
         .collect();
     entries.truncate(1000);
+    let refusals: Vec<Value> = failures
+        .iter()
+        .take(ORGANISER_REFUSALS_SHOWN)
+        .map(|f| {
+            serde_json::json!({
+                "created": crate::utc_text(f.created_s),
+                "team": team_name(f.team_id),
+                "error": f.error,
+            })
+        })
+        .collect();
+    let queue = serde_json::json!({
+        "queued": counts.queued,
+        "scoring": counts.scoring,
+        "scored": counts.scored,
+        "refused": counts.refused,
+        "format_refusals": counts.format_refusals,
+        "workers": state.live_workers(),
+    });
     web.render(
         StatusCode::OK,
         "organisers.html",
-        serde_json::json!({"nav": nav, "signed_in": true, "teams": team_rows, "entries": entries}),
+        serde_json::json!({
+            "nav": nav, "signed_in": true, "teams": team_rows, "entries": entries,
+            "queue": queue, "refusals": refusals, "refusals_total": failures.len(),
+            "refusals_shown": ORGANISER_REFUSALS_SHOWN,
+        }),
     )
 }
 

@@ -4,6 +4,7 @@
 //! the reports per entry and records the result.
 
 use crate::challenge::{Challenge, ChallengeError, Settings};
+use crate::observe::Metrics;
 use crate::store::Submission;
 use std::path::Path;
 use std::sync::Arc;
@@ -81,10 +82,7 @@ pub fn score_upload(
         }))
         .unwrap_or_else(|_| Err("the scorer failed on the held-out part".into()));
         Some(held.unwrap_or_else(|e| {
-            eprintln!(
-                "stepsim serve: entry {}: held-out part not scored: {e}",
-                sub.id
-            );
+            tracing::warn!(entry = sub.id, error = %e, "held-out part not scored");
             serde_json::json!({ "error": e }).to_string()
         }))
     } else {
@@ -125,11 +123,22 @@ pub fn run_worker(
     stop: Arc<AtomicBool>,
     timeout: Duration,
 ) -> Result<(), ChallengeError> {
+    run_observed_worker(dir, stop, timeout, &Metrics::default())
+}
+
+/// [`run_worker`], counting each finished job in `metrics`.
+pub fn run_observed_worker(
+    dir: &Path,
+    stop: Arc<AtomicBool>,
+    timeout: Duration,
+    metrics: &Metrics,
+) -> Result<(), ChallengeError> {
     let mut backoff = FIRST_BACKOFF;
     let failed = |backoff: &mut Duration, what: &str, e: &dyn std::fmt::Display| -> bool {
-        eprintln!(
-            "stepsim serve: worker: {what}: {e}; trying again in {} ms",
-            backoff.as_millis()
+        tracing::warn!(
+            error = %e,
+            retry_ms = backoff.as_millis() as u64,
+            "worker: {what}; trying again"
         );
         let go_on = nap(*backoff, &stop);
         *backoff = (*backoff * 2).min(MAX_BACKOFF);
@@ -158,6 +167,8 @@ pub fn run_worker(
             }
         };
         backoff = FIRST_BACKOFF;
+        tracing::info!(entry = job.id, team = job.team_id, "scoring started");
+        let started = std::time::Instant::now();
         let (tx, rx) = std::sync::mpsc::channel();
         let (dir2, settings2, job2) = (dir.to_path_buf(), ch.settings.clone(), job.clone());
         std::thread::spawn(move || {
@@ -173,8 +184,23 @@ pub fn run_worker(
                 timeout.as_secs()
             ))
         });
-        if let Err(e) = &result {
-            eprintln!("stepsim serve: entry {} refused: {e}", job.id);
+        let seconds = started.elapsed().as_secs_f64();
+        let outcome = if result.is_ok() { "scored" } else { "refused" };
+        metrics.scoring(outcome, seconds);
+        match &result {
+            Ok(_) => tracing::info!(
+                entry = job.id,
+                team = job.team_id,
+                seconds = %format_args!("{seconds:.2}"),
+                "scoring ended: scored"
+            ),
+            Err(e) => tracing::info!(
+                entry = job.id,
+                team = job.team_id,
+                seconds = %format_args!("{seconds:.2}"),
+                reason = %crate::observe::first_line(e),
+                "scoring ended: refused"
+            ),
         }
         loop {
             match ch
@@ -202,6 +228,7 @@ pub fn run_worker(
 #[derive(Debug)]
 pub struct WorkerPool {
     live: Arc<AtomicUsize>,
+    metrics: Arc<Metrics>,
     stop: Arc<AtomicBool>,
     threads: Vec<std::thread::JoinHandle<()>>,
 }
@@ -220,24 +247,31 @@ impl WorkerPool {
     pub fn start(dir: &Path, n: usize, timeout: Duration) -> Self {
         let live = Arc::new(AtomicUsize::new(0));
         let stop = Arc::new(AtomicBool::new(false));
+        let metrics = Arc::new(Metrics::default());
         let threads = (0..n.max(1))
             .map(|_| {
-                let (d, s) = (dir.to_path_buf(), stop.clone());
+                let (d, s, m) = (dir.to_path_buf(), stop.clone(), metrics.clone());
                 live.fetch_add(1, Ordering::SeqCst);
                 let alive = Alive(live.clone());
                 std::thread::spawn(move || {
                     let _alive = alive;
-                    if let Err(e) = run_worker(&d, s, timeout) {
-                        eprintln!("stepsim serve: worker stopped: {e}");
+                    if let Err(e) = run_observed_worker(&d, s, timeout, &m) {
+                        tracing::error!(error = %e, "worker stopped");
                     }
                 })
             })
             .collect();
         Self {
             live,
+            metrics,
             stop,
             threads,
         }
+    }
+
+    /// The counters of this pool's jobs (and of the server that shares them).
+    pub fn metrics(&self) -> Arc<Metrics> {
+        self.metrics.clone()
     }
 
     /// The count of live workers, shared (what `AppState::with_workers` reads).

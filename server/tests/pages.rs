@@ -812,3 +812,103 @@ async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
     t.sign_in(&f.tokens[0]).await;
     assert!(!t.get("/organisers").await.body.contains("id=\"teams\""));
 }
+
+#[tokio::test]
+async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
+    let f = fixture(&["alpha", "Organisers"]);
+    let mut ch = Challenge::open(&f.state).unwrap();
+    ch.set_role("Organisers", stepsim_server::store::Role::Organisers)
+        .unwrap();
+    ch.set_organiser_password("correct horse").unwrap();
+    let app = f.app();
+    let post = |body: String| {
+        Request::post("/api/submissions")
+            .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+            .body(Body::from(body))
+            .unwrap()
+    };
+    // Four refused uploads (never entries), then one accepted.
+    for k in 0..4 {
+        let resp = app
+            .clone()
+            .oneshot(post(format!("not a catalogue {k}\n")))
+            .await
+            .unwrap();
+        assert_eq!(resp.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    }
+    let resp = app
+        .clone()
+        .oneshot(post(catalogue(&f.all, 0.01)))
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::ACCEPTED);
+    // /metrics: not for a participant; for the organisers' token.
+    let metrics = |token: &str| {
+        Request::get("/metrics")
+            .header(header::AUTHORIZATION, format!("Bearer {token}"))
+            .body(Body::empty())
+            .unwrap()
+    };
+    let mut o = Agent::new(app.clone());
+    let r = o.send(metrics(&f.tokens[0])).await;
+    assert_eq!(r.status, StatusCode::UNAUTHORIZED, "{}", r.body);
+    assert_eq!(o.get("/metrics").await.status, StatusCode::UNAUTHORIZED);
+    let r = o.send(metrics(&f.tokens[1])).await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.body);
+    assert!(
+        r.headers[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with("text/plain; version=0.0.4")
+    );
+    for line in [
+        "stepsim_uploads_total{status=\"422\"} 4",
+        "stepsim_uploads_total{status=\"202\"} 1",
+        "stepsim_entries{status=\"queued\"} 1",
+        "stepsim_entries{status=\"scored\"} 0",
+        "stepsim_format_refusals 4",
+        "stepsim_http_requests_total{status=\"401\"} 2",
+    ] {
+        assert!(r.body.lines().any(|l| l == line), "{line}\n{}", r.body);
+    }
+    // The organisers' page: the refusals with their messages, counted in
+    // the team's row, and the queue.
+    let csrf = o.get("/organisers").await.csrf();
+    o.post_form(
+        "/organisers/signin",
+        &[("csrf", &csrf), ("password", "correct horse")],
+    )
+    .await;
+    let r = o.get("/organisers").await;
+    assert!(r.body.contains("id=\"refusals\""), "{}", r.body);
+    assert_eq!(
+        r.body.matches("<td class=\"team\">alpha</td>").count(),
+        1 + 1 + 4
+    );
+    // alpha: 1 entry, 0 scored, 4 refused.
+    assert!(
+        r.body
+            .contains("<td class=\"num\">1</td><td class=\"num\">0</td><td class=\"num\">4</td>"),
+        "{}",
+        r.body
+    );
+    assert!(
+        r.body.contains(
+            "<tbody><tr><td class=\"num\">1</td><td class=\"num\">0</td><td class=\"num\">0</td>\
+             <td class=\"num\">0</td><td class=\"num\">4</td>"
+        ),
+        "{}",
+        r.body
+    );
+    // The signed-in organisers' session reads /metrics too.
+    assert_eq!(o.get("/metrics").await.status, StatusCode::OK);
+    f.score_queue();
+    let r = o.get("/organisers").await;
+    assert!(
+        r.body.contains(
+            "<tbody><tr><td class=\"num\">0</td><td class=\"num\">0</td><td class=\"num\">1</td>"
+        ),
+        "{}",
+        r.body
+    );
+}

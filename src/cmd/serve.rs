@@ -52,10 +52,21 @@ pub struct Args {
     /// Wall-clock budget of one format check, its wait for a turn included.
     #[arg(long, value_name = "S", default_value_t = l::DEFAULT_CHECK_BUDGET.as_secs())]
     check_budget_s: u64,
+    /// The log on standard error: `plain` (a line of text an event) or
+    /// `json` (a JSON object a line).
+    #[arg(long, value_name = "FORMAT", default_value = "plain", value_parser = ["plain", "json"])]
+    log_format: String,
+    /// Let anyone who reaches the server read `/metrics` (default: the
+    /// organisers' token or signed-in session only).
+    #[arg(long)]
+    open_metrics: bool,
 }
 
 /// Serves until the process ends.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    stepsim_server::observe::init_logging(
+        stepsim_server::observe::LogFormat::from_name(&args.log_format).unwrap_or_default(),
+    );
     let limits = l::Limits {
         header_timeout: Duration::from_secs(args.header_timeout_s),
         idle_timeout: Duration::from_secs(args.idle_timeout_s),
@@ -77,6 +88,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.workers,
         Duration::from_secs(args.timeout_s),
         limits,
+        args.open_metrics,
     )?;
     Ok(())
 }
