@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 mod common;
-use common::{files, run, stderr};
+use common::{files, run, run_env, stderr};
 
 /// 2 PSFs × 2 shears × 2 images of 128², with secrets that are easy to grep.
 const CONFIG: &str = r#"{
@@ -680,6 +680,74 @@ fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
         assert_eq!(std::fs::read(&file).unwrap(), stored);
         assert!(release(&d.join("one")) == release(&d.join("two")));
     }
+}
+
+#[test]
+fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("c.json"), OPTICAL).unwrap();
+    let user = d.join("user-store");
+    let env = [("STEPSIM_PSF_STORE", user.to_str().unwrap())];
+    let gen_ = |out: &str| {
+        let o = run_env(&["generate", "--config", "c.json", "--out", out], d, &env);
+        assert!(o.status.success(), "{}", stderr(&o));
+        stderr(&o)
+    };
+    // The first run builds the PSF and stores it in its run and the user's store.
+    let err = gen_("first");
+    assert!(
+        err.contains("stepsim: built PSF 1/1 (coma), stored in "),
+        "{err}"
+    );
+    let shared: Vec<PathBuf> = std::fs::read_dir(&user)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(shared.len(), 1, "{shared:?}");
+    let run_copy = d
+        .join("first/private/psf/cache")
+        .join(shared[0].file_name().unwrap());
+    assert_eq!(
+        std::fs::read(&shared[0]).unwrap(),
+        std::fs::read(&run_copy).unwrap()
+    );
+    // A second run, elsewhere, builds nothing: it copies the PSF into its own
+    // store, and its release is the first's byte for byte.
+    let err = gen_("second");
+    assert!(
+        err.contains("stepsim: reused PSF 1/1 (coma) from the user's store "),
+        "{err}"
+    );
+    assert!(!err.contains("built PSF"), "{err}");
+    let copy = d
+        .join("second/private/psf/cache")
+        .join(shared[0].file_name().unwrap());
+    assert_eq!(
+        std::fs::read(&copy).unwrap(),
+        std::fs::read(&shared[0]).unwrap()
+    );
+    assert!(release(&d.join("first")) == release(&d.join("second")));
+    // A damaged file in the user's store is not trusted: the PSF is built
+    // again, the file rewritten, the release the same.
+    let good = std::fs::read(&shared[0]).unwrap();
+    std::fs::write(&shared[0], &good[..good.len() / 3]).unwrap();
+    let err = gen_("third");
+    assert!(
+        err.contains("stepsim: built PSF 1/1 (coma), stored in "),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&shared[0]).unwrap(), good);
+    assert!(release(&d.join("first")) == release(&d.join("third")));
+    // Turned off, the user's store is neither read nor written.
+    std::fs::remove_file(&shared[0]).unwrap();
+    let o = run_env(
+        &["generate", "--config", "c.json", "--out", "fourth"],
+        d,
+        &[("STEPSIM_PSF_STORE", "off")],
+    );
+    assert!(stderr(&o).contains("built PSF 1/1 (coma), stored in "));
+    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 0);
 }
 
 #[test]

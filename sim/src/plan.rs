@@ -464,7 +464,8 @@ impl Plan {
     }
 
     /// [`Plan::psf`], taken from (or, when built, put into) the store
-    /// `dir` of a run (`RUN/private/psf/cache`, see [`crate::io::psf_store`]):
+    /// `dir` of a run (`RUN/private/psf/cache`, see [`crate::io::psf_store`]),
+    /// or copied there from the user's store ([`crate::io::psf_store::user_store_dir`]):
     /// the second value says how it came (`None`: the plan already held it).
     pub fn psf_in_store(
         &self,
@@ -479,8 +480,13 @@ impl Plan {
             return Ok((p.clone(), None));
         }
         let accuracy = crate::psf::PsfAccuracy::default();
-        let (built, origin) =
-            crate::io::psf_store::load_or_build(&self.psf_spec(index), &accuracy, dir)?;
+        let user = crate::io::psf_store::user_store_dir();
+        let (built, origin) = crate::io::psf_store::load_or_build_shared(
+            &self.psf_spec(index),
+            &accuracy,
+            dir,
+            user.as_deref(),
+        )?;
         Ok((slot.get_or_init(|| built).clone(), Some(origin)))
     }
 

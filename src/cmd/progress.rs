@@ -182,6 +182,11 @@ fn psf_line(name: &str, done: usize, total: usize, origin: &Origin) -> String {
         Origin::Reused { file } => {
             format!("reused PSF {done}/{total} ({name}) from {}", file.display())
         }
+        Origin::Copied { file, from } => format!(
+            "reused PSF {done}/{total} ({name}) from the user's store {}, copied to {}",
+            from.display(),
+            file.display()
+        ),
         Origin::Rebuilt { file, why } => format!(
             "rebuilt PSF {done}/{total} ({name}): {} {why}; stored again",
             file.display()

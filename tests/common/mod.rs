@@ -17,10 +17,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The `stepsim` binary under test, ready for arguments. `CI=1` is set, so
-/// that progress is printed as lines (as in a log), never as a bar.
+/// that progress is printed as lines (as in a log), never as a bar, and
+/// `STEPSIM_PSF_STORE=off`, so that no test finds a PSF another test (or
+/// the user) built: tests of the user's PSF store set it to a directory.
 pub fn stepsim() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_stepsim"));
     c.env("CI", "1");
+    c.env("STEPSIM_PSF_STORE", "off");
     c
 }
 

@@ -659,6 +659,7 @@ fn build_psfs(
         out.reused += usize::from(matches!(
             origin,
             crate::io::psf_store::Origin::Reused { .. }
+                | crate::io::psf_store::Origin::Copied { .. }
         ));
         let renderer = plan.renderer(p).map_err(psf_err)?;
         out.renderers.insert(p, renderer);

@@ -32,6 +32,17 @@
 //! stale, truncated, tampered or foreign file) is rebuilt, never trusted,
 //! and the file is rewritten atomically. Only optical PSFs are stored: the
 //! other models build in milliseconds.
+//!
+//! **The user's store.** Besides the run's own store, a process looks in a
+//! store of the user's ([`user_store_dir`]: `STEPSIM_PSF_STORE`, else
+//! `$XDG_CACHE_HOME/stepsim/psf`, else `$HOME/.cache/stepsim/psf`;
+//! `STEPSIM_PSF_STORE=off` turns it off), so that a new run of a PSF built
+//! by any earlier run does not wait for it. A file found there is checked
+//! as above and copied into the run's store (the run keeps its private
+//! copy, as before); a PSF built here is written to both. The user's store
+//! is a cache: a file there that fails a check is ignored and rewritten,
+//! and a failure to write there is not an error (the run's own copy is
+//! what the run needs).
 
 use super::{IoError, write_bytes_atomically};
 use crate::config::RawPsfModel;
@@ -62,6 +73,14 @@ pub enum Origin {
         /// The file written.
         file: PathBuf,
     },
+    /// Copied into the run's store (`file`) from the user's store (`from`),
+    /// verified.
+    Copied {
+        /// The run's copy, written.
+        file: PathBuf,
+        /// The user's store file it came from.
+        from: PathBuf,
+    },
     /// `file` was there but unusable (`why`): rebuilt and stored again.
     Rebuilt {
         /// The file rewritten.
@@ -77,6 +96,9 @@ impl std::fmt::Display for Origin {
             Origin::Built => write!(f, "built"),
             Origin::Reused { file } => write!(f, "reused from {}", file.display()),
             Origin::Stored { file } => write!(f, "built and stored in {}", file.display()),
+            Origin::Copied { file, from } => {
+                write!(f, "copied from {} to {}", from.display(), file.display())
+            }
             Origin::Rebuilt { file, why } => {
                 write!(f, "rebuilt ({} {why}) and stored again", file.display())
             }
@@ -119,6 +141,44 @@ pub fn file_for(dir: &Path, spec: &PsfSpec, accuracy: &PsfAccuracy) -> PathBuf {
     dir.join(format!("{}.bin", spec_digest(spec, accuracy)))
 }
 
+/// The environment variable naming the user's PSF store (a directory), or
+/// `off` for none.
+pub const USER_STORE_ENV: &str = "STEPSIM_PSF_STORE";
+
+/// The user's PSF store: `STEPSIM_PSF_STORE` when set (`off` or empty: no
+/// store), else `$XDG_CACHE_HOME/stepsim/psf` (an absolute
+/// `XDG_CACHE_HOME`), else `$HOME/.cache/stepsim/psf`, else none.
+pub fn user_store_dir() -> Option<PathBuf> {
+    user_store_dir_from(|k| std::env::var_os(k))
+}
+
+/// [`user_store_dir`] with the environment read by `var`.
+pub fn user_store_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> Option<PathBuf> {
+    if let Some(v) = var(USER_STORE_ENV) {
+        return (!v.is_empty() && v != "off").then(|| PathBuf::from(v));
+    }
+    let absolute = |v: std::ffi::OsString| {
+        let p = PathBuf::from(v);
+        p.is_absolute().then_some(p)
+    };
+    var("XDG_CACHE_HOME")
+        .and_then(absolute)
+        .or_else(|| var("HOME").and_then(absolute).map(|h| h.join(".cache")))
+        .map(|c| c.join("stepsim").join("psf"))
+}
+
+/// The stored PSF in `file`, or why not (`None`: no such file).
+fn read_stored(
+    file: &Path,
+    digest: &str,
+) -> Option<Result<(Vec<u8>, BandTransfer, Calibration), String>> {
+    match std::fs::read(file) {
+        Ok(bytes) => Some(parse(&bytes, digest).map(|(band, cal)| (bytes, band, cal))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => Some(Err(format!("could not be read: {e}"))),
+    }
+}
+
 /// The PSF of `spec`: loaded from the store `dir` when its file checks,
 /// otherwise built (and, for optical models, stored).
 pub fn load_or_build(
@@ -126,24 +186,52 @@ pub fn load_or_build(
     accuracy: &PsfAccuracy,
     dir: &Path,
 ) -> Result<(Arc<dyn Psf>, Origin), StoreError> {
+    load_or_build_shared(spec, accuracy, dir, None)
+}
+
+/// [`load_or_build`] with the user's store `user` as well: a PSF not in
+/// the run's store `dir` is copied from `user` when its file there checks;
+/// one built here is stored in both (a failure to write to `user` is
+/// ignored: it is a cache).
+pub fn load_or_build_shared(
+    spec: &PsfSpec,
+    accuracy: &PsfAccuracy,
+    dir: &Path,
+    user: Option<&Path>,
+) -> Result<(Arc<dyn Psf>, Origin), StoreError> {
     let Some(request) = OpticalRequest::of(spec) else {
         return Ok((crate::psf::build_with(spec, accuracy)?, Origin::Built));
     };
     let digest = spec_digest(spec, accuracy);
-    let file = dir.join(format!("{digest}.bin"));
-    let why = match std::fs::read(&file) {
-        Ok(bytes) => match parse(&bytes, &digest) {
-            Ok((band, cal)) => {
-                let psf = Arc::new(OpticalPsf::new(band, cal));
-                return Ok((psf, Origin::Reused { file }));
-            }
-            Err(why) => Some(why),
-        },
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => Some(format!("could not be read: {e}")),
+    let name = format!("{digest}.bin");
+    let file = dir.join(&name);
+    let why = match read_stored(&file, &digest) {
+        Some(Ok((_, band, cal))) => {
+            let psf = Arc::new(OpticalPsf::new(band, cal));
+            return Ok((psf, Origin::Reused { file }));
+        }
+        Some(Err(why)) => Some(why),
+        None => None,
     };
+    let shared = user.map(|u| u.join(&name));
+    if let Some(from) = &shared
+        && let Some(Ok((bytes, band, cal))) = read_stored(from, &digest)
+    {
+        write_bytes_atomically(&file, &bytes)?;
+        let psf = Arc::new(OpticalPsf::new(band, cal));
+        let from = from.clone();
+        return Ok((psf, Origin::Copied { file, from }));
+    }
     let (band, cal) = crate::psf::solve_optical(&request, accuracy)?;
-    write_bytes_atomically(&file, &encode(&band, &cal, &digest))?;
+    let bytes = encode(&band, &cal, &digest);
+    write_bytes_atomically(&file, &bytes)?;
+    if let (Some(from), Some(u)) = (&shared, user) {
+        // A cache: a store that cannot be written costs the next run its
+        // PSF build, nothing else.
+        if std::fs::create_dir_all(u).is_ok() {
+            let _ = write_bytes_atomically(from, &bytes);
+        }
+    }
     let psf = Arc::new(OpticalPsf::new(band, cal));
     let origin = match why {
         None => Origin::Stored { file },
@@ -349,6 +437,92 @@ mod tests {
         s.telescope.diameter_m = 4.0;
         assert_ne!(base, spec_digest(&s, &acc));
         assert_ne!(base, spec_digest(&spec(0.04), &small()));
+    }
+
+    #[test]
+    fn the_users_store_is_found_where_the_environment_says() {
+        use std::ffi::OsString;
+        let env = |pairs: &[(&str, &str)]| {
+            let m: std::collections::HashMap<String, OsString> = pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), OsString::from(v)))
+                .collect();
+            move |k: &str| m.get(k).cloned()
+        };
+        let home = [("HOME", "/home/ann")];
+        assert_eq!(
+            user_store_dir_from(env(&home)),
+            Some(PathBuf::from("/home/ann/.cache/stepsim/psf"))
+        );
+        assert_eq!(
+            user_store_dir_from(env(&[("HOME", "/home/ann"), ("XDG_CACHE_HOME", "/c")])),
+            Some(PathBuf::from("/c/stepsim/psf"))
+        );
+        // A relative XDG_CACHE_HOME is ignored, as the XDG rules say.
+        assert_eq!(
+            user_store_dir_from(env(&[("HOME", "/home/ann"), ("XDG_CACHE_HOME", "c")])),
+            Some(PathBuf::from("/home/ann/.cache/stepsim/psf"))
+        );
+        assert_eq!(
+            user_store_dir_from(env(&[("HOME", "/h"), ("STEPSIM_PSF_STORE", "/s")])),
+            Some(PathBuf::from("/s"))
+        );
+        for off in ["off", ""] {
+            assert_eq!(
+                user_store_dir_from(env(&[("HOME", "/h"), ("STEPSIM_PSF_STORE", off)])),
+                None
+            );
+        }
+        assert_eq!(user_store_dir_from(env(&[])), None);
+    }
+
+    #[test]
+    fn a_psf_built_once_is_copied_from_the_users_store_and_is_the_same() {
+        let (a, b, c, user) = (
+            tempfile::tempdir().unwrap(),
+            tempfile::tempdir().unwrap(),
+            tempfile::tempdir().unwrap(),
+            tempfile::tempdir().unwrap(),
+        );
+        let u = user.path().join("nested/store");
+        let (s, acc) = (spec(0.04), small());
+        let (first, o1) = load_or_build_shared(&s, &acc, a.path(), Some(&u)).unwrap();
+        let (fa, fu) = (file_for(a.path(), &s, &acc), file_for(&u, &s, &acc));
+        assert_eq!(o1, Origin::Stored { file: fa.clone() });
+        let bytes = std::fs::read(&fa).unwrap();
+        assert_eq!(std::fs::read(&fu).unwrap(), bytes);
+        let (second, o2) = load_or_build_shared(&s, &acc, b.path(), Some(&u)).unwrap();
+        let fb = file_for(b.path(), &s, &acc);
+        assert_eq!(
+            o2,
+            Origin::Copied {
+                file: fb.clone(),
+                from: fu.clone()
+            }
+        );
+        assert_eq!(std::fs::read(&fb).unwrap(), bytes);
+        let grid = crate::psf::StampGrid::new(48, 0.206);
+        assert_eq!(*second.transfer(grid), *first.transfer(grid));
+        assert_eq!(second.calibration(), first.calibration());
+        // The run's own copy comes first (the user's is not read again).
+        std::fs::write(&fu, b"junk").unwrap();
+        let (_, o3) = load_or_build_shared(&s, &acc, b.path(), Some(&u)).unwrap();
+        assert_eq!(o3, Origin::Reused { file: fb });
+        // A damaged user's file is built over and rewritten.
+        let (_, o4) = load_or_build_shared(&s, &acc, c.path(), Some(&u)).unwrap();
+        assert_eq!(
+            o4,
+            Origin::Stored {
+                file: file_for(c.path(), &s, &acc)
+            }
+        );
+        assert_eq!(std::fs::read(&fu).unwrap(), bytes);
+        // A user's store that cannot be written is no error.
+        let blocked = user.path().join("a-file");
+        std::fs::write(&blocked, b"x").unwrap();
+        let d = tempfile::tempdir().unwrap();
+        let (_, o5) = load_or_build_shared(&s, &acc, d.path(), Some(&blocked.join("sub"))).unwrap();
+        assert!(matches!(o5, Origin::Stored { .. }), "{o5:?}");
     }
 
     #[test]
