@@ -125,6 +125,22 @@ mod tests {
     use std::collections::HashSet;
 
     #[test]
+    fn the_participants_example_row_names_an_image_id_of_the_real_shape() {
+        // The submission format's example (what participants copy) must
+        // carry an id a generated run could hold: `i` and 16 hex digits.
+        let k = BlindingKey::for_run(20060101, b"{}");
+        let real = k.image_id(0, 0, false);
+        let line = stepsim_contract::SUBMISSION_FORMAT_MD
+            .lines()
+            .find(|l| l.trim_start().starts_with('i') && l.contains(" 1021.37 "))
+            .expect("an example row");
+        let example = line.split_whitespace().next().unwrap();
+        assert_eq!(example.len(), real.len(), "{example} against {real}");
+        assert!(example.starts_with('i') && example[1..].bytes().all(|b| b.is_ascii_hexdigit()));
+        assert!(!example[1..].bytes().any(|b| b.is_ascii_uppercase()));
+    }
+
+    #[test]
     fn sha256_of_known_strings() {
         // FIPS 180-2 test vectors.
         assert_eq!(

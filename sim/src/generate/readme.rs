@@ -49,7 +49,7 @@ back a catalogue.
   SHA-256 of the file; plus the instrument facts below. Check your download
   with `sha256sum`.
 - `<dataset-id>/<image-id>.fits`: the images, {n_datasets} datasets of {n_per}
-  images each. All images of one dataset share the same PSF and the same
+  {images} each. All images of one dataset share the same PSF and the same
   shear. Ids are opaque: they say nothing about the PSF or the shear.
 - As in STEP1, the same galaxies appear in images of several datasets (only
   shear, PSF and noise differ), but nothing tells which images share them:
@@ -84,6 +84,7 @@ back a catalogue.
 
 {submission_format}",
         n_datasets = plan.datasets().len(),
+        images = if n_per == 1 { "image" } else { "images" },
         width = img.width_px,
         height = img.height_px,
         pixscale = img.pixel_scale_arcsec,
@@ -145,5 +146,31 @@ mod tests {
         ] {
             assert!(!text.contains(secret), "README names {secret}");
         }
+    }
+
+    #[test]
+    fn one_image_a_dataset_is_said_in_the_singular() {
+        let text = |n: &str| {
+            let raw = crate::config::RawConfig::parse(
+                "{}",
+                Path::new("t.json"),
+                &[
+                    format!("image.n_images={n}"),
+                    "population.rotated_pairs=false".into(),
+                ],
+            )
+            .unwrap();
+            participants_readme(&Plan::new(raw, Path::new("t.json")).unwrap(), "")
+        };
+        assert!(
+            text("1").contains("30 datasets of 1\n  image each"),
+            "{}",
+            text("1")
+        );
+        assert!(
+            text("2").contains("30 datasets of 2\n  images each"),
+            "{}",
+            text("2")
+        );
     }
 }
