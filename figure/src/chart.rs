@@ -113,9 +113,25 @@ pub fn ticks(lo: f64, hi: f64) -> Vec<f64> {
 
 impl Chart {
     /// Data range over every item, padded by 8 % (never empty, and at least
-    /// 0.1 % of the largest value wide, so that tick labels stay short).
+    /// 0.1 % of the largest value wide, so that tick labels stay short). A
+    /// band's edges count on each axis where they are finite and below
+    /// 1e300 (a band open to one side, `f64::MAX`, does not stretch that
+    /// axis), so that a band is shown whole.
     pub fn range(&self) -> ([f64; 2], [f64; 2]) {
         let (mut x, mut y) = ([f64::MAX, f64::MIN], [f64::MAX, f64::MIN]);
+        // Bands first: each finite edge on its own axis (an open edge,
+        // `f64::MAX`, leaves its axis to the data).
+        let edge = |v: f64| v.is_finite() && v.abs() < 1e300;
+        for it in &self.items {
+            if let Item::Band { rect, .. } = it {
+                for &v in rect[..2].iter().filter(|v| edge(**v)) {
+                    x = [x[0].min(v), x[1].max(v)];
+                }
+                for &v in rect[2..].iter().filter(|v| edge(**v)) {
+                    y = [y[0].min(v), y[1].max(v)];
+                }
+            }
+        }
         let mut add = |px: f64, py: f64| {
             if px.is_finite() && py.is_finite() {
                 x = [x[0].min(px), x[1].max(px)];
@@ -185,16 +201,18 @@ impl Frame {
             .map(|(t, _)| t.chars().count())
             .max()
             .unwrap_or(0);
-        // 11-px DejaVu Sans: about 0.6 em a character.
-        let (bw, bh) = (
-            33.0 + 6.6 * chars as f64,
-            8.0 + 15.0 * c.legend.len() as f64,
-        );
+        let (bw, bh) = legend_box(c, chars);
         let mut marks: Vec<(f64, f64)> = Vec::new();
         for it in &c.items {
             match it {
                 Item::Points { pts, .. } => {
-                    marks.extend(pts.iter().map(|&(x, y, _)| self.px(x, y)));
+                    for &(x, y, e) in pts {
+                        marks.push(self.px(x, y));
+                        // The error bar's length counts too.
+                        if let Some(e) = e.filter(|e| e.is_finite()) {
+                            marks.extend((-4..=4).map(|k| self.px(x, y + e * f64::from(k) / 4.0)));
+                        }
+                    }
                 }
                 Item::Line { pts, .. } => {
                     for w in pts.windows(2) {
@@ -228,6 +246,17 @@ impl Frame {
         }
         (best.0 + 8.0, best.1 + 16.0)
     }
+}
+
+/// Width and height (pixels) of the legend's box for `chars` characters at
+/// most: the swatches, the text (11-px DejaVu Sans, about 0.6 em a
+/// character) and room below the last line, so that a legend in a lower
+/// corner stays clear of the tick marks.
+fn legend_box(c: &Chart, chars: usize) -> (f64, f64) {
+    (
+        33.0 + 6.6 * chars as f64,
+        14.0 + 15.0 * c.legend.len() as f64,
+    )
 }
 
 impl Figure {
@@ -369,6 +398,24 @@ impl Figure {
                 );
             }
             let (lx, ly) = f.legend_origin(c);
+            if !c.legend.is_empty() {
+                // A pale ground, so that no line runs through the text.
+                let chars = c
+                    .legend
+                    .iter()
+                    .map(|(t, _)| t.chars().count())
+                    .max()
+                    .unwrap_or(0);
+                let (bw, _) = legend_box(c, chars);
+                let _ = writeln!(
+                    s,
+                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"#ffffff\" fill-opacity=\"0.85\"/>",
+                    lx - 4.0,
+                    ly - 10.0,
+                    bw - 8.0,
+                    15.0 * c.legend.len() as f64 + 4.0
+                );
+            }
             for (k, (text, colour)) in c.legend.iter().enumerate() {
                 let (x, y) = (lx, ly + 15.0 * k as f64);
                 let _ = writeln!(
@@ -625,6 +672,54 @@ mod tests {
             [255, 255, 255, 255],
             "no legend, no swatch"
         );
+    }
+
+    #[test]
+    fn a_band_is_shown_whole_and_an_open_edge_does_not_stretch_the_axis() {
+        let chart = Chart {
+            items: vec![
+                Item::Band {
+                    rect: [0.0, f64::MAX, -0.07, 0.07],
+                    colour: LIGHT,
+                },
+                Item::Points {
+                    pts: vec![(3e-4, -0.13, None)],
+                    colour: BLUE,
+                },
+            ],
+            ..Chart::default()
+        };
+        let (x, y) = chart.range();
+        assert!(y[1] > 0.07 && y[0] < -0.13, "{y:?}");
+        assert!(x[0] < 0.0 && x[1] > 3e-4 && x[1] < 1e-3, "{x:?}");
+    }
+
+    #[test]
+    fn a_legend_in_a_lower_corner_stays_clear_of_the_tick_marks() {
+        // Points along the top: the legend goes to a lower corner, and its
+        // last line's text ends above the 5-px tick marks.
+        let chart = Chart {
+            items: vec![Item::Points {
+                pts: (0..=10)
+                    .map(|k| (f64::from(k), 1.0, None))
+                    .chain([(5.0, 0.0, None)])
+                    .collect(),
+                colour: BLUE,
+            }],
+            legend: vec![("measured ± 1σ".into(), BLUE), ("fit m γ + c".into(), RED)],
+            ..Chart::default()
+        };
+        let fig = Figure {
+            cols: 1,
+            panel_px: (420, 320),
+            charts: vec![chart.clone()],
+        };
+        let f = &fig.frames()[0];
+        let (_, y) = f.legend_origin(&chart);
+        assert!(y > f.oy + f.h / 2.0, "a lower corner: {y}");
+        let last_baseline = y + 15.0 * (chart.legend.len() - 1) as f64 + 4.0;
+        // DejaVu's descent at 11 px is under 3 px.
+        assert!(last_baseline + 3.0 < f.oy + f.h - 5.0, "{last_baseline}");
     }
 
     #[test]

@@ -52,16 +52,19 @@ pub fn fig2(r: &Report) -> Figure {
                     dashed: true,
                 });
             }
+            let measured = measured_label(&pts, "measured");
             items.push(Item::Points { pts, colour: BLUE });
+            let fit = if p.linear || p.q.unwrap_or(0.0) == 0.0 {
+                "fit m γ + c"
+            } else {
+                "fit q γ² + m γ + c"
+            };
             Chart {
                 title: format!("{}: {} (PSF {})", r.submission, "γ1 − γ1 true", p.psf),
                 x_label: "γ1 true".into(),
                 y_label: "γ1 − γ1 true".into(),
                 items,
-                legend: vec![
-                    ("measured ± 1σ".into(), BLUE),
-                    ("fit q γ² + m γ + c".into(), RED),
-                ],
+                legend: vec![(measured, BLUE), (fit.into(), RED)],
             }
         })
         .collect();
@@ -72,13 +75,29 @@ pub fn fig2(r: &Report) -> Figure {
     }
 }
 
-/// Fig. 3: ⟨m⟩ against σ_c for one or more reports; the shaded band is
-/// |⟨m⟩| < 7 % (the paper's "less than 7 % calibration bias").
+/// The legend of measured points: "± 1σ" only when some point has an
+/// error bar (a run of one base field has none).
+fn measured_label(pts: &[(f64, f64, Option<f64>)], what: &str) -> String {
+    if pts.iter().any(|p| p.2.is_some_and(f64::is_finite)) {
+        format!("{what} ± 1σ")
+    } else {
+        format!("{what} (no error: one base field)")
+    }
+}
+
+/// Fig. 3: ⟨m⟩ against σ_c for one or more reports, one point each (the
+/// paper's Fig. 3: one point a method); the shaded band is |⟨m⟩| < 7 %
+/// (the paper's "less than 7 % calibration bias"), shown whole.
 pub fn fig3(reports: &[&Report]) -> Figure {
     let pts: Vec<(f64, f64, Option<f64>)> = reports
         .iter()
         .filter_map(|r| Some((r.summary.sigma_c?, r.summary.m_mean?, None)))
         .collect();
+    let names: Vec<&str> = reports.iter().map(|r| r.submission.as_str()).collect();
+    let title = match names[..] {
+        [one] => format!("{one}: ⟨m⟩ against σc (shaded: |⟨m⟩| < 7 %)"),
+        _ => "⟨m⟩ against σc, one point a submission (shaded: |⟨m⟩| < 7 %)".to_string(),
+    };
     let xmax = pts.iter().map(|p| p.0).fold(1e-4, f64::max);
     let items = vec![
         Item::Band {
@@ -96,7 +115,7 @@ pub fn fig3(reports: &[&Report]) -> Figure {
         cols: 1,
         panel_px: (520, 400),
         charts: vec![Chart {
-            title: "calibration bias ⟨m⟩ against PSF residual σc (shaded: |⟨m⟩| < 7 %)".into(),
+            title,
             x_label: "σc".into(),
             y_label: "⟨m⟩".into(),
             items,
@@ -118,6 +137,7 @@ pub fn fig4(r: &Report) -> Figure {
             .iter()
             .filter_map(|&(a, b)| Some((a?, b?, None)))
             .collect();
+    let per_psf = measured_label(&pts, "per PSF");
     let lo = pts.iter().flat_map(|p| [p.0, p.1]).fold(-0.01, f64::min);
     let hi = pts.iter().flat_map(|p| [p.0, p.1]).fold(0.01, f64::max);
     Figure {
@@ -140,7 +160,7 @@ pub fn fig4(r: &Report) -> Figure {
                 },
             ],
             legend: vec![
-                ("per PSF ± 1σ".into(), BLUE),
+                (per_psf, BLUE),
                 ("mean over PSFs".into(), RED),
                 ("1:1".into(), GREY),
             ],
@@ -177,6 +197,7 @@ pub fn fig5(r: &Report) -> Figure {
             dashed: true,
         });
     }
+    let bins = measured_label(&pts, "magnitude bin");
     items.push(Item::Points { pts, colour: BLUE });
     Figure {
         cols: 1,
@@ -186,10 +207,52 @@ pub fn fig5(r: &Report) -> Figure {
             x_label: "I magnitude (true)".into(),
             y_label: "γ1 − γ1 true".into(),
             items,
-            legend: vec![
-                ("magnitude bin ± 1σ".into(), BLUE),
-                ("all galaxies".into(), RED),
-            ],
+            legend: vec![(bins, BLUE), ("all galaxies".into(), RED)],
         }],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The full preset's report (docs/full-preset): six PSFs, linear fits.
+    fn preset() -> Report {
+        serde_json::from_str(include_str!("../../docs/full-preset/report.json")).unwrap()
+    }
+
+    #[test]
+    fn fig3_names_its_submission_and_shows_the_7_percent_band_whole() {
+        let r = preset();
+        let f = fig3(&[&r]);
+        let c = &f.charts[0];
+        assert!(
+            c.title
+                .starts_with("KSB+ (stepsim measure): ⟨m⟩ against σc"),
+            "{}",
+            c.title
+        );
+        let (_, y) = c.range();
+        assert!(
+            y[0] < r.summary.m_mean.unwrap() && y[0] < -0.07 && y[1] > 0.07,
+            "{y:?}"
+        );
+        let two = fig3(&[&r, &r]);
+        assert!(two.charts[0].title.contains("one point a submission"));
+    }
+
+    #[test]
+    fn fig2_names_the_fit_it_draws_and_error_bars_only_when_there_are_some() {
+        let mut r = preset();
+        let legend = |r: &Report| fig2(r).charts[0].legend.clone();
+        assert_eq!(legend(&r)[0].0, "measured ± 1σ");
+        assert_eq!(legend(&r)[1].0, "fit m γ + c");
+        r.psfs[0].linear = false;
+        r.psfs[0].q = Some(0.3);
+        assert_eq!(legend(&r)[1].0, "fit q γ² + m γ + c");
+        for d in &mut r.datasets {
+            d.g1_err = None;
+        }
+        assert_eq!(legend(&r)[0].0, "measured (no error: one base field)");
     }
 }
