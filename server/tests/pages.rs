@@ -912,3 +912,70 @@ async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
         r.body
     );
 }
+
+/// `GET path` on the API with team `token`: status and JSON body.
+async fn api_get(app: &axum::Router, path: &str, token: &str) -> (StatusCode, serde_json::Value) {
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::get(path)
+                .header(header::AUTHORIZATION, format!("Bearer {token}"))
+                .body(Body::empty())
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    let status = resp.status();
+    let body = resp.into_body().collect().await.unwrap().to_bytes();
+    (status, serde_json::from_slice(&body).unwrap())
+}
+
+/// The part of a page from `from` to the next `to` after it.
+fn section<'a>(body: &'a str, from: &str, to: &str) -> &'a str {
+    let at = body
+        .find(from)
+        .unwrap_or_else(|| panic!("no {from:?} in {body}"));
+    let rest = &body[at..];
+    &rest[..rest.find(to).map_or(rest.len(), |e| e + to.len())]
+}
+
+#[tokio::test]
+async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // The same rows twice (the second with a comment: other bytes, the
+    // same scores).
+    let rows = catalogue(&f.all, 0.01);
+    for text in [rows.clone(), format!("{rows}# the same rows again\n")] {
+        let r = a.upload(Some(&csrf), text.as_bytes()).await;
+        assert_eq!(r.status, StatusCode::SEE_OTHER, "{}", r.body);
+    }
+    f.score_queue();
+    let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    let subs = mine["submissions"].as_array().unwrap();
+    assert_eq!(subs.len(), 2);
+    assert_eq!(subs[0]["public"], subs[1]["public"], "a tie");
+    assert_eq!(mine["final"], serde_json::json!([1]), "{mine}");
+    assert_eq!(mine["final_chosen"], false);
+    let (_, board) = api_get(&app, "/api/leaderboard", &f.tokens[0]).await;
+    assert_eq!(board["rows"][0]["entry"], 1, "{board}");
+    let page = a.get("/entries").await;
+    assert!(
+        section(&page.body, "<tr id=\"entry-1\">", "</tr>").contains("final (default)"),
+        "{}",
+        page.body
+    );
+    assert!(!section(&page.body, "<tr id=\"entry-2\">", "</tr>").contains("tag final"));
+    let r = a.get("/leaderboard").await;
+    assert!(r.body.contains("<td class=\"num\">1</td>\n"), "{}", r.body);
+    // At reveal the same entry counts.
+    f.reveal();
+    let (_, board) = api_get(&app, "/api/leaderboard", &f.tokens[0]).await;
+    assert_eq!(board["rows"][0]["entry"], 1, "{board}");
+    assert_eq!(board["rows"][0]["finals"], serde_json::json!([1]));
+    let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    assert_eq!(mine["final"], serde_json::json!([1]));
+}
