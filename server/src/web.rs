@@ -179,6 +179,20 @@ pub(crate) fn signed(v: Option<f64>, dp: usize) -> String {
     }
 }
 
+/// The ends of a 95 % interval as shown with `dp` decimals by `show`
+/// ([`fixed`] or [`signed`]); `None` when they read the same: an interval
+/// of no width at the precision shown (the bootstrap found no spread: one
+/// base field, or resamples that all agree) says nothing of the
+/// uncertainty, and is shown as "—" (the leaderboard and the report page).
+pub(crate) fn interval_ends(
+    ci: [f64; 2],
+    dp: usize,
+    show: fn(Option<f64>, usize) -> String,
+) -> Option<(String, String)> {
+    let (lo, hi) = (show(Some(ci[0]), dp), show(Some(ci[1]), dp));
+    (lo != hi).then_some((lo, hi))
+}
+
 /// A time as `YYYY-MM-DD HH:MM UTC`.
 fn when(t_s: i64) -> String {
     let t = crate::utc_text(t_s);
@@ -1241,13 +1255,8 @@ async fn leaderboard_page(
                 h_m_mean: signed(n("holdout", "m_mean"), 4),
                 h_sigma_c: fixed(n("holdout", "sigma_c"), 5),
                 h_q_c: fixed(n("holdout", "q_c"), 1),
-                // An interval of no width at the precision shown (the
-                // bootstrap found no spread: one base field, or resamples
-                // that all agree) says nothing of the uncertainty: "—", as
-                // for none.
                 h_q_c_ci: crate::api::q_c_interval(&r["holdout"])
-                    .map(|[lo, hi]| (fixed(Some(lo), 1), fixed(Some(hi), 1)))
-                    .filter(|(lo, hi)| lo != hi)
+                    .and_then(|ci| interval_ends(ci, 1, fixed))
                     .map(|(lo, hi)| format!("{lo}–{hi}"))
                     .unwrap_or_else(|| "—".to_owned()),
                 tied_above: r["tied_above"].as_bool().unwrap_or(false),

@@ -979,3 +979,64 @@ async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie(
     let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
     assert_eq!(mine["final"], serde_json::json!([1]));
 }
+
+/// The (value, low, high) cells of each row of a report's summary tables.
+fn summary_cells(body: &str) -> Vec<(String, String, String)> {
+    let mut out = Vec::new();
+    let mut rest = body;
+    while let Some(at) = rest.find("<table class=\"data summary\">") {
+        let table = section(&rest[at..], "<tbody>", "</tbody>");
+        for row in table.split("<tr>").skip(1) {
+            let cells: Vec<String> = row
+                .split("<td class=\"num")
+                .skip(1)
+                .map(|c| {
+                    let c = &c[c.find('>').unwrap() + 1..];
+                    c[..c.find("</td>").unwrap()].to_string()
+                })
+                .collect();
+            if let [v, lo, hi] = &cells[..] {
+                out.push((v.clone(), lo.clone(), hi.clone()));
+            }
+        }
+        rest = &rest[at + 10..];
+    }
+    out
+}
+
+#[tokio::test]
+async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
+    let f = fixture(&["alpha"]);
+    let mut a = Agent::new(f.app());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    f.score_queue();
+    f.reveal();
+    let r = a.get("/entries/1/report").await;
+    assert_eq!(r.status, StatusCode::OK);
+    let cells = summary_cells(&r.body);
+    assert_eq!(cells.len(), 16, "8 figures, 2 parts: {cells:?}");
+    // This noise-free catalogue's resamples agree: its intervals have no
+    // width at the precision shown, and none may read low = high.
+    for (v, lo, hi) in &cells {
+        assert!(lo != hi || lo == "—", "{v}: {lo}–{hi}");
+    }
+    assert!(cells.iter().any(|(_, lo, hi)| lo == "—" && hi == "—"));
+    // report.md's caveat on 2 base fields.
+    assert!(
+        r.body.contains(
+            "the interval resamples only 2 base fields (images per dataset), so it can take at \
+             most 3 distinct values"
+        ),
+        "{}",
+        r.body
+    );
+    // Errors of no width at the precision shown read "—", not "± 0.0000".
+    for zero in ["± 0.000<", "± 0.0000<", "± 0.00000<"] {
+        assert!(!r.body.contains(zero), "{zero}: {}", r.body);
+    }
+}
