@@ -417,7 +417,7 @@ pub fn entry_json(s: &Submission, revealed: bool) -> Value {
         "final": s.final_choice,
     });
     if let Some(e) = &s.error {
-        v["error"] = json!(e);
+        v["error"] = json!(crate::worker::server_wording(e));
     }
     if s.has_score() {
         v["public"] = parse(&s.public_json).unwrap_or(Value::Null);
@@ -446,6 +446,7 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
         .submissions_of(team.id)
         .map_err(ApiError::internal)?;
     let quota = quota_status(&state, team.id)?;
+    let refused = refusal_status(&state, team.id)?;
     let refs: Vec<&Submission> = subs.iter().collect();
     let counted: Vec<i64> = final_entries_or_default(&refs)
         .iter()
@@ -467,6 +468,7 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
         "final": counted,
         "final_chosen": chosen,
         "submissions": entries,
+        "refused_uploads": refused,
     }))
     .into_response())
 }
@@ -576,6 +578,46 @@ pub(crate) fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiE
     Ok(v)
 }
 
+/// How many of a team's refused uploads the team is shown (newest first).
+pub const REFUSALS_SHOWN: usize = 50;
+
+/// The uploads of a team the format check refused (never entries): `used`
+/// (in the last 24 hours, counted against `limit`, the refusal cap),
+/// `window_hours`, `reset` (when the oldest counted one leaves the window,
+/// if any) and `recent`, the newest [`REFUSALS_SHOWN`] with `created` and
+/// `error` (the message the team was sent).
+pub(crate) fn refusal_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
+    let now = crate::now_s();
+    let (used, recent) = {
+        let store = state.store();
+        (
+            store
+                .format_failures_since(team_id, now - QUOTA_WINDOW_S)
+                .map_err(ApiError::internal)?,
+            store
+                .format_failures(Some(team_id), REFUSALS_SHOWN)
+                .map_err(ApiError::internal)?,
+        )
+    };
+    let recent: Vec<Value> = recent
+        .iter()
+        .map(|f| {
+            json!({"created": crate::utc_text(f.created_s),
+                   "error": crate::worker::server_wording(&f.error)})
+        })
+        .collect();
+    let mut v = json!({
+        "used": used.len(),
+        "limit": state.inner.settings.format_failure_cap,
+        "window_hours": QUOTA_WINDOW_S / 3600,
+        "recent": recent,
+    });
+    if let Some(first) = used.first() {
+        v["reset"] = json!(crate::utc_text(first + QUOTA_WINDOW_S));
+    }
+    Ok(v)
+}
+
 async fn leaderboard(State(state): State<AppState>) -> ApiResult {
     let revealed = revealed(&state)?;
     let (teams, subs) = {
@@ -590,9 +632,11 @@ async fn leaderboard(State(state): State<AppState>) -> ApiResult {
 }
 
 /// The leaderboard. Before reveal: each team's best scored entry by
-/// public Q_c (ties by |⟨m⟩|, then the earlier entry), ranked by it. After
-/// reveal: of each team's final entries (those it chose, or its best public
-/// one), the one with the best held-out Q_c (ties by |⟨m⟩|), ranked by it,
+/// public Q_c (ties by |⟨m⟩|, then the earlier entry:
+/// [`crate::challenge::best_public`], the entry the team's own view counts
+/// by default), ranked by it. After reveal: of each team's final entries
+/// (those it chose, or its best public one), the one with the best held-out
+/// Q_c (ties by |⟨m⟩|, then the earlier entry), ranked by it,
 /// with `finals` (the ids that counted) and `holdout`. Every row has `rank`,
 /// `team`, `role`, `entries` (how many scored), `entry` and `public`.
 /// Participants are ranked 1, 2, ...; the organisers' and the baseline's

@@ -940,7 +940,7 @@ fn entry_view(s: &crate::store::Submission, revealed: bool) -> EntryView {
         bytes_exact: s.bytes,
         sha256: s.sha256.clone(),
         sha_prefix: s.sha256.chars().take(12).collect(),
-        error: s.error.clone(),
+        error: s.error.as_deref().map(crate::worker::server_wording),
         m_mean: signed(n("m_mean"), 3),
         sigma_c: fixed(n("sigma_c"), 4),
         q_c: fixed(n("q_c"), 0),
@@ -975,10 +975,19 @@ fn entries_response(
             .submissions_of(team.id)
             .map_err(ApiError::internal)?;
         let quota = crate::api::quota_status(state, team.id)?;
-        let reset = quota
-            .get("reset")
-            .and_then(Value::as_str)
-            .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]));
+        let page_time = |v: &Value| {
+            v.as_str()
+                .filter(|t| t.len() >= 16)
+                .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]))
+        };
+        let reset = page_time(&quota["reset"]);
+        let refused = crate::api::refusal_status(state, team.id)?;
+        let refusals: Vec<Value> = refused["recent"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|f| serde_json::json!({"created": page_time(&f["created"]), "error": f["error"]}))
+            .collect();
         let refs: Vec<&crate::store::Submission> = subs.iter().collect();
         let counted: Vec<i64> = crate::challenge::final_entries_or_default(&refs)
             .iter()
@@ -998,6 +1007,13 @@ fn entries_response(
             "team": team.name,
             "entries": entries,
             "quota": {"used": quota["used"], "limit": quota["limit"], "reset": reset},
+            "refused": {
+                "used": refused["used"],
+                "limit": refused["limit"],
+                "reset": page_time(&refused["reset"]),
+                "recent": refusals,
+                "shown": crate::api::REFUSALS_SHOWN,
+            },
             "rules": rules(state),
             "revealed": revealed,
             "notice": notice,

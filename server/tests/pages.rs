@@ -930,6 +930,16 @@ async fn api_get(app: &axum::Router, path: &str, token: &str) -> (StatusCode, se
     (status, serde_json::from_slice(&body).unwrap())
 }
 
+/// Text as the templates write it (minijinja's escaping: `/` and `'` too).
+fn esc(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+        .replace('\'', "&#x27;")
+        .replace('/', "&#x2f;")
+}
+
 /// The part of a page from `from` to the next `to` after it.
 fn section<'a>(body: &'a str, from: &str, to: &str) -> &'a str {
     let at = body
@@ -1039,4 +1049,167 @@ async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
     for zero in ["± 0.000<", "± 0.0000<", "± 0.00000<"] {
         assert!(!r.body.contains(zero), "{zero}: {}", r.body);
     }
+}
+
+#[tokio::test]
+async fn refused_uploads_show_on_the_entries_page_with_the_cap() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    for bad in [
+        "not a catalogue\n",
+        "# image x y e1 e2 weight\nnope 1 2 3 4 5\n",
+    ] {
+        let r = a.upload(Some(&csrf), bad.as_bytes()).await;
+        assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    }
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let r = a.get("/entries").await;
+    assert!(
+        r.body.contains(
+            "<strong>2</strong> of 20 <span class=\"muted\">refused uploads in the last 24 hours"
+        ),
+        "{}",
+        r.body
+    );
+    assert!(r.body.contains("<strong>1</strong> of 4"));
+    let refusals = section(&r.body, "id=\"refusals\"", "</table>");
+    let failures = Challenge::open(&f.state)
+        .unwrap()
+        .store
+        .format_failures(Some(1), 10)
+        .unwrap();
+    assert_eq!(failures.len(), 2);
+    for fl in &failures {
+        assert!(
+            refusals.contains(&esc(&fl.error)),
+            "{} not in {refusals}",
+            fl.error
+        );
+    }
+    assert_eq!(refusals.matches("<tr class=\"refused-upload\">").count(), 2);
+    // The API: the entries keep their shape; the refusals beside them.
+    let (s, v) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(v["submissions"].as_array().unwrap().len(), 1);
+    assert_eq!(v["quota"]["used"], 1);
+    let ru = &v["refused_uploads"];
+    assert_eq!(
+        (ru["used"].as_u64(), ru["limit"].as_u64()),
+        (Some(2), Some(20)),
+        "{v}"
+    );
+    assert_eq!(ru["window_hours"], 24);
+    assert!(ru["reset"].is_string());
+    let recent = ru["recent"].as_array().unwrap();
+    assert_eq!(recent.len(), 2);
+    assert_eq!(recent[0]["error"], failures[0].error.as_str());
+    assert!(recent[0]["created"].is_string());
+}
+
+#[tokio::test]
+async fn a_catalogue_missing_images_is_refused_in_words_for_the_web() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // The catalogue without the rows of its first image.
+    let good = catalogue(&f.all, 0.0);
+    let first = good.lines().nth(1).unwrap().split(' ').next().unwrap();
+    let partial: String = good
+        .lines()
+        .filter(|l| !l.starts_with(&format!("{first} ")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let r = a.upload(Some(&csrf), partial.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    let notice = section(&r.body, "id=\"notice\"", "</div>");
+    assert!(
+        notice.contains(&format!("smallest ids first: {first})")),
+        "{notice}"
+    );
+    assert!(!r.body.contains("--allow-missing-images"), "{notice}");
+    assert!(
+        notice.contains("the server scores only catalogues with rows for every image"),
+        "{notice}"
+    );
+    // The API and the stored refusal say the same.
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::post("/api/submissions")
+                .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+                .body(Body::from(partial.clone()))
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    let v: serde_json::Value =
+        serde_json::from_slice(&resp.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    let message = v["error"].as_str().unwrap();
+    assert!(notice.contains(&esc(message)), "{message}");
+    let stored = Challenge::open(&f.state)
+        .unwrap()
+        .store
+        .format_failures(Some(1), 10)
+        .unwrap();
+    assert!(stored.iter().all(|s| s.error == message));
+}
+
+#[tokio::test]
+async fn a_catalogue_missing_images_is_refused_in_words_for_the_web() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // The catalogue without the rows of its first image.
+    let good = catalogue(&f.all, 0.0);
+    let first = good.lines().nth(1).unwrap().split(' ').next().unwrap();
+    let partial: String = good
+        .lines()
+        .filter(|l| !l.starts_with(&format!("{first} ")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let r = a.upload(Some(&csrf), partial.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    let notice = section(&r.body, "id=\"notice\"", "</div>");
+    assert!(
+        notice.contains(&format!("smallest ids first: {first})")),
+        "{notice}"
+    );
+    assert!(!r.body.contains("--allow-missing-images"), "{notice}");
+    assert!(
+        notice.contains("the server scores only catalogues with rows for every image"),
+        "{notice}"
+    );
+    // The API and the stored refusal say the same.
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::post("/api/submissions")
+                .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+                .body(Body::from(partial.clone()))
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    let v: serde_json::Value =
+        serde_json::from_slice(&resp.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    let message = v["error"].as_str().unwrap();
+    assert!(notice.contains(&esc(message)), "{message}");
+    let stored = Challenge::open(&f.state)
+        .unwrap()
+        .store
+        .format_failures(Some(1), 10)
+        .unwrap();
+    assert!(stored.iter().all(|s| s.error == message));
 }
