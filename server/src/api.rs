@@ -8,8 +8,10 @@
 //! GET  /api/leaderboard       {"revealed", "rows": [{"rank", "team", "role", ...}]}
 //! PUT  /api/final             Bearer token; {"entries": [id, ...]} (at most 2)
 //! GET  /api/challenge         name, deadline, frozen/closed/revealed, rules
-//! GET  /data/                 the public files: path, bytes, sha256 (manifest order)
+//! GET  /data/                 the public files: path, bytes, sha256 (manifest order);
+//!                             a page for a browser (`web::wants_html`)
 //! GET  /data/{path}           one public file listed there (nothing else)
+//! GET  /data.tar              all of them as one tar archive, with SHA256SUMS
 //! ```
 //!
 //! Errors are JSON `{"error": "..."}`: 401 without a valid token, 404 for
@@ -228,6 +230,7 @@ type ApiResult = Result<Response, ApiError>;
 /// The router of the API, with security headers on every answer.
 pub fn router(state: AppState) -> Router {
     use tower_http::set_header::SetResponseHeaderLayer as H;
+    let (pages, web) = crate::web::pages(&state);
     Router::new()
         .route(
             "/api/submissions",
@@ -237,10 +240,11 @@ pub fn router(state: AppState) -> Router {
         .route("/api/leaderboard", get(leaderboard))
         .route("/api/final", put(put_final))
         .route("/api/challenge", get(challenge_state))
-        .route("/data", get(crate::data::listing))
-        .route("/data/", get(crate::data::listing))
+        .route("/data", get(crate::web::data_index))
+        .route("/data/", get(crate::web::data_index))
+        .route("/data.tar", get(crate::data::archive))
         .route("/data/{*path}", get(crate::data::download))
-        .merge(crate::web::routes(&state))
+        .merge(pages)
         .fallback(|| async { ApiError::not_found() })
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
@@ -250,6 +254,11 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             rate_limit,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            crate::web::html_errors,
+        ))
+        .layer(axum::Extension(web))
         .layer(axum::extract::DefaultBodyLimit::disable())
         .layer(H::overriding(
             header::X_CONTENT_TYPE_OPTIONS,
