@@ -57,9 +57,11 @@ pub fn write_public(dir: &Path, all: &SynthRun) -> Vec<(String, Vec<u8>)> {
     let mut images = Vec::new();
     let mut files = Vec::new();
     for (k, d) in all.datasets.datasets.iter().enumerate() {
-        for im in &d.images {
+        for (j, im) in d.images.iter().enumerate() {
             let file = format!("{}/{}.fits", d.dataset, im.image);
-            let bytes: Vec<u8> = (0..700 + 37 * k).map(|i| (i * 7 + k) as u8).collect();
+            let bytes: Vec<u8> = (0..700 + 37 * k + 5 * j)
+                .map(|i| (i * 7 + k + 3 * j) as u8)
+                .collect();
             std::fs::create_dir_all(public.join(&d.dataset)).unwrap();
             std::fs::write(public.join(&file), &bytes).unwrap();
             images.push(serde_json::json!({
