@@ -8,8 +8,10 @@
 //! GET  /api/leaderboard       {"revealed", "rows": [{"rank", "team", "role", ...}]}
 //! PUT  /api/final             Bearer token; {"entries": [id, ...]} (at most 2)
 //! GET  /api/challenge         name, deadline, frozen/closed/revealed, rules
-//! GET  /data/                 the public files: path, bytes, sha256 (manifest order)
+//! GET  /data/                 the public files: path, bytes, sha256 (manifest order);
+//!                             a page for a browser (`web::wants_html`)
 //! GET  /data/{path}           one public file listed there (nothing else)
+//! GET  /data.tar              all of them as one tar archive, with SHA256SUMS
 //! ```
 //!
 //! Errors are JSON `{"error": "..."}`: 401 without a valid token, 404 for
@@ -228,6 +230,7 @@ type ApiResult = Result<Response, ApiError>;
 /// The router of the API, with security headers on every answer.
 pub fn router(state: AppState) -> Router {
     use tower_http::set_header::SetResponseHeaderLayer as H;
+    let (pages, web) = crate::web::pages(&state);
     Router::new()
         .route(
             "/api/submissions",
@@ -237,10 +240,11 @@ pub fn router(state: AppState) -> Router {
         .route("/api/leaderboard", get(leaderboard))
         .route("/api/final", put(put_final))
         .route("/api/challenge", get(challenge_state))
-        .route("/data", get(crate::data::listing))
-        .route("/data/", get(crate::data::listing))
+        .route("/data", get(crate::web::data_index))
+        .route("/data/", get(crate::web::data_index))
+        .route("/data.tar", get(crate::data::archive))
         .route("/data/{*path}", get(crate::data::download))
-        .merge(crate::web::routes(&state))
+        .merge(pages)
         .fallback(|| async { ApiError::not_found() })
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
@@ -250,6 +254,11 @@ pub fn router(state: AppState) -> Router {
             state.clone(),
             rate_limit,
         ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            crate::web::html_errors,
+        ))
+        .layer(axum::Extension(web))
         .layer(axum::extract::DefaultBodyLimit::disable())
         .layer(H::overriding(
             header::X_CONTENT_TYPE_OPTIONS,
@@ -417,7 +426,7 @@ pub fn entry_json(s: &Submission, revealed: bool) -> Value {
         "final": s.final_choice,
     });
     if let Some(e) = &s.error {
-        v["error"] = json!(e);
+        v["error"] = json!(crate::worker::server_wording(e));
     }
     if s.has_score() {
         v["public"] = parse(&s.public_json).unwrap_or(Value::Null);
@@ -446,6 +455,7 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
         .submissions_of(team.id)
         .map_err(ApiError::internal)?;
     let quota = quota_status(&state, team.id)?;
+    let refused = refusal_status(&state, team.id)?;
     let refs: Vec<&Submission> = subs.iter().collect();
     let counted: Vec<i64> = final_entries_or_default(&refs)
         .iter()
@@ -467,6 +477,7 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
         "final": counted,
         "final_chosen": chosen,
         "submissions": entries,
+        "refused_uploads": refused,
     }))
     .into_response())
 }
@@ -576,6 +587,46 @@ pub(crate) fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiE
     Ok(v)
 }
 
+/// How many of a team's refused uploads the team is shown (newest first).
+pub const REFUSALS_SHOWN: usize = 50;
+
+/// The uploads of a team the format check refused (never entries): `used`
+/// (in the last 24 hours, counted against `limit`, the refusal cap),
+/// `window_hours`, `reset` (when the oldest counted one leaves the window,
+/// if any) and `recent`, the newest [`REFUSALS_SHOWN`] with `created` and
+/// `error` (the message the team was sent).
+pub(crate) fn refusal_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
+    let now = crate::now_s();
+    let (used, recent) = {
+        let store = state.store();
+        (
+            store
+                .format_failures_since(team_id, now - QUOTA_WINDOW_S)
+                .map_err(ApiError::internal)?,
+            store
+                .format_failures(Some(team_id), REFUSALS_SHOWN)
+                .map_err(ApiError::internal)?,
+        )
+    };
+    let recent: Vec<Value> = recent
+        .iter()
+        .map(|f| {
+            json!({"created": crate::utc_text(f.created_s),
+                   "error": crate::worker::server_wording(&f.error)})
+        })
+        .collect();
+    let mut v = json!({
+        "used": used.len(),
+        "limit": state.inner.settings.format_failure_cap,
+        "window_hours": QUOTA_WINDOW_S / 3600,
+        "recent": recent,
+    });
+    if let Some(first) = used.first() {
+        v["reset"] = json!(crate::utc_text(first + QUOTA_WINDOW_S));
+    }
+    Ok(v)
+}
+
 async fn leaderboard(State(state): State<AppState>) -> ApiResult {
     let revealed = revealed(&state)?;
     let (teams, subs) = {
@@ -590,9 +641,11 @@ async fn leaderboard(State(state): State<AppState>) -> ApiResult {
 }
 
 /// The leaderboard. Before reveal: each team's best scored entry by
-/// public Q_c (ties by |⟨m⟩|, then the earlier entry), ranked by it. After
-/// reveal: of each team's final entries (those it chose, or its best public
-/// one), the one with the best held-out Q_c (ties by |⟨m⟩|), ranked by it,
+/// public Q_c (ties by |⟨m⟩|, then the earlier entry:
+/// [`crate::challenge::best_public`], the entry the team's own view counts
+/// by default), ranked by it. After reveal: of each team's final entries
+/// (those it chose, or its best public one), the one with the best held-out
+/// Q_c (ties by |⟨m⟩|, then the earlier entry), ranked by it,
 /// with `finals` (the ids that counted) and `holdout`. Every row has `rank`,
 /// `team`, `role`, `entries` (how many scored), `entry` and `public`.
 /// Participants are ranked 1, 2, ...; the organisers' and the baseline's

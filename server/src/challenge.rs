@@ -643,13 +643,20 @@ pub fn parse_figures(text: Option<&str>) -> serde_json::Value {
         .unwrap_or(serde_json::Value::Null)
 }
 
-/// A team's best entry by public feedback (the earlier entry on ties), among
-/// those with a score.
+/// A team's best entry by public feedback (the earlier entry, the smaller
+/// id, on ties), among those with a score, whatever the order of `subs`:
+/// the team's own view lists its entries newest first and the board oldest
+/// first, and both must name the same entry (issue #27).
 pub fn best_public<'a>(subs: &[&'a Submission]) -> Option<&'a Submission> {
     let mut best: Option<(&Submission, (f64, f64))> = None;
     for s in subs.iter().filter(|s| s.has_score()) {
         let k = rank_key(&parse_figures(s.public_json.as_deref()));
-        if best.is_none_or(|(_, b)| k.partial_cmp(&b) == Some(std::cmp::Ordering::Less)) {
+        let better = best.is_none_or(|(b, bk)| match k.partial_cmp(&bk) {
+            Some(std::cmp::Ordering::Less) => true,
+            Some(std::cmp::Ordering::Equal) => s.id < b.id,
+            _ => false,
+        });
+        if better {
             best = Some((s, k));
         }
     }
@@ -657,14 +664,16 @@ pub fn best_public<'a>(subs: &[&'a Submission]) -> Option<&'a Submission> {
 }
 
 /// The entries of one team that count at reveal: those it chose (with a
-/// score), or, when it chose none, its best public entry. `subs` are the
-/// team's entries.
+/// score), or, when it chose none, its best public entry ([`best_public`]).
+/// `subs` are the team's entries, in any order; the answer is in the order
+/// of their ids.
 pub fn final_entries_or_default<'a>(subs: &[&'a Submission]) -> Vec<&'a Submission> {
-    let chosen: Vec<&Submission> = subs
+    let mut chosen: Vec<&Submission> = subs
         .iter()
         .copied()
         .filter(|s| s.final_choice && s.has_score())
         .collect();
+    chosen.sort_by_key(|s| s.id);
     if chosen.is_empty() {
         best_public(subs).into_iter().collect()
     } else {

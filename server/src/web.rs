@@ -65,9 +65,10 @@ const FORM_MAX_BYTES: usize = 16 * 1024;
 const STYLE_CSS: &str = include_str!("../templates/style.css");
 
 /// The page templates, compiled into the binary.
-const TEMPLATES: [(&str, &str); 8] = [
+const TEMPLATES: [(&str, &str); 9] = [
     ("base.html", include_str!("../templates/base.html")),
     ("index.html", include_str!("../templates/index.html")),
+    ("data.html", include_str!("../templates/data.html")),
     ("signin.html", include_str!("../templates/signin.html")),
     ("entries.html", include_str!("../templates/entries.html")),
     (
@@ -103,7 +104,7 @@ struct Session {
 }
 
 /// What the pages share besides [`AppState`].
-struct Web {
+pub(crate) struct Web {
     env: Result<Environment<'static>, String>,
     /// The run's `public/README.md` as HTML, read when the server starts.
     readme_html: Option<String>,
@@ -113,8 +114,10 @@ struct Web {
 
 type Shared = Extension<Arc<Web>>;
 
-/// The pages' routes, merged into [`crate::api::router`].
-pub fn routes(state: &AppState) -> Router<AppState> {
+/// The pages' routes, merged into [`crate::api::router`], and what they
+/// share: the router puts it in every request's extensions, so that
+/// [`html_errors`] and [`data_index`] render pages too.
+pub(crate) fn pages(state: &AppState) -> (Router<AppState>, Arc<Web>) {
     use tower_http::set_header::SetResponseHeaderLayer as H;
     let readme = state
         .settings()
@@ -128,7 +131,7 @@ pub fn routes(state: &AppState) -> Router<AppState> {
         readme_html: readme,
         sessions: Mutex::new(HashMap::new()),
     });
-    Router::new()
+    let router = Router::new()
         .route("/", get(index))
         .route("/signin", get(signin_page).post(signin))
         .route("/signout", post(signout))
@@ -141,7 +144,7 @@ pub fn routes(state: &AppState) -> Router<AppState> {
         .route("/entries/{id}/report", get(report_page))
         .route("/entries/{id}/figures/{part}/{file}", get(figure))
         .route("/static/style.css", get(stylesheet))
-        .layer(Extension(web))
+        .layer(Extension(web.clone()))
         .layer(H::overriding(
             header::CONTENT_SECURITY_POLICY,
             HeaderValue::from_static(PAGE_CSP),
@@ -149,7 +152,84 @@ pub fn routes(state: &AppState) -> Router<AppState> {
         .layer(H::overriding(
             header::REFERRER_POLICY,
             HeaderValue::from_static(PAGE_REFERRER_POLICY),
-        ))
+        ));
+    (router, web)
+}
+
+/// Whether a request asks for a page rather than JSON: its `Accept` names
+/// `text/html` (or `text/*`) with a weight above 0 and at least that of
+/// JSON (`application/json`, `application/*`, `*/*`). Browsers send
+/// `text/html,…,*/*;q=0.8`; curl sends `*/*`, which is JSON.
+pub fn wants_html(headers: &HeaderMap) -> bool {
+    let (mut html, mut json) = (0.0_f64, 0.0_f64);
+    for accept in headers.get_all(header::ACCEPT) {
+        let Ok(accept) = accept.to_str() else {
+            continue;
+        };
+        for range in accept.split(',') {
+            let mut parts = range.split(';');
+            let kind = parts.next().unwrap_or("").trim().to_ascii_lowercase();
+            let q = parts
+                .filter_map(|p| p.trim().strip_prefix("q="))
+                .find_map(|q| q.trim().parse::<f64>().ok())
+                .unwrap_or(1.0);
+            match kind.as_str() {
+                "text/html" | "text/*" => html = html.max(q),
+                "application/json" | "application/*" | "*/*" => json = json.max(q),
+                _ => {}
+            }
+        }
+    }
+    html > 0.0 && html >= json
+}
+
+/// Errors as pages for browsers: an error answer in JSON (`{"error": …}`:
+/// the unknown routes' 404, a missing data file, the rate limit's 429, …)
+/// to a request that [`wants_html`] outside `/api/` is rendered as the
+/// message page, with the same status and `Retry-After`. API clients and
+/// anything under `/api/` keep the JSON.
+pub(crate) async fn html_errors(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    req: Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let path = req.uri().path().to_owned();
+    let page = !(path == "/api" || path.starts_with("/api/")) && wants_html(req.headers());
+    let headers = req.headers().clone();
+    let resp = next.run(req).await;
+    let json = resp
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    let status = resp.status();
+    if !page || !json || !(status.is_client_error() || status.is_server_error()) {
+        return resp;
+    }
+    let (parts, body) = resp.into_parts();
+    let message = axum::body::to_bytes(body, 64 * 1024)
+        .await
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+        .and_then(|v| v["error"].as_str().map(str::to_owned))
+        .unwrap_or_else(|| status.canonical_reason().unwrap_or("error").to_owned());
+    let nav = web.nav(&state, &headers, "error");
+    let text = if status == StatusCode::NOT_FOUND && message == "not found" {
+        // The path is not repeated: a crafted link must not put words of
+        // its own on the server's page.
+        "There is no page at this address. The challenge, its data and the leaderboard are \
+         linked from the challenge page."
+            .to_owned()
+    } else {
+        message
+    };
+    let mut out = web.error(&nav, &ApiError::new(status, text));
+    for name in [header::RETRY_AFTER, header::WWW_AUTHENTICATE] {
+        if let Some(v) = parts.headers.get(&name) {
+            out.headers_mut().insert(name, v.clone());
+        }
+    }
+    out
 }
 
 // ---- small helpers ----------------------------------------------------
@@ -177,6 +257,20 @@ pub(crate) fn signed(v: Option<f64>, dp: usize) -> String {
         Some(x) if x > 0.0 && !s.chars().all(|c| c == '0' || c == '.') => format!("+{s}"),
         _ => s,
     }
+}
+
+/// The ends of a 95 % interval as shown with `dp` decimals by `show`
+/// ([`fixed`] or [`signed`]); `None` when they read the same: an interval
+/// of no width at the precision shown (the bootstrap found no spread: one
+/// base field, or resamples that all agree) says nothing of the
+/// uncertainty, and is shown as "—" (the leaderboard and the report page).
+pub(crate) fn interval_ends(
+    ci: [f64; 2],
+    dp: usize,
+    show: fn(Option<f64>, usize) -> String,
+) -> Option<(String, String)> {
+    let (lo, hi) = (show(Some(ci[0]), dp), show(Some(ci[1]), dp));
+    (lo != hi).then_some((lo, hi))
 }
 
 /// A time as `YYYY-MM-DD HH:MM UTC`.
@@ -309,9 +403,15 @@ impl Web {
                 .map_err(|e| format!("{e:#}"))
         });
         match html {
+            // The pages' own policies, also on pages answered outside the
+            // pages' routes (errors, the data page).
             Ok(html) => (
                 status,
-                [(header::CONTENT_TYPE, "text/html; charset=utf-8")],
+                [
+                    (header::CONTENT_TYPE, "text/html; charset=utf-8"),
+                    (header::CONTENT_SECURITY_POLICY, PAGE_CSP),
+                    (header::REFERRER_POLICY, PAGE_REFERRER_POLICY),
+                ],
                 html,
             )
                 .into_response(),
@@ -497,6 +597,85 @@ async fn stylesheet() -> Response {
         STYLE_CSS,
     )
         .into_response()
+}
+
+/// `GET /data/` (and `/data`): for a browser ([`wants_html`]) the data
+/// page — every public file with its size and SHA-256, the archive
+/// (`/data.tar`) and a command that downloads and checks it; for anyone
+/// else the JSON listing ([`crate::data::listing`]).
+pub(crate) async fn data_index(
+    State(state): State<AppState>,
+    Extension(web): Shared,
+    headers: HeaderMap,
+) -> Response {
+    if !wants_html(&headers) {
+        return match crate::data::listing(State(state)).await {
+            Ok(r) => r,
+            Err(e) => e.into_response(),
+        };
+    }
+    let nav = web.nav(&state, &headers, "data");
+    let public = crate::data::public_dir(&state.settings().truth_dir);
+    let listed = tokio::task::spawn_blocking(move || crate::data::public_files(&public)).await;
+    let files = match listed {
+        Ok(Ok(f)) => f,
+        Ok(Err(e)) => {
+            tracing::error!(error = %e, "public data");
+            return web.message(
+                &nav,
+                StatusCode::NOT_FOUND,
+                "Data",
+                "the public data is not served here; the organisers hand it out",
+            );
+        }
+        Err(e) => return web.error(&nav, &ApiError::internal(e)),
+    };
+    // The command names this server as the browser reached it; a Host
+    // that is not a plain host[:port] is not repeated.
+    let host = headers
+        .get(header::HOST)
+        .and_then(|v| v.to_str().ok())
+        .filter(|h| {
+            !h.is_empty()
+                && h.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || ".-:[]".contains(c))
+        })
+        .unwrap_or("SERVER");
+    let scheme = match headers
+        .get("x-forwarded-proto")
+        .and_then(|v| v.to_str().ok())
+    {
+        Some("https") => "https",
+        _ => "http",
+    };
+    let total: u64 = files.iter().map(|f| f.bytes).sum();
+    let archive = crate::data::archive_len(&files);
+    let rows: Vec<Value> = files
+        .iter()
+        .map(|f| {
+            serde_json::json!({"path": f.path, "bytes": size_text(f.bytes as i64),
+                               "bytes_exact": f.bytes, "sha256": f.sha256})
+        })
+        .collect();
+    web.render(
+        StatusCode::OK,
+        "data.html",
+        serde_json::json!({
+            "nav": nav,
+            "files": rows,
+            "count": files.len(),
+            "total": size_text(total as i64),
+            "archive": size_text(archive as i64),
+            "archive_exact": archive,
+            "sums": crate::data::SUMS_FILE,
+            "dir": crate::data::ARCHIVE_DIR,
+            "command": format!(
+                "curl -fsS {scheme}://{host}/data.tar | tar -xf - && (cd {} && sha256sum -c {})",
+                crate::data::ARCHIVE_DIR,
+                crate::data::SUMS_FILE
+            ),
+        }),
+    )
 }
 
 async fn index(
@@ -926,7 +1105,7 @@ fn entry_view(s: &crate::store::Submission, revealed: bool) -> EntryView {
         bytes_exact: s.bytes,
         sha256: s.sha256.clone(),
         sha_prefix: s.sha256.chars().take(12).collect(),
-        error: s.error.clone(),
+        error: s.error.as_deref().map(crate::worker::server_wording),
         m_mean: signed(n("m_mean"), 3),
         sigma_c: fixed(n("sigma_c"), 4),
         q_c: fixed(n("q_c"), 0),
@@ -961,10 +1140,19 @@ fn entries_response(
             .submissions_of(team.id)
             .map_err(ApiError::internal)?;
         let quota = crate::api::quota_status(state, team.id)?;
-        let reset = quota
-            .get("reset")
-            .and_then(Value::as_str)
-            .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]));
+        let page_time = |v: &Value| {
+            v.as_str()
+                .filter(|t| t.len() >= 16)
+                .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]))
+        };
+        let reset = page_time(&quota["reset"]);
+        let refused = crate::api::refusal_status(state, team.id)?;
+        let refusals: Vec<Value> = refused["recent"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|f| serde_json::json!({"created": page_time(&f["created"]), "error": f["error"]}))
+            .collect();
         let refs: Vec<&crate::store::Submission> = subs.iter().collect();
         let counted: Vec<i64> = crate::challenge::final_entries_or_default(&refs)
             .iter()
@@ -984,6 +1172,13 @@ fn entries_response(
             "team": team.name,
             "entries": entries,
             "quota": {"used": quota["used"], "limit": quota["limit"], "reset": reset},
+            "refused": {
+                "used": refused["used"],
+                "limit": refused["limit"],
+                "reset": page_time(&refused["reset"]),
+                "recent": refusals,
+                "shown": crate::api::REFUSALS_SHOWN,
+            },
             "rules": rules(state),
             "revealed": revealed,
             "notice": notice,
@@ -1241,13 +1436,8 @@ async fn leaderboard_page(
                 h_m_mean: signed(n("holdout", "m_mean"), 4),
                 h_sigma_c: fixed(n("holdout", "sigma_c"), 5),
                 h_q_c: fixed(n("holdout", "q_c"), 1),
-                // An interval of no width at the precision shown (the
-                // bootstrap found no spread: one base field, or resamples
-                // that all agree) says nothing of the uncertainty: "—", as
-                // for none.
                 h_q_c_ci: crate::api::q_c_interval(&r["holdout"])
-                    .map(|[lo, hi]| (fixed(Some(lo), 1), fixed(Some(hi), 1)))
-                    .filter(|(lo, hi)| lo != hi)
+                    .and_then(|ci| interval_ends(ci, 1, fixed))
                     .map(|(lo, hi)| format!("{lo}–{hi}"))
                     .unwrap_or_else(|| "—".to_owned()),
                 tied_above: r["tied_above"].as_bool().unwrap_or(false),
@@ -1293,6 +1483,40 @@ fn visible_entry(
     }
 }
 
+/// Why the signed-in team's own entry `id` has no report to show (before
+/// reveal: when it opens), or `None` when it is not the team's entry: for
+/// another team's entry the answer stays the "not found" of an entry that
+/// does not exist.
+fn own_entry_without_report(
+    state: &AppState,
+    web: &Web,
+    headers: &HeaderMap,
+    id: &str,
+) -> Option<String> {
+    let id: i64 = id.parse().ok()?;
+    let (_, team) = web.team_session(state, headers)?;
+    let sub = state
+        .store()
+        .submission(id)
+        .ok()
+        .flatten()
+        .filter(|s| s.team_id == team.id)?;
+    let revealed = crate::api::revealed(state).ok()?;
+    Some(if !revealed {
+        format!(
+            "The full report of entry {id} (both parts: the summary with its intervals, the fits \
+             per PSF, the per-dataset table and the figures) opens at reveal, when the organisers \
+             open the held-out scores after the challenge closes. Until then \"Our entries\" \
+             shows its rounded public feedback."
+        )
+    } else {
+        format!(
+            "Entry {id} has no report: it is {} (only a scored entry has one).",
+            sub.status
+        )
+    })
+}
+
 /// The parts whose reports an entry has: `(url name, title, ranked)`.
 const PARTS: [(&str, &str); 2] = [
     ("holdout", "Held-out part (ranked at reveal)"),
@@ -1308,7 +1532,12 @@ async fn report_page(
     let nav = web.nav(&state, &headers, "report");
     let sub = match visible_entry(&state, &web, &headers, &id) {
         Ok(s) => s,
-        Err(e) => return web.error(&nav, &e),
+        Err(e) => {
+            return match own_entry_without_report(&state, &web, &headers, &id) {
+                Some(text) => web.message(&nav, e.status, "Report not open", &text),
+                None => web.error(&nav, &e),
+            };
+        }
     };
     let team = state
         .store()
@@ -1425,6 +1654,29 @@ mod tests {
         assert_eq!(cap_text(256 << 20), "256 MiB");
         assert_eq!(cap_text(1000), "1000 bytes");
         assert_eq!(when(0), "1970-01-01 00:00 UTC");
+    }
+
+    #[test]
+    fn browsers_get_pages_and_scripts_json() {
+        let accept = |v: &'static str| {
+            let mut h = HeaderMap::new();
+            h.insert(header::ACCEPT, HeaderValue::from_static(v));
+            wants_html(&h)
+        };
+        // Chromium's and Firefox's Accept for a page.
+        assert!(accept(
+            "text/html,application/xhtml+xml,application/xml;q=0.9,image/avif,\
+             image/webp,image/apng,*/*;q=0.8,application/signed-exchange;v=b3;q=0.7"
+        ));
+        assert!(accept(
+            "text/html,application/xhtml+xml,application/xml;q=0.9,*/*;q=0.8"
+        ));
+        // curl, scripts, JSON clients; HTML refused or weighed below JSON.
+        assert!(!accept("*/*"));
+        assert!(!accept("application/json"));
+        assert!(!accept("text/html;q=0, */*"));
+        assert!(!accept("application/json, text/html;q=0.5"));
+        assert!(!wants_html(&HeaderMap::new()));
     }
 
     #[test]

@@ -21,11 +21,30 @@ pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VER
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(600);
 
 /// A harness message as a participant may see it: the server's paths (the
-/// stored upload, the private run directory) replaced by neutral words.
+/// stored upload, the private run directory) replaced by neutral words, and
+/// advice meant for the command line ([`server_wording`]) replaced by what
+/// to do with an upload.
 pub fn participant_message(message: &str, upload: &Path, truth_dir: &Path) -> String {
-    message
-        .replace(&upload.display().to_string(), "the upload")
-        .replace(&truth_dir.display().to_string(), "the run")
+    server_wording(
+        &message
+            .replace(&upload.display().to_string(), "the upload")
+            .replace(&truth_dir.display().to_string(), "the run"),
+    )
+}
+
+/// The harness's advice to pass `--allow-missing-images` (a flag of
+/// `stepsim score`) as a participant of the server can act on it: the
+/// server takes no flags and scores complete catalogues only. The rest of
+/// the message (counts, the smallest missing ids, lines and columns) is
+/// kept. A fixed replacement: it depends on nothing private. Also applied
+/// to messages stored before it existed when they are shown.
+pub fn server_wording(message: &str) -> String {
+    message.replace(
+        "; pass --allow-missing-images to score a partial submission",
+        "; the server scores only catalogues with rows for every image of the release \
+         (manifest.json on the data page lists them all): add the missing images' rows and \
+         upload again",
+    )
 }
 
 /// The harness's options for scoring (or format-checking) the upload at

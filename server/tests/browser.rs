@@ -4,7 +4,9 @@
 //! (sees the harness's message with the line number) and a good one
 //! through the file input, waits until it is scored and on the
 //! leaderboard; after reveal it opens the report with its tables and
-//! figures. Screenshots of every page go to `target/screenshots/`.
+//! figures. On the way it opens the data page, an address that is no page,
+//! uploads a catalogue missing an image and opens its entry's report
+//! before reveal. Screenshots of every page go to `target/screenshots/`.
 //!
 //! Without `chromium` and `chromedriver` the test fails, naming the
 //! packages, unless `STEPSIM_SKIP_BROWSER=1`.
@@ -153,6 +155,7 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
     // The challenge: three teams; the browser is the first.
     let tmp = tempfile::tempdir().unwrap();
     let all = write_run(tmp.path());
+    common::write_public(tmp.path(), &all);
     let state = tmp.path().join("state");
     let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
     ch.store.set_meta("requests_per_minute", "100000").unwrap();
@@ -210,6 +213,15 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
     std::fs::write(&bad_path, lines.join("\n") + "\n").unwrap();
     let good_path = tmp.path().join("good-catalogue.txt");
     std::fs::write(&good_path, &good).unwrap();
+    // And one without the rows of its first image.
+    let first = good.lines().nth(1).unwrap().split(' ').next().unwrap();
+    let partial: String = good
+        .lines()
+        .filter(|l| !l.starts_with(&format!("{first} ")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let partial_path = tmp.path().join("partial-catalogue.txt");
+    std::fs::write(&partial_path, partial).unwrap();
 
     // chromedriver on a free port, headless chromium.
     let port = free_port();
@@ -245,21 +257,36 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
         .connect(&format!("http://127.0.0.1:{port}"))
         .await
         .expect("chromedriver session");
-    let result = browse(&c, &base, &token, &bad_path, &good_path, &state).await;
+    let files = Files {
+        bad: &bad_path,
+        partial: &partial_path,
+        good: &good_path,
+    };
+    let result = browse(&c, &base, &token, &files, &state).await;
     let _ = c.close().await;
     stop.store(true, Ordering::Relaxed);
     worker.join().unwrap();
     result.unwrap();
 }
 
+/// The catalogues the browser uploads.
+struct Files<'a> {
+    /// Line 4 not a number.
+    bad: &'a Path,
+    /// Without the rows of one image.
+    partial: &'a Path,
+    /// Scored.
+    good: &'a Path,
+}
+
 async fn browse(
     c: &Client,
     base: &str,
     token: &str,
-    bad: &Path,
-    good: &Path,
+    files: &Files<'_>,
     state: &Path,
 ) -> Result<(), String> {
+    let (bad, good) = (files.bad, files.good);
     let err = |e: fantoccini::error::CmdError| e.to_string();
     // The challenge page.
     c.goto(&format!("{base}/")).await.map_err(err)?;
@@ -270,6 +297,25 @@ async fn browse(
             .contains("Simulated weak-lensing images")
     );
     shot(c, "challenge").await;
+    // The data page: the files, the archive and the command.
+    c.find(Locator::LinkText("Data"))
+        .await
+        .map_err(err)?
+        .click()
+        .await
+        .map_err(err)?;
+    let command = wait_text(c, "#command", "sha256sum").await;
+    assert!(
+        command.ends_with("/data.tar | tar -xf - && (cd public && sha256sum -c SHA256SUMS)"),
+        "{command}"
+    );
+    assert!(text_of(c, "#files").await.contains("manifest.json"));
+    shot(c, "data").await;
+    // An address that is no page: a page saying so, not JSON.
+    c.goto(&format!("{base}/no/such/page")).await.map_err(err)?;
+    assert_eq!(text_of(c, "main h1").await, "Not found");
+    shot(c, "not-found").await;
+    c.goto(&format!("{base}/")).await.map_err(err)?;
     // Sign in with the token.
     c.find(Locator::LinkText("Sign in"))
         .await
@@ -310,6 +356,11 @@ async fn browse(
     assert!(notice.contains("line 4"), "the line number: {notice}");
     assert!(notice.contains("the upload"), "{notice}");
     shot(c, "upload-refused").await;
+    // A catalogue missing an image: told what to do on the web.
+    upload(files.partial).await.map_err(err)?;
+    let notice = wait_text(c, "#notice", "rows for every image").await;
+    assert!(!notice.contains("--allow-missing-images"), "{notice}");
+    shot(c, "upload-refused-missing").await;
     // The good one: queued, then scored (poll, bounded).
     upload(good).await.map_err(err)?;
     let notice = wait_text(c, "#notice", "passed the format check").await;
@@ -345,7 +396,26 @@ async fn browse(
         tokio::time::sleep(Duration::from_millis(300)).await;
         c.refresh().await.map_err(err)?;
     };
+    let refused = text_of(c, "#refused-count").await;
+    assert!(
+        refused.contains("2 of 20 refused uploads in the last 24 hours"),
+        "{refused}"
+    );
+    assert_eq!(
+        c.find_all(Locator::Css("#refusals tbody tr"))
+            .await
+            .map_err(err)?
+            .len(),
+        2
+    );
     shot(c, "entries").await;
+    // The entry's report before reveal: when it opens.
+    c.goto(&format!("{base}/entries/{id}/report"))
+        .await
+        .map_err(err)?;
+    assert!(text_of(c, "#message").await.contains("opens at reveal"));
+    shot(c, "report-not-open").await;
+    c.goto(&format!("{base}/entries")).await.map_err(err)?;
     // On the leaderboard.
     c.find(Locator::LinkText("Leaderboard"))
         .await
@@ -403,6 +473,16 @@ async fn browse(
             assert!(w > 100, "a figure did not load ({w} px)");
         }
     }
+    // Two base fields: report.md's caveat is on the page.
+    assert!(
+        text_of(c, "#caveat-holdout")
+            .await
+            .contains("resamples only 2 base fields")
+    );
     shot(c, "report").await;
+    // The top of the report (the held-out summary, its caveat, the fits).
+    c.set_window_size(1280, 1250).await.map_err(err)?;
+    let png = c.screenshot().await.map_err(err)?;
+    std::fs::write(shots_dir().join("server-report-top.png"), png).unwrap();
     Ok(())
 }

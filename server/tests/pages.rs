@@ -16,6 +16,9 @@ use tower::ServiceExt;
 const HOST: &str = "challenge.test";
 const ORIGIN: &str = "http://challenge.test";
 const HOSTILE: &str = "<script>alert(1)</script>";
+/// The `Accept` header Chromium sends for a page.
+const BROWSER_ACCEPT: &str = "text/html,application/xhtml+xml,application/xml;q=0.9,\
+                              image/avif,image/webp,image/apng,*/*;q=0.8";
 
 mod common;
 use common::catalogue;
@@ -75,6 +78,7 @@ struct Answer {
     status: StatusCode,
     headers: HeaderMap,
     body: String,
+    bytes: Vec<u8>,
 }
 
 impl Answer {
@@ -145,12 +149,29 @@ impl Agent {
             status,
             headers,
             body: String::from_utf8_lossy(&body).into_owned(),
+            bytes: body.to_vec(),
         }
     }
 
     async fn get(&mut self, path: &str) -> Answer {
         self.send(Request::get(path).body(Body::empty()).unwrap())
             .await
+    }
+
+    /// A GET with this `Accept` header.
+    async fn get_accepting(&mut self, path: &str, accept: &str) -> Answer {
+        self.send(
+            Request::get(path)
+                .header(header::ACCEPT, accept)
+                .body(Body::empty())
+                .unwrap(),
+        )
+        .await
+    }
+
+    /// A GET as a browser sends it (Chromium's `Accept` for a page).
+    async fn browse(&mut self, path: &str) -> Answer {
+        self.get_accepting(path, BROWSER_ACCEPT).await
     }
 
     async fn post_form(&mut self, path: &str, fields: &[(&str, &str)]) -> Answer {
@@ -911,4 +932,429 @@ async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
         "{}",
         r.body
     );
+}
+
+/// `GET path` on the API with team `token`: status and JSON body.
+async fn api_get(app: &axum::Router, path: &str, token: &str) -> (StatusCode, serde_json::Value) {
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::get(path)
+                .header(header::AUTHORIZATION, format!("Bearer {token}"))
+                .body(Body::empty())
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    let status = resp.status();
+    let body = resp.into_body().collect().await.unwrap().to_bytes();
+    (status, serde_json::from_slice(&body).unwrap())
+}
+
+/// Text as the templates write it (minijinja's escaping: `/` and `'` too).
+fn esc(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+        .replace('\'', "&#x27;")
+        .replace('/', "&#x2f;")
+}
+
+/// The part of a page from `from` to the next `to` after it.
+fn section<'a>(body: &'a str, from: &str, to: &str) -> &'a str {
+    let at = body
+        .find(from)
+        .unwrap_or_else(|| panic!("no {from:?} in {body}"));
+    let rest = &body[at..];
+    &rest[..rest.find(to).map_or(rest.len(), |e| e + to.len())]
+}
+
+#[tokio::test]
+async fn the_data_page_lists_the_files_and_the_archive_extracts_and_verifies() {
+    let f = fixture(&["alpha"]);
+    let files = common::write_public(f.state.parent().unwrap(), &f.all);
+    let mut a = Agent::new(f.app());
+    // The challenge page links to the data page.
+    let r = a.browse("/").await;
+    assert!(r.body.contains("href=\"/data/\""), "{}", r.body);
+    // A browser gets a page: every file with its size and checksum, the
+    // archive and the command that downloads and verifies it.
+    let r = a.browse("/data/").await;
+    assert_eq!(r.status, StatusCode::OK);
+    assert!(
+        r.headers[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with("text/html"),
+        "{:?}",
+        r.headers
+    );
+    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
+    for (path, bytes) in &files {
+        use sha2::Digest;
+        let sha = stepsim_server::challenge::hex(&sha2::Sha256::digest(bytes));
+        assert!(
+            r.body.contains(&format!("href=\"/data/{}\"", esc(path))),
+            "{path}"
+        );
+        assert!(r.body.contains(&sha), "{path}: {sha}");
+        assert!(
+            r.body.contains(&format!("title=\"{} bytes\"", bytes.len())),
+            "{path}"
+        );
+    }
+    assert!(r.body.contains("href=\"/data.tar\""));
+    let command = "curl -fsS http://challenge.test/data.tar | tar -xf - && \
+                   (cd public && sha256sum -c SHA256SUMS)";
+    assert!(r.body.contains(&esc(command)), "{}", r.body);
+    // A script gets the JSON listing, as before.
+    let r = a.get("/data/").await;
+    assert_eq!(r.headers[header::CONTENT_TYPE], "application/json");
+    let listed: serde_json::Value = serde_json::from_str(&r.body).unwrap();
+    assert_eq!(listed["files"].as_array().unwrap().len(), files.len());
+    // The archive: its length announced, every file under public/ with
+    // SHA256SUMS, no file time; the page's command extracts and verifies it.
+    let r = a.get("/data.tar").await;
+    assert_eq!(r.status, StatusCode::OK, "{}", r.body);
+    assert_eq!(r.headers[header::CONTENT_TYPE], "application/x-tar");
+    assert_eq!(
+        r.headers[header::CONTENT_LENGTH].to_str().unwrap(),
+        r.bytes.len().to_string()
+    );
+    assert_eq!(&r.bytes[257..262], b"ustar");
+    assert_eq!(&r.bytes[136..147], b"00000000000", "mtime 0");
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("data.tar"), &r.bytes).unwrap();
+    let run = |dir: &Path, cmd: &str| {
+        let out = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(cmd)
+            .current_dir(dir)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{cmd}: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    run(
+        tmp.path(),
+        "tar -xf - < data.tar && (cd public && sha256sum -c SHA256SUMS)",
+    );
+    for (path, bytes) in &files {
+        assert_eq!(
+            &std::fs::read(tmp.path().join("public").join(path)).unwrap(),
+            bytes
+        );
+    }
+    let sums = std::fs::read_to_string(tmp.path().join("public/SHA256SUMS")).unwrap();
+    assert_eq!(sums.lines().count(), files.len());
+    // A damaged file fails the check.
+    let (first_image, _) = &files[files.len() - 1];
+    std::fs::write(tmp.path().join("public").join(first_image), b"changed").unwrap();
+    let out = std::process::Command::new("sha256sum")
+        .args(["-c", "SHA256SUMS"])
+        .current_dir(tmp.path().join("public"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}
+
+#[tokio::test]
+async fn refused_uploads_show_on_the_entries_page_with_the_cap() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    for bad in [
+        "not a catalogue\n",
+        "# image x y e1 e2 weight\nnope 1 2 3 4 5\n",
+    ] {
+        let r = a.upload(Some(&csrf), bad.as_bytes()).await;
+        assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    }
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    let r = a.get("/entries").await;
+    assert!(
+        r.body.contains(
+            "<strong>2</strong> of 20 <span class=\"muted\">refused uploads in the last 24 hours"
+        ),
+        "{}",
+        r.body
+    );
+    assert!(r.body.contains("<strong>1</strong> of 4"));
+    let refusals = section(&r.body, "id=\"refusals\"", "</table>");
+    let failures = Challenge::open(&f.state)
+        .unwrap()
+        .store
+        .format_failures(Some(1), 10)
+        .unwrap();
+    assert_eq!(failures.len(), 2);
+    for fl in &failures {
+        assert!(
+            refusals.contains(&esc(&fl.error)),
+            "{} not in {refusals}",
+            fl.error
+        );
+    }
+    assert_eq!(refusals.matches("<tr class=\"refused-upload\">").count(), 2);
+    // The API: the entries keep their shape; the refusals beside them.
+    let (s, v) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(v["submissions"].as_array().unwrap().len(), 1);
+    assert_eq!(v["quota"]["used"], 1);
+    let ru = &v["refused_uploads"];
+    assert_eq!(
+        (ru["used"].as_u64(), ru["limit"].as_u64()),
+        (Some(2), Some(20)),
+        "{v}"
+    );
+    assert_eq!(ru["window_hours"], 24);
+    assert!(ru["reset"].is_string());
+    let recent = ru["recent"].as_array().unwrap();
+    assert_eq!(recent.len(), 2);
+    assert_eq!(recent[0]["error"], failures[0].error.as_str());
+    assert!(recent[0]["created"].is_string());
+}
+
+#[tokio::test]
+async fn a_catalogue_missing_images_is_refused_in_words_for_the_web() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // The catalogue without the rows of its first image.
+    let good = catalogue(&f.all, 0.0);
+    let first = good.lines().nth(1).unwrap().split(' ').next().unwrap();
+    let partial: String = good
+        .lines()
+        .filter(|l| !l.starts_with(&format!("{first} ")))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let r = a.upload(Some(&csrf), partial.as_bytes()).await;
+    assert_eq!(r.status, StatusCode::UNPROCESSABLE_ENTITY, "{}", r.body);
+    let notice = section(&r.body, "id=\"notice\"", "</div>");
+    assert!(
+        notice.contains(&format!("smallest ids first: {first})")),
+        "{notice}"
+    );
+    assert!(!r.body.contains("--allow-missing-images"), "{notice}");
+    assert!(
+        notice.contains("the server scores only catalogues with rows for every image"),
+        "{notice}"
+    );
+    // The API and the stored refusal say the same.
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::post("/api/submissions")
+                .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
+                .body(Body::from(partial.clone()))
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    let v: serde_json::Value =
+        serde_json::from_slice(&resp.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    let message = v["error"].as_str().unwrap();
+    assert!(notice.contains(&esc(message)), "{message}");
+    let stored = Challenge::open(&f.state)
+        .unwrap()
+        .store
+        .format_failures(Some(1), 10)
+        .unwrap();
+    assert!(stored.iter().all(|s| s.error == message));
+}
+
+#[tokio::test]
+async fn a_teams_own_report_before_reveal_says_when_it_opens() {
+    let f = fixture(&["alpha", "beta"]);
+    let app = f.app();
+    let mut alpha = Agent::new(app.clone());
+    alpha.sign_in(&f.tokens[0]).await;
+    let csrf = alpha.get("/entries").await.csrf();
+    let r = alpha
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    f.score_queue();
+    let r = alpha.browse("/entries/1/report").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert!(r.body.contains("opens at reveal"), "{}", r.body);
+    // Another team learns nothing: the answer for an entry that exists is
+    // the one for an entry that does not.
+    let mut beta = Agent::new(app);
+    beta.sign_in(&f.tokens[1]).await;
+    let theirs = beta.browse("/entries/1/report").await;
+    let none = beta.browse("/entries/99/report").await;
+    assert_eq!(theirs.status, StatusCode::NOT_FOUND);
+    assert_eq!(theirs.body, none.body);
+    assert!(!theirs.body.contains("opens at reveal"));
+    f.reveal();
+    assert_eq!(
+        alpha.browse("/entries/1/report").await.status,
+        StatusCode::OK
+    );
+}
+
+#[tokio::test]
+async fn unknown_routes_answer_a_page_to_browsers_and_json_to_api_clients() {
+    let f = fixture(&["alpha"]);
+    common::write_public(f.state.parent().unwrap(), &f.all);
+    let mut a = Agent::new(f.app());
+    let r = a.browse("/no/such/page").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert!(
+        r.headers[header::CONTENT_TYPE]
+            .to_str()
+            .unwrap()
+            .starts_with("text/html"),
+        "{}",
+        r.body
+    );
+    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
+    assert!(r.body.contains("href=\"/static/style.css\""));
+    assert!(r.body.contains("<h1>Not found</h1>"), "{}", r.body);
+    assert!(
+        r.body.contains("There is no page at this address"),
+        "{}",
+        r.body
+    );
+    assert!(!r.body.contains("such"), "the path is not repeated");
+    // A hostile path stays text.
+    let r = a.browse("/%3Cscript%3Ealert(1)%3C%2Fscript%3E").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert!(!r.body.contains("<script"), "{}", r.body);
+    // A file of the data that does not exist: a page too.
+    let r = a.browse("/data/nothing.fits").await;
+    assert_eq!(r.status, StatusCode::NOT_FOUND);
+    assert!(r.body.contains("<h1>Not found</h1>"));
+    // API clients, and clients that do not ask for HTML, get JSON.
+    for (path, accept) in [
+        ("/api/nothing", BROWSER_ACCEPT),
+        ("/no/such/page", "*/*"),
+        ("/no/such/page", "application/json"),
+        ("/data/nothing.fits", "*/*"),
+    ] {
+        let r = a.get_accepting(path, accept).await;
+        assert_eq!(r.status, StatusCode::NOT_FOUND, "{path}");
+        assert_eq!(
+            r.headers[header::CONTENT_TYPE],
+            "application/json",
+            "{path} {accept}"
+        );
+        assert_eq!(r.body, "{\"error\":\"not found\"}");
+    }
+}
+
+#[tokio::test]
+async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie() {
+    let f = fixture(&["alpha"]);
+    let app = f.app();
+    let mut a = Agent::new(app.clone());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    // The same rows twice (the second with a comment: other bytes, the
+    // same scores).
+    let rows = catalogue(&f.all, 0.01);
+    for text in [rows.clone(), format!("{rows}# the same rows again\n")] {
+        let r = a.upload(Some(&csrf), text.as_bytes()).await;
+        assert_eq!(r.status, StatusCode::SEE_OTHER, "{}", r.body);
+    }
+    f.score_queue();
+    let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    let subs = mine["submissions"].as_array().unwrap();
+    assert_eq!(subs.len(), 2);
+    assert_eq!(subs[0]["public"], subs[1]["public"], "a tie");
+    assert_eq!(mine["final"], serde_json::json!([1]), "{mine}");
+    assert_eq!(mine["final_chosen"], false);
+    let (_, board) = api_get(&app, "/api/leaderboard", &f.tokens[0]).await;
+    assert_eq!(board["rows"][0]["entry"], 1, "{board}");
+    let page = a.get("/entries").await;
+    assert!(
+        section(&page.body, "<tr id=\"entry-1\">", "</tr>").contains("final (default)"),
+        "{}",
+        page.body
+    );
+    assert!(!section(&page.body, "<tr id=\"entry-2\">", "</tr>").contains("tag final"));
+    let r = a.get("/leaderboard").await;
+    assert!(r.body.contains("<td class=\"num\">1</td>\n"), "{}", r.body);
+    // At reveal the same entry counts.
+    f.reveal();
+    let (_, board) = api_get(&app, "/api/leaderboard", &f.tokens[0]).await;
+    assert_eq!(board["rows"][0]["entry"], 1, "{board}");
+    assert_eq!(board["rows"][0]["finals"], serde_json::json!([1]));
+    let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
+    assert_eq!(mine["final"], serde_json::json!([1]));
+}
+
+/// The (value, low, high) cells of each row of a report's summary tables.
+fn summary_cells(body: &str) -> Vec<(String, String, String)> {
+    let mut out = Vec::new();
+    let mut rest = body;
+    while let Some(at) = rest.find("<table class=\"data summary\">") {
+        let table = section(&rest[at..], "<tbody>", "</tbody>");
+        for row in table.split("<tr>").skip(1) {
+            let cells: Vec<String> = row
+                .split("<td class=\"num")
+                .skip(1)
+                .map(|c| {
+                    let c = &c[c.find('>').unwrap() + 1..];
+                    c[..c.find("</td>").unwrap()].to_string()
+                })
+                .collect();
+            if let [v, lo, hi] = &cells[..] {
+                out.push((v.clone(), lo.clone(), hi.clone()));
+            }
+        }
+        rest = &rest[at + 10..];
+    }
+    out
+}
+
+#[tokio::test]
+async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
+    let f = fixture(&["alpha"]);
+    let mut a = Agent::new(f.app());
+    a.sign_in(&f.tokens[0]).await;
+    let csrf = a.get("/entries").await.csrf();
+    let r = a
+        .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    f.score_queue();
+    f.reveal();
+    let r = a.get("/entries/1/report").await;
+    assert_eq!(r.status, StatusCode::OK);
+    let cells = summary_cells(&r.body);
+    assert_eq!(cells.len(), 16, "8 figures, 2 parts: {cells:?}");
+    // This noise-free catalogue's resamples agree: its intervals have no
+    // width at the precision shown, and none may read low = high.
+    for (v, lo, hi) in &cells {
+        assert!(lo != hi || lo == "—", "{v}: {lo}–{hi}");
+    }
+    assert!(cells.iter().any(|(_, lo, hi)| lo == "—" && hi == "—"));
+    // report.md's caveat on 2 base fields.
+    assert!(
+        r.body.contains(
+            "the interval resamples only 2 base fields (images per dataset), so it can take at \
+             most 3 distinct values"
+        ),
+        "{}",
+        r.body
+    );
+    // Errors of no width at the precision shown read "—", not "± 0.0000".
+    for zero in ["± 0.000<", "± 0.0000<", "± 0.00000<"] {
+        assert!(!r.body.contains(zero), "{zero}: {}", r.body);
+    }
 }

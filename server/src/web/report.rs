@@ -3,8 +3,9 @@
 //! PSF with their errors, and the per-dataset shears. Shown only after
 //! reveal (docs/server.md, "Pages").
 
-use super::{fixed, signed};
+use super::{fixed, interval_ends, signed};
 use serde::Serialize;
+use stepsim_harness::markdown::{FEW_BASE_FIELDS, distinct_resamples};
 use stepsim_harness::report::Report;
 
 /// One summary figure: value and bootstrap interval.
@@ -57,6 +58,10 @@ pub(crate) struct ReportTables {
     pub(crate) psfs: Vec<PsfRow>,
     pub(crate) datasets: Vec<DatasetRow>,
     pub(crate) warnings: Vec<String>,
+    /// report.md's caveat when the bootstrap resamples few base fields.
+    pub(crate) caveat: Option<String>,
+    /// Some interval is shown as "—" (no width at the precision shown).
+    pub(crate) no_width: bool,
 }
 
 /// How a summary figure's interval is picked from the bootstrap.
@@ -71,10 +76,18 @@ type SummaryLine = (
     usize,
 );
 
-/// `value ± error` with `dp` decimals.
+/// `value ± error` with `dp` decimals; an error that reads 0 at that
+/// precision is shown as `± —` (it would claim an exact value).
 fn pm(v: Option<f64>, e: Option<f64>, dp: usize) -> String {
     match (v, e) {
-        (Some(_), Some(e)) => format!("{} ± {}", signed(v, dp), fixed(Some(e), dp)),
+        (Some(_), Some(e)) => {
+            let e = fixed(Some(e), dp);
+            if e.chars().all(|c| c == '0' || c == '.') {
+                format!("{} ± —", signed(v, dp))
+            } else {
+                format!("{} ± {e}", signed(v, dp))
+            }
+        }
         _ => signed(v, dp),
     }
 }
@@ -142,20 +155,37 @@ pub(crate) fn tables(r: &Report) -> ReportTables {
             4,
         ),
     ];
-    let summary = rows
+    let mut no_width = false;
+    let summary: Vec<SummaryRow> = rows
         .into_iter()
         .map(|(label, sub, what, v, pick, dp)| {
             let ci = b.and_then(pick);
+            let ends = ci.and_then(|ci| interval_ends(ci, dp, signed));
+            no_width |= ci.is_some() && ends.is_none();
+            let (lo, hi) = ends.unwrap_or_else(|| ("—".into(), "—".into()));
             SummaryRow {
                 label,
                 sub,
                 what,
                 value: signed(v, dp),
-                lo: signed(ci.map(|c| c[0]), dp),
-                hi: signed(ci.map(|c| c[1]), dp),
+                lo,
+                hi,
             }
         })
         .collect();
+    // report.md's caveat, in its words: the base fields are the images per
+    // dataset.
+    let fields = r.datasets.iter().map(|d| d.n_images).max().unwrap_or(0);
+    let caveat = b.filter(|_| fields < FEW_BASE_FIELDS).map(|b| {
+        format!(
+            "the interval resamples only {fields} base field{} (images per dataset), so it can \
+             take at most {} distinct values and is no reliable {:.0} % interval; trust it from \
+             about {FEW_BASE_FIELDS} base fields on.",
+            if fields == 1 { "" } else { "s" },
+            distinct_resamples(fields),
+            100.0 * b.confidence
+        )
+    });
     let psfs = r
         .psfs
         .iter()
@@ -194,5 +224,7 @@ pub(crate) fn tables(r: &Report) -> ReportTables {
         psfs,
         datasets,
         warnings: r.warnings.clone(),
+        caveat,
+        no_width,
     }
 }

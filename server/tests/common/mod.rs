@@ -46,3 +46,44 @@ pub fn catalogue(all: &SynthRun, m: f64) -> String {
         all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
     submission_text(&all.index(), &rows)
 }
+
+/// Writes the images and `manifest.json` of `all` under `dir/run/public`
+/// (made-up bytes, one file per image, `<dataset>/<image>.fits` as
+/// `stepsim generate` names them); a README already there is kept. Returns
+/// each listed file (manifest, README when present, images) with its bytes.
+pub fn write_public(dir: &Path, all: &SynthRun) -> Vec<(String, Vec<u8>)> {
+    use sha2::Digest;
+    let public = dir.join("run/public");
+    let mut images = Vec::new();
+    let mut files = Vec::new();
+    for (k, d) in all.datasets.datasets.iter().enumerate() {
+        for (j, im) in d.images.iter().enumerate() {
+            let file = format!("{}/{}.fits", d.dataset, im.image);
+            let bytes: Vec<u8> = (0..700 + 37 * k + 5 * j)
+                .map(|i| (i * 7 + k + 3 * j) as u8)
+                .collect();
+            std::fs::create_dir_all(public.join(&d.dataset)).unwrap();
+            std::fs::write(public.join(&file), &bytes).unwrap();
+            images.push(serde_json::json!({
+                "image": im.image, "dataset": d.dataset, "file": file,
+                "sha256": stepsim_server::challenge::hex(&sha2::Sha256::digest(&bytes)),
+            }));
+            files.push((file, bytes));
+        }
+    }
+    let manifest = serde_json::json!({
+        "format": "stepsim-manifest-1",
+        "instrument": {"width_px": 64, "height_px": 64, "pixel_scale_arcsec": 0.2,
+            "gain_e_per_adu": 4.0, "read_noise_e": 5.0, "saturation_adu": 65535.0,
+            "exposure_s": 3600.0, "zeropoint_mag": 26.0},
+        "images": images,
+    });
+    let text = serde_json::to_string_pretty(&manifest).unwrap();
+    std::fs::write(public.join("manifest.json"), &text).unwrap();
+    let mut all_files = vec![("manifest.json".to_string(), text.into_bytes())];
+    if let Ok(readme) = std::fs::read(public.join("README.md")) {
+        all_files.push(("README.md".to_string(), readme));
+    }
+    all_files.extend(files);
+    all_files
+}
