@@ -1590,7 +1590,7 @@ fn figure_caption(name: &str) -> &'static str {
         "fig2_shear_response" => {
             "Shear response: measured minus true shear against true shear, per PSF"
         }
-        "fig3_m_sigma_c" => "m against σc per PSF",
+        "fig3_m_sigma_c" => "⟨m⟩ against σc: one point, this entry (the shaded band: |⟨m⟩| < 7 %)",
         "fig4_mselc_muncontaminated" => "Selection bias against the uncontaminated m",
         "fig5_residual_magnitude" => "Shear residual against true magnitude",
         _ => "",

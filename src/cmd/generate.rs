@@ -85,13 +85,19 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     if options.shard == Shard::ALL {
         eprintln!(
-            "stepsim: {} images written, {} already finished and verified ({} in the run)",
-            summary.written, summary.skipped, summary.total
+            "stepsim: {} written, {} already finished and verified ({} in the run)",
+            super::progress::images(summary.written),
+            summary.skipped,
+            summary.total
         );
     } else {
         eprintln!(
-            "stepsim: shard {}: {} images written, {} already finished and verified ({} in this shard, {} in the run)",
-            options.shard, summary.written, summary.skipped, summary.in_shard, summary.total
+            "stepsim: shard {}: {} written, {} already finished and verified ({} in this shard, {} in the run)",
+            options.shard,
+            super::progress::images(summary.written),
+            summary.skipped,
+            summary.in_shard,
+            summary.total
         );
     }
     if let Some(marker) = &summary.marker {

@@ -136,7 +136,7 @@ impl Progress {
                     // The time spent on PSFs is not the images' rate.
                     bar.reset();
                 } else if pending > 0 {
-                    eprintln!("stepsim: making {pending} images");
+                    eprintln!("stepsim: making {}", images(pending));
                 }
             }
             (Event::ImageWritten, Some(bar)) => {
@@ -169,6 +169,11 @@ impl Progress {
     }
 }
 
+/// `n` images, in the singular for one ("1 image", "0 images", "8 images").
+pub fn images(n: usize) -> String {
+    format!("{n} image{}", if n == 1 { "" } else { "s" })
+}
+
 /// The progress line of one PSF: built, stored, reused or rebuilt.
 fn psf_line(name: &str, done: usize, total: usize, origin: &Origin) -> String {
     match origin {
@@ -197,6 +202,13 @@ fn psf_line(name: &str, done: usize, total: usize, origin: &Origin) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn one_image_is_said_in_the_singular() {
+        assert_eq!(images(1), "1 image");
+        assert_eq!(images(0), "0 images");
+        assert_eq!(images(8), "8 images");
+    }
 
     #[test]
     fn the_bar_shows_no_time_left_before_the_first_image_and_one_psf_is_singular() {
