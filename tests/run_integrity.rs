@@ -210,7 +210,7 @@ fn a_manifest_never_lists_a_missing_image() {
     assert!(!image.exists());
     // The whole run makes it again, and the manifest comes back.
     let e = stderr(&ok(generate(d, "x.json", "run", &[])));
-    assert!(e.contains("1 images written, 7 already"), "{e}");
+    assert!(e.contains("1 image written, 7 already"), "{e}");
     assert!(std::fs::read(&image).unwrap() == bytes);
     let again: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&manifest_path).unwrap()).unwrap();
