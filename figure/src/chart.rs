@@ -195,13 +195,7 @@ impl Frame {
     /// top-right, bottom-left, bottom-right) whose legend box covers the
     /// fewest drawn points and line samples, the first of equals.
     fn legend_origin(&self, c: &Chart) -> (f64, f64) {
-        let chars = c
-            .legend
-            .iter()
-            .map(|(t, _)| t.chars().count())
-            .max()
-            .unwrap_or(0);
-        let (bw, bh) = legend_box(c, chars);
+        let (bw, bh) = legend_box(c);
         let mut marks: Vec<(f64, f64)> = Vec::new();
         for it in &c.items {
             match it {
@@ -248,11 +242,17 @@ impl Frame {
     }
 }
 
-/// Width and height (pixels) of the legend's box for `chars` characters at
-/// most: the swatches, the text (11-px DejaVu Sans, about 0.6 em a
-/// character) and room below the last line, so that a legend in a lower
-/// corner stays clear of the tick marks.
-fn legend_box(c: &Chart, chars: usize) -> (f64, f64) {
+/// Width and height (pixels) of the legend's box: the swatches, the
+/// longest text (11-px DejaVu Sans, about 0.6 em a character) and room
+/// below the last line, so that a legend in a lower corner stays clear of
+/// the tick marks.
+fn legend_box(c: &Chart) -> (f64, f64) {
+    let chars = c
+        .legend
+        .iter()
+        .map(|(t, _)| t.chars().count())
+        .max()
+        .unwrap_or(0);
     (
         33.0 + 6.6 * chars as f64,
         14.0 + 15.0 * c.legend.len() as f64,
@@ -400,13 +400,7 @@ impl Figure {
             let (lx, ly) = f.legend_origin(c);
             if !c.legend.is_empty() {
                 // A pale ground, so that no line runs through the text.
-                let chars = c
-                    .legend
-                    .iter()
-                    .map(|(t, _)| t.chars().count())
-                    .max()
-                    .unwrap_or(0);
-                let (bw, _) = legend_box(c, chars);
+                let (bw, _) = legend_box(c);
                 let _ = writeln!(
                     s,
                     "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"#ffffff\" fill-opacity=\"0.85\"/>",
