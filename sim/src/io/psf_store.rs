@@ -167,11 +167,11 @@ pub fn user_store_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> 
         .map(|c| c.join("stepsim").join("psf"))
 }
 
+/// A store file read and checked: its bytes and the PSF they hold.
+type Stored = (Vec<u8>, BandTransfer, Calibration);
+
 /// The stored PSF in `file`, or why not (`None`: no such file).
-fn read_stored(
-    file: &Path,
-    digest: &str,
-) -> Option<Result<(Vec<u8>, BandTransfer, Calibration), String>> {
+fn read_stored(file: &Path, digest: &str) -> Option<Result<Stored, String>> {
     match std::fs::read(file) {
         Ok(bytes) => Some(parse(&bytes, digest).map(|(band, cal)| (bytes, band, cal))),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
