@@ -479,6 +479,45 @@ async fn browse(
             .await
             .contains("resamples only 2 base fields")
     );
+    // The per-dataset tables are folded (a full run lists 30 datasets a
+    // part): hidden until their summary line is clicked.
+    let shown = |c: &Client| {
+        let c = c.clone();
+        async move {
+            c.execute(
+                "return document.querySelector('#part-public table.datasets').checkVisibility() ? 1 : 0;",
+                vec![],
+            )
+            .await
+            .map_err(err)
+            .map(|v| v.as_u64().unwrap_or(0))
+        }
+    };
+    let height = |c: &Client| {
+        let c = c.clone();
+        async move {
+            c.execute("return document.documentElement.scrollHeight;", vec![])
+                .await
+                .map_err(err)
+                .map(|v| v.as_u64().unwrap_or(0))
+        }
+    };
+    assert_eq!(shown(c).await?, 0, "folded at first");
+    let folded = height(c).await?;
+    c.find(Locator::Css("#part-public details.datasets > summary"))
+        .await
+        .map_err(err)?
+        .click()
+        .await
+        .map_err(err)?;
+    assert!(shown(c).await? > 0, "shown once clicked");
+    let unfolded = height(c).await?;
+    eprintln!("report page: {folded} px tall folded, {unfolded} px with one part's datasets shown");
+    assert!(unfolded > folded, "{unfolded} > {folded}");
+    c.refresh().await.map_err(err)?;
+    c.execute("window.scrollTo(0, 0);", vec![])
+        .await
+        .map_err(err)?;
     shot(c, "report").await;
     // The top of the report (the held-out summary, its caveat, the fits).
     c.set_window_size(1280, 1250).await.map_err(err)?;
