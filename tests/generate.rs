@@ -739,15 +739,25 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
     );
     assert_eq!(std::fs::read(&shared[0]).unwrap(), good);
     assert!(release(&d.join("first")) == release(&d.join("third")));
-    // Turned off, the user's store is neither read nor written.
-    std::fs::remove_file(&shared[0]).unwrap();
+    // Turned off, the user's store is not read (its good file is there,
+    // and the PSF is built all the same) nor written (the file is as it was).
+    let before = std::fs::metadata(&shared[0]).unwrap().modified().unwrap();
     let o = run_env(
         &["generate", "--config", "c.json", "--out", "fourth"],
         d,
         &[("STEPSIM_PSF_STORE", "off")],
     );
-    assert!(stderr(&o).contains("built PSF 1/1 (coma), stored in "));
-    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 0);
+    assert!(
+        stderr(&o).contains("built PSF 1/1 (coma), stored in "),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!stderr(&o).contains("user's store"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 1);
+    assert_eq!(
+        std::fs::metadata(&shared[0]).unwrap().modified().unwrap(),
+        before
+    );
 }
 
 #[test]

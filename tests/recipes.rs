@@ -37,9 +37,18 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// What a script did: its exit status (`None`: killed at the limit), its
+/// output, and whether `port` still answered once it had ended.
+struct Ran {
+    status: Option<i32>,
+    out: String,
+    err: String,
+    still_listening: bool,
+}
+
 /// Runs `script` with bash in `dir` (its own process group, killed whole
-/// when it ends or at `limit`); returns (exit status, stdout, stderr).
-fn run_script(script: &str, dir: &Path, limit: Duration) -> (Option<i32>, String, String) {
+/// once it has ended, or at `limit`); checks `port` before that kill.
+fn run_script(script: &str, dir: &Path, limit: Duration, port: u16) -> Ran {
     use std::os::unix::process::CommandExt;
     let bin = PathBuf::from(env!("CARGO_BIN_EXE_stepsim"));
     let path = format!(
@@ -48,11 +57,14 @@ fn run_script(script: &str, dir: &Path, limit: Duration) -> (Option<i32>, String
         std::env::var("PATH").unwrap_or_default()
     );
     std::fs::write(dir.join("recipe.sh"), script).unwrap();
+    // As a script: `bash recipe.sh`. The user's PSF store is off, as in
+    // every test (no test reads PSFs another test or the user built).
     let mut child = Command::new("bash")
-        .args(["-e", "recipe.sh"])
+        .arg("recipe.sh")
         .current_dir(dir)
         .env("PATH", path)
         .env("CI", "1")
+        .env("STEPSIM_PSF_STORE", "off")
         .stdin(Stdio::null())
         .stdout(std::fs::File::create(dir.join("recipe.out")).unwrap())
         .stderr(std::fs::File::create(dir.join("recipe.err")).unwrap())
@@ -70,11 +82,22 @@ fn run_script(script: &str, dir: &Path, limit: Duration) -> (Option<i32>, String
         }
         std::thread::sleep(Duration::from_millis(200));
     };
-    // The whole group: a server the block left running goes with it.
+    // A server the script started must have stopped with it (given 5 s).
+    let still_listening = status.is_some()
+        && !(0..50).any(|_| {
+            std::thread::sleep(Duration::from_millis(100));
+            std::net::TcpStream::connect(("127.0.0.1", port)).is_err()
+        });
+    // The whole group: whatever the script left running goes with it.
     unsafe { libc::kill(-pgid, libc::SIGKILL) };
     let _ = child.wait();
     let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
-    (status, read("recipe.out"), read("recipe.err"))
+    Ran {
+        status,
+        out: read("recipe.out"),
+        err: read("recipe.err"),
+        still_listening,
+    }
 }
 
 #[test]
@@ -82,13 +105,24 @@ fn readme_run_a_challenge_runs_as_written() {
     let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
     let block = sh_block(&readme, "### Run a challenge");
     assert!(block.contains("127.0.0.1:8080"), "{block}");
-    let script = block.replace("127.0.0.1:8080", &format!("127.0.0.1:{}", free_port()));
+    let port = free_port();
+    let script = block.replace("127.0.0.1:8080", &format!("127.0.0.1:{port}"));
     let tmp = tempfile::tempdir().unwrap();
     std::os::unix::fs::symlink(root().join("configs"), tmp.path().join("configs")).unwrap();
-    let (status, out, err) = run_script(&script, tmp.path(), Duration::from_secs(900));
+    let Ran {
+        status,
+        out,
+        err,
+        still_listening,
+    } = run_script(&script, tmp.path(), Duration::from_secs(900), port);
     let log = std::fs::read_to_string(tmp.path().join("runs/c1-serve.log")).unwrap_or_default();
     let context = format!("stdout:\n{out}\nstderr:\n{err}\nserver log:\n{log}");
     assert_eq!(status, Some(0), "the block failed or timed out\n{context}");
+    // The block stopped its server when it ended (its `trap`).
+    assert!(
+        !still_listening,
+        "the server still listens on {port}\n{context}"
+    );
     // The upload was accepted and queued, then scored.
     assert!(out.contains("\"status\":\"queued\""), "{context}");
     // The board: the team ranked first on the held-out part.

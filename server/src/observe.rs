@@ -198,11 +198,32 @@ impl Metrics {
     }
 }
 
-/// The first line of a message, at most 300 characters (a refusal's
-/// reason in a log line).
+/// Text a client chose (a path, a refusal quoting an uploaded id) as one
+/// safe field of a log line: at most `max` characters (then `…`), every
+/// control character (C0, DEL, C1), every white space other than the
+/// plain space, and the line and paragraph separators written as
+/// `\u{..}`, so that no client can end a line, forge a field (`\u{a0}`
+/// looks like a space) or reach the organiser's terminal.
+pub fn log_text(text: &str, max: usize) -> String {
+    let mut out = String::new();
+    for (k, c) in text.chars().enumerate() {
+        if k == max {
+            out.push('…');
+            break;
+        }
+        if c.is_control() || (c.is_whitespace() && c != ' ') {
+            out.push_str(&format!("\\u{{{:x}}}", u32::from(c)));
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// The first line of a message, made safe and at most 300 characters (a
+/// refusal's reason in a log line).
 pub(crate) fn first_line(message: &str) -> String {
-    let line = message.lines().next().unwrap_or_default();
-    line.chars().take(300).collect()
+    log_text(message.lines().next().unwrap_or_default(), 300)
 }
 
 /// The middleware that logs a line per request and counts it.
@@ -213,7 +234,9 @@ pub(crate) async fn log_requests(
 ) -> Response {
     let start = Instant::now();
     let method = req.method().clone();
-    let path = req.uri().path().to_string();
+    // The path is the client's: clipped and escaped (a 60 KB path of
+    // look-alike spaces must not become a 60 KB line of forged fields).
+    let path = log_text(req.uri().path(), 200);
     let (response, team) = TEAM
         .scope(std::cell::Cell::new(None), async move {
             let r = next.run(req).await;
@@ -231,6 +254,24 @@ pub(crate) async fn log_requests(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn client_text_in_a_log_line_cannot_end_the_line_or_forge_a_field() {
+        assert_eq!(log_text("/api/submissions", 200), "/api/submissions");
+        assert_eq!(
+            log_text("a\rb\nc\x1b[2Jd", 200),
+            "a\\u{d}b\\u{a}c\\u{1b}[2Jd"
+        );
+        // Look-alike spaces, NEL, C1 and the line separator are escaped.
+        assert_eq!(
+            log_text("/x\u{a0}status=202\u{85}\u{9b}\u{2028}", 200),
+            "/x\\u{a0}status=202\\u{85}\\u{9b}\\u{2028}"
+        );
+        assert_eq!(log_text("γ ok", 200), "γ ok");
+        let long = "x".repeat(60_000);
+        assert_eq!(log_text(&long, 200).chars().count(), 201);
+        assert_eq!(first_line("one\rtwo\nthree"), "one\\u{d}two");
+    }
 
     #[test]
     fn metrics_render_in_the_prometheus_text_format() {

@@ -283,6 +283,9 @@ pub trait Store: Send {
     ) -> Result<Vec<FormatFailure>, StoreError>;
     /// Entries by state and the count of refused uploads.
     fn queue_counts(&self) -> Result<QueueCounts, StoreError>;
+    /// How many uploads of each team the format check refused, all time
+    /// (team id, count), by team id.
+    fn format_failure_counts(&self) -> Result<Vec<(i64, u64)>, StoreError>;
     /// Takes the oldest queued job of a team that has none scoring.
     fn claim_job(&mut self, now_s: i64) -> Result<Option<Submission>, StoreError>;
     /// Ends a job: `scored` with its feedback, or `refused` with a message.
@@ -630,6 +633,21 @@ impl Store for SqliteStore {
                     created_s: r.get(1)?,
                     error: r.get(2)?,
                 })
+            })
+            .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>());
+        rows.map_err(|e| self.err(e))
+    }
+
+    fn format_failure_counts(&self) -> Result<Vec<(i64, u64)>, StoreError> {
+        let mut st = self
+            .conn
+            .prepare_cached(
+                "SELECT team_id, COUNT(*) FROM format_failures GROUP BY team_id ORDER BY team_id",
+            )
+            .map_err(|e| self.err(e))?;
+        let rows = st
+            .query_map([], |r| {
+                Ok((r.get::<_, i64>(0)?, r.get::<_, i64>(1)?.max(0) as u64))
             })
             .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>());
         rows.map_err(|e| self.err(e))

@@ -42,7 +42,13 @@
 //! copy, as before); a PSF built here is written to both. The user's store
 //! is a cache: a file there that fails a check is ignored and rewritten,
 //! and a failure to write there is not an error (the run's own copy is
-//! what the run needs).
+//! what the run needs). It outlives builds of stepsim, so [`FORMAT`] is
+//! part of every digest and must be bumped whenever the solution of a PSF
+//! changes: a test pins the solved PSF of one spec
+//! (`the_solved_psf_is_pinned_so_a_solver_change_bumps_the_format`). The
+//! checks (digest, content hash) find damage, not forgery: the store is
+//! trusted like the binary, so it is made private to the user (0700) and
+//! must not be a directory others can write.
 
 use super::{IoError, write_bytes_atomically};
 use crate::config::RawPsfModel;
@@ -179,6 +185,48 @@ fn read_stored(file: &Path, digest: &str) -> Option<Result<Stored, String>> {
     }
 }
 
+/// Writes `bytes` to `path` in the user's store: the directory made
+/// private to the user (0700) when it is created, the temporary file
+/// created anew (never through an existing file or link of that name)
+/// and private (0600), then renamed over `path`.
+fn write_private(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt};
+    if let Some(dir) = path.parent() {
+        std::fs::DirBuilder::new()
+            .recursive(true)
+            .mode(0o700)
+            .create(dir)?;
+    }
+    let tmp = stepsim_contract::io::temporary_name(path);
+    let open = || {
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&tmp)
+    };
+    let mut f = match open() {
+        Ok(f) => f,
+        // A temporary left by a process that died: removed (a link is
+        // removed, not followed), then created anew.
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+            std::fs::remove_file(&tmp)?;
+            open()?
+        }
+        Err(e) => return Err(e),
+    };
+    let written = f.write_all(bytes).and_then(|()| f.sync_all());
+    drop(f);
+    match written.and_then(|()| std::fs::rename(&tmp, path)) {
+        Ok(()) => Ok(()),
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
 /// The PSF of `spec`: loaded from the store `dir` when its file checks,
 /// otherwise built (and, for optical models, stored).
 pub fn load_or_build(
@@ -225,12 +273,10 @@ pub fn load_or_build_shared(
     let (band, cal) = crate::psf::solve_optical(&request, accuracy)?;
     let bytes = encode(&band, &cal, &digest);
     write_bytes_atomically(&file, &bytes)?;
-    if let (Some(from), Some(u)) = (&shared, user) {
+    if let Some(from) = &shared {
         // A cache: a store that cannot be written costs the next run its
         // PSF build, nothing else.
-        if std::fs::create_dir_all(u).is_ok() {
-            let _ = write_bytes_atomically(from, &bytes);
-        }
+        let _ = write_private(from, &bytes);
     }
     let psf = Arc::new(OpticalPsf::new(band, cal));
     let origin = match why {
@@ -437,6 +483,49 @@ mod tests {
         s.telescope.diameter_m = 4.0;
         assert_ne!(base, spec_digest(&s, &acc));
         assert_ne!(base, spec_digest(&spec(0.04), &small()));
+    }
+
+    #[test]
+    fn the_solved_psf_is_pinned_so_a_solver_change_bumps_the_format() {
+        // The user's store outlives builds: a solver whose result changes
+        // must bump FORMAT (so that no new build reuses an old solution)
+        // and record the new content hash here.
+        let (s, acc) = (spec(0.04), small());
+        let request = OpticalRequest::of(&s).unwrap();
+        let (band, cal) = crate::psf::solve_optical(&request, &acc).unwrap();
+        let file = encode(&band, &cal, &spec_digest(&s, &acc));
+        let at = file.windows(2).position(|w| w == b"\n\n").unwrap();
+        let content = sha256_hex(&file[at + 2..]);
+        assert_eq!(
+            (FORMAT, content.as_str()),
+            (1, PINNED_CONTENT_SHA256),
+            "the solved PSF changed: bump FORMAT and record the new hash"
+        );
+    }
+
+    /// SHA-256 of the content of the coma PSF of `spec(0.04)` at `small()`
+    /// accuracy, as FORMAT 1 solves it.
+    const PINNED_CONTENT_SHA256: &str =
+        "c7eed9249f8a82f705dc55c9ae5d0b9e818424d22baec3a43327ff0240cb7bf8";
+
+    #[test]
+    #[cfg(unix)]
+    fn the_users_store_is_private_and_never_written_through_a_link() {
+        use std::os::unix::fs::PermissionsExt;
+        let tmp = tempfile::tempdir().unwrap();
+        let store = tmp.path().join("new/store");
+        let file = store.join("x.bin");
+        write_private(&file, b"one").unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode(&store), 0o700);
+        assert_eq!(mode(&file), 0o600);
+        // A link planted at the temporary's name is replaced, not followed.
+        let victim = tmp.path().join("victim");
+        std::fs::write(&victim, b"keep").unwrap();
+        std::os::unix::fs::symlink(&victim, stepsim_contract::io::temporary_name(&file)).unwrap();
+        write_private(&file, b"two").unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"keep");
+        assert_eq!(std::fs::read(&file).unwrap(), b"two");
     }
 
     #[test]
