@@ -1127,27 +1127,29 @@ pub(crate) async fn submit(
 ) -> Result<Accepted, ApiError> {
     let result = receive_and_queue(state, team, req, check).await;
     let status = match &result {
-        Ok(a) if a.duplicate => StatusCode::OK,
-        Ok(_) => StatusCode::ACCEPTED,
-        Err(e) => e.status,
-    };
-    state.metrics().upload(status.as_u16());
-    match &result {
         Ok(a) if a.duplicate => {
             tracing::info!(
                 team = team.id,
                 entry = a.id,
                 "upload: a duplicate of an entry"
             );
+            StatusCode::OK
         }
-        Ok(a) => tracing::info!(team = team.id, entry = a.id, "upload accepted and queued"),
-        Err(e) => tracing::info!(
-            team = team.id,
-            status = e.status.as_u16(),
-            reason = %crate::observe::first_line(&e.message),
-            "upload refused"
-        ),
-    }
+        Ok(a) => {
+            tracing::info!(team = team.id, entry = a.id, "upload accepted and queued");
+            StatusCode::ACCEPTED
+        }
+        Err(e) => {
+            tracing::info!(
+                team = team.id,
+                status = e.status.as_u16(),
+                reason = %crate::observe::first_line(&e.message),
+                "upload refused"
+            );
+            e.status
+        }
+    };
+    state.metrics().upload(status.as_u16());
     result
 }
 
@@ -1158,9 +1160,7 @@ async fn receive_and_queue(
     req: Request,
     check: impl FnOnce(&FormFields) -> Result<(), ApiError>,
 ) -> Result<Accepted, ApiError> {
-    if let Some(live) = &state.inner.workers
-        && live.load(Ordering::SeqCst) == 0
-    {
+    if state.live_workers() == Some(0) {
         tracing::error!("no scoring worker runs; uploads are refused");
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,

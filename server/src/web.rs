@@ -925,7 +925,7 @@ fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
         teams
             .iter()
             .find(|t| t.id == id)
-            .map_or(String::new(), |t| t.name.clone())
+            .map_or("", |t| t.name.as_str())
     };
     let mut team_rows = Vec::new();
     let mut counted: Vec<i64> = Vec::new();
@@ -963,12 +963,7 @@ fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
                 ..entry_view(s, false)
             })
             .unwrap_or(Value::Null);
-            v["team"] = serde_json::json!(
-                teams
-                    .iter()
-                    .find(|t| t.id == s.team_id)
-                    .map_or("", |t| t.name.as_str())
-            );
+            v["team"] = serde_json::json!(team_name(s.team_id));
             v["final"] = serde_json::json!(counted.contains(&s.id));
             v
         })
@@ -997,7 +992,7 @@ fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
         "organisers.html",
         serde_json::json!({
             "nav": nav, "signed_in": true, "teams": team_rows, "entries": entries,
-            "queue": queue, "refusals": refusals, "refusals_total": counts.format_refusals,
+            "queue": queue, "refusals": refusals,
             "refusals_shown": ORGANISER_REFUSALS_SHOWN,
         }),
     )
