@@ -44,6 +44,9 @@ enum Command {
     Challenge(cmd::challenge::Args),
     /// Serve a challenge over HTTP (uploads, scoring queue, leaderboard).
     Serve(cmd::serve::Args),
+    /// Score a challenge's queue without serving it (several hosts may run
+    /// workers on one PostgreSQL store).
+    Worker(cmd::worker::Args),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +74,7 @@ fn main() -> ExitCode {
         Command::Slurm(args) => cmd::slurm::run(&args),
         Command::Challenge(args) => cmd::challenge::run(&args),
         Command::Serve(args) => cmd::serve::run(&args),
+        Command::Worker(args) => cmd::worker::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,7 +3,8 @@
 //! real binary, has `--teams` teams upload `--per-team` catalogues each
 //! concurrently (good ones, perturbed ones, duplicates, refused ones),
 //! kills the server with SIGKILL once half of the uploads are answered,
-//! restarts it, waits for the queue to drain, and checks that every
+//! restarts it, waits for the queue to drain (a job the kill interrupted
+//! is taken again once its lease, `--lease-s`, runs out), and checks that every
 //! accepted upload (answered 2xx) is scored exactly once. It prints upload
 //! latencies (median, p95), scoring throughput and the server's peak RSS.
 //!
@@ -13,6 +14,9 @@
 //! cargo run -p stepsim-server --example load -- \
 //!     --stepsim target/debug/stepsim --run /tmp/load/run --work /tmp/load/w
 //! ```
+//!
+//! `--store postgres://USER@HOST:PORT/DATABASE` (an empty database) runs it
+//! on PostgreSQL instead of the state directory's SQLite file.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -30,6 +34,21 @@ struct Args {
     teams: usize,
     per_team: usize,
     workers: usize,
+    store: Option<String>,
+    lease_s: usize,
+}
+
+/// The runtime the benchmark's own reads of the store run on (one for the
+/// process: a PostgreSQL connection lives on the runtime that opened it).
+fn rt() -> &'static tokio::runtime::Runtime {
+    static RT: std::sync::OnceLock<tokio::runtime::Runtime> = std::sync::OnceLock::new();
+    RT.get_or_init(|| tokio::runtime::Runtime::new().expect("a runtime"))
+}
+
+/// The challenge in `state`, opened on [`rt`].
+fn open(state: &Path) -> stepsim_server::Challenge {
+    rt().block_on(stepsim_server::Challenge::open(state))
+        .expect("the challenge")
 }
 
 fn args() -> Result<Args, String> {
@@ -40,6 +59,8 @@ fn args() -> Result<Args, String> {
         teams: 50,
         per_team: 4,
         workers: 2,
+        store: None,
+        lease_s: 10,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -55,6 +76,8 @@ fn args() -> Result<Args, String> {
             "--teams" => a.teams = n()?,
             "--per-team" => a.per_team = n()?,
             "--workers" => a.workers = n()?,
+            "--store" => a.store = Some(v.clone()),
+            "--lease-s" => a.lease_s = n()?,
             _ => return Err(format!("unknown option {k}")),
         }
     }
@@ -157,7 +180,7 @@ fn stepsim(bin: &Path, args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-fn serve(bin: &Path, state: &Path, addr: &str, workers: usize) -> Child {
+fn serve(bin: &Path, state: &Path, addr: &str, workers: usize, lease_s: usize) -> Child {
     let log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -172,6 +195,7 @@ fn serve(bin: &Path, state: &Path, addr: &str, workers: usize) -> Child {
             addr,
         ])
         .args(["--workers", &workers.to_string()])
+        .args(["--lease-s", &lease_s.to_string()])
         .stdout(Stdio::null())
         .stderr(log)
         .spawn()
@@ -249,24 +273,24 @@ fn main() {
     std::fs::create_dir_all(&a.work).expect("the work directory");
     let state = a.work.join("state");
     let (r, s) = (a.run.to_str().unwrap(), state.to_str().unwrap());
-    stepsim(
-        &a.stepsim,
-        &[
-            "challenge",
-            "init",
-            "--run",
-            r,
-            "--state",
-            s,
-            "--quota",
-            "10",
-        ],
-    );
+    let mut init = vec![
+        "challenge",
+        "init",
+        "--run",
+        r,
+        "--state",
+        s,
+        "--quota",
+        "10",
+    ];
+    if let Some(url) = &a.store {
+        init.extend(["--store", url.as_str()]);
+    }
+    stepsim(&a.stepsim, &init);
     // All teams upload from 127.0.0.1: lift the per-address rate limit.
     {
-        let mut ch = stepsim_server::Challenge::open(&state).expect("the challenge");
-        ch.store
-            .set_meta("requests_per_minute", "1000000")
+        let ch = open(&state);
+        rt().block_on(ch.store.set_meta("requests_per_minute", "1000000"))
             .expect("a setting");
     }
     let tokens: Vec<String> = (0..a.teams)
@@ -292,7 +316,7 @@ fn main() {
         .port();
     let addr = format!("127.0.0.1:{port}");
     let total = a.teams * a.per_team;
-    let mut server = serve(&a.stepsim, &state, &addr, a.workers);
+    let mut server = serve(&a.stepsim, &state, &addr, a.workers, a.lease_s);
     let up = Arc::new(AtomicBool::new(true));
     let answered = Arc::new(AtomicUsize::new(0));
     // (team, upload, kind, status, id, latency ms)
@@ -359,7 +383,7 @@ fn main() {
     let killed_at = t0.elapsed().as_secs_f64();
     let answered_at_kill = answered.load(Ordering::SeqCst);
     let scored_at_kill = scored_count(&state);
-    let mut server = serve(&a.stepsim, &state, &addr, a.workers);
+    let mut server = serve(&a.stepsim, &state, &addr, a.workers, a.lease_s);
     let t_restart = Instant::now();
     let scored_at_restart = scored_count(&state);
     up.store(true, Ordering::SeqCst);
@@ -369,8 +393,10 @@ fn main() {
     let uploads_done = t0.elapsed().as_secs_f64();
     // Wait for the queue to drain.
     loop {
-        let ch = stepsim_server::Challenge::open(&state).expect("the challenge");
-        let subs = ch.store.all_submissions().expect("the entries");
+        let ch = open(&state);
+        let subs = rt()
+            .block_on(ch.store.all_submissions())
+            .expect("the entries");
         if subs
             .iter()
             .all(|s| s.status == "scored" || s.status == "refused")
@@ -387,8 +413,10 @@ fn main() {
 
     // None lost, none scored twice.
     let results = results.lock().unwrap().clone();
-    let ch = stepsim_server::Challenge::open(&state).expect("the challenge");
-    let subs = ch.store.all_submissions().expect("the entries");
+    let ch = open(&state);
+    let subs = rt()
+        .block_on(ch.store.all_submissions())
+        .expect("the entries");
     let mut accepted: Vec<i64> = results
         .iter()
         .filter(|r| r.3 == 202 || r.3 == 200)
@@ -400,7 +428,7 @@ fn main() {
     for id in &accepted {
         match subs.iter().find(|s| s.id == *id) {
             Some(s) if s.status == "scored" && s.n_scorings == 1 => {
-                let scores = ch.store.scores_of(*id).expect("scores");
+                let scores = rt().block_on(ch.store.scores_of(*id)).expect("scores");
                 assert_eq!(scores.len(), 1, "entry {id}: {scores:?}");
                 assert_eq!(scores[0].n_scorings, 1, "entry {id} scored twice");
             }
@@ -422,8 +450,13 @@ fn main() {
     lat.sort_by(f64::total_cmp);
     let scored_after = subs.iter().filter(|s| s.status == "scored").count() - scored_at_restart;
     println!(
-        "teams {}, uploads {} ({} per team), workers {}",
-        a.teams, total, a.per_team, a.workers
+        "store {}, teams {}, uploads {} ({} per team), workers {}, lease {} s",
+        ch.store.describe(),
+        a.teams,
+        total,
+        a.per_team,
+        a.workers,
+        a.lease_s
     );
     println!(
         "answers: 202 {}, 200 duplicate {}, 422 refused {}, other {}; connections broken by the kill {}",
@@ -460,9 +493,8 @@ fn main() {
 }
 
 fn scored_count(state: &Path) -> usize {
-    let ch = stepsim_server::Challenge::open(state).expect("the challenge");
-    ch.store
-        .all_submissions()
+    let ch = open(state);
+    rt().block_on(ch.store.all_submissions())
         .expect("the entries")
         .iter()
         .filter(|s| s.status == "scored")

@@ -51,7 +51,7 @@ struct Inner {
     dir: PathBuf,
     settings: crate::Settings,
     limits: Limits,
-    store: Mutex<Box<dyn Store>>,
+    store: Arc<dyn Store>,
     /// Live scoring workers, when the server runs its own (`None`: the
     /// caller scores the queue, as tests do).
     workers: Option<Arc<AtomicUsize>>,
@@ -114,7 +114,7 @@ impl AppState {
             inner: Arc::new(Inner {
                 dir: ch.dir,
                 settings: ch.settings,
-                store: Mutex::new(ch.store),
+                store: ch.store,
                 workers,
                 uploads: Mutex::new(std::collections::HashMap::new()),
                 uploads_all: Arc::new(tokio::sync::Semaphore::new(limits.uploads_at_once.max(1))),
@@ -150,13 +150,14 @@ impl AppState {
         &self.inner.limits
     }
 
-    /// The store (one connection, locked while the guard lives: keep it
-    /// short and never across an `.await`).
-    pub fn store(&self) -> std::sync::MutexGuard<'_, Box<dyn Store>> {
-        self.inner
-            .store
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    /// The store (shared; each call is one transaction of its own).
+    pub fn store(&self) -> &dyn Store {
+        self.inner.store.as_ref()
+    }
+
+    /// The store, shared (for a task that outlives a borrow).
+    pub fn store_arc(&self) -> Arc<dyn Store> {
+        self.inner.store.clone()
     }
 
     /// The challenge's state directory.
@@ -171,8 +172,11 @@ impl AppState {
 
     /// The team of a bearer token (its text after `Bearer `), if it is a
     /// valid, unrevoked one.
-    pub fn team_of_token(&self, token: &str) -> Result<Option<Team>, crate::store::StoreError> {
-        self.store().team_by_token(&token_hash(token))
+    pub async fn team_of_token(
+        &self,
+        token: &str,
+    ) -> Result<Option<Team>, crate::store::StoreError> {
+        self.store().team_by_token(&token_hash(token)).await
     }
 }
 
@@ -388,7 +392,7 @@ pub fn bearer_token(value: &[u8]) -> Option<&str> {
 }
 
 /// The team of a request's bearer token, or 401.
-fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
+async fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
     let unauthorized = || {
         ApiError::new(
             StatusCode::UNAUTHORIZED,
@@ -402,6 +406,7 @@ fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, ApiError> {
     let team = state
         .store()
         .team_by_token(&token_hash(token))
+        .await
         .map_err(ApiError::internal)?
         .ok_or_else(unauthorized)?;
     crate::observe::note_team(team.id);
@@ -438,24 +443,26 @@ pub fn entry_json(s: &Submission, revealed: bool) -> Value {
     v
 }
 
-pub(crate) fn revealed(state: &AppState) -> Result<bool, ApiError> {
+pub(crate) async fn revealed(state: &AppState) -> Result<bool, ApiError> {
     Ok(state
         .store()
         .meta("revealed")
+        .await
         .map_err(ApiError::internal)?
         .as_deref()
         == Some("true"))
 }
 
 async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> ApiResult {
-    let team = auth(&state, &headers)?;
-    let revealed = revealed(&state)?;
+    let team = auth(&state, &headers).await?;
+    let revealed = revealed(&state).await?;
     let subs = state
         .store()
         .submissions_of(team.id)
+        .await
         .map_err(ApiError::internal)?;
-    let quota = quota_status(&state, team.id)?;
-    let refused = refusal_status(&state, team.id)?;
+    let quota = quota_status(&state, team.id).await?;
+    let refused = refusal_status(&state, team.id).await?;
     let refs: Vec<&Submission> = subs.iter().collect();
     let counted: Vec<i64> = final_entries_or_default(&refs)
         .iter()
@@ -485,7 +492,7 @@ async fn list_submissions(State(state): State<AppState>, headers: HeaderMap) -> 
 /// `PUT /api/final` with `{"entries": [id, ...]}`: the team's final entries
 /// (at most two of its scored entries; `[]` goes back to the default).
 async fn put_final(State(state): State<AppState>, req: Request) -> ApiResult {
-    let team = auth(&state, req.headers())?;
+    let team = auth(&state, req.headers()).await?;
     let bad = |why: String| {
         ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -507,7 +514,7 @@ async fn put_final(State(state): State<AppState>, req: Request) -> ApiResult {
                 .ok_or_else(|| bad(format!("{x} is not an entry id")))
         })
         .collect::<Result<Vec<i64>, ApiError>>()?;
-    let result = choose_final_entries(state.store().as_mut(), team.id, &ids);
+    let result = choose_final_entries(state.store(), team.id, &ids).await;
     match result {
         Ok(ids) => Ok(axum::Json(json!({"final": ids})).into_response()),
         Err(ChoiceError::Store(e)) => Err(ApiError::internal(e)),
@@ -521,11 +528,15 @@ async fn put_final(State(state): State<AppState>, req: Request) -> ApiResult {
 }
 
 /// The public state of the challenge as JSON (`GET /api/challenge`).
-pub fn challenge_json(state: &AppState, now_s: i64) -> Result<Value, crate::store::StoreError> {
+pub async fn challenge_json(
+    state: &AppState,
+    now_s: i64,
+) -> Result<Value, crate::store::StoreError> {
     let store = state.store();
-    let phase = Phase::read(store.as_ref())?;
+    let phase = Phase::read(store).await?;
     let name = store
-        .meta("name")?
+        .meta("name")
+        .await?
         .unwrap_or_else(|| "stepsim challenge".into());
     let s = state.settings();
     Ok(json!({
@@ -551,7 +562,9 @@ pub fn challenge_json(state: &AppState, now_s: i64) -> Result<Value, crate::stor
 }
 
 async fn challenge_state(State(state): State<AppState>) -> ApiResult {
-    let v = challenge_json(&state, crate::now_s()).map_err(ApiError::internal)?;
+    let v = challenge_json(&state, crate::now_s())
+        .await
+        .map_err(ApiError::internal)?;
     Ok(axum::Json(v).into_response())
 }
 
@@ -560,24 +573,26 @@ async fn get_submission(
     headers: HeaderMap,
     UrlPath(id): UrlPath<String>,
 ) -> ApiResult {
-    let team = auth(&state, &headers)?;
+    let team = auth(&state, &headers).await?;
     let id: i64 = id.parse().map_err(|_| ApiError::not_found())?;
     let sub = state
         .store()
         .submission(id)
+        .await
         .map_err(ApiError::internal)?
         .filter(|s| s.team_id == team.id)
         .ok_or_else(ApiError::not_found)?;
-    let revealed = revealed(&state)?;
+    let revealed = revealed(&state).await?;
     Ok(axum::Json(entry_json(&sub, revealed)).into_response())
 }
 
 /// The quota of a team now: used, limit and when the oldest use expires.
-pub(crate) fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
+pub(crate) async fn quota_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
     let now = crate::now_s();
     let used = state
         .store()
         .accepted_since(team_id, now - QUOTA_WINDOW_S)
+        .await
         .map_err(ApiError::internal)?;
     let limit = state.inner.settings.quota;
     let mut v = json!({"used": used.len(), "limit": limit, "window_hours": 24});
@@ -595,16 +610,18 @@ pub const REFUSALS_SHOWN: usize = 50;
 /// `window_hours`, `reset` (when the oldest counted one leaves the window,
 /// if any) and `recent`, the newest [`REFUSALS_SHOWN`] with `created` and
 /// `error` (the message the team was sent).
-pub(crate) fn refusal_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
+pub(crate) async fn refusal_status(state: &AppState, team_id: i64) -> Result<Value, ApiError> {
     let now = crate::now_s();
     let (used, recent) = {
         let store = state.store();
         (
             store
                 .format_failures_since(team_id, now - QUOTA_WINDOW_S)
+                .await
                 .map_err(ApiError::internal)?,
             store
                 .format_failures(Some(team_id), REFUSALS_SHOWN)
+                .await
                 .map_err(ApiError::internal)?,
         )
     };
@@ -628,12 +645,12 @@ pub(crate) fn refusal_status(state: &AppState, team_id: i64) -> Result<Value, Ap
 }
 
 async fn leaderboard(State(state): State<AppState>) -> ApiResult {
-    let revealed = revealed(&state)?;
+    let revealed = revealed(&state).await?;
     let (teams, subs) = {
         let store = state.store();
         (
-            store.teams().map_err(ApiError::internal)?,
-            store.all_submissions().map_err(ApiError::internal)?,
+            store.teams().await.map_err(ApiError::internal)?,
+            store.all_submissions().await.map_err(ApiError::internal)?,
         )
     };
     let rows = leaderboard_rows(&teams, &subs, revealed);
@@ -895,27 +912,27 @@ async fn receive(
 /// Refuses with 429 when a team has used its quota of accepted uploads
 /// (counting `in_flight` other uploads of it still arriving or being
 /// checked), or its cap on refused ones, in the last 24 hours.
-fn check_limits(state: &AppState, team_id: i64, in_flight: usize) -> Result<(), ApiError> {
-    limits(
-        state.store().as_ref(),
-        &state.inner.settings,
-        team_id,
-        in_flight,
-    )
+async fn check_limits(state: &AppState, team_id: i64, in_flight: usize) -> Result<(), ApiError> {
+    let since = crate::now_s() - QUOTA_WINDOW_S;
+    let store = state.store();
+    let accepted = store
+        .accepted_since(team_id, since)
+        .await
+        .map_err(ApiError::internal)?;
+    let refused = store
+        .format_failures_since(team_id, since)
+        .await
+        .map_err(ApiError::internal)?;
+    match limits(&state.inner.settings, &accepted, &refused, in_flight) {
+        Some(e) => Err(e),
+        None => Ok(()),
+    }
 }
 
-/// [`check_limits`] on a store the caller holds.
-fn limits(
-    store: &dyn Store,
-    s: &crate::Settings,
-    team_id: i64,
-    in_flight: usize,
-) -> Result<(), ApiError> {
-    let now = crate::now_s();
-    let since = now - QUOTA_WINDOW_S;
-    let used = store
-        .accepted_since(team_id, since)
-        .map_err(ApiError::internal)?;
+/// The answer when a team's quota or refusal cap is used, given the times
+/// of its accepted entries and refused uploads in the window (oldest
+/// first) and `in_flight` others of its uploads still arriving.
+fn limits(s: &crate::Settings, used: &[i64], failed: &[i64], in_flight: usize) -> Option<ApiError> {
     let quota = s.quota as usize;
     if used.len() + in_flight >= quota {
         // The slot that frees first: the oldest counted upload leaving the
@@ -939,17 +956,14 @@ fn limits(
                 s.quota
             ),
         };
-        return Err(ApiError {
+        return Some(ApiError {
             reset_s: reset,
             ..ApiError::new(StatusCode::TOO_MANY_REQUESTS, message)
         });
     }
-    let failed = store
-        .format_failures_since(team_id, since)
-        .map_err(ApiError::internal)?;
     if failed.len() >= s.format_failure_cap as usize {
         let reset = failed[failed.len() - s.format_failure_cap as usize] + QUOTA_WINDOW_S;
-        return Err(ApiError {
+        return Some(ApiError {
             reset_s: Some(reset),
             ..ApiError::new(
                 StatusCode::TOO_MANY_REQUESTS,
@@ -962,7 +976,21 @@ fn limits(
             )
         });
     }
-    Ok(())
+    None
+}
+
+/// Why an upload is refused at `now_s` on `ledger` (the phase, then the
+/// quota and the refusal cap counting no upload in flight), if it is: the
+/// rule of the store's admission, and its answer when the store declines.
+fn admission_refusal(
+    s: &crate::Settings,
+    ledger: &crate::store::Ledger,
+    now_s: i64,
+) -> Option<ApiError> {
+    if let Some(why) = Phase::of_meta(&ledger.meta).upload_refusal(now_s) {
+        return Some(ApiError::new(StatusCode::FORBIDDEN, why));
+    }
+    limits(s, &ledger.accepted, &ledger.refused, 0)
 }
 
 /// An upload of one team counted as in flight (being received or
@@ -1087,7 +1115,7 @@ async fn format_check(
 }
 
 async fn post_submission(State(state): State<AppState>, req: Request) -> ApiResult {
-    let team = auth(&state, req.headers())?;
+    let team = auth(&state, req.headers()).await?;
     let accepted = submit(&state, &team, req, |_| Ok(())).await?;
     Ok(if accepted.duplicate {
         (
@@ -1168,14 +1196,16 @@ async fn receive_and_queue(
              counted. The organisers have been told by the server's log",
         ));
     }
-    let phase = Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
+    let phase = Phase::read(state.store())
+        .await
+        .map_err(ApiError::internal)?;
     if let Some(why) = phase.upload_refusal(crate::now_s()) {
         return Err(ApiError::new(StatusCode::FORBIDDEN, why));
     }
     // Before a byte of the body is read: a turn among the team's and all
     // uploads at once, and the quota counting the team's uploads in flight.
     let (_slot, in_flight) = UploadSlot::take(state, team.id)?;
-    check_limits(state, team.id, in_flight)?;
+    check_limits(state, team.id, in_flight).await?;
     let max = state.inner.settings.max_upload_bytes;
     let (tmp, sha, size) = receive(state, req, max, check).await?;
     // The format check: the harness reads the whole upload against every
@@ -1192,41 +1222,27 @@ async fn receive_and_queue(
         state
             .store()
             .add_format_failure(team.id, &message, crate::now_s())
+            .await
             .map_err(ApiError::internal)?;
         return Err(ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, message));
     }
     // The phase, the duplicate check, the quota and the insert again, in
-    // one hold of the store: the phase may have changed during a slow
-    // upload (a body sent until after the deadline or the reveal), and
-    // parallel uploads of one team must not all pass the quota.
-    let mut store = state.store();
+    // one transaction of the store that holds the team: the phase may have
+    // changed during a slow upload (a body sent until after the deadline
+    // or the reveal), and parallel uploads of one team, on any host, must
+    // not all pass the quota. Only accepted entries count here: the uploads
+    // that were in flight when this one took its slot have been counted
+    // before its body was read, and those that finished since are in the
+    // store (counting them again refused the second of two parallel
+    // uploads under a quota of 2).
     let refuse = |e: ApiError| {
         let _ = std::fs::remove_file(&tmp);
         e
     };
-    let phase = Phase::read(store.as_ref()).map_err(|e| refuse(ApiError::internal(e)))?;
-    if let Some(why) = phase.upload_refusal(crate::now_s()) {
-        return Err(refuse(ApiError::new(StatusCode::FORBIDDEN, why)));
-    }
-    let dup = store
-        .find_duplicate(team.id, &sha)
-        .map_err(|e| refuse(ApiError::internal(e)))?;
-    if let Some(id) = dup {
-        let _ = std::fs::remove_file(&tmp);
-        let s = store.submission(id).map_err(ApiError::internal)?;
-        let status = s.map(|s| s.status).unwrap_or_default();
-        return Ok(Accepted {
-            id,
-            status,
-            duplicate: true,
-        });
-    }
-    // Only accepted entries count here: the uploads that were in flight
-    // when this one took its slot have been counted before its body was
-    // read, and those that finished since are in the store (counting them
-    // again refused the second of two parallel uploads under a quota of 2).
-    limits(store.as_ref(), &state.inner.settings, team.id, 0).map_err(refuse)?;
     let final_path = state.inner.dir.join("uploads").join(&sha);
+    // The file goes in place first (named by its hash: the same bytes are
+    // the same file), so that no worker of any host finds an entry without
+    // its upload.
     if final_path.exists() {
         let _ = std::fs::remove_file(&tmp);
     } else {
@@ -1235,34 +1251,54 @@ async fn receive_and_queue(
             let _ = d.sync_all();
         }
     }
-    let id = store
-        .insert_submission(team.id, &sha, size as i64, crate::now_s())
+    let now = crate::now_s();
+    let settings = state.inner.settings.clone();
+    let rule: crate::store::Rule =
+        Arc::new(move |l| admission_refusal(&settings, l, now).is_none());
+    let admitted = state
+        .store()
+        .admit(team.id, &sha, size as i64, now, now - QUOTA_WINDOW_S, rule)
+        .await
         .map_err(ApiError::internal)?;
-    Ok(Accepted {
-        id,
-        status: "queued".into(),
-        duplicate: false,
-    })
+    match admitted {
+        crate::store::Admission::Inserted(id) => Ok(Accepted {
+            id,
+            status: "queued".into(),
+            duplicate: false,
+        }),
+        crate::store::Admission::Duplicate(id, status) => Ok(Accepted {
+            id,
+            status,
+            duplicate: true,
+        }),
+        // The file stays: it is named by its hash, and an entry of this or
+        // another team may hold the same bytes.
+        crate::store::Admission::Declined(ledger) => Err(admission_refusal(
+            &state.inner.settings,
+            &ledger,
+            now,
+        )
+        .unwrap_or_else(|| ApiError::internal("the admission was declined without a reason"))),
+    }
 }
 
-/// Serves the API on `listen` with `workers` scoring workers under
-/// `limits` until the process ends ([`crate::net::serve_with_limits`]);
-/// `/metrics` answers anyone when `open_metrics`, else the organisers.
-/// Jobs left `scoring` by a stopped server are queued again.
+/// Serves the API on `listen` with `workers` scoring workers of its own
+/// (run with `worker`'s options) under `limits` until the process ends
+/// ([`crate::net::serve_with_limits`]); `/metrics` answers anyone when
+/// `open_metrics`, else the organisers. With no workers of its own, the
+/// queue is scored by `stepsim worker` processes (on this host or others).
+/// A job left `scoring` by a stopped server or worker is taken again once
+/// its lease runs out.
 pub async fn serve(
     dir: PathBuf,
     listen: &str,
     workers: usize,
-    timeout: std::time::Duration,
+    worker: crate::worker::WorkerOptions,
     limits: Limits,
     open_metrics: bool,
 ) -> Result<(), crate::ChallengeError> {
-    let mut ch = Challenge::open(&dir)?;
-    let n = ch.store.requeue_interrupted()?;
-    if n > 0 {
-        tracing::warn!(jobs = n, "interrupted scoring jobs queued again");
-    }
-    let pool = crate::worker::WorkerPool::start(&dir, workers, timeout);
+    let ch = Challenge::open_with_store(&dir, worker.store.as_ref()).await?;
+    let pool = (workers > 0).then(|| crate::worker::WorkerPool::start_with(&dir, workers, worker));
     let listener = tokio::net::TcpListener::bind(listen)
         .await
         .map_err(|e| crate::ChallengeError::Run(format!("cannot listen on {listen}: {e}")))?;
@@ -1270,9 +1306,14 @@ pub async fn serve(
         .local_addr()
         .map_err(|e| crate::ChallengeError::Run(e.to_string()))?;
     eprintln!("stepsim serve: listening on http://{addr}");
-    let state = AppState::serving(ch, limits.clone(), &pool, open_metrics);
+    let state = match &pool {
+        Some(pool) => AppState::serving(ch, limits.clone(), pool, open_metrics),
+        None => AppState::build(ch, limits.clone(), None, Arc::default(), open_metrics),
+    };
     let result = crate::net::serve_with_limits(listener, router(state), limits).await;
-    pool.stop();
+    if let Some(pool) = pool {
+        let _ = tokio::task::spawn_blocking(move || pool.stop()).await;
+    }
     result.map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
 }
 
@@ -1281,7 +1322,7 @@ pub fn serve_blocking(
     dir: PathBuf,
     listen: &str,
     workers: usize,
-    timeout: std::time::Duration,
+    worker: crate::worker::WorkerOptions,
     limits: Limits,
     open_metrics: bool,
 ) -> Result<(), crate::ChallengeError> {
@@ -1290,5 +1331,5 @@ pub fn serve_blocking(
         .enable_all()
         .build()
         .map_err(|e| crate::ChallengeError::Run(format!("cannot start the server: {e}")))?;
-    rt.block_on(serve(dir, listen, workers, timeout, limits, open_metrics))
+    rt.block_on(serve(dir, listen, workers, worker, limits, open_metrics))
 }

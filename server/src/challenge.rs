@@ -1,8 +1,9 @@
 //! A challenge's state directory and the organiser's operations on it.
 
-use crate::store::{Role, SqliteStore, Store, StoreError, Submission};
+use crate::store::{Role, Store, StoreError, StoreUrl, Submission};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use stepsim_harness::part::has_holdout;
 use stepsim_harness::truth_set::load_truth_set;
 
@@ -68,8 +69,8 @@ pub struct Challenge {
     pub dir: PathBuf,
     /// Its settings.
     pub settings: Settings,
-    /// Its store.
-    pub store: Box<dyn Store>,
+    /// Its store (shared by every handler and worker of the process).
+    pub store: Arc<dyn Store>,
 }
 
 impl std::fmt::Debug for Challenge {
@@ -98,13 +99,29 @@ pub fn new_token() -> Result<String, ChallengeError> {
 }
 
 impl Challenge {
-    /// Creates a challenge for `run` in `dir` (which must not hold one).
-    /// Refuses a run without held-out datasets unless `no_holdout`.
-    pub fn init(
+    /// Creates a challenge for `run` in `dir` (which must not hold one),
+    /// its store the directory's own SQLite file. Refuses a run without
+    /// held-out datasets unless `no_holdout`.
+    pub async fn init(
         run: &Path,
         dir: &Path,
         quota: u32,
         no_holdout: bool,
+    ) -> Result<Self, ChallengeError> {
+        Self::init_with_store(run, dir, quota, no_holdout, None).await
+    }
+
+    /// [`Challenge::init`] with its store at `store` (`None`: the
+    /// directory's SQLite file). A PostgreSQL store is named in the
+    /// directory's [`crate::store::STORE_FILE`] (mode 0600), so that
+    /// `serve` and `worker` given the directory find it; the database must
+    /// hold no challenge yet.
+    pub async fn init_with_store(
+        run: &Path,
+        dir: &Path,
+        quota: u32,
+        no_holdout: bool,
+        store: Option<&StoreUrl>,
     ) -> Result<Self, ChallengeError> {
         let truth_dir = run.join("private");
         let truth = load_truth_set(&truth_dir).map_err(|e| ChallengeError::Run(e.to_string()))?;
@@ -125,16 +142,25 @@ impl Challenge {
             message,
         };
         std::fs::create_dir_all(dir).map_err(|e| state(format!("cannot create: {e}")))?;
-        if dir.join(DB_FILE).exists() {
-            return Err(state(format!(
-                "already holds a challenge ({DB_FILE}); use another directory"
-            )));
+        for held in [DB_FILE, crate::store::STORE_FILE] {
+            if dir.join(held).exists() {
+                return Err(state(format!(
+                    "already holds a challenge ({held}); use another directory"
+                )));
+            }
         }
         let truth_dir = std::fs::canonicalize(&truth_dir)
             .map_err(|e| ChallengeError::Run(format!("{}: {e}", truth_dir.display())))?;
         let max_upload_bytes = stepsim_harness::truth_set::run_submission_limit(&truth)
             .map_err(|e| ChallengeError::Run(e.to_string()))?;
-        let mut store = SqliteStore::open(&dir.join(DB_FILE), true)?;
+        let url = crate::store::url_of_state(dir, store).map_err(ChallengeError::Run)?;
+        let store = crate::store::open(&url, true).await?;
+        if store.meta("run").await?.is_some() {
+            return Err(ChallengeError::Run(format!(
+                "{}: the database holds a challenge already; give an empty database",
+                url.shown()
+            )));
+        }
         let settings = Settings {
             truth_dir,
             quota,
@@ -158,6 +184,8 @@ impl Challenge {
             ),
             ("holdout", holdout.to_string()),
             ("revealed", "false".into()),
+            ("frozen", "false".into()),
+            ("closed", "false".into()),
             // Shown to participants (`GET /api/challenge`): the run
             // directory's name until `set_name`; never the run identity,
             // which is a hash of the secret datasets.json.
@@ -168,22 +196,37 @@ impl Challenge {
                     .unwrap_or_else(|| "stepsim challenge".into()),
             ),
         ] {
-            store.set_meta(k, &v)?;
+            store.set_meta(k, &v).await?;
         }
         for sub in ["uploads", "entries"] {
             std::fs::create_dir_all(dir.join(sub)).map_err(|e| state(e.to_string()))?;
         }
+        if let StoreUrl::Postgres(u) = &url {
+            write_private(&dir.join(crate::store::STORE_FILE), &format!("{u}\n"))
+                .map_err(|e| state(format!("cannot write {}: {e}", crate::store::STORE_FILE)))?;
+        }
         Ok(Self {
             dir: dir.to_path_buf(),
             settings,
-            store: Box::new(store),
+            store,
         })
     }
 
-    /// Opens the challenge in `dir`.
-    pub fn open(dir: &Path) -> Result<Self, ChallengeError> {
-        let db = dir.join(DB_FILE);
-        if !db.is_file() {
+    /// Opens the challenge in `dir` (its store named by the directory).
+    pub async fn open(dir: &Path) -> Result<Self, ChallengeError> {
+        Self::open_with_store(dir, None).await
+    }
+
+    /// Opens the challenge in `dir` with its store at `store` (`None`: the
+    /// one the directory names, [`crate::store::url_of_state`]).
+    pub async fn open_with_store(
+        dir: &Path,
+        store: Option<&StoreUrl>,
+    ) -> Result<Self, ChallengeError> {
+        let url = crate::store::url_of_state(dir, store).map_err(ChallengeError::Run)?;
+        if let StoreUrl::Sqlite(db) = &url
+            && !db.is_file()
+        {
             return Err(ChallengeError::State {
                 path: dir.to_path_buf(),
                 message: format!(
@@ -191,9 +234,11 @@ impl Challenge {
                 ),
             });
         }
-        let store = SqliteStore::open(&db, false)?;
+        let store = crate::store::open(&url, false).await?;
+        let meta = store.all_meta().await?;
+        let db = PathBuf::from(url.shown());
         let get = |k: &str| -> Result<String, ChallengeError> {
-            store.meta(k)?.ok_or_else(|| ChallengeError::State {
+            meta.get(k).cloned().ok_or_else(|| ChallengeError::State {
                 path: db.clone(),
                 message: format!("setting `{k}` is missing"),
             })
@@ -210,7 +255,7 @@ impl Challenge {
             max_upload_bytes: num("max_upload_bytes")?,
             format_failure_cap: num("format_failure_cap")? as u32,
             // Challenges made before the setting existed take the default.
-            requests_per_minute: match store.meta("requests_per_minute")? {
+            requests_per_minute: match meta.get("requests_per_minute") {
                 Some(_) => num("requests_per_minute")? as u32,
                 None => DEFAULT_REQUESTS_PER_MINUTE,
             },
@@ -219,126 +264,129 @@ impl Challenge {
         Ok(Self {
             dir: dir.to_path_buf(),
             settings,
-            store: Box::new(store),
+            store,
         })
     }
 
     /// Adds a team; returns its token (shown once; only its hash is kept).
-    pub fn add_team(&mut self, name: &str) -> Result<String, ChallengeError> {
+    pub async fn add_team(&self, name: &str) -> Result<String, ChallengeError> {
         let name = name.trim();
         if name.is_empty() || name.chars().count() > 80 || name.chars().any(char::is_control) {
             return Err(ChallengeError::Team(
                 "a team name must be 1 to 80 characters without control characters".into(),
             ));
         }
-        if self.store.team_by_name(name)?.is_some() {
+        if self.store.team_by_name(name).await?.is_some() {
             return Err(ChallengeError::Team(format!(
                 "a team named {name:?} exists already"
             )));
         }
         let token = new_token()?;
         self.store
-            .add_team(name, &token_hash(&token), crate::now_s())?;
+            .add_team(name, &token_hash(&token), crate::now_s())
+            .await?;
         Ok(token)
     }
 
-    fn team_id(&self, name: &str) -> Result<i64, ChallengeError> {
+    async fn team_id(&self, name: &str) -> Result<i64, ChallengeError> {
         self.store
-            .team_by_name(name)?
+            .team_by_name(name)
+            .await?
             .map(|t| t.id)
             .ok_or_else(|| ChallengeError::Team(format!("no team named {name:?}")))
     }
 
     /// Gives a team a new token (the old one stops working).
-    pub fn rotate_token(&mut self, name: &str) -> Result<String, ChallengeError> {
-        let id = self.team_id(name)?;
+    pub async fn rotate_token(&self, name: &str) -> Result<String, ChallengeError> {
+        let id = self.team_id(name).await?;
         let token = new_token()?;
-        self.store.set_token(id, &token_hash(&token))?;
+        self.store.set_token(id, &token_hash(&token)).await?;
         Ok(token)
     }
 
     /// Revokes a team's token.
-    pub fn revoke(&mut self, name: &str) -> Result<(), ChallengeError> {
-        let id = self.team_id(name)?;
-        Ok(self.store.revoke(id)?)
+    pub async fn revoke(&self, name: &str) -> Result<(), ChallengeError> {
+        let id = self.team_id(name).await?;
+        Ok(self.store.revoke(id).await?)
     }
 
     /// True once revealed.
-    pub fn revealed(&self) -> Result<bool, ChallengeError> {
-        Ok(self.store.meta("revealed")?.as_deref() == Some("true"))
+    pub async fn revealed(&self) -> Result<bool, ChallengeError> {
+        Ok(self.store.meta("revealed").await?.as_deref() == Some("true"))
     }
 
     /// Reveals: held-out scores and full reports become visible. Reveal
     /// implies close (nothing changes any more).
-    pub fn reveal(&mut self) -> Result<(), ChallengeError> {
-        self.store.set_meta("closed", "true")?;
-        Ok(self.store.set_meta("revealed", "true")?)
+    pub async fn reveal(&self) -> Result<(), ChallengeError> {
+        self.store.set_meta("closed", "true").await?;
+        Ok(self.store.set_meta("revealed", "true").await?)
     }
 
     /// Sets the challenge's name (shown to participants).
-    pub fn set_name(&mut self, name: &str) -> Result<(), ChallengeError> {
+    pub async fn set_name(&self, name: &str) -> Result<(), ChallengeError> {
         let name = name.trim();
         if name.is_empty() || name.chars().count() > 200 || name.chars().any(char::is_control) {
             return Err(ChallengeError::Run(
                 "a challenge name must be 1 to 200 characters without control characters".into(),
             ));
         }
-        Ok(self.store.set_meta("name", name)?)
+        Ok(self.store.set_meta("name", name).await?)
     }
 
     /// Sets the cap on one upload in bytes (stored and after gzip
     /// decompression), replacing the run's own limit chosen at `init`; it
     /// takes effect when the server next starts.
-    pub fn set_max_upload_bytes(&mut self, bytes: u64) -> Result<(), ChallengeError> {
+    pub async fn set_max_upload_bytes(&mut self, bytes: u64) -> Result<(), ChallengeError> {
         if bytes == 0 {
             return Err(ChallengeError::Run(
                 "--max-upload-bytes must be at least 1".into(),
             ));
         }
         self.store
-            .set_meta("max_upload_bytes", &bytes.to_string())?;
+            .set_meta("max_upload_bytes", &bytes.to_string())
+            .await?;
         self.settings.max_upload_bytes = bytes;
         Ok(())
     }
 
     /// Sets (or, with `None`, removes) the deadline (Unix seconds): uploads
     /// from then on are refused as when frozen.
-    pub fn set_deadline(&mut self, at_s: Option<i64>) -> Result<(), ChallengeError> {
+    pub async fn set_deadline(&self, at_s: Option<i64>) -> Result<(), ChallengeError> {
         match at_s {
-            Some(t) => self.store.set_meta("deadline", &t.to_string())?,
-            None => self.store.set_meta("deadline", "")?,
+            Some(t) => self.store.set_meta("deadline", &t.to_string()).await?,
+            None => self.store.set_meta("deadline", "").await?,
         }
         Ok(())
     }
 
     /// Freezes: no more uploads; final choices are still allowed.
-    pub fn freeze(&mut self) -> Result<(), ChallengeError> {
-        Ok(self.store.set_meta("frozen", "true")?)
+    pub async fn freeze(&self) -> Result<(), ChallengeError> {
+        Ok(self.store.set_meta("frozen", "true").await?)
     }
 
     /// Closes: no more uploads and no more final choices.
-    pub fn close(&mut self) -> Result<(), ChallengeError> {
-        self.store.set_meta("frozen", "true")?;
-        Ok(self.store.set_meta("closed", "true")?)
+    pub async fn close(&self) -> Result<(), ChallengeError> {
+        self.store.set_meta("frozen", "true").await?;
+        Ok(self.store.set_meta("closed", "true").await?)
     }
 
     /// Marks a team as participants' (ranked), organisers' or the baseline
     /// (shown, never ranked).
-    pub fn set_role(&mut self, name: &str, role: Role) -> Result<(), ChallengeError> {
-        let id = self.team_id(name)?;
-        Ok(self.store.set_role(id, role)?)
+    pub async fn set_role(&self, name: &str, role: Role) -> Result<(), ChallengeError> {
+        let id = self.team_id(name).await?;
+        Ok(self.store.set_role(id, role).await?)
     }
 
     /// Queues every scored entry again for this binary's scorer
     /// ([`crate::worker::SCORER_VERSION`]), except those it has scored
     /// already; returns how many. Old scores are kept.
-    pub fn rescore(&mut self) -> Result<usize, ChallengeError> {
-        Ok(self.store.rescore(crate::worker::SCORER_VERSION)?)
+    pub async fn rescore(&self) -> Result<usize, ChallengeError> {
+        Ok(self.store.rescore(crate::worker::SCORER_VERSION).await?)
     }
 
     /// Stores the organiser password as an Argon2id PHC hash (a random
     /// salt; the password itself is never stored).
-    pub fn set_organiser_password(&mut self, password: &str) -> Result<(), ChallengeError> {
+    pub async fn set_organiser_password(&self, password: &str) -> Result<(), ChallengeError> {
         use argon2::password_hash::{PasswordHasher, SaltString};
         if password.chars().count() < 8 {
             return Err(ChallengeError::Run(
@@ -355,13 +403,14 @@ impl Challenge {
             .map_err(|e| ChallengeError::Run(format!("cannot hash the password: {e}")))?;
         Ok(self
             .store
-            .set_meta(ORGANISER_PASSWORD_KEY, &hash.to_string())?)
+            .set_meta(ORGANISER_PASSWORD_KEY, &hash.to_string())
+            .await?)
     }
 
     /// True when `password` is the organiser password (false when none is
     /// set). See [`verify_organiser_password`].
-    pub fn verify_organiser_password(&self, password: &str) -> bool {
-        verify_organiser_password(self.store.as_ref(), password)
+    pub async fn verify_organiser_password(&self, password: &str) -> bool {
+        verify_organiser_password(self.store.as_ref(), password).await
     }
 
     /// Where an upload with this SHA-256 is kept.
@@ -419,16 +468,16 @@ impl Challenge {
     /// `reports`, named `RANK-entryID.json` (`organisers-entryID.json`,
     /// `baseline-entryID.json` for unranked rows). Every file is written
     /// atomically.
-    pub fn export(&self, out: &Path) -> Result<Export, ChallengeError> {
+    pub async fn export(&self, out: &Path) -> Result<Export, ChallengeError> {
         use stepsim_contract::io::write_bytes_atomically;
-        let revealed = self.revealed()?;
+        let revealed = self.revealed().await?;
         let part = if revealed && self.settings.holdout {
             stepsim_harness::part::Part::Holdout
         } else {
             stepsim_harness::part::Part::Public
         };
-        let teams = self.store.teams()?;
-        let subs = self.store.all_submissions()?;
+        let teams = self.store.teams().await?;
+        let subs = self.store.all_submissions().await?;
         let mut rows = crate::api::leaderboard_rows(&teams, &subs, revealed);
         let reports_dir = out.with_extension("reports");
         let io = |p: &Path, e: String| ChallengeError::State {
@@ -497,17 +546,32 @@ impl Challenge {
     }
 }
 
+/// Writes `text` to a new file at `path` readable by its owner only.
+fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut o = std::fs::OpenOptions::new();
+    o.write(true).create_new(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::mode(&mut o, 0o600);
+    let mut f = o.open(path)?;
+    f.write_all(text.as_bytes())?;
+    f.sync_all()
+}
+
 /// The setting that holds the organiser password's PHC hash.
 pub const ORGANISER_PASSWORD_KEY: &str = "organiser_password_phc";
 
 /// True when `password` is the organiser password stored by
 /// [`Challenge::set_organiser_password`]; false when none is set, the
 /// store fails or the hash cannot be read (never panics).
-pub fn verify_organiser_password(store: &dyn Store, password: &str) -> bool {
-    let Ok(Some(phc)) = store.meta(ORGANISER_PASSWORD_KEY) else {
+pub async fn verify_organiser_password(store: &dyn Store, password: &str) -> bool {
+    let Ok(Some(phc)) = store.meta(ORGANISER_PASSWORD_KEY).await else {
         return false;
     };
-    verify_phc(&phc, password)
+    let password = password.to_owned();
+    tokio::task::spawn_blocking(move || verify_phc(&phc, &password))
+        .await
+        .unwrap_or(false)
 }
 
 /// True when `password` matches the PHC hash `phc` (Argon2). Slow by
@@ -538,15 +602,19 @@ pub struct Phase {
 
 impl Phase {
     /// The phase recorded in a store.
-    pub fn read(store: &dyn Store) -> Result<Self, StoreError> {
-        let flag =
-            |k: &str| -> Result<bool, StoreError> { Ok(store.meta(k)?.as_deref() == Some("true")) };
-        Ok(Self {
-            deadline_s: store.meta("deadline")?.and_then(|v| v.parse().ok()),
-            frozen: flag("frozen")?,
-            closed: flag("closed")?,
-            revealed: flag("revealed")?,
-        })
+    pub async fn read(store: &dyn Store) -> Result<Self, StoreError> {
+        Ok(Self::of_meta(&store.all_meta().await?))
+    }
+
+    /// The phase of the settings `meta`.
+    pub fn of_meta(meta: &std::collections::HashMap<String, String>) -> Self {
+        let flag = |k: &str| meta.get(k).map(String::as_str) == Some("true");
+        Self {
+            deadline_s: meta.get("deadline").and_then(|v| v.parse().ok()),
+            frozen: flag("frozen"),
+            closed: flag("closed"),
+            revealed: flag("revealed"),
+        }
     }
 
     /// Why an upload at `now_s` is refused, if it is (closed, frozen, or
@@ -600,12 +668,12 @@ pub const MAX_FINAL_ENTRIES: usize = 2;
 /// back to the default, its best public entry). Repeated ids count once.
 /// Returns the chosen ids, sorted. Allowed while frozen, refused once
 /// closed. Nothing changes when it is refused.
-pub fn choose_final_entries(
-    store: &mut dyn Store,
+pub async fn choose_final_entries(
+    store: &dyn Store,
     team_id: i64,
     ids: &[i64],
 ) -> Result<Vec<i64>, ChoiceError> {
-    if Phase::read(store)?.closed {
+    if Phase::read(store).await?.closed {
         return Err(ChoiceError::Closed);
     }
     let mut ids = ids.to_vec();
@@ -616,14 +684,19 @@ pub fn choose_final_entries(
     }
     for &id in &ids {
         let sub = store
-            .submission(id)?
+            .submission(id)
+            .await?
             .filter(|s| s.team_id == team_id)
             .ok_or(ChoiceError::NotFound(id))?;
         if !sub.has_score() {
             return Err(ChoiceError::NotScored(id));
         }
     }
-    store.set_final_entries(team_id, &ids)?;
+    // Closed since the check above (by another host): the transaction
+    // that sets them reads `closed` again.
+    if !store.set_final_entries(team_id, &ids).await? {
+        return Err(ChoiceError::Closed);
+    }
     Ok(ids)
 }
 

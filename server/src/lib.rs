@@ -4,7 +4,8 @@
 //! the organiser's commands (`stepsim challenge ...`; docs/server.md).
 //!
 //! ```text
-//! store.rs      the state behind a trait; SQLite (WAL, migrations in the binary)
+//! store/        the state behind an async trait: SQLite (WAL, migrations in
+//!               the binary; the default) and PostgreSQL (several hosts)
 //! challenge.rs  a challenge's directory: init, teams and tokens, reveal
 //! api.rs        the JSON API (axum): uploads, entries, finals, leaderboard
 //! data.rs       the run's public files, as its manifest lists them
@@ -17,9 +18,11 @@
 //! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
 //! ```
 //!
-//! All state lives in one directory (`--state DIR`): `challenge.db`,
-//! `uploads/<sha256>` (immutable submission files) and
-//! `entries/<id>/{public,holdout}/` (the harness's reports).
+//! A challenge lives in one directory (`--state DIR`): `challenge.db` (or
+//! `store.url`, naming a PostgreSQL database), `uploads/<sha256>`
+//! (immutable submission files) and `entries/<id>/{public,holdout}/` (the
+//! harness's reports). Processes on several hosts share the directory (a
+//! network file system) and the database.
 #![deny(missing_docs)]
 
 pub mod api;
@@ -33,6 +36,16 @@ pub mod web;
 pub mod worker;
 
 pub use challenge::{Challenge, ChallengeError, Settings};
+
+/// Runs `f` to its end on a runtime of its own (for the command line's
+/// organiser commands, which call the async store).
+pub fn block_on<F: std::future::Future>(f: F) -> Result<F::Output, ChallengeError> {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| ChallengeError::Run(format!("cannot start a runtime: {e}")))?;
+    Ok(rt.block_on(f))
+}
 
 /// Seconds since the Unix epoch, now.
 pub fn now_s() -> i64 {

@@ -213,7 +213,7 @@ pub(crate) async fn html_errors(
         .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
         .and_then(|v| v["error"].as_str().map(str::to_owned))
         .unwrap_or_else(|| status.canonical_reason().unwrap_or("error").to_owned());
-    let nav = web.nav(&state, &headers, "error");
+    let nav = web.nav(&state, &headers, "error").await;
     let text = if status == StatusCode::NOT_FOUND && message == "not found" {
         // The path is not repeated: a crafted link must not put words of
         // its own on the server's page.
@@ -369,7 +369,7 @@ struct Nav {
 }
 
 impl Nav {
-    fn new(
+    async fn new(
         state: &AppState,
         session: Option<&Session>,
         team: Option<&Team>,
@@ -378,6 +378,7 @@ impl Nav {
         let challenge = state
             .store()
             .meta("name")
+            .await
             .ok()
             .flatten()
             .unwrap_or_else(|| "stepsim challenge".into());
@@ -451,45 +452,56 @@ impl Web {
     /// The session of a request: an organiser's (no team), or a team's
     /// whose token still works. Expired sessions and those of revoked or
     /// rotated tokens are dropped.
-    fn session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Option<Team>)> {
+    async fn session(
+        &self,
+        state: &AppState,
+        headers: &HeaderMap,
+    ) -> Option<(Session, Option<Team>)> {
         let id = cookie(headers, SESSION_COOKIE)?;
         let key = token_hash(&id);
-        let mut sessions = self
-            .sessions
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let s = sessions.get(&key)?.clone();
+        let sessions = || {
+            self.sessions
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        let s = sessions().get(&key)?.clone();
         let live = s.expires_s > crate::now_s();
         if live && s.organiser {
             return Some((s, None));
         }
-        let team = live
-            .then(|| state.store().team_by_token(&s.token_sha256).ok().flatten())
-            .flatten();
+        let team = match live {
+            true => state
+                .store()
+                .team_by_token(&s.token_sha256)
+                .await
+                .ok()
+                .flatten(),
+            false => None,
+        };
         match team {
             Some(t) => {
                 crate::observe::note_team(t.id);
                 Some((s, Some(t)))
             }
             None => {
-                sessions.remove(&key);
+                sessions().remove(&key);
                 None
             }
         }
     }
 
     /// The session of a signed-in team, if any.
-    fn team_session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Team)> {
-        match self.session(state, headers)? {
+    async fn team_session(&self, state: &AppState, headers: &HeaderMap) -> Option<(Session, Team)> {
+        match self.session(state, headers).await? {
             (s, Some(t)) => Some((s, t)),
             (_, None) => None,
         }
     }
 
-    fn nav(&self, state: &AppState, headers: &HeaderMap, page: &'static str) -> Nav {
-        match self.session(state, headers) {
-            Some((s, t)) => Nav::new(state, Some(&s), t.as_ref(), page),
-            None => Nav::new(state, None, None, page),
+    async fn nav(&self, state: &AppState, headers: &HeaderMap, page: &'static str) -> Nav {
+        match self.session(state, headers).await {
+            Some((s, t)) => Nav::new(state, Some(&s), t.as_ref(), page).await,
+            None => Nav::new(state, None, None, page).await,
         }
     }
 
@@ -614,7 +626,7 @@ pub(crate) async fn data_index(
             Err(e) => e.into_response(),
         };
     }
-    let nav = web.nav(&state, &headers, "data");
+    let nav = web.nav(&state, &headers, "data").await;
     let public = crate::data::public_dir(&state.settings().truth_dir);
     let listed = tokio::task::spawn_blocking(move || crate::data::public_files(&public)).await;
     let files = match listed {
@@ -683,8 +695,8 @@ async fn index(
     Extension(web): Shared,
     headers: HeaderMap,
 ) -> Response {
-    let nav = web.nav(&state, &headers, "index");
-    let phase = match crate::challenge::Phase::read(state.store().as_ref()) {
+    let nav = web.nav(&state, &headers, "index").await;
+    let phase = match crate::challenge::Phase::read(state.store()).await {
         Ok(p) => p,
         Err(e) => return web.error(&nav, &ApiError::internal(e)),
     };
@@ -720,7 +732,7 @@ async fn signin_page(
     Extension(web): Shared,
     headers: HeaderMap,
 ) -> Response {
-    let nav = web.nav(&state, &headers, "signin");
+    let nav = web.nav(&state, &headers, "signin").await;
     signin_form(&web, &nav, StatusCode::OK, None)
 }
 
@@ -744,14 +756,14 @@ fn signin_form(web: &Web, nav: &Nav, status: StatusCode, error: Option<&str>) ->
 
 async fn signin(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
-    let nav = web.nav(&state, &headers, "signin");
+    let nav = web.nav(&state, &headers, "signin").await;
     let fields = match signin_fields(&web, &nav, &headers, req, SIGNIN_COOKIE).await {
         Ok(f) => f,
         Err(page) => return page,
     };
     let token = fields.get("token").map(|t| t.trim()).unwrap_or("");
     let hash = token_hash(token);
-    let team = match state.store().team_by_token(&hash) {
+    let team = match state.store().team_by_token(&hash).await {
         Ok(t) => t,
         Err(e) => return web.error(&nav, &ApiError::internal(e)),
     };
@@ -827,10 +839,10 @@ async fn organisers_page(
     Extension(web): Shared,
     headers: HeaderMap,
 ) -> Response {
-    let session = web.session(&state, &headers);
-    let nav = web.nav(&state, &headers, "organisers");
+    let session = web.session(&state, &headers).await;
+    let nav = web.nav(&state, &headers, "organisers").await;
     match session {
-        Some((s, None)) if s.organiser => organisers_list(&state, &web, &nav),
+        Some((s, None)) if s.organiser => organisers_list(&state, &web, &nav).await,
         _ => organisers_form(&web, &nav, StatusCode::OK, None),
     }
 }
@@ -861,12 +873,19 @@ async fn metrics(
     Extension(web): Shared,
     headers: HeaderMap,
 ) -> Response {
-    let session = matches!(web.session(&state, &headers), Some((s, None)) if s.organiser);
-    let token = headers
+    let session = matches!(web.session(&state, &headers).await, Some((s, None)) if s.organiser);
+    let bearer = headers
         .get(header::AUTHORIZATION)
-        .and_then(|v| crate::api::bearer_token(v.as_bytes()))
-        .and_then(|t| state.team_of_token(t).ok().flatten())
-        .is_some_and(|t| t.role == Role::Organisers);
+        .and_then(|v| crate::api::bearer_token(v.as_bytes()));
+    let token = match bearer {
+        Some(t) => state
+            .team_of_token(t)
+            .await
+            .ok()
+            .flatten()
+            .is_some_and(|t| t.role == Role::Organisers),
+        None => false,
+    };
     if !(state.open_metrics() || session || token) {
         return ApiError::new(
             StatusCode::UNAUTHORIZED,
@@ -875,7 +894,7 @@ async fn metrics(
         )
         .into_response();
     }
-    let counts = state.store().queue_counts();
+    let counts = state.store().queue_counts().await;
     match counts {
         Ok(c) => (
             [(
@@ -892,18 +911,18 @@ async fn metrics(
 /// How many refused uploads the organisers' page lists at most.
 const ORGANISER_REFUSALS_SHOWN: usize = 200;
 
-fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
+async fn organisers_list(state: &AppState, web: &Web, nav: &Nav) -> Response {
     // The newest refusals only, and the per-team counts from the
     // database: a crowd of teams each at its daily cap must not make this
     // page read every refusal while it holds the store.
     let (teams, subs, counts, failures, per_team) = {
         let store = state.store();
         match (
-            store.teams(),
-            store.all_submissions(),
-            store.queue_counts(),
-            store.format_failures(None, ORGANISER_REFUSALS_SHOWN),
-            store.format_failure_counts(),
+            store.teams().await,
+            store.all_submissions().await,
+            store.queue_counts().await,
+            store.format_failures(None, ORGANISER_REFUSALS_SHOWN).await,
+            store.format_failure_counts().await,
         ) {
             (Ok(t), Ok(s), Ok(c), Ok(f), Ok(n)) => (t, s, c, f, n),
             (Err(e), ..)
@@ -1006,7 +1025,7 @@ async fn organisers_signin(
     req: Request,
 ) -> Response {
     let headers = req.headers().clone();
-    let nav = web.nav(&state, &headers, "organisers");
+    let nav = web.nav(&state, &headers, "organisers").await;
     let fields = match signin_fields(&web, &nav, &headers, req, ORGANISER_SIGNIN_COOKIE).await {
         Ok(f) => f,
         Err(page) => return page,
@@ -1017,6 +1036,7 @@ async fn organisers_signin(
     let phc = state
         .store()
         .meta(crate::challenge::ORGANISER_PASSWORD_KEY)
+        .await
         .ok()
         .flatten();
     let ok = match (password.is_empty(), phc) {
@@ -1043,11 +1063,11 @@ async fn organisers_signin(
 
 async fn signout(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
-    let nav = web.nav(&state, &headers, "signout");
+    let nav = web.nav(&state, &headers, "signout").await;
     if !same_origin(&headers) {
         return web.error(&nav, &origin_refused());
     }
-    let Some((session, _)) = web.session(&state, &headers) else {
+    let Some((session, _)) = web.session(&state, &headers).await else {
         return redirect("/");
     };
     let fields = match form(req).await {
@@ -1133,7 +1153,7 @@ struct Notice {
     text: String,
 }
 
-fn entries_response(
+async fn entries_response(
     state: &AppState,
     web: &Web,
     nav: &Nav,
@@ -1141,20 +1161,21 @@ fn entries_response(
     status: StatusCode,
     notice: Option<Notice>,
 ) -> Response {
-    let result = (|| -> Result<Value, ApiError> {
-        let revealed = crate::api::revealed(state)?;
+    let result = async {
+        let revealed = crate::api::revealed(state).await?;
         let subs = state
             .store()
             .submissions_of(team.id)
+            .await
             .map_err(ApiError::internal)?;
-        let quota = crate::api::quota_status(state, team.id)?;
+        let quota = crate::api::quota_status(state, team.id).await?;
         let page_time = |v: &Value| {
             v.as_str()
                 .filter(|t| t.len() >= 16)
                 .map(|t| format!("{} {} UTC", &t[..10], &t[11..16]))
         };
         let reset = page_time(&quota["reset"]);
-        let refused = crate::api::refusal_status(state, team.id)?;
+        let refused = crate::api::refusal_status(state, team.id).await?;
         let refusals: Vec<Value> = refused["recent"]
             .as_array()
             .into_iter()
@@ -1173,8 +1194,9 @@ fn entries_response(
                 ..entry_view(s, revealed)
             })
             .collect();
-        let phase =
-            crate::challenge::Phase::read(state.store().as_ref()).map_err(ApiError::internal)?;
+        let phase = crate::challenge::Phase::read(state.store())
+            .await
+            .map_err(ApiError::internal)?;
         Ok(serde_json::json!({
             "nav": nav,
             "team": team.name,
@@ -1200,7 +1222,9 @@ fn entries_response(
             "uploads_open": phase.uploads_open(crate::now_s()),
             "upload_refusal": phase.upload_refusal(crate::now_s()),
         }))
-    })();
+    }
+    .await;
+    let result: Result<Value, ApiError> = result;
     match result {
         Ok(ctx) => web.render(status, "entries.html", ctx),
         Err(e) => web.error(nav, &e),
@@ -1213,10 +1237,10 @@ async fn entries_page(
     headers: HeaderMap,
     uri: axum::http::Uri,
 ) -> Response {
-    let Some((session, team)) = web.team_session(&state, &headers) else {
+    let Some((session, team)) = web.team_session(&state, &headers).await else {
         return redirect("/signin");
     };
-    let nav = Nav::new(&state, Some(&session), Some(&team), "entries");
+    let nav = Nav::new(&state, Some(&session), Some(&team), "entries").await;
     let query: HashMap<String, String> = uri
         .query()
         .and_then(|q| serde_urlencoded::from_str::<Vec<(String, String)>>(q).ok())
@@ -1244,20 +1268,20 @@ async fn entries_page(
                 )
             },
         });
-    entries_response(&state, &web, &nav, &team, StatusCode::OK, notice.or(chosen))
+    entries_response(&state, &web, &nav, &team, StatusCode::OK, notice.or(chosen)).await
 }
 
 /// The signed-in team of a form POST, with its page context, once the
 /// request passed the same-origin check; the refusal page otherwise
 /// (`what` names the action in the sign-in message).
-fn posting_team(
+async fn posting_team(
     web: &Web,
     state: &AppState,
     headers: &HeaderMap,
     what: &str,
 ) -> Result<(Session, Team, Nav), Box<Response>> {
-    let Some((session, team)) = web.team_session(state, headers) else {
-        let nav = web.nav(state, headers, "entries");
+    let Some((session, team)) = web.team_session(state, headers).await else {
+        let nav = web.nav(state, headers, "entries").await;
         return Err(Box::new(web.message(
             &nav,
             StatusCode::FORBIDDEN,
@@ -1265,7 +1289,7 @@ fn posting_team(
             &format!("{what} needs a signed-in team: sign in with your team's token."),
         )));
     };
-    let nav = Nav::new(state, Some(&session), Some(&team), "entries");
+    let nav = Nav::new(state, Some(&session), Some(&team), "entries").await;
     if !same_origin(headers) {
         return Err(Box::new(web.error(&nav, &origin_refused())));
     }
@@ -1280,11 +1304,11 @@ async fn choose_final(
     req: Request,
 ) -> Response {
     let headers = req.headers().clone();
-    let (session, team, nav) = match posting_team(&web, &state, &headers, "choosing final entries")
-    {
-        Ok(t) => t,
-        Err(page) => return *page,
-    };
+    let (session, team, nav) =
+        match posting_team(&web, &state, &headers, "choosing final entries").await {
+            Ok(t) => t,
+            Err(page) => return *page,
+        };
     let fields = match form_pairs(req).await {
         Ok(f) => f,
         Err(e) => return web.error(&nav, &e),
@@ -1301,7 +1325,7 @@ async fn choose_final(
         .filter(|(k, _)| k == "final")
         .filter_map(|(_, v)| v.parse().ok())
         .collect();
-    let result = crate::challenge::choose_final_entries(state.store().as_mut(), team.id, &ids);
+    let result = crate::challenge::choose_final_entries(state.store(), team.id, &ids).await;
     use crate::challenge::ChoiceError;
     let e = match result {
         Ok(ids) => {
@@ -1324,6 +1348,7 @@ async fn choose_final(
             text: e.message,
         }),
     )
+    .await
 }
 
 /// The upload form: [`crate::api::submit`], the path of `POST
@@ -1331,11 +1356,11 @@ async fn choose_final(
 /// file is kept.
 async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Request) -> Response {
     let headers = req.headers().clone();
-    let (session, team, nav) = match posting_team(&web, &state, &headers, "uploading from the page")
-    {
-        Ok(t) => t,
-        Err(page) => return *page,
-    };
+    let (session, team, nav) =
+        match posting_team(&web, &state, &headers, "uploading from the page").await {
+            Ok(t) => t,
+            Err(page) => return *page,
+        };
     let expected = session.csrf.clone();
     let check = move |fields: &crate::api::FormFields| {
         let sent = fields
@@ -1365,6 +1390,7 @@ async fn upload(State(state): State<AppState>, Extension(web): Shared, req: Requ
                 e.status,
                 Some(Notice { ok: false, text }),
             )
+            .await
         }
     }
 }
@@ -1393,13 +1419,13 @@ struct BoardRow {
 }
 
 /// The leaderboard rows (as the API ranks them) and whether revealed.
-fn board(state: &AppState) -> Result<(bool, Vec<Value>), ApiError> {
-    let revealed = crate::api::revealed(state)?;
+async fn board(state: &AppState) -> Result<(bool, Vec<Value>), ApiError> {
+    let revealed = crate::api::revealed(state).await?;
     let (teams, subs) = {
         let store = state.store();
         (
-            store.teams().map_err(ApiError::internal)?,
-            store.all_submissions().map_err(ApiError::internal)?,
+            store.teams().await.map_err(ApiError::internal)?,
+            store.all_submissions().await.map_err(ApiError::internal)?,
         )
     };
     Ok((
@@ -1413,8 +1439,8 @@ async fn leaderboard_page(
     Extension(web): Shared,
     headers: HeaderMap,
 ) -> Response {
-    let nav = web.nav(&state, &headers, "leaderboard");
-    let (revealed, rows) = match board(&state) {
+    let nav = web.nav(&state, &headers, "leaderboard").await;
+    let (revealed, rows) = match board(&state).await {
         Ok(b) => b,
         Err(e) => return web.error(&nav, &e),
     };
@@ -1463,26 +1489,28 @@ async fn leaderboard_page(
 /// The entry whose report or figures a request may see: after reveal, a
 /// scored entry that is on the final board, or one of the signed-in
 /// team's own. Anything else is "not found", as for no entry at all.
-fn visible_entry(
+async fn visible_entry(
     state: &AppState,
     web: &Web,
     headers: &HeaderMap,
     id: &str,
 ) -> Result<crate::store::Submission, ApiError> {
     let id: i64 = id.parse().map_err(|_| ApiError::not_found())?;
-    let (revealed, rows) = board(state)?;
+    let (revealed, rows) = board(state).await?;
     if !revealed {
         return Err(ApiError::not_found());
     }
     let sub = state
         .store()
         .submission(id)
+        .await
         .map_err(ApiError::internal)?
         .filter(|s| s.has_score())
         .ok_or_else(ApiError::not_found)?;
     let ranked = rows.iter().any(|r| r["entry"].as_i64() == Some(id));
     let own = web
         .team_session(state, headers)
+        .await
         .is_some_and(|(_, t)| t.id == sub.team_id);
     if ranked || own {
         Ok(sub)
@@ -1495,21 +1523,22 @@ fn visible_entry(
 /// reveal: when it opens), or `None` when it is not the team's entry: for
 /// another team's entry the answer stays the "not found" of an entry that
 /// does not exist.
-fn own_entry_without_report(
+async fn own_entry_without_report(
     state: &AppState,
     web: &Web,
     headers: &HeaderMap,
     id: &str,
 ) -> Option<String> {
     let id: i64 = id.parse().ok()?;
-    let (_, team) = web.team_session(state, headers)?;
+    let (_, team) = web.team_session(state, headers).await?;
     let sub = state
         .store()
         .submission(id)
+        .await
         .ok()
         .flatten()
         .filter(|s| s.team_id == team.id)?;
-    let revealed = crate::api::revealed(state).ok()?;
+    let revealed = crate::api::revealed(state).await.ok()?;
     Some(if !revealed {
         format!(
             "The full report of entry {id} (both parts: the summary with its intervals, the fits \
@@ -1537,11 +1566,11 @@ async fn report_page(
     headers: HeaderMap,
     UrlPath(id): UrlPath<String>,
 ) -> Response {
-    let nav = web.nav(&state, &headers, "report");
-    let sub = match visible_entry(&state, &web, &headers, &id) {
+    let nav = web.nav(&state, &headers, "report").await;
+    let sub = match visible_entry(&state, &web, &headers, &id).await {
         Ok(s) => s,
         Err(e) => {
-            return match own_entry_without_report(&state, &web, &headers, &id) {
+            return match own_entry_without_report(&state, &web, &headers, &id).await {
                 Some(text) => web.message(&nav, e.status, "Report not open", &text),
                 None => web.error(&nav, &e),
             };
@@ -1550,6 +1579,7 @@ async fn report_page(
     let team = state
         .store()
         .teams()
+        .await
         .ok()
         .and_then(|ts| ts.into_iter().find(|t| t.id == sub.team_id))
         .map(|t| t.name)
@@ -1613,9 +1643,9 @@ async fn figure(
     headers: HeaderMap,
     UrlPath((id, part, file)): UrlPath<(String, String, String)>,
 ) -> Response {
-    let nav = web.nav(&state, &headers, "report");
+    let nav = web.nav(&state, &headers, "report").await;
     let not_found = || web.error(&nav, &ApiError::not_found());
-    let sub = match visible_entry(&state, &web, &headers, &id) {
+    let sub = match visible_entry(&state, &web, &headers, &id).await {
         Ok(s) => s,
         Err(e) => return web.error(&nav, &e),
     };

@@ -115,81 +115,154 @@ pub const FIRST_BACKOFF: Duration = Duration::from_millis(200);
 /// The longest wait between two tries after store errors.
 pub const MAX_BACKOFF: Duration = Duration::from_secs(5);
 
+/// How long a job's lease lasts without renewal by default: a worker
+/// renews it every third of this while it scores, so a worker killed
+/// mid-scoring has its job taken again by another within this time.
+pub const DEFAULT_LEASE_S: i64 = 60;
+
+/// How a worker runs: its limit on one job, its lease, and its store when
+/// not the one its state directory names.
+#[derive(Debug, Clone)]
+pub struct WorkerOptions {
+    /// The limit on one scoring job.
+    pub timeout: Duration,
+    /// The lease of a job, in seconds (at least 3).
+    pub lease_s: i64,
+    /// The store (`None`: the state directory's).
+    pub store: Option<crate::store::StoreUrl>,
+}
+
+impl Default for WorkerOptions {
+    fn default() -> Self {
+        Self {
+            timeout: DEFAULT_TIMEOUT,
+            lease_s: DEFAULT_LEASE_S,
+            store: None,
+        }
+    }
+}
+
 /// Sleeps `d` in slices, returning early (false) once `stop` is set.
-fn nap(d: Duration, stop: &AtomicBool) -> bool {
-    let end = std::time::Instant::now() + d;
-    while std::time::Instant::now() < end {
+async fn nap(d: Duration, stop: &AtomicBool) -> bool {
+    let end = tokio::time::Instant::now() + d;
+    while tokio::time::Instant::now() < end {
         if stop.load(Ordering::Relaxed) {
             return false;
         }
-        std::thread::sleep(Duration::from_millis(50).min(end - std::time::Instant::now()));
+        let left = end - tokio::time::Instant::now();
+        tokio::time::sleep(Duration::from_millis(50).min(left)).await;
     }
     !stop.load(Ordering::Relaxed)
 }
 
-/// Runs one worker on the challenge in `dir` until `stop` is set: claims,
-/// scores (in a thread of its own, given up after `timeout`), records.
-///
-/// A store error (the database locked by an organiser's `sqlite3` or a
-/// backup for longer than the store's busy timeout, a full disk) never
-/// ends the worker: it is logged and the call is tried again after a wait
-/// that doubles from [`FIRST_BACKOFF`] to [`MAX_BACKOFF`]. A result that
-/// cannot be recorded is kept and recorded once the store answers; the job
-/// stays `scoring` meanwhile, so a server stopped then queues it again.
-/// Returns once `stop` is set (the error type is kept for callers).
+/// Runs one worker on the challenge in `dir` until `stop` is set (on a
+/// runtime of its own): see [`work`].
 pub fn run_worker(
     dir: &Path,
     stop: Arc<AtomicBool>,
     timeout: Duration,
 ) -> Result<(), ChallengeError> {
-    run_observed_worker(dir, stop, timeout, &Metrics::default())
+    let opts = WorkerOptions {
+        timeout,
+        ..WorkerOptions::default()
+    };
+    let rt = runtime()?;
+    rt.block_on(async {
+        let ch = open_waiting(dir, &opts, &stop).await;
+        if let Some(ch) = ch {
+            work(
+                &ch,
+                &crate::store::worker_name(0),
+                &stop,
+                &opts,
+                &Metrics::default(),
+            )
+            .await;
+        }
+        Ok(())
+    })
 }
 
-/// [`run_worker`], counting each finished job in `metrics`.
-pub fn run_observed_worker(
-    dir: &Path,
-    stop: Arc<AtomicBool>,
-    timeout: Duration,
-    metrics: &Metrics,
-) -> Result<(), ChallengeError> {
+fn runtime() -> Result<tokio::runtime::Runtime, ChallengeError> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| ChallengeError::Run(format!("cannot start a worker: {e}")))
+}
+
+/// Opens the challenge, trying again (with the backoff of [`work`]) while
+/// it cannot; `None` once `stop` is set.
+async fn open_waiting(dir: &Path, opts: &WorkerOptions, stop: &AtomicBool) -> Option<Challenge> {
     let mut backoff = FIRST_BACKOFF;
-    let failed = |backoff: &mut Duration, what: &str, e: &dyn std::fmt::Display| -> bool {
-        tracing::warn!(
-            error = %e,
-            retry_ms = backoff.as_millis() as u64,
-            "worker: {what}; trying again"
-        );
-        let go_on = nap(*backoff, &stop);
-        *backoff = (*backoff * 2).min(MAX_BACKOFF);
-        go_on
-    };
-    let mut ch = loop {
-        match Challenge::open(dir) {
-            Ok(ch) => break ch,
+    loop {
+        match Challenge::open_with_store(dir, opts.store.as_ref()).await {
+            Ok(ch) => return Some(ch),
             Err(e) => {
-                if !failed(&mut backoff, "cannot open the challenge", &e) {
-                    return Ok(());
+                tracing::warn!(
+                    error = %e,
+                    retry_ms = backoff.as_millis() as u64,
+                    "worker: cannot open the challenge; trying again"
+                );
+                if !nap(backoff, stop).await {
+                    return None;
                 }
+                backoff = (backoff * 2).min(MAX_BACKOFF);
             }
         }
+    }
+}
+
+/// Runs worker `name` on `ch` until `stop` is set: claims a job with a
+/// lease, scores it (in a thread of its own, given up after the timeout)
+/// while renewing the lease every third of it, and records the result,
+/// counting each job in `metrics`.
+///
+/// A store error (the database locked or unreachable, a full disk) never
+/// ends the worker: it is logged and the call is tried again after a wait
+/// that doubles from [`FIRST_BACKOFF`] to [`MAX_BACKOFF`]. A result that
+/// cannot be recorded is kept and recorded once the store answers, while
+/// the worker still holds the lease; once the lease is lost (it ran out,
+/// and another worker took the job), the result is dropped: the other
+/// worker's counts, so every entry is scored once. A job under way when
+/// `stop` is set is finished first.
+pub async fn work(
+    ch: &Challenge,
+    name: &str,
+    stop: &AtomicBool,
+    opts: &WorkerOptions,
+    metrics: &Metrics,
+) {
+    let lease = crate::store::Lease {
+        worker: name.to_string(),
+        seconds: opts.lease_s.max(3),
     };
+    let renew_every = Duration::from_secs((lease.seconds / 3).max(1) as u64);
+    let mut backoff = FIRST_BACKOFF;
     while !stop.load(Ordering::Relaxed) {
-        let job = match ch.store.claim_job(crate::now_s()) {
+        let job = match ch.store.claim_job(&lease, crate::now_s()).await {
             Ok(Some(job)) => job,
             Ok(None) => {
-                std::thread::sleep(Duration::from_millis(200));
+                nap(Duration::from_millis(200), stop).await;
                 continue;
             }
             Err(e) => {
-                failed(&mut backoff, "cannot claim a job", &e);
+                tracing::warn!(error = %e, retry_ms = backoff.as_millis() as u64,
+                    "worker: cannot claim a job; trying again");
+                nap(backoff, stop).await;
+                backoff = (backoff * 2).min(MAX_BACKOFF);
                 continue;
             }
         };
         backoff = FIRST_BACKOFF;
-        tracing::info!(entry = job.id, team = job.team_id, "scoring started");
+        tracing::info!(
+            entry = job.id,
+            team = job.team_id,
+            worker = name,
+            "scoring started"
+        );
         let started = std::time::Instant::now();
-        let (tx, rx) = std::sync::mpsc::channel();
-        let (dir2, settings2, job2) = (dir.to_path_buf(), ch.settings.clone(), job.clone());
+        let (tx, mut rx) = tokio::sync::oneshot::channel();
+        let (dir2, settings2, job2) = (ch.dir.clone(), ch.settings.clone(), job.clone());
         std::thread::spawn(move || {
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 score_upload(&dir2, &settings2, &job2)
@@ -197,12 +270,41 @@ pub fn run_observed_worker(
             .unwrap_or_else(|_| Err("the scorer failed on this upload".into()));
             let _ = tx.send(result);
         });
-        let result = rx.recv_timeout(timeout).unwrap_or_else(|_| {
-            Err(format!(
-                "scoring took longer than {} s and was stopped",
-                timeout.as_secs()
-            ))
-        });
+        let deadline = tokio::time::Instant::now() + opts.timeout;
+        let mut held = true;
+        let result = loop {
+            let tick = tokio::time::sleep(renew_every);
+            tokio::select! {
+                r = &mut rx => {
+                    break r.unwrap_or_else(|_| Err("the scorer failed on this upload".into()));
+                }
+                _ = tokio::time::sleep_until(deadline) => {
+                    break Err(format!(
+                        "scoring took longer than {} s and was stopped",
+                        opts.timeout.as_secs()
+                    ));
+                }
+                _ = tick => {
+                    match ch.store.renew_lease(job.id, &lease, crate::now_s()).await {
+                        Ok(true) => {}
+                        Ok(false) => {
+                            held = false;
+                            break Err("lease lost".into());
+                        }
+                        Err(e) => tracing::warn!(entry = job.id, error = %e,
+                            "worker: cannot renew the lease; trying again"),
+                    }
+                }
+            }
+        };
+        if !held {
+            tracing::warn!(
+                entry = job.id,
+                worker = name,
+                "scoring abandoned: the lease ran out and another worker took the job"
+            );
+            continue;
+        }
         let seconds = started.elapsed().as_secs_f64();
         let outcome = if result.is_ok() { "scored" } else { "refused" };
         metrics.scoring(outcome, seconds);
@@ -224,35 +326,46 @@ pub fn run_observed_worker(
         loop {
             match ch
                 .store
-                .finish_job(job.id, result.clone(), SCORER_VERSION, crate::now_s())
+                .finish_job(job.id, name, result.clone(), SCORER_VERSION, crate::now_s())
+                .await
             {
-                Ok(()) => break,
+                Ok(true) => break,
+                Ok(false) => {
+                    tracing::warn!(
+                        entry = job.id,
+                        worker = name,
+                        "result dropped: the lease ran out and another worker took the job"
+                    );
+                    break;
+                }
                 Err(e) => {
-                    let what = format!("cannot record entry {}", job.id);
-                    if !failed(&mut backoff, &what, &e) {
-                        // Left `scoring`: queued again when the server starts.
-                        return Ok(());
-                    }
+                    tracing::warn!(entry = job.id, error = %e,
+                        retry_ms = backoff.as_millis() as u64,
+                        "worker: cannot record the entry; trying again");
+                    // Kept under the lease meanwhile: renewed, so that no
+                    // other worker scores the entry again.
+                    let _ = ch.store.renew_lease(job.id, &lease, crate::now_s()).await;
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(MAX_BACKOFF);
                 }
             }
         }
         backoff = FIRST_BACKOFF;
     }
-    Ok(())
 }
 
-/// The scoring workers of a server: threads running [`run_worker`], and
-/// how many of them are alive (an upload is refused with 503 when none is:
-/// an accepted upload must be scored).
+/// The scoring workers of a process: tasks running [`work`] on a thread
+/// and runtime of their own, and how many of them are alive (an upload is
+/// refused with 503 when none is: an accepted upload must be scored).
 #[derive(Debug)]
 pub struct WorkerPool {
     live: Arc<AtomicUsize>,
     metrics: Arc<Metrics>,
     stop: Arc<AtomicBool>,
-    threads: Vec<std::thread::JoinHandle<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
 }
 
-/// Counts a worker thread as alive until it ends, also by a panic.
+/// Counts a worker as alive until it ends, also by a panic.
 struct Alive(Arc<AtomicUsize>);
 
 impl Drop for Alive {
@@ -264,27 +377,60 @@ impl Drop for Alive {
 impl WorkerPool {
     /// Starts `n` workers (at least one) on the challenge in `dir`.
     pub fn start(dir: &Path, n: usize, timeout: Duration) -> Self {
-        let live = Arc::new(AtomicUsize::new(0));
+        Self::start_with(
+            dir,
+            n,
+            WorkerOptions {
+                timeout,
+                ..WorkerOptions::default()
+            },
+        )
+    }
+
+    /// Starts `n` workers (at least one) on the challenge in `dir` with
+    /// `opts`.
+    pub fn start_with(dir: &Path, n: usize, opts: WorkerOptions) -> Self {
+        let n = n.max(1);
+        let live = Arc::new(AtomicUsize::new(n));
         let stop = Arc::new(AtomicBool::new(false));
         let metrics = Arc::new(Metrics::default());
-        let threads = (0..n.max(1))
-            .map(|_| {
-                let (d, s, m) = (dir.to_path_buf(), stop.clone(), metrics.clone());
-                live.fetch_add(1, Ordering::SeqCst);
-                let alive = Alive(live.clone());
-                std::thread::spawn(move || {
-                    let _alive = alive;
-                    if let Err(e) = run_observed_worker(&d, s, timeout, &m) {
-                        tracing::error!(error = %e, "worker stopped");
-                    }
-                })
-            })
-            .collect();
+        let (d, s, m, l) = (
+            dir.to_path_buf(),
+            stop.clone(),
+            metrics.clone(),
+            live.clone(),
+        );
+        let thread = std::thread::spawn(move || {
+            let alive: Vec<Alive> = (0..n).map(|_| Alive(l.clone())).collect();
+            let rt = match runtime() {
+                Ok(rt) => rt,
+                Err(e) => {
+                    tracing::error!(error = %e, "workers stopped");
+                    return;
+                }
+            };
+            rt.block_on(async move {
+                let Some(ch) = open_waiting(&d, &opts, &s).await else {
+                    return;
+                };
+                let ch = Arc::new(ch);
+                let mut tasks = tokio::task::JoinSet::new();
+                for (i, a) in alive.into_iter().enumerate() {
+                    let (ch, s, m, opts) = (ch.clone(), s.clone(), m.clone(), opts.clone());
+                    tasks.spawn(async move {
+                        let _alive = a;
+                        let name = crate::store::worker_name(i);
+                        work(&ch, &name, &s, &opts, &m).await;
+                    });
+                }
+                while tasks.join_next().await.is_some() {}
+            });
+        });
         Self {
             live,
             metrics,
             stop,
-            threads,
+            thread: Some(thread),
         }
     }
 
@@ -301,7 +447,7 @@ impl WorkerPool {
     /// Stops the workers and waits for them (each finishes its job first).
     pub fn stop(mut self) {
         self.stop.store(true, Ordering::Relaxed);
-        for t in self.threads.drain(..) {
+        if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
     }

@@ -28,12 +28,17 @@ struct Fixture {
     tokens: Vec<String>,
 }
 
-fn fixture(quota: u32, teams: &[&str]) -> Fixture {
+async fn fixture(quota: u32, teams: &[&str]) -> Fixture {
     let tmp = tempfile::tempdir().unwrap();
     let (all, held) = write_run(tmp.path());
     let state = tmp.path().join("state");
-    let mut ch = Challenge::init(&tmp.path().join("run"), &state, quota, false).unwrap();
-    let tokens = teams.iter().map(|t| ch.add_team(t).unwrap()).collect();
+    let ch = common::init(&tmp.path().join("run"), &state, quota, false)
+        .await
+        .unwrap();
+    let mut tokens = Vec::new();
+    for t in teams {
+        tokens.push(ch.add_team(t).await.unwrap());
+    }
     Fixture {
         truth: ch.settings.truth_dir.clone(),
         _tmp: tmp,
@@ -45,20 +50,26 @@ fn fixture(quota: u32, teams: &[&str]) -> Fixture {
 }
 
 impl Fixture {
-    fn app(&self) -> axum::Router {
-        router(AppState::new(Challenge::open(&self.state).unwrap()))
+    async fn app(&self) -> axum::Router {
+        router(AppState::new(Challenge::open(&self.state).await.unwrap()))
     }
-    fn set(&self, key: &str, value: &str) {
-        let mut ch = Challenge::open(&self.state).unwrap();
-        ch.store.set_meta(key, value).unwrap();
+    async fn set(&self, key: &str, value: &str) {
+        let ch = Challenge::open(&self.state).await.unwrap();
+        ch.store.set_meta(key, value).await.unwrap();
     }
     /// Scores every queued job now (what a worker does).
-    fn score_queue(&self) {
-        let mut ch = Challenge::open(&self.state).unwrap();
-        while let Some(job) = ch.store.claim_job(stepsim_server::now_s()).unwrap() {
+    async fn score_queue(&self) {
+        let ch = Challenge::open(&self.state).await.unwrap();
+        while let Some(job) = ch
+            .store
+            .claim_job(&common::lease(), stepsim_server::now_s())
+            .await
+            .unwrap()
+        {
             let r = worker::score_entry(&ch, &job);
             ch.store
-                .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+                .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+                .await
                 .unwrap();
         }
     }
@@ -133,8 +144,8 @@ fn files_in(dir: &Path) -> Vec<String> {
 
 #[tokio::test]
 async fn tokens_gate_every_route_and_entries_stay_with_their_team() {
-    let f = fixture(4, &["alpha", "beta", "gamma"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta", "gamma"]).await;
+    let app = f.app().await;
     let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
     assert_eq!(s, StatusCode::ACCEPTED, "{body}");
     let id = json(&body)["id"].as_i64().unwrap();
@@ -163,28 +174,27 @@ async fn tokens_gate_every_route_and_entries_stay_with_their_team() {
     assert_eq!(s, StatusCode::OK);
     assert_eq!(json(&mine)["status"], "queued");
     // Revoked and rotated tokens stop working; the new one works.
-    let mut ch = Challenge::open(&f.state).unwrap();
-    ch.revoke("gamma").unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    ch.revoke("gamma").await.unwrap();
     let (s, _, _) = call(&app, get("/api/submissions", Some(&f.tokens[2]))).await;
     assert_eq!(s, StatusCode::UNAUTHORIZED);
-    let new = ch.rotate_token("alpha").unwrap();
+    let new = ch.rotate_token("alpha").await.unwrap();
     let (s, _, _) = call(&app, get(&own, Some(&f.tokens[0]))).await;
     assert_eq!(s, StatusCode::UNAUTHORIZED);
     let (s, _, _) = call(&app, get(&own, Some(&new))).await;
     assert_eq!(s, StatusCode::OK);
     // Only the hash of a token is stored.
-    let db = std::fs::read(f.state.join("challenge.db")).unwrap();
-    let db = String::from_utf8_lossy(&db);
-    assert!(!db.contains(&new) && !db.contains(&f.tokens[1]));
+    let db = common::store_text(&f.state).await;
+    assert!(db.contains("alpha") && !db.contains(&new) && !db.contains(&f.tokens[1]));
 }
 
 #[tokio::test]
 async fn names_stay_text_and_answers_carry_security_headers() {
-    let f = fixture(4, &["<script>alert(1)</script>"]);
-    let app = f.app();
+    let f = fixture(4, &["<script>alert(1)</script>"]).await;
+    let app = f.app().await;
     let (s, _, _) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.01))).await;
     assert_eq!(s, StatusCode::ACCEPTED);
-    f.score_queue();
+    f.score_queue().await;
     let (s, h, body) = call(&app, get("/api/leaderboard", None)).await;
     assert_eq!(s, StatusCode::OK);
     assert_eq!(h[header::CONTENT_TYPE], "application/json");
@@ -198,19 +208,19 @@ async fn names_stay_text_and_answers_carry_security_headers() {
     );
     assert_eq!(json(&body)["rows"][0]["team"], "<script>alert(1)</script>");
     // Names with control characters are refused at `team add`.
-    let mut ch = Challenge::open(&f.state).unwrap();
-    assert!(ch.add_team("a\u{7}b").is_err());
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert!(ch.add_team("a\u{7}b").await.is_err());
     assert!(
-        ch.add_team("<script>alert(1)</script>").is_err(),
+        ch.add_team("<script>alert(1)</script>").await.is_err(),
         "names are unique"
     );
 }
 
 #[tokio::test]
 async fn uploads_past_the_cap_get_413_and_leave_nothing() {
-    let f = fixture(4, &["alpha"]);
-    f.set("max_upload_bytes", "1000");
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    f.set("max_upload_bytes", "1000").await;
+    let app = f.app().await;
     let big = catalogue(&f.all, 0.0);
     assert!(big.len() > 5_000, "{}", big.len());
     // Announced by Content-Length, and streamed without one.
@@ -260,8 +270,8 @@ impl http_body::Body for Chunked {
 
 #[tokio::test]
 async fn the_quota_counts_accepted_uploads_and_says_when_it_resets() {
-    let f = fixture(2, &["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(2, &["alpha", "beta"]).await;
+    let app = f.app().await;
     for m in [0.0, 0.01] {
         let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, m))).await;
         assert_eq!(s, StatusCode::ACCEPTED, "{body}");
@@ -294,8 +304,8 @@ async fn the_quota_counts_accepted_uploads_and_says_when_it_resets() {
 
 #[tokio::test]
 async fn duplicates_are_recognised() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let (_, _, a) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
     let (s, _, b) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
     assert_eq!(s, StatusCode::OK);
@@ -306,9 +316,9 @@ async fn duplicates_are_recognised() {
 
 #[tokio::test]
 async fn bad_uploads_get_the_harness_message_and_change_nothing() {
-    let f = fixture(4, &["alpha", "beta"]);
-    f.set("format_failure_cap", "5");
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta"]).await;
+    f.set("format_failure_cap", "5").await;
+    let app = f.app().await;
     let good = catalogue(&f.all, 0.0);
     let first_line = good.lines().nth(1).unwrap();
     let id = first_line.split(' ').next().unwrap();
@@ -368,8 +378,8 @@ async fn bad_uploads_get_the_harness_message_and_change_nothing() {
 
 #[tokio::test]
 async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
-    let f = fixture(4, &["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta"]).await;
+    let app = f.app().await;
     let text = catalogue(&f.all, 0.02);
     let b = format!(
         "--XyZ\r\nContent-Disposition: form-data; name=\"file\"; filename=\"c.txt\"\r\n\
@@ -427,8 +437,11 @@ async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
             assert!(d.join(file).is_file(), "{part}/{file}");
         }
     }
-    let ch = Challenge::open(&f.state).unwrap();
-    assert_eq!(ch.store.submission(id).unwrap().unwrap().n_scorings, 1);
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert_eq!(
+        ch.store.submission(id).await.unwrap().unwrap().n_scorings,
+        1
+    );
     // The leaderboard: one row (beta has no entry), public figures only.
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
     let lb = json(&lb);
@@ -438,8 +451,8 @@ async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
     assert_eq!(lb["rows"][0]["public"], want);
     assert!(lb["rows"][0].get("holdout").is_none());
     // After reveal: the held-out summary, as the harness scores that part.
-    let mut ch = Challenge::open(&f.state).unwrap();
-    ch.reveal().unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    ch.reveal().await.unwrap();
     let held = score_part(&ScoreOptions::new(&f.truth, &copy), Part::Holdout).unwrap();
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
     let lb = json(&lb);
@@ -461,11 +474,11 @@ async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
 
 #[tokio::test]
 async fn a_participant_walking_every_route_sees_no_truth_and_no_server_path() {
-    let f = fixture(4, &["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta"]).await;
+    let app = f.app().await;
     let (_, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.01))).await;
     let id = json(&body)["id"].as_i64().unwrap();
-    f.score_queue();
+    f.score_queue().await;
     let sha = files_in(&f.state.join("uploads"))[0].clone();
     let paths = [
         "/".to_string(),
@@ -522,40 +535,53 @@ async fn a_participant_walking_every_route_sees_no_truth_and_no_server_path() {
 
 #[tokio::test]
 async fn a_job_interrupted_while_scoring_is_scored_once_after_a_restart() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let (_, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.0))).await;
     let id = json(&body)["id"].as_i64().unwrap();
     {
         // A worker claims it and the server dies before it records a result.
-        let mut ch = Challenge::open(&f.state).unwrap();
-        let job = ch.store.claim_job(0).unwrap().unwrap();
+        let ch = Challenge::open(&f.state).await.unwrap();
+        let job = ch
+            .store
+            .claim_job(&common::lease(), 0)
+            .await
+            .unwrap()
+            .unwrap();
         assert_eq!(job.id, id);
         assert!(
-            ch.store.claim_job(0).unwrap().is_none(),
+            ch.store
+                .claim_job(&common::lease(), 0)
+                .await
+                .unwrap()
+                .is_none(),
             "one running job per team"
         );
     }
-    let mut ch = Challenge::open(&f.state).unwrap();
-    assert_eq!(ch.store.requeue_interrupted().unwrap(), 1);
-    f.score_queue();
-    let s = ch.store.submission(id).unwrap().unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert_eq!(ch.store.requeue_interrupted().await.unwrap(), 1);
+    f.score_queue().await;
+    let s = ch.store.submission(id).await.unwrap().unwrap();
     assert_eq!((s.status.as_str(), s.n_scorings), ("scored", 1));
     // A late result of the dead worker changes nothing.
-    ch.store.finish_job(id, Err("late".into()), "x", 0).unwrap();
-    let s = ch.store.submission(id).unwrap().unwrap();
+    ch.store
+        .finish_job(id, "test", Err("late".into()), "x", 0)
+        .await
+        .unwrap();
+    let s = ch.store.submission(id).await.unwrap().unwrap();
     assert_eq!((s.status.as_str(), s.n_scorings), ("scored", 1));
 }
 
-#[test]
-fn init_refuses_a_run_without_held_out_fields_unless_told() {
+#[tokio::test]
+async fn init_refuses_a_run_without_held_out_fields_unless_told() {
     let tmp = tempfile::tempdir().unwrap();
     let (all, _) = write_run(tmp.path());
     let mut public = all.clone();
     public.datasets.datasets.retain(|d| d.part == Part::Public);
     public.truth.truncate(public.index().images.len());
     public.write(&tmp.path().join("plain/private")).unwrap();
-    let err = Challenge::init(&tmp.path().join("plain"), &tmp.path().join("s1"), 4, false)
+    let err = common::init(&tmp.path().join("plain"), &tmp.path().join("s1"), 4, false)
+        .await
         .unwrap_err()
         .to_string();
     assert!(
@@ -563,10 +589,13 @@ fn init_refuses_a_run_without_held_out_fields_unless_told() {
         "{err}"
     );
     assert!(!tmp.path().join("s1").exists());
-    let ch = Challenge::init(&tmp.path().join("plain"), &tmp.path().join("s2"), 4, true).unwrap();
+    let ch = common::init(&tmp.path().join("plain"), &tmp.path().join("s2"), 4, true)
+        .await
+        .unwrap();
     assert!(!ch.settings.holdout);
     // A directory that holds a challenge is not taken again.
-    let err = Challenge::init(&tmp.path().join("run"), &tmp.path().join("s2"), 4, false)
+    let err = common::init(&tmp.path().join("run"), &tmp.path().join("s2"), 4, false)
+        .await
         .unwrap_err()
         .to_string();
     assert!(err.contains("already holds a challenge"), "{err}");
@@ -574,9 +603,9 @@ fn init_refuses_a_run_without_held_out_fields_unless_told() {
 
 #[tokio::test]
 async fn requests_past_the_rate_limit_per_token_and_per_address_get_429() {
-    let f = fixture(4, &["alpha", "beta"]);
-    f.set("requests_per_minute", "3");
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta"]).await;
+    f.set("requests_per_minute", "3").await;
+    let app = f.app().await;
     let from = |addr: &str, token: Option<&str>| {
         let mut r = get("/api/submissions", token);
         r.extensions_mut().insert(axum::extract::ConnectInfo(
@@ -627,8 +656,8 @@ async fn upload_id(app: &axum::Router, token: &str, text: String) -> i64 {
 
 #[tokio::test]
 async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
-    let f = fixture(4, &["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha", "beta"]).await;
+    let app = f.app().await;
     let a_best = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
     let a_worse = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.08)).await;
     let b_only = upload_id(&app, &f.tokens[1], catalogue(&f.all, 0.03)).await;
@@ -649,7 +678,7 @@ async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
             .unwrap()
             .contains("not scored")
     );
-    f.score_queue();
+    f.score_queue().await;
     let a_third = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
     // The default: the best public entry, no choice made.
     let (_, _, list) = call(&app, get("/api/submissions", Some(&f.tokens[0]))).await;
@@ -729,9 +758,9 @@ async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
     )
     .await;
     assert_eq!(s, StatusCode::UNAUTHORIZED);
-    let ch = Challenge::open(&f.state).unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
     assert!(
-        ch.store.final_entries(1).unwrap().is_empty(),
+        ch.store.final_entries(1).await.unwrap().is_empty(),
         "nothing chosen yet"
     );
     drop(ch);
@@ -777,8 +806,8 @@ async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
     assert!(lb["rows"][0].get("finals").is_none(), "{lb}");
     // After reveal: each team's final entries on the held-out part; alpha's
     // choice (m = 0.08) ranks it below beta (m = 0.03).
-    let mut ch = Challenge::open(&f.state).unwrap();
-    ch.reveal().unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    ch.reveal().await.unwrap();
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
     let lb = json(&lb);
     assert_eq!(
@@ -808,29 +837,32 @@ async fn final_entries_are_chosen_checked_and_ranked_on_the_held_out_part() {
     .await;
     assert_eq!(s, StatusCode::FORBIDDEN, "{body}");
     assert!(json(&body)["error"].as_str().unwrap().contains("closed"));
-    assert_eq!(ch.store.final_entries(1).unwrap(), vec![a_worse]);
+    assert_eq!(ch.store.final_entries(1).await.unwrap(), vec![a_worse]);
 }
 
 #[tokio::test]
 async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
-    let f = fixture(4, &["org", "ksb", "p1", "p2"]);
-    let app = f.app();
+    let f = fixture(4, &["org", "ksb", "p1", "p2"]).await;
+    let app = f.app().await;
     for (i, m) in [0.0, 0.01, 0.02, 0.04].into_iter().enumerate() {
         upload_id(&app, &f.tokens[i], catalogue(&f.all, m)).await;
     }
-    f.score_queue();
-    let mut ch = Challenge::open(&f.state).unwrap();
+    f.score_queue().await;
+    let ch = Challenge::open(&f.state).await.unwrap();
     ch.set_role("org", stepsim_server::store::Role::Organisers)
+        .await
         .unwrap();
     ch.set_role("ksb", stepsim_server::store::Role::Baseline)
+        .await
         .unwrap();
     assert!(
         ch.set_role("nobody", stepsim_server::store::Role::Baseline)
+            .await
             .is_err()
     );
     for revealed in [false, true] {
         if revealed {
-            ch.reveal().unwrap();
+            ch.reveal().await.unwrap();
         }
         let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
         let rows: Vec<(String, String, Value)> = json(&lb)["rows"]
@@ -859,7 +891,7 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
     // The export: unranked rows have an empty rank and their role in the
     // report's name; `stepsim leaderboard` can still read every report.
     let out = f.state.join("board.json");
-    let e = ch.export(&out).unwrap();
+    let e = ch.export(&out).await.unwrap();
     let csv = std::fs::read_to_string(&e.csv).unwrap();
     let lines: Vec<&str> = csv.lines().collect();
     assert_eq!(
@@ -894,6 +926,7 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
     );
     // Marked back as participants, they are ranked.
     ch.set_role("org", stepsim_server::store::Role::Participant)
+        .await
         .unwrap();
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
     assert_eq!(json(&lb)["rows"][0]["rank"], 1);
@@ -902,8 +935,8 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
 
 #[tokio::test]
 async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let (_, _, c) = call(&app, get("/api/challenge", None)).await;
     let c = json(&c);
     assert_eq!(c["name"], "run");
@@ -922,13 +955,15 @@ async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
     assert_eq!(c["rules"]["max_final_entries"], 2);
     assert_eq!(c["rules"]["feedback_decimals"]["m_mean"], 3);
     let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
-    f.score_queue();
-    let mut ch = Challenge::open(&f.state).unwrap();
+    f.score_queue().await;
+    let ch = Challenge::open(&f.state).await.unwrap();
     // A deadline in the future changes nothing; one passed refuses uploads.
     ch.set_deadline(Some(stepsim_server::now_s() + 3600))
+        .await
         .unwrap();
     upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
     ch.set_deadline(stepsim_server::parse_rfc3339("2020-01-01T00:00:00Z"))
+        .await
         .unwrap();
     let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.02))).await;
     assert_eq!(s, StatusCode::FORBIDDEN, "{body}");
@@ -942,9 +977,9 @@ async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
     let (_, _, c) = call(&app, get("/api/challenge", None)).await;
     assert_eq!(json(&c)["deadline"], "2020-01-01T00:00:00Z");
     assert_eq!(json(&c)["uploads_open"], false);
-    ch.set_deadline(None).unwrap();
+    ch.set_deadline(None).await.unwrap();
     // Frozen: uploads refused, final choices allowed.
-    ch.freeze().unwrap();
+    ch.freeze().await.unwrap();
     let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.02))).await;
     assert_eq!(s, StatusCode::FORBIDDEN);
     assert!(
@@ -964,7 +999,7 @@ async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
     .await;
     assert_eq!(s, StatusCode::OK);
     // Closed: nothing changes.
-    ch.close().unwrap();
+    ch.close().await.unwrap();
     let (s, _, body) = call(&app, upload(&f.tokens[0], catalogue(&f.all, 0.03))).await;
     assert_eq!(s, StatusCode::FORBIDDEN);
     assert!(
@@ -979,7 +1014,7 @@ async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
     )
     .await;
     assert_eq!(s, StatusCode::FORBIDDEN);
-    assert_eq!(ch.store.final_entries(1).unwrap(), vec![id]);
+    assert_eq!(ch.store.final_entries(1).await.unwrap(), vec![id]);
     let (_, _, c) = call(&app, get("/api/challenge", None)).await;
     let c = json(&c);
     assert_eq!((&c["frozen"], &c["closed"]), (&true.into(), &true.into()));
@@ -987,55 +1022,68 @@ async fn deadline_freeze_and_close_stop_uploads_with_a_clear_403() {
     assert_eq!(files_in(&f.state.join("uploads")).len(), 2);
 }
 
-#[test]
-fn the_organiser_password_is_kept_as_an_argon2_hash() {
-    let f = fixture(4, &[]);
-    let mut ch = Challenge::open(&f.state).unwrap();
-    assert!(!ch.verify_organiser_password(""), "none set");
-    assert!(ch.set_organiser_password("short").is_err());
-    ch.set_organiser_password("correct horse battery").unwrap();
-    assert!(ch.verify_organiser_password("correct horse battery"));
-    assert!(!ch.verify_organiser_password("correct horse batterY"));
-    assert!(!ch.verify_organiser_password(""));
-    let ch = Challenge::open(&f.state).unwrap();
-    assert!(stepsim_server::challenge::verify_organiser_password(
-        ch.store.as_ref(),
-        "correct horse battery"
-    ));
+#[tokio::test]
+async fn the_organiser_password_is_kept_as_an_argon2_hash() {
+    let f = fixture(4, &[]).await;
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert!(!ch.verify_organiser_password("").await, "none set");
+    assert!(ch.set_organiser_password("short").await.is_err());
+    ch.set_organiser_password("correct horse battery")
+        .await
+        .unwrap();
+    assert!(ch.verify_organiser_password("correct horse battery").await);
+    assert!(!ch.verify_organiser_password("correct horse batterY").await);
+    assert!(!ch.verify_organiser_password("").await);
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert!(
+        stepsim_server::challenge::verify_organiser_password(
+            ch.store.as_ref(),
+            "correct horse battery"
+        )
+        .await
+    );
     let phc = ch
         .store
         .meta(stepsim_server::challenge::ORGANISER_PASSWORD_KEY)
+        .await
         .unwrap()
         .unwrap();
     assert!(phc.starts_with("$argon2id$"), "{phc}");
-    let db = std::fs::read(f.state.join("challenge.db")).unwrap();
-    assert!(!String::from_utf8_lossy(&db).contains("correct horse"));
+    let db = common::store_text(&f.state).await;
+    assert!(db.contains("$argon2id$") && !db.contains("correct horse"));
     // A damaged hash is a wrong password, not a panic.
-    let mut ch = ch;
+    let ch = ch;
     ch.store
         .set_meta(
             stepsim_server::challenge::ORGANISER_PASSWORD_KEY,
             "$argon2id$garbage",
         )
+        .await
         .unwrap();
-    assert!(!ch.verify_organiser_password("correct horse battery"));
+    assert!(!ch.verify_organiser_password("correct horse battery").await);
 }
 
 #[tokio::test]
 async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_version() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.01)).await;
     // Scored by an older scorer.
     {
-        let mut ch = Challenge::open(&f.state).unwrap();
-        let job = ch.store.claim_job(0).unwrap().unwrap();
+        let ch = Challenge::open(&f.state).await.unwrap();
+        let job = ch
+            .store
+            .claim_job(&common::lease(), 0)
+            .await
+            .unwrap()
+            .unwrap();
         let mut r = worker::score_entry(&ch, &job);
         if let Ok((p, _)) = &mut r {
             *p = p.replace("\"m_mean\":0.01", "\"m_mean\":0.5");
         }
         ch.store
-            .finish_job(job.id, r, "stepsim-harness 0.0.1", 10)
+            .finish_job(job.id, "test", r, "stepsim-harness 0.0.1", 10)
+            .await
             .unwrap();
     }
     let (_, _, e) = call(
@@ -1045,8 +1093,8 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
     .await;
     assert_eq!(json(&e)["scorer_version"], "stepsim-harness 0.0.1");
     assert_eq!(json(&e)["public"]["m_mean"], 0.5);
-    let mut ch = Challenge::open(&f.state).unwrap();
-    assert_eq!(ch.rescore().unwrap(), 1);
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert_eq!(ch.rescore().await.unwrap(), 1);
     // Queued again, still showing its old score (and on the leaderboard).
     let (_, _, e) = call(
         &app,
@@ -1058,19 +1106,25 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
     assert_eq!(json(&lb)["rows"][0]["entry"], id);
     // A worker claims it and dies; after the restart it is scored once.
-    let job = ch.store.claim_job(20).unwrap().unwrap();
+    let job = ch
+        .store
+        .claim_job(&common::lease(), 20)
+        .await
+        .unwrap()
+        .unwrap();
     assert_eq!(job.id, id);
     drop(ch);
-    let mut ch = Challenge::open(&f.state).unwrap();
-    assert_eq!(ch.store.requeue_interrupted().unwrap(), 1);
-    f.score_queue();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert_eq!(ch.store.requeue_interrupted().await.unwrap(), 1);
+    f.score_queue().await;
     // The dead worker's late result is ignored; a second rescore by the same
     // scorer queues nothing.
     ch.store
-        .finish_job(id, Err("late".into()), worker::SCORER_VERSION, 30)
+        .finish_job(id, "test", Err("late".into()), worker::SCORER_VERSION, 30)
+        .await
         .unwrap();
-    assert_eq!(ch.rescore().unwrap(), 0);
-    let scores = ch.store.scores_of(id).unwrap();
+    assert_eq!(ch.rescore().await.unwrap(), 0);
+    let scores = ch.store.scores_of(id).await.unwrap();
     let got: Vec<(&str, &str, i64)> = scores
         .iter()
         .map(|s| (s.scorer_version.as_str(), s.status.as_str(), s.n_scorings))
@@ -1089,7 +1143,7 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
             .unwrap()
             .contains("\"m_mean\":0.5")
     );
-    let sub = ch.store.submission(id).unwrap().unwrap();
+    let sub = ch.store.submission(id).await.unwrap().unwrap();
     assert_eq!((sub.status.as_str(), sub.n_scorings), ("scored", 2));
     let (_, _, e) = call(
         &app,
@@ -1104,7 +1158,7 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
 /// Writes a `public/` beside the fixture's `private/`: a manifest naming
 /// one file per image (made-up bytes), a README, and a stray file the
 /// manifest does not name.
-fn write_public(f: &Fixture) -> (PathBuf, Vec<(String, Vec<u8>)>) {
+async fn write_public(f: &Fixture) -> (PathBuf, Vec<(String, Vec<u8>)>) {
     use sha2::Digest;
     let public = f.truth.parent().unwrap().join("public");
     let mut images = Vec::new();
@@ -1144,9 +1198,9 @@ fn write_public(f: &Fixture) -> (PathBuf, Vec<(String, Vec<u8>)>) {
 #[tokio::test]
 async fn the_public_data_downloads_as_listed_and_nothing_else() {
     use sha2::Digest;
-    let f = fixture(4, &["alpha"]);
-    let (_, files) = write_public(&f);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let (_, files) = write_public(&f).await;
+    let app = f.app().await;
     let (s, h, body) = call(&app, get("/data/", None)).await;
     assert_eq!(s, StatusCode::OK, "{body}");
     assert!(h.get(header::LAST_MODIFIED).is_none());
@@ -1234,8 +1288,8 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
     }
 }
 
-#[test]
-fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
+#[tokio::test]
+async fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
     use stepsim_server::store::{MIGRATIONS, SqliteStore, Store};
     let tmp = tempfile::tempdir().unwrap();
     let db = tmp.path().join("challenge.db");
@@ -1253,29 +1307,29 @@ fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
         )
         .unwrap();
     }
-    let store = SqliteStore::open(&db, false).unwrap();
-    let team = store.team_by_name("a").unwrap().unwrap();
+    let store = SqliteStore::open(&db, false).await.unwrap();
+    let team = store.team_by_name("a").await.unwrap().unwrap();
     assert_eq!(team.role, stepsim_server::store::Role::Participant);
-    let scores = store.scores_of(1).unwrap();
+    let scores = store.scores_of(1).await.unwrap();
     assert_eq!(scores.len(), 1);
     assert_eq!(
         (scores[0].scorer_version.as_str(), scores[0].n_scorings),
         ("stepsim-harness 0.0.9", 1)
     );
     assert_eq!(scores[0].public_json.as_deref(), Some("{\"q_c\":7}"));
-    assert!(store.scores_of(2).unwrap().is_empty());
-    let s = store.submission(1).unwrap().unwrap();
+    assert!(store.scores_of(2).await.unwrap().is_empty());
+    let s = store.submission(1).await.unwrap().unwrap();
     assert!(!s.final_choice && s.has_score());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
-    let f = fixture(2, &["alpha"]);
+    let f = fixture(2, &["alpha"]).await;
     // Six at once allowed per team (the default is one: the rest would be
     // refused before their bodies, hardening.rs), so that all six reach
     // the quota's check in the store.
     let app = router(AppState::with_limits(
-        Challenge::open(&f.state).unwrap(),
+        Challenge::open(&f.state).await.unwrap(),
         stepsim_server::limits::Limits {
             uploads_per_team: 6,
             uploads_at_once: 6,
@@ -1300,15 +1354,15 @@ async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
         (2, 4),
         "{statuses:?}"
     );
-    let ch = Challenge::open(&f.state).unwrap();
-    let team = ch.store.team_by_name("alpha").unwrap().unwrap();
-    assert_eq!(ch.store.submissions_of(team.id).unwrap().len(), 2);
+    let ch = Challenge::open(&f.state).await.unwrap();
+    let team = ch.store.team_by_name("alpha").await.unwrap().unwrap();
+    assert_eq!(ch.store.submissions_of(team.id).await.unwrap().len(), 2);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_upload_still_arriving_at_the_freeze_is_refused() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let text = catalogue(&f.all, 0.0).into_bytes();
     let (tx, rx) = tokio::sync::mpsc::channel::<Result<axum::body::Bytes, std::io::Error>>(4);
     let stream = futures_util::stream::unfold(rx, |mut rx| async move {
@@ -1322,7 +1376,12 @@ async fn an_upload_still_arriving_at_the_freeze_is_refused() {
     // The upload started while uploads were open; the challenge freezes
     // before its body ends.
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
-    Challenge::open(&f.state).unwrap().freeze().unwrap();
+    Challenge::open(&f.state)
+        .await
+        .unwrap()
+        .freeze()
+        .await
+        .unwrap();
     tx.send(Ok(text[half..].to_vec().into())).await.unwrap();
     drop(tx);
     let (s, _, body) = pending.await.unwrap();
@@ -1333,15 +1392,15 @@ async fn an_upload_still_arriving_at_the_freeze_is_refused() {
             .unwrap()
             .starts_with("the challenge is frozen")
     );
-    let ch = Challenge::open(&f.state).unwrap();
-    let team = ch.store.team_by_name("alpha").unwrap().unwrap();
-    assert!(ch.store.submissions_of(team.id).unwrap().is_empty());
+    let ch = Challenge::open(&f.state).await.unwrap();
+    let team = ch.store.team_by_name("alpha").await.unwrap().unwrap();
+    assert!(ch.store.submissions_of(team.id).await.unwrap().is_empty());
 }
 
 #[tokio::test]
 async fn a_failure_on_the_held_out_part_does_not_show_before_reveal() {
-    let f = fixture(4, &["alpha"]);
-    let app = f.app();
+    let f = fixture(4, &["alpha"]).await;
+    let app = f.app().await;
     let id = upload_id(&app, &f.tokens[0], catalogue(&f.all, 0.0)).await;
     // The held-out truth becomes unreadable after the format check.
     for im in &f.held.index().images {
@@ -1351,7 +1410,7 @@ async fn a_failure_on_the_held_out_part_does_not_show_before_reveal() {
         )
         .unwrap();
     }
-    f.score_queue();
+    f.score_queue().await;
     let (s, _, body) = call(
         &app,
         get(&format!("/api/submissions/{id}"), Some(&f.tokens[0])),
@@ -1366,7 +1425,7 @@ async fn a_failure_on_the_held_out_part_does_not_show_before_reveal() {
         "{body}"
     );
     // Kept for after reveal.
-    let ch = Challenge::open(&f.state).unwrap();
-    let sub = ch.store.submission(id).unwrap().unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
+    let sub = ch.store.submission(id).await.unwrap().unwrap();
     assert!(sub.holdout_json.unwrap().contains("\"error\""));
 }

@@ -157,24 +157,34 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
     let all = write_run(tmp.path());
     common::write_public(tmp.path(), &all);
     let state = tmp.path().join("state");
-    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
-    ch.store.set_meta("requests_per_minute", "100000").unwrap();
-    let token = ch.add_team(TEAM).unwrap();
+    let ch = common::init(&tmp.path().join("run"), &state, 4, false)
+        .await
+        .unwrap();
+    ch.store
+        .set_meta("requests_per_minute", "100000")
+        .await
+        .unwrap();
+    let token = ch.add_team(TEAM).await.unwrap();
     let others = [
         ("Durham KSB", -0.021, 0.0004),
         ("KSB+ reference", 0.034, -0.0009),
     ];
-    let other_tokens: Vec<String> = others.iter().map(|o| ch.add_team(o.0).unwrap()).collect();
+    let mut other_tokens: Vec<String> = Vec::new();
+    for o in &others {
+        other_tokens.push(ch.add_team(o.0).await.unwrap());
+    }
     // The reference pipeline's row: shown, tagged, never ranked.
     ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .await
         .unwrap();
-    ch.set_name("STEP1-mini challenge").unwrap();
+    ch.set_name("STEP1-mini challenge").await.unwrap();
     ch.set_deadline(Some(stepsim_server::now_s() + 14 * 86_400))
+        .await
         .unwrap();
     drop(ch);
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let base = format!("http://{}", listener.local_addr().unwrap());
-    let app = router(AppState::new(Challenge::open(&state).unwrap()));
+    let app = router(AppState::new(Challenge::open(&state).await.unwrap()));
     tokio::spawn(async move {
         axum::serve(
             listener,
@@ -188,7 +198,7 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
         worker::run_worker(&dir, stop2, worker::DEFAULT_TIMEOUT).unwrap();
     });
     // The other teams upload through the API.
-    let api = router(AppState::new(Challenge::open(&state).unwrap()));
+    let api = router(AppState::new(Challenge::open(&state).await.unwrap()));
     for ((_, m, c), t) in others.iter().zip(&other_tokens) {
         let resp = api
             .clone()
@@ -441,7 +451,12 @@ async fn browse(
     shot(c, "leaderboard").await;
     // Reveal (the organiser's command, through the library); the final
     // board links to the reports; the report has tables and figures.
-    Challenge::open(state).unwrap().reveal().unwrap();
+    Challenge::open(state)
+        .await
+        .unwrap()
+        .reveal()
+        .await
+        .unwrap();
     c.refresh().await.map_err(err)?;
     let h1 = wait_text(c, "main h1", "Final leaderboard").await;
     assert!(h1.contains("Final leaderboard"), "{h1}");

@@ -30,17 +30,22 @@ struct Fixture {
     tokens: Vec<String>,
 }
 
-fn fixture(quota: u32, teams: &[&str]) -> Fixture {
-    fixture_of_fields(quota, teams, 2)
+async fn fixture(quota: u32, teams: &[&str]) -> Fixture {
+    fixture_of_fields(quota, teams, 2).await
 }
 
 /// [`fixture`] on a run of `fields` base fields in each part.
-fn fixture_of_fields(quota: u32, teams: &[&str], fields: u32) -> Fixture {
+async fn fixture_of_fields(quota: u32, teams: &[&str], fields: u32) -> Fixture {
     let tmp = tempfile::tempdir().unwrap();
     let (all, _) = write_run_of_fields(tmp.path(), fields);
     let state = tmp.path().join("state");
-    let mut ch = Challenge::init(&tmp.path().join("run"), &state, quota, false).unwrap();
-    let tokens = teams.iter().map(|t| ch.add_team(t).unwrap()).collect();
+    let ch = common::init(&tmp.path().join("run"), &state, quota, false)
+        .await
+        .unwrap();
+    let mut tokens = Vec::new();
+    for t in teams {
+        tokens.push(ch.add_team(t).await.unwrap());
+    }
     Fixture {
         _tmp: tmp,
         state,
@@ -50,25 +55,31 @@ fn fixture_of_fields(quota: u32, teams: &[&str], fields: u32) -> Fixture {
 }
 
 impl Fixture {
-    fn app(&self, limits: Limits, workers: Option<Arc<AtomicUsize>>) -> axum::Router {
+    async fn app(&self, limits: Limits, workers: Option<Arc<AtomicUsize>>) -> axum::Router {
         router(AppState::with_limits(
-            Challenge::open(&self.state).unwrap(),
+            Challenge::open(&self.state).await.unwrap(),
             limits,
             workers,
         ))
     }
-    fn score_queue(&self) {
-        let mut ch = Challenge::open(&self.state).unwrap();
-        while let Some(job) = ch.store.claim_job(stepsim_server::now_s()).unwrap() {
+    async fn score_queue(&self) {
+        let ch = Challenge::open(&self.state).await.unwrap();
+        while let Some(job) = ch
+            .store
+            .claim_job(&common::lease(), stepsim_server::now_s())
+            .await
+            .unwrap()
+        {
             let r = worker::score_entry(&ch, &job);
             ch.store
-                .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+                .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+                .await
                 .unwrap();
         }
     }
     /// Serves the app on a free local port (the real connection layer).
     async fn serve(&self, limits: Limits) -> std::net::SocketAddr {
-        let app = self.app(limits.clone(), None);
+        let app = self.app(limits.clone(), None).await;
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         tokio::spawn(stepsim_server::net::serve_with_limits(
@@ -100,22 +111,49 @@ fn json(s: &str) -> Value {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let pool = WorkerPool::start(&f.state, 1, worker::DEFAULT_TIMEOUT);
     let live = pool.live();
     // An organiser's sqlite3 holds an exclusive lock for 15 s (the store
     // waits 10 s for a lock, then fails).
+    // On PostgreSQL an organiser's psql holds every table locked for 15 s.
     let db = f.state.join("challenge.db");
-    let locker = std::thread::spawn(move || {
-        let c = rusqlite::Connection::open(&db).unwrap();
-        c.execute_batch("BEGIN EXCLUSIVE; UPDATE meta SET value = value WHERE key = 'name';")
+    let pg = std::fs::read_to_string(f.state.join(stepsim_server::store::STORE_FILE)).ok();
+    let locker = std::thread::spawn(move || match pg {
+        None => {
+            let c = rusqlite::Connection::open(&db).unwrap();
+            c.execute_batch(
+                "BEGIN EXCLUSIVE; UPDATE meta SET value = value WHERE key = 'name';",
+            )
             .unwrap();
-        std::thread::sleep(Duration::from_secs(15));
-        c.execute_batch("COMMIT").unwrap();
+            std::thread::sleep(Duration::from_secs(15));
+            c.execute_batch("COMMIT").unwrap();
+        }
+        Some(url) => {
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .unwrap();
+            rt.block_on(async {
+                let (mut c, conn) = tokio_postgres::connect(url.trim(), tokio_postgres::NoTls)
+                    .await
+                    .unwrap();
+                tokio::spawn(conn);
+                let tx = c.transaction().await.unwrap();
+                tx.batch_execute(
+                    "LOCK TABLE meta, teams, submissions, scores, format_failures \
+                     IN ACCESS EXCLUSIVE MODE",
+                )
+                .await
+                .unwrap();
+                tokio::time::sleep(Duration::from_secs(15)).await;
+                tx.commit().await.unwrap();
+            });
+        }
     });
     locker.join().unwrap();
     assert_eq!(live.load(Ordering::SeqCst), 1, "the worker ended");
-    let app = f.app(Limits::default(), Some(live.clone()));
+    let app = f.app(Limits::default(), Some(live.clone())).await;
     let text = catalogue(&f.all, 0.01);
     let (s, body) = call(&app, upload(&format!("Bearer {}", f.tokens[0]), text)).await;
     assert_eq!(s, StatusCode::ACCEPTED, "{body}");
@@ -123,8 +161,8 @@ async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() 
     let t0 = Instant::now();
     let mut status = String::new();
     while t0.elapsed() < Duration::from_secs(60) {
-        let ch = Challenge::open(&f.state).unwrap();
-        status = ch.store.submission(id).unwrap().unwrap().status;
+        let ch = Challenge::open(&f.state).await.unwrap();
+        status = ch.store.submission(id).await.unwrap().unwrap().status;
         if status == "scored" {
             break;
         }
@@ -137,13 +175,13 @@ async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() 
 
 #[tokio::test]
 async fn uploads_are_refused_with_503_when_no_worker_runs() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let pool = WorkerPool::start(&f.state, 2, worker::DEFAULT_TIMEOUT);
     let live = pool.live();
     assert_eq!(live.load(Ordering::SeqCst), 2);
     pool.stop();
     assert_eq!(live.load(Ordering::SeqCst), 0);
-    let app = f.app(Limits::default(), Some(live));
+    let app = f.app(Limits::default(), Some(live)).await;
     let (s, body) = call(
         &app,
         upload(&format!("Bearer {}", f.tokens[0]), catalogue(&f.all, 0.0)),
@@ -157,8 +195,8 @@ async fn uploads_are_refused_with_503_when_no_worker_runs() {
             .contains("the scoring queue is not running"),
         "{body}"
     );
-    let ch = Challenge::open(&f.state).unwrap();
-    assert!(ch.store.all_submissions().unwrap().is_empty());
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert!(ch.store.all_submissions().await.unwrap().is_empty());
 }
 
 // ---- b. connections ----
@@ -204,7 +242,7 @@ fn short(limits: Limits) -> Limits {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn three_hundred_half_sent_headers_are_all_closed_after_the_header_timeout() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let addr = f
         .serve(short(Limits {
             header_timeout: Duration::from_secs(1),
@@ -237,7 +275,7 @@ async fn three_hundred_half_sent_headers_are_all_closed_after_the_header_timeout
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_idle_kept_alive_connection_is_closed_after_the_idle_timeout() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let addr = f
         .serve(short(Limits {
             idle_timeout: Duration::from_millis(1500),
@@ -266,7 +304,7 @@ async fn an_idle_kept_alive_connection_is_closed_after_the_idle_timeout() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn connections_past_the_per_address_cap_are_refused_at_once() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let addr = f
         .serve(Limits {
             max_connections_per_addr: 3,
@@ -326,7 +364,7 @@ fn status_of(got: &[u8]) -> u16 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_body_that_stalls_is_cut_off_with_408() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     let addr = f
         .serve(short(Limits {
             body_stall_timeout: Duration::from_secs(1),
@@ -358,7 +396,7 @@ async fn a_body_that_stalls_is_cut_off_with_408() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_second_upload_of_a_team_is_refused_before_its_body_is_sent() {
-    let f = fixture(4, &["a", "b"]);
+    let f = fixture(4, &["a", "b"]).await;
     let addr = f.serve(short(Limits::default())).await;
     let (ta, tb) = (f.tokens[0].clone(), f.tokens[1].clone());
     tokio::task::spawn_blocking(move || {
@@ -382,8 +420,8 @@ async fn a_second_upload_of_a_team_is_refused_before_its_body_is_sent() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn uploads_in_flight_count_against_the_quota_before_a_body_is_read() {
-    let f = fixture(2, &["a"]);
-    let app = f.app(Limits::default(), None);
+    let f = fixture(2, &["a"]).await;
+    let app = f.app(Limits::default(), None).await;
     let (s, body) = call(
         &app,
         upload(&format!("Bearer {}", f.tokens[0]), catalogue(&f.all, 0.0)),
@@ -418,7 +456,7 @@ async fn uploads_in_flight_count_against_the_quota_before_a_body_is_read() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn uploads_past_the_cap_of_all_teams_are_refused_with_503_before_their_body() {
-    let f = fixture(4, &["a", "b"]);
+    let f = fixture(4, &["a", "b"]).await;
     let addr = f
         .serve(short(Limits {
             uploads_at_once: 1,
@@ -442,14 +480,16 @@ async fn uploads_past_the_cap_of_all_teams_are_refused_with_503_before_their_bod
 
 #[tokio::test]
 async fn a_format_check_past_its_budget_is_refused_and_not_counted() {
-    let f = fixture(4, &["a"]);
-    let app = f.app(
-        Limits {
-            check_budget: Duration::ZERO,
-            ..Limits::default()
-        },
-        None,
-    );
+    let f = fixture(4, &["a"]).await;
+    let app = f
+        .app(
+            Limits {
+                check_budget: Duration::ZERO,
+                ..Limits::default()
+            },
+            None,
+        )
+        .await;
     // A good catalogue padded with 40 MB of comment lines: its check takes
     // longer than the (zero) budget.
     let mut text = catalogue(&f.all, 0.0);
@@ -457,9 +497,15 @@ async fn a_format_check_past_its_budget_is_refused_and_not_counted() {
     let (s, body) = call(&app, upload(&format!("Bearer {}", f.tokens[0]), text)).await;
     assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE, "{body}");
     assert!(body.contains("not counted against your team"), "{body}");
-    let ch = Challenge::open(&f.state).unwrap();
-    assert!(ch.store.all_submissions().unwrap().is_empty());
-    assert!(ch.store.format_failures_since(1, 0).unwrap().is_empty());
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert!(ch.store.all_submissions().await.unwrap().is_empty());
+    assert!(
+        ch.store
+            .format_failures_since(1, 0)
+            .await
+            .unwrap()
+            .is_empty()
+    );
     // The harness may still be reading it; its file is gone from uploads/.
     tokio::time::sleep(Duration::from_millis(500)).await;
     assert!(
@@ -474,12 +520,12 @@ async fn a_format_check_past_its_budget_is_refused_and_not_counted() {
 
 #[tokio::test]
 async fn bearer_tokens_are_parsed_strictly_and_rate_limited_by_the_token() {
-    let f = fixture(4, &["a"]);
+    let f = fixture(4, &["a"]).await;
     {
-        let mut ch = Challenge::open(&f.state).unwrap();
-        ch.store.set_meta("requests_per_minute", "4").unwrap();
+        let ch = Challenge::open(&f.state).await.unwrap();
+        ch.store.set_meta("requests_per_minute", "4").await.unwrap();
     }
-    let app = f.app(Limits::default(), None);
+    let app = f.app(Limits::default(), None).await;
     let t = &f.tokens[0];
     let get = |auth: String| {
         Request::get("/api/submissions")
@@ -516,8 +562,8 @@ async fn bearer_tokens_are_parsed_strictly_and_rate_limited_by_the_token() {
         assert_eq!(s, StatusCode::TOO_MANY_REQUESTS, "{auth:?}: {body}");
     }
     // Another team's key is its own; the scheme's case does not matter.
-    let f2 = fixture(4, &["b"]);
-    let app2 = f2.app(Limits::default(), None);
+    let f2 = fixture(4, &["b"]).await;
+    let app2 = f2.app(Limits::default(), None).await;
     let (s, body) = call(&app2, get(format!("bearer {}", f2.tokens[0]))).await;
     assert_eq!(s, StatusCode::OK, "{body}");
 }
@@ -527,8 +573,8 @@ async fn bearer_tokens_are_parsed_strictly_and_rate_limited_by_the_token() {
 #[tokio::test]
 async fn the_csv_export_neutralises_team_names_a_spreadsheet_would_run() {
     let evil = "=HYPERLINK(\"http://example.org/\",\"click\")";
-    let f = fixture(4, &[evil, "+plus", "@at", "plain"]);
-    let app = f.app(Limits::default(), None);
+    let f = fixture(4, &[evil, "+plus", "@at", "plain"]).await;
+    let app = f.app(Limits::default(), None).await;
     for (i, m) in [0.0, 0.01, 0.02, 0.03].into_iter().enumerate() {
         let (s, body) = call(
             &app,
@@ -537,9 +583,9 @@ async fn the_csv_export_neutralises_team_names_a_spreadsheet_would_run() {
         .await;
         assert_eq!(s, StatusCode::ACCEPTED, "{body}");
     }
-    f.score_queue();
-    let ch = Challenge::open(&f.state).unwrap();
-    let e = ch.export(&f.state.join("board.json")).unwrap();
+    f.score_queue().await;
+    let ch = Challenge::open(&f.state).await.unwrap();
+    let e = ch.export(&f.state.join("board.json")).await.unwrap();
     let csv = std::fs::read_to_string(&e.csv).unwrap();
     let teams: Vec<&str> = csv
         .lines()
@@ -561,8 +607,8 @@ async fn the_csv_export_neutralises_team_names_a_spreadsheet_would_run() {
 
 /// Two challenges on the same run whose `datasets.json` list the datasets
 /// in two orders (same ids, same truth files).
-fn permuted_pair() -> (Fixture, Fixture) {
-    let a = fixture(4, &["a"]);
+async fn permuted_pair() -> (Fixture, Fixture) {
+    let a = fixture(4, &["a"]).await;
     let tmp = tempfile::tempdir().unwrap();
     let (all, _) = write_run(tmp.path());
     let p = tmp.path().join("run/private/datasets.json");
@@ -573,8 +619,10 @@ fn permuted_pair() -> (Fixture, Fixture) {
     list.swap(0, 1);
     std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
     let state = tmp.path().join("state");
-    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
-    let tokens = vec![ch.add_team("a").unwrap()];
+    let ch = common::init(&tmp.path().join("run"), &state, 4, false)
+        .await
+        .unwrap();
+    let tokens = vec![ch.add_team("a").await.unwrap()];
     let b = Fixture {
         _tmp: tmp,
         state,
@@ -586,7 +634,7 @@ fn permuted_pair() -> (Fixture, Fixture) {
 
 #[tokio::test]
 async fn refusals_are_byte_identical_whatever_the_private_order_of_datasets() {
-    let (a, b) = permuted_pair();
+    let (a, b) = permuted_pair().await;
     let good = catalogue(&a.all, 0.0);
     let lines: Vec<&str> = good.lines().collect();
     let images: Vec<&str> = {
@@ -626,8 +674,8 @@ async fn refusals_are_byte_identical_whatever_the_private_order_of_datasets() {
         ("an empty file", String::new()),
     ];
     let (app_a, app_b) = (
-        a.app(Limits::default(), None),
-        b.app(Limits::default(), None),
+        a.app(Limits::default(), None).await,
+        b.app(Limits::default(), None).await,
     );
     let mut differ = Vec::new();
     for (what, text) in uploads {
@@ -656,8 +704,8 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
     // Eight base fields in the held-out part: with two, the intervals are
     // widened for Student's t with one degree of freedom (k = 9.2) and do
     // not tell m = 0.5 from m = 0 (measured: [6.94, 6.97] inside [-963, 1811]).
-    let f = fixture_of_fields(4, &["exact", "close", "far"], 8);
-    let app = f.app(Limits::default(), None);
+    let f = fixture_of_fields(4, &["exact", "close", "far"], 8).await;
+    let app = f.app(Limits::default(), None).await;
     // Catalogues with measurement noise (a fixed pseudo-random number per
     // object; the same for the first two teams), so that the bootstrap
     // intervals have a width.
@@ -688,17 +736,27 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
         .await;
         assert_eq!(s, StatusCode::ACCEPTED, "{body}");
     }
-    f.score_queue();
-    let rows = |revealed: bool| {
-        let ch = Challenge::open(&f.state).unwrap();
-        let teams = ch.store.teams().unwrap();
-        let subs = ch.store.all_submissions().unwrap();
+    f.score_queue().await;
+    let rows = async |revealed: bool| {
+        let ch = Challenge::open(&f.state).await.unwrap();
+        let teams = ch.store.teams().await.unwrap();
+        let subs = ch.store.all_submissions().await.unwrap();
         stepsim_server::api::leaderboard_rows(&teams, &subs, revealed)
     };
     // Before reveal no interval and no tie is shown.
-    assert!(rows(false).iter().all(|r| r.get("tied_above").is_none()));
-    Challenge::open(&f.state).unwrap().reveal().unwrap();
-    let r = rows(true);
+    assert!(
+        rows(false)
+            .await
+            .iter()
+            .all(|r| r.get("tied_above").is_none())
+    );
+    Challenge::open(&f.state)
+        .await
+        .unwrap()
+        .reveal()
+        .await
+        .unwrap();
+    let r = rows(true).await;
     let summary: Vec<(String, Option<[f64; 2]>, bool)> = r
         .iter()
         .map(|r| {

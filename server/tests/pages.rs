@@ -40,12 +40,17 @@ struct Fixture {
     tokens: Vec<String>,
 }
 
-fn fixture(teams: &[&str]) -> Fixture {
+async fn fixture(teams: &[&str]) -> Fixture {
     let tmp = tempfile::tempdir().unwrap();
     let (all, held) = write_run(tmp.path());
     let state = tmp.path().join("state");
-    let mut ch = Challenge::init(&tmp.path().join("run"), &state, 4, false).unwrap();
-    let tokens = teams.iter().map(|t| ch.add_team(t).unwrap()).collect();
+    let ch = common::init(&tmp.path().join("run"), &state, 4, false)
+        .await
+        .unwrap();
+    let mut tokens = Vec::new();
+    for t in teams {
+        tokens.push(ch.add_team(t).await.unwrap());
+    }
     Fixture {
         _tmp: tmp,
         state,
@@ -56,20 +61,31 @@ fn fixture(teams: &[&str]) -> Fixture {
 }
 
 impl Fixture {
-    fn app(&self) -> axum::Router {
-        router(AppState::new(Challenge::open(&self.state).unwrap()))
+    async fn app(&self) -> axum::Router {
+        router(AppState::new(Challenge::open(&self.state).await.unwrap()))
     }
-    fn score_queue(&self) {
-        let mut ch = Challenge::open(&self.state).unwrap();
-        while let Some(job) = ch.store.claim_job(stepsim_server::now_s()).unwrap() {
+    async fn score_queue(&self) {
+        let ch = Challenge::open(&self.state).await.unwrap();
+        while let Some(job) = ch
+            .store
+            .claim_job(&common::lease(), stepsim_server::now_s())
+            .await
+            .unwrap()
+        {
             let r = worker::score_entry(&ch, &job);
             ch.store
-                .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+                .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+                .await
                 .unwrap();
         }
     }
-    fn reveal(&self) {
-        Challenge::open(&self.state).unwrap().reveal().unwrap();
+    async fn reveal(&self) {
+        Challenge::open(&self.state)
+            .await
+            .unwrap()
+            .reveal()
+            .await
+            .unwrap();
     }
 }
 
@@ -225,8 +241,8 @@ fn uploads(state: &Path) -> usize {
 
 #[tokio::test]
 async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
-    let f = fixture(&["alpha", "beta"]);
-    let mut a = Agent::new(f.app());
+    let f = fixture(&["alpha", "beta"]).await;
+    let mut a = Agent::new(f.app().await);
     // Without a session: the entries page sends to the sign-in page.
     let r = a.get("/entries").await;
     assert_eq!((r.status, r.location()), (StatusCode::SEE_OTHER, "/signin"));
@@ -302,7 +318,12 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
     // value of an ended session does not come back.
     a.sign_in(&f.tokens[1]).await;
     assert_eq!(a.get("/entries").await.status, StatusCode::OK);
-    Challenge::open(&f.state).unwrap().revoke("beta").unwrap();
+    Challenge::open(&f.state)
+        .await
+        .unwrap()
+        .revoke("beta")
+        .await
+        .unwrap();
     assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
     a.cookies.insert(web::SESSION_COOKIE.into(), id.clone());
     assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
@@ -310,8 +331,8 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
 
 #[tokio::test]
 async fn forms_without_the_right_token_or_from_another_origin_are_refused() {
-    let f = fixture(&["alpha"]);
-    let app = f.app();
+    let f = fixture(&["alpha"]).await;
+    let app = f.app().await;
     let mut a = Agent::new(app.clone());
     // Sign-in: the double-submit token is needed, and the right origin.
     let page = a.get("/signin").await;
@@ -381,8 +402,8 @@ async fn forms_without_the_right_token_or_from_another_origin_are_refused() {
 
 #[tokio::test]
 async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good_files() {
-    let f = fixture(&["alpha"]);
-    let mut a = Agent::new(f.app());
+    let f = fixture(&["alpha"]).await;
+    let mut a = Agent::new(f.app().await);
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
     // Line 4 of the file carries a value that is not a number.
@@ -398,6 +419,7 @@ async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good
     // The harness's message, as the API gives it for the same bytes.
     let api = f
         .app()
+        .await
         .oneshot(
             Request::post("/api/submissions")
                 .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
@@ -438,17 +460,18 @@ async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good
         r.body
             .contains("<meta http-equiv=\"refresh\" content=\"10; url=/entries\">")
     );
-    f.score_queue();
+    f.score_queue().await;
     let r = a.get("/entries").await;
     assert!(
         r.body
             .contains("<span class=\"badge scored\">scored</span>")
     );
     assert!(!r.body.contains("http-equiv"), "no reload once scored");
-    let ch = Challenge::open(&f.state).unwrap();
+    let ch = Challenge::open(&f.state).await.unwrap();
     let public: serde_json::Value = serde_json::from_str(
         &ch.store
             .submission(1)
+            .await
             .unwrap()
             .unwrap()
             .public_json
@@ -486,21 +509,21 @@ fn secrets(f: &Fixture) -> Vec<String> {
 
 #[tokio::test]
 async fn a_hostile_team_name_stays_text_on_every_page() {
-    let f = fixture(&[HOSTILE, "beta"]);
-    let mut a = Agent::new(f.app());
+    let f = fixture(&[HOSTILE, "beta"]).await;
+    let mut a = Agent::new(f.app().await);
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
     let r = a
         .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
         .await;
     assert_eq!(r.status, StatusCode::SEE_OTHER);
-    f.score_queue();
+    f.score_queue().await;
     // minijinja writes `/` as `&#x2f;` too.
     let escaped = "&lt;script&gt;alert(1)&lt;&#x2f;script&gt;";
     let secrets = secrets(&f);
     for revealed in [false, true] {
         if revealed {
-            f.reveal();
+            f.reveal().await;
         }
         let mut pages = vec!["/", "/signin", "/entries", "/leaderboard"];
         if revealed {
@@ -526,8 +549,8 @@ async fn a_hostile_team_name_stays_text_on_every_page() {
 
 #[tokio::test]
 async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
-    let f = fixture(&["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(&["alpha", "beta"]).await;
+    let app = f.app().await;
     let mut alpha = Agent::new(app.clone());
     alpha.sign_in(&f.tokens[0]).await;
     let csrf = alpha.get("/entries").await.csrf();
@@ -537,7 +560,7 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
             .await;
         assert_eq!(r.status, StatusCode::SEE_OTHER);
     }
-    f.score_queue();
+    f.score_queue().await;
     let mut anyone = Agent::new(app.clone());
     let mut beta = Agent::new(app);
     beta.sign_in(&f.tokens[1]).await;
@@ -552,7 +575,7 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
     }
     let r = alpha.get("/entries").await;
     assert!(!r.body.contains("/report"), "no report link before reveal");
-    f.reveal();
+    f.reveal().await;
     // After: the ranked entry's report for everyone, with its tables and
     // figures; the other entry for its own team only.
     let r = anyone.get("/leaderboard").await;
@@ -634,10 +657,10 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
 
 #[tokio::test]
 async fn the_rate_limit_counts_page_requests() {
-    let f = fixture(&["alpha"]);
-    let mut ch = Challenge::open(&f.state).unwrap();
-    ch.store.set_meta("requests_per_minute", "3").unwrap();
-    let mut a = Agent::new(f.app());
+    let f = fixture(&["alpha"]).await;
+    let ch = Challenge::open(&f.state).await.unwrap();
+    ch.store.set_meta("requests_per_minute", "3").await.unwrap();
+    let mut a = Agent::new(f.app().await);
     let from = |path: &str| {
         let mut r = Request::get(path).body(Body::empty()).unwrap();
         r.extensions_mut().insert(axum::extract::ConnectInfo(
@@ -655,8 +678,8 @@ async fn the_rate_limit_counts_page_requests() {
 
 #[tokio::test]
 async fn final_entries_are_chosen_on_the_entries_page() {
-    let f = fixture(&["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(&["alpha", "beta"]).await;
+    let app = f.app().await;
     let mut a = Agent::new(app.clone());
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
@@ -664,7 +687,7 @@ async fn final_entries_are_chosen_on_the_entries_page() {
         let r = a.upload(Some(&csrf), catalogue(&f.all, m).as_bytes()).await;
         assert_eq!(r.status, StatusCode::SEE_OTHER);
     }
-    f.score_queue();
+    f.score_queue().await;
     let r = a.get("/entries").await;
     assert!(
         r.body.contains("final (default)"),
@@ -679,8 +702,8 @@ async fn final_entries_are_chosen_on_the_entries_page() {
         (r.status, r.location()),
         (StatusCode::SEE_OTHER, "/entries?final=2")
     );
-    let ch = Challenge::open(&f.state).unwrap();
-    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2]);
+    let ch = Challenge::open(&f.state).await.unwrap();
+    assert_eq!(ch.store.final_entries(1).await.unwrap(), vec![2]);
     let r = a.get(r.location().to_string().as_str()).await;
     assert!(r.body.contains("Final entries saved: 2."), "{}", r.body);
     assert!(r.body.contains("id=\"final-2\" checked"));
@@ -709,9 +732,18 @@ async fn final_entries_are_chosen_on_the_entries_page() {
         .post_form("/entries/final", &[("csrf", &bcsrf), ("final", "1")])
         .await;
     assert_eq!(r.status, StatusCode::NOT_FOUND);
-    assert_eq!(ch.store.final_entries(1).unwrap(), vec![2], "unchanged");
+    assert_eq!(
+        ch.store.final_entries(1).await.unwrap(),
+        vec![2],
+        "unchanged"
+    );
     // Once closed: no more choices, no form button.
-    Challenge::open(&f.state).unwrap().close().unwrap();
+    Challenge::open(&f.state)
+        .await
+        .unwrap()
+        .close()
+        .await
+        .unwrap();
     let r = a
         .post_form("/entries/final", &[("csrf", &csrf), ("final", "1")])
         .await;
@@ -722,17 +754,20 @@ async fn final_entries_are_chosen_on_the_entries_page() {
 
 #[tokio::test]
 async fn the_challenge_page_shows_the_deadline_and_uploads_stop_after_it() {
-    let f = fixture(&["alpha", "beta"]);
-    let mut ch = Challenge::open(&f.state).unwrap();
-    ch.set_name("STEP mini 2026").unwrap();
+    let f = fixture(&["alpha", "beta"]).await;
+    let ch = Challenge::open(&f.state).await.unwrap();
+    ch.set_name("STEP mini 2026").await.unwrap();
     ch.set_deadline(Some(stepsim_server::now_s() + 3600))
+        .await
         .unwrap();
-    let mut a = Agent::new(f.app());
+    let mut a = Agent::new(f.app().await);
     let r = a.get("/").await;
     assert!(r.body.contains("STEP mini 2026"), "the name in the header");
     assert!(r.body.contains("id=\"deadline\""));
     assert!(r.body.contains("badge queued\">open"));
-    ch.set_deadline(Some(stepsim_server::now_s() - 60)).unwrap();
+    ch.set_deadline(Some(stepsim_server::now_s() - 60))
+        .await
+        .unwrap();
     let r = a.get("/").await;
     assert!(r.body.contains("deadline passed"), "{}", r.body);
     a.sign_in(&f.tokens[0]).await;
@@ -746,19 +781,20 @@ async fn the_challenge_page_shows_the_deadline_and_uploads_stop_after_it() {
     assert_eq!(r.status, StatusCode::FORBIDDEN);
     assert!(r.body.contains("has passed: no more uploads"), "{}", r.body);
     assert_eq!(uploads(&f.state), 0);
-    ch.set_deadline(None).unwrap();
-    ch.freeze().unwrap();
+    ch.set_deadline(None).await.unwrap();
+    ch.freeze().await.unwrap();
     assert!(a.get("/").await.body.contains("badge refused\">frozen"));
 }
 
 #[tokio::test]
 async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
-    let f = fixture(&[HOSTILE, "KSB+ reference"]);
-    let mut ch = Challenge::open(&f.state).unwrap();
+    let f = fixture(&[HOSTILE, "KSB+ reference"]).await;
+    let ch = Challenge::open(&f.state).await.unwrap();
     ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+        .await
         .unwrap();
-    ch.set_organiser_password("correct horse").unwrap();
-    let app = f.app();
+    ch.set_organiser_password("correct horse").await.unwrap();
+    let app = f.app().await;
     for t in &f.tokens {
         let resp = app
             .clone()
@@ -772,7 +808,7 @@ async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
             .unwrap();
         assert_eq!(resp.status(), StatusCode::ACCEPTED);
     }
-    f.score_queue();
+    f.score_queue().await;
     let mut o = Agent::new(app.clone());
     let r = o.get("/leaderboard").await;
     assert!(
@@ -836,12 +872,13 @@ async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
 
 #[tokio::test]
 async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
-    let f = fixture(&["alpha", "Organisers"]);
-    let mut ch = Challenge::open(&f.state).unwrap();
+    let f = fixture(&["alpha", "Organisers"]).await;
+    let ch = Challenge::open(&f.state).await.unwrap();
     ch.set_role("Organisers", stepsim_server::store::Role::Organisers)
+        .await
         .unwrap();
-    ch.set_organiser_password("correct horse").unwrap();
-    let app = f.app();
+    ch.set_organiser_password("correct horse").await.unwrap();
+    let app = f.app().await;
     let post = |body: String| {
         Request::post("/api/submissions")
             .header(header::AUTHORIZATION, format!("Bearer {}", f.tokens[0]))
@@ -923,7 +960,7 @@ async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
     );
     // The signed-in organisers' session reads /metrics too.
     assert_eq!(o.get("/metrics").await.status, StatusCode::OK);
-    f.score_queue();
+    f.score_queue().await;
     let r = o.get("/organisers").await;
     assert!(
         r.body.contains(
@@ -972,9 +1009,9 @@ fn section<'a>(body: &'a str, from: &str, to: &str) -> &'a str {
 
 #[tokio::test]
 async fn the_data_page_lists_the_files_and_the_archive_extracts_and_verifies() {
-    let f = fixture(&["alpha"]);
+    let f = fixture(&["alpha"]).await;
     let files = common::write_public(f.state.parent().unwrap(), &f.all);
-    let mut a = Agent::new(f.app());
+    let mut a = Agent::new(f.app().await);
     // The challenge page links to the data page.
     let r = a.browse("/").await;
     assert!(r.body.contains("href=\"/data/\""), "{}", r.body);
@@ -1066,8 +1103,8 @@ async fn the_data_page_lists_the_files_and_the_archive_extracts_and_verifies() {
 
 #[tokio::test]
 async fn refused_uploads_show_on_the_entries_page_with_the_cap() {
-    let f = fixture(&["alpha"]);
-    let app = f.app();
+    let f = fixture(&["alpha"]).await;
+    let app = f.app().await;
     let mut a = Agent::new(app.clone());
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
@@ -1093,9 +1130,11 @@ async fn refused_uploads_show_on_the_entries_page_with_the_cap() {
     assert!(r.body.contains("<strong>1</strong> of 4"));
     let refusals = section(&r.body, "id=\"refusals\"", "</table>");
     let failures = Challenge::open(&f.state)
+        .await
         .unwrap()
         .store
         .format_failures(Some(1), 10)
+        .await
         .unwrap();
     assert_eq!(failures.len(), 2);
     for fl in &failures {
@@ -1127,8 +1166,8 @@ async fn refused_uploads_show_on_the_entries_page_with_the_cap() {
 
 #[tokio::test]
 async fn a_catalogue_missing_images_is_refused_in_words_for_the_web() {
-    let f = fixture(&["alpha"]);
-    let app = f.app();
+    let f = fixture(&["alpha"]).await;
+    let app = f.app().await;
     let mut a = Agent::new(app.clone());
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
@@ -1169,17 +1208,19 @@ async fn a_catalogue_missing_images_is_refused_in_words_for_the_web() {
     let message = v["error"].as_str().unwrap();
     assert!(notice.contains(&esc(message)), "{message}");
     let stored = Challenge::open(&f.state)
+        .await
         .unwrap()
         .store
         .format_failures(Some(1), 10)
+        .await
         .unwrap();
     assert!(stored.iter().all(|s| s.error == message));
 }
 
 #[tokio::test]
 async fn a_teams_own_report_before_reveal_says_when_it_opens() {
-    let f = fixture(&["alpha", "beta"]);
-    let app = f.app();
+    let f = fixture(&["alpha", "beta"]).await;
+    let app = f.app().await;
     let mut alpha = Agent::new(app.clone());
     alpha.sign_in(&f.tokens[0]).await;
     let csrf = alpha.get("/entries").await.csrf();
@@ -1187,7 +1228,7 @@ async fn a_teams_own_report_before_reveal_says_when_it_opens() {
         .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
         .await;
     assert_eq!(r.status, StatusCode::SEE_OTHER);
-    f.score_queue();
+    f.score_queue().await;
     let r = alpha.browse("/entries/1/report").await;
     assert_eq!(r.status, StatusCode::NOT_FOUND);
     assert!(r.body.contains("opens at reveal"), "{}", r.body);
@@ -1200,7 +1241,7 @@ async fn a_teams_own_report_before_reveal_says_when_it_opens() {
     assert_eq!(theirs.status, StatusCode::NOT_FOUND);
     assert_eq!(theirs.body, none.body);
     assert!(!theirs.body.contains("opens at reveal"));
-    f.reveal();
+    f.reveal().await;
     assert_eq!(
         alpha.browse("/entries/1/report").await.status,
         StatusCode::OK
@@ -1209,9 +1250,9 @@ async fn a_teams_own_report_before_reveal_says_when_it_opens() {
 
 #[tokio::test]
 async fn unknown_routes_answer_a_page_to_browsers_and_json_to_api_clients() {
-    let f = fixture(&["alpha"]);
+    let f = fixture(&["alpha"]).await;
     common::write_public(f.state.parent().unwrap(), &f.all);
-    let mut a = Agent::new(f.app());
+    let mut a = Agent::new(f.app().await);
     let r = a.browse("/no/such/page").await;
     assert_eq!(r.status, StatusCode::NOT_FOUND);
     assert!(
@@ -1259,8 +1300,8 @@ async fn unknown_routes_answer_a_page_to_browsers_and_json_to_api_clients() {
 
 #[tokio::test]
 async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie() {
-    let f = fixture(&["alpha"]);
-    let app = f.app();
+    let f = fixture(&["alpha"]).await;
+    let app = f.app().await;
     let mut a = Agent::new(app.clone());
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
@@ -1271,7 +1312,7 @@ async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie(
         let r = a.upload(Some(&csrf), text.as_bytes()).await;
         assert_eq!(r.status, StatusCode::SEE_OTHER, "{}", r.body);
     }
-    f.score_queue();
+    f.score_queue().await;
     let (_, mine) = api_get(&app, "/api/submissions", &f.tokens[0]).await;
     let subs = mine["submissions"].as_array().unwrap();
     assert_eq!(subs.len(), 2);
@@ -1290,7 +1331,7 @@ async fn the_default_final_entry_is_one_entry_everywhere_when_public_scores_tie(
     let r = a.get("/leaderboard").await;
     assert!(r.body.contains("<td class=\"num\">1</td>\n"), "{}", r.body);
     // At reveal the same entry counts.
-    f.reveal();
+    f.reveal().await;
     let (_, board) = api_get(&app, "/api/leaderboard", &f.tokens[0]).await;
     assert_eq!(board["rows"][0]["entry"], 1, "{board}");
     assert_eq!(board["rows"][0]["finals"], serde_json::json!([1]));
@@ -1324,16 +1365,16 @@ fn summary_cells(body: &str) -> Vec<(String, String, String)> {
 
 #[tokio::test]
 async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
-    let f = fixture(&["alpha"]);
-    let mut a = Agent::new(f.app());
+    let f = fixture(&["alpha"]).await;
+    let mut a = Agent::new(f.app().await);
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
     let r = a
         .upload(Some(&csrf), catalogue(&f.all, 0.01).as_bytes())
         .await;
     assert_eq!(r.status, StatusCode::SEE_OTHER);
-    f.score_queue();
-    f.reveal();
+    f.score_queue().await;
+    f.reveal().await;
     let r = a.get("/entries/1/report").await;
     assert_eq!(r.status, StatusCode::OK);
     let cells = summary_cells(&r.body);

@@ -22,6 +22,8 @@ use stepsim_server::api::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
+mod common;
+
 /// Held-out shears of the three runs (within |g| ≤ 0.1).
 const DRAWS: [[(f64, f64); 2]; 3] = [
     [(0.0371, -0.0523), (-0.0617, 0.0289)],
@@ -107,10 +109,14 @@ async fn play(dir: &Path, draw: &[(f64, f64)], catalogues: &[Vec<u8>]) -> (Strin
     // Two PSFs, each with the draw's shears.
     assert_eq!(truth_g, [draw, draw].concat());
     all.write(&dir.join("run/private")).unwrap();
-    let mut ch = Challenge::init(&dir.join("run"), &dir.join("state"), 4, false).unwrap();
-    let token = ch.add_team("prober").unwrap();
+    let ch = common::init(&dir.join("run"), &dir.join("state"), 4, false)
+        .await
+        .unwrap();
+    let token = ch.add_team("prober").await.unwrap();
     drop(ch);
-    let app = router(AppState::new(Challenge::open(&dir.join("state")).unwrap()));
+    let app = router(AppState::new(
+        Challenge::open(&dir.join("state")).await.unwrap(),
+    ));
     let mut transcript = String::new();
     let mut see = async |req: Request<Body>| -> Value {
         let what = format!("{} {}", req.method(), req.uri());
@@ -148,11 +154,12 @@ async fn play(dir: &Path, draw: &[(f64, f64)], catalogues: &[Vec<u8>]) -> (Strin
     }
     assert_eq!(ids.len(), 4, "the whole quota is spent: {transcript}");
     // Score the queue as a worker does.
-    let mut ch = Challenge::open(&dir.join("state")).unwrap();
-    while let Some(job) = ch.store.claim_job(0).unwrap() {
+    let ch = Challenge::open(&dir.join("state")).await.unwrap();
+    while let Some(job) = ch.store.claim_job(&common::lease(), 0).await.unwrap() {
         let r = worker::score_entry(&ch, &job);
         ch.store
-            .finish_job(job.id, r, worker::SCORER_VERSION, 0)
+            .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+            .await
             .unwrap();
     }
     let mut m = Vec::new();

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 use stepsim_server::Challenge;
-use stepsim_server::store::Role;
+use stepsim_server::store::{Role, StoreUrl};
 
 /// Reads an RFC 3339 time for `--deadline`/`--at`.
 fn rfc3339(text: &str) -> Result<i64, String> {
@@ -12,6 +12,10 @@ fn rfc3339(text: &str) -> Result<i64, String> {
 }
 
 /// Reads a role for `team mark --role`.
+fn store_url(text: &str) -> Result<StoreUrl, String> {
+    StoreUrl::parse(text)
+}
+
 fn role(text: &str) -> Result<Role, String> {
     Role::from_name(text)
         .ok_or_else(|| format!("{text:?} is not a role: organisers, baseline or participant"))
@@ -53,6 +57,11 @@ enum Command {
         /// object and 64 KiB per image, at least 256 MiB).
         #[arg(long, value_name = "BYTES")]
         max_upload_bytes: Option<u64>,
+        /// The store: postgres://USER@HOST:PORT/DATABASE (an empty
+        /// database, for several hosts; named in DIR/store.url) or
+        /// sqlite:PATH (default: DIR/challenge.db).
+        #[arg(long, value_name = "URL", value_parser = store_url)]
+        store: Option<StoreUrl>,
     },
     /// Set the deadline: uploads are refused from then on.
     Deadline {
@@ -154,6 +163,10 @@ enum TeamCommand {
 
 /// Runs the command.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    stepsim_server::block_on(run_async(args))?
+}
+
+async fn run_async(args: &Args) -> anyhow::Result<()> {
     match &args.command {
         Command::Init {
             run,
@@ -163,6 +176,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             deadline,
             name,
             max_upload_bytes,
+            store,
         } => {
             if let Some(n) = name {
                 let n = n.trim();
@@ -172,15 +186,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     );
                 }
             }
-            let mut ch = Challenge::init(run, state, *quota, *no_holdout)?;
+            let mut ch =
+                Challenge::init_with_store(run, state, *quota, *no_holdout, store.as_ref()).await?;
             if let Some(n) = name {
-                ch.set_name(n)?;
+                ch.set_name(n).await?;
             }
             if deadline.is_some() {
-                ch.set_deadline(*deadline)?;
+                ch.set_deadline(*deadline).await?;
             }
             if let Some(b) = max_upload_bytes {
-                ch.set_max_upload_bytes(*b)?;
+                ch.set_max_upload_bytes(*b).await?;
             }
             eprintln!(
                 "stepsim: challenge in {} for {} (quota {} per 24 h, uploads up to {}{})",
@@ -197,26 +212,26 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         Command::Team { command } => match command {
             TeamCommand::Add { name, state } => {
-                let token = Challenge::open(state)?.add_team(name)?;
+                let token = Challenge::open(state).await?.add_team(name).await?;
                 println!("team {name:?} added; its token (shown only now):");
                 println!("{token}");
             }
             TeamCommand::Rotate { name, state } => {
-                let token = Challenge::open(state)?.rotate_token(name)?;
+                let token = Challenge::open(state).await?.rotate_token(name).await?;
                 println!("team {name:?} has a new token (shown only now):");
                 println!("{token}");
             }
             TeamCommand::Revoke { name, state } => {
-                Challenge::open(state)?.revoke(name)?;
+                Challenge::open(state).await?.revoke(name).await?;
                 eprintln!("stepsim: the token of team {name:?} is revoked");
             }
             TeamCommand::Mark { name, role, state } => {
-                Challenge::open(state)?.set_role(name, *role)?;
+                Challenge::open(state).await?.set_role(name, *role).await?;
                 eprintln!("stepsim: team {name:?} is marked {}", role.name());
             }
         },
         Command::Export { state, out } => {
-            let e = Challenge::open(state)?.export(out)?;
+            let e = Challenge::open(state).await?.export(out).await?;
             eprintln!(
                 "stepsim: leaderboard written: {}, {} and {} reports",
                 e.json.display(),
@@ -225,39 +240,42 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             );
         }
         Command::Reveal { state } => {
-            Challenge::open(state)?.reveal()?;
+            Challenge::open(state).await?.reveal().await?;
             eprintln!("stepsim: revealed (and closed): held-out scores are on the leaderboard");
         }
         Command::Deadline { state, at } => {
-            Challenge::open(state)?.set_deadline(Some(*at))?;
+            Challenge::open(state)
+                .await?
+                .set_deadline(Some(*at))
+                .await?;
             eprintln!(
                 "stepsim: uploads are refused from {}",
                 stepsim_server::utc_text(*at)
             );
         }
         Command::Freeze { state } => {
-            Challenge::open(state)?.freeze()?;
+            Challenge::open(state).await?.freeze().await?;
             eprintln!("stepsim: frozen: no more uploads; final entries can still be chosen");
         }
         Command::Close { state } => {
-            Challenge::open(state)?.close()?;
+            Challenge::open(state).await?.close().await?;
             eprintln!("stepsim: closed: no more uploads or choices of final entries");
         }
         Command::Rescore { state } => {
-            let n = Challenge::open(state)?.rescore()?;
+            let n = Challenge::open(state).await?.rescore().await?;
             eprintln!(
                 "stepsim: {n} scored entries queued again for {}",
                 stepsim_server::worker::SCORER_VERSION
             );
         }
         Command::OrganiserPassword { state } => {
-            let mut ch = Challenge::open(state)?;
+            let mut ch = Challenge::open(state).await?;
             let mut line = String::new();
             std::io::stdin()
                 .read_line(&mut line)
                 .map_err(|e| anyhow::anyhow!("cannot read the password from stdin: {e}"))?;
             let password = line.trim_end_matches(['\n', '\r']);
-            ch.set_organiser_password(password)?;
+            ch.set_organiser_password(password).await?;
             eprintln!("stepsim: the organiser password is set (only its hash is stored)");
         }
     }

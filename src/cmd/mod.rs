@@ -12,6 +12,7 @@ pub mod psf;
 pub mod score;
 pub mod serve;
 pub mod slurm;
+pub mod worker;
 
 use anyhow::Context as _;
 use std::path::PathBuf;

@@ -3,6 +3,35 @@
 use std::path::PathBuf;
 use std::time::Duration;
 use stepsim_server::limits as l;
+use stepsim_server::store::StoreUrl;
+
+/// What `serve` and `worker` share: the store, and how a job is run.
+#[derive(Debug, clap::Args)]
+pub struct WorkerArgs {
+    /// The store, when not the one the state directory names:
+    /// postgres://USER@HOST:PORT/DATABASE or sqlite:PATH.
+    #[arg(long, value_name = "URL", value_parser = StoreUrl::parse)]
+    store: Option<StoreUrl>,
+    /// Give up a scoring job after this many seconds.
+    #[arg(long, value_name = "S", default_value_t = 600)]
+    timeout_s: u64,
+    /// A job's lease: a worker renews it every third of this while it
+    /// scores; a job whose worker died is taken again once it runs out.
+    #[arg(long, value_name = "S", default_value_t = stepsim_server::worker::DEFAULT_LEASE_S,
+          value_parser = clap::value_parser!(i64).range(3..=86_400))]
+    lease_s: i64,
+}
+
+impl WorkerArgs {
+    /// The worker's options.
+    pub fn options(&self) -> stepsim_server::worker::WorkerOptions {
+        stepsim_server::worker::WorkerOptions {
+            timeout: Duration::from_secs(self.timeout_s),
+            lease_s: self.lease_s,
+            store: self.store.clone(),
+        }
+    }
+}
 
 /// Arguments of `stepsim serve` (the limits: docs/server.md, "Threat model").
 #[derive(Debug, clap::Args)]
@@ -13,12 +42,12 @@ pub struct Args {
     /// Address to listen on.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8080")]
     listen: String,
-    /// Scoring workers (one running job per team).
+    /// Scoring workers of this process (one running job per team); 0 when
+    /// `stepsim worker` processes score the queue.
     #[arg(long, value_name = "N", default_value_t = 1)]
     workers: usize,
-    /// Give up a scoring job after this many seconds.
-    #[arg(long, value_name = "S", default_value_t = 600)]
-    timeout_s: u64,
+    #[command(flatten)]
+    worker: WorkerArgs,
     /// Close a connection whose request headers take longer (from their first byte).
     #[arg(long, value_name = "S", default_value_t = l::DEFAULT_HEADER_TIMEOUT.as_secs())]
     header_timeout_s: u64,
@@ -86,7 +115,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.state.clone(),
         &args.listen,
         args.workers,
-        Duration::from_secs(args.timeout_s),
+        args.worker.options(),
         limits,
         args.open_metrics,
     )?;

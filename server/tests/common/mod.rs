@@ -87,3 +87,82 @@ pub fn write_public(dir: &Path, all: &SynthRun) -> Vec<(String, Vec<u8>)> {
     all_files.extend(files);
     all_files
 }
+
+/// The store the tests run on: a fresh PostgreSQL database on the server
+/// that `STEPSIM_TEST_POSTGRES` names (a URL whose user may create
+/// databases, e.g. `postgres://postgres@127.0.0.1:5433/postgres`; set by
+/// `tests/all.sh` for the second run of these tests), else `None`: the
+/// state directory's SQLite file.
+pub async fn test_store() -> Option<stepsim_server::store::StoreUrl> {
+    let admin = std::env::var("STEPSIM_TEST_POSTGRES").ok()?;
+    Some(fresh_database(&admin).await)
+}
+
+/// Creates an empty database on the server of `admin` and returns its URL.
+pub async fn fresh_database(admin: &str) -> stepsim_server::store::StoreUrl {
+    let (client, conn) = tokio_postgres::connect(admin, tokio_postgres::NoTls)
+        .await
+        .unwrap_or_else(|e| panic!("STEPSIM_TEST_POSTGRES={admin}: {e}"));
+    tokio::spawn(conn);
+    let mut b = [0u8; 8];
+    getrandom::fill(&mut b).unwrap();
+    let name = format!(
+        "stepsim_t_{}",
+        b.iter().map(|x| format!("{x:02x}")).collect::<String>()
+    );
+    client
+        .batch_execute(&format!("CREATE DATABASE {name}"))
+        .await
+        .unwrap();
+    let (base, _) = admin.rsplit_once('/').expect("a URL with a database");
+    stepsim_server::store::StoreUrl::Postgres(format!("{base}/{name}"))
+}
+
+/// `Challenge::init` on the tests' store ([`test_store`]).
+pub async fn init(
+    run: &Path,
+    state: &Path,
+    quota: u32,
+    no_holdout: bool,
+) -> Result<stepsim_server::Challenge, stepsim_server::ChallengeError> {
+    let store = test_store().await;
+    stepsim_server::Challenge::init_with_store(run, state, quota, no_holdout, store.as_ref()).await
+}
+
+/// The lease the tests' own scoring loops take jobs with.
+pub fn lease() -> stepsim_server::store::Lease {
+    stepsim_server::store::Lease {
+        worker: "test".into(),
+        seconds: 600,
+    }
+}
+
+/// Everything the challenge's store holds, as text: the SQLite file's
+/// bytes, or every row of every table of its PostgreSQL database (for
+/// tests that a secret is never stored).
+pub async fn store_text(state: &Path) -> String {
+    match std::fs::read_to_string(state.join(stepsim_server::store::STORE_FILE)) {
+        Ok(url) => {
+            let (client, conn) = tokio_postgres::connect(url.trim(), tokio_postgres::NoTls)
+                .await
+                .unwrap();
+            tokio::spawn(conn);
+            let mut text = String::new();
+            for table in ["meta", "teams", "submissions", "format_failures", "scores"] {
+                for row in client
+                    .query(&format!("SELECT row_to_json(x)::text FROM {table} x"), &[])
+                    .await
+                    .unwrap()
+                {
+                    text.push_str(row.get::<_, &str>(0));
+                    text.push('\n');
+                }
+            }
+            text
+        }
+        Err(_) => {
+            String::from_utf8_lossy(&std::fs::read(state.join("challenge.db")).unwrap())
+                .into_owned()
+        }
+    }
+}

@@ -1,38 +1,17 @@
-//! The challenge's state behind one trait ([`Store`]), so that PostgreSQL
-//! can be a second backend; [`SqliteStore`] is the default: one SQLite file
-//! in WAL mode whose schema migrations ship in the binary ([`MIGRATIONS`]).
-//!
-//! Times are Unix seconds (UTC). A submission moves
-//! `queued → scoring → scored | refused` exactly once; a server that stops
-//! while scoring puts its `scoring` rows back to `queued` when it starts
-//! ([`Store::requeue_interrupted`]), and a job's result is written in one
-//! transaction, so every accepted submission is scored once.
+//! [`Store`] on one SQLite file (WAL mode; schema migrations ship in the
+//! binary, [`MIGRATIONS`]). One connection, used on tokio's blocking
+//! threads: a database locked by another process (an organiser's
+//! `sqlite3`, a backup) waits out the busy timeout there, never on the
+//! threads that answer requests.
 
+use super::{
+    Admission, FormatFailure, Lease, Ledger, QueueCounts, Role, Rule, Score, Store, StoreError,
+    Submission, Team,
+};
 use rusqlite::{Connection, OptionalExtension, params};
+use std::collections::HashMap;
 use std::path::Path;
-
-/// What can go wrong in the store.
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    /// The database refused an operation.
-    #[error("database {path}: {message}")]
-    Db {
-        /// The database file.
-        path: String,
-        /// What SQLite said.
-        message: String,
-    },
-    /// The database was made by a newer stepsim.
-    #[error("database {path} has schema version {found}; this stepsim knows up to {known}")]
-    TooNew {
-        /// The database file.
-        path: String,
-        /// Its version.
-        found: i64,
-        /// The newest this binary knows.
-        known: i64,
-    },
-}
+use std::sync::{Arc, Mutex};
 
 /// Schema migrations, applied in order; `PRAGMA user_version` counts those
 /// applied. Never edit one that has shipped: add another.
@@ -92,238 +71,16 @@ INSERT INTO scores (submission_id, scorer_version, status, finished_s, error, pu
            public_json, holdout_json, n_scorings
     FROM submissions WHERE status IN ('scored', 'refused');
 "#,
+    r#"
+ALTER TABLE submissions ADD COLUMN lease_until_s INTEGER;
+ALTER TABLE submissions ADD COLUMN worker TEXT;
+"#,
 ];
 
-/// A team's part in the challenge: participants are ranked; the organisers'
-/// rows and the baseline (the KSB+ reference) are shown, tagged, unranked.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum Role {
-    /// Ranked on the leaderboards.
-    #[default]
-    Participant,
-    /// The organisers' own entries: shown, never ranked.
-    Organisers,
-    /// The reference pipeline: shown, tagged, never ranked.
-    Baseline,
-}
-
-impl Role {
-    /// Every role.
-    pub const ALL: [Role; 3] = [Role::Participant, Role::Organisers, Role::Baseline];
-
-    /// The role's name (`participant`, `organisers`, `baseline`), as stored
-    /// and as the API's `role` key.
-    pub fn name(self) -> &'static str {
-        match self {
-            Role::Participant => "participant",
-            Role::Organisers => "organisers",
-            Role::Baseline => "baseline",
-        }
-    }
-
-    /// The role of a name, if it is one.
-    pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|r| r.name() == name)
-    }
-}
-
-/// One score of an entry by one scorer version (kept when the entry is
-/// scored again by another).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Score {
-    /// The entry.
-    pub submission_id: i64,
-    /// The scorer that made it ([`crate::worker::SCORER_VERSION`]).
-    pub scorer_version: String,
-    /// `scored` or `refused`.
-    pub status: String,
-    /// When it was recorded.
-    pub finished_s: i64,
-    /// Why it was refused.
-    pub error: Option<String>,
-    /// The public feedback (JSON).
-    pub public_json: Option<String>,
-    /// The held-out summary (JSON).
-    pub holdout_json: Option<String>,
-    /// How many times this scorer version finished scoring the entry
-    /// (1: exactly once).
-    pub n_scorings: i64,
-}
-
-/// A team.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Team {
-    /// Row id.
-    pub id: i64,
-    /// Display name (any text; escaped wherever shown).
-    pub name: String,
-    /// True when its token no longer works.
-    pub revoked: bool,
-    /// Ranked, or shown unranked as the organisers' or the baseline.
-    pub role: Role,
-}
-
-/// One submission.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Submission {
-    /// Row id (the `id` of the API).
-    pub id: i64,
-    /// Its team.
-    pub team_id: i64,
-    /// SHA-256 of the uploaded bytes (lower-case hex).
-    pub sha256: String,
-    /// Size of the upload.
-    pub bytes: i64,
-    /// When it was accepted.
-    pub created_s: i64,
-    /// `queued`, `scoring`, `scored` or `refused`.
-    pub status: String,
-    /// Why it was refused.
-    pub error: Option<String>,
-    /// The public feedback (JSON of `stepsim_harness::part::PublicFeedback`).
-    pub public_json: Option<String>,
-    /// The held-out summary (JSON), shown only after reveal.
-    pub holdout_json: Option<String>,
-    /// How many times a worker finished scoring it, over all scorer
-    /// versions (1 once scored; each re-score adds one).
-    pub n_scorings: i64,
-    /// The scorer version of the score shown (the newest), once scored.
-    pub scorer_version: Option<String>,
-    /// True when its team chose it as a final entry.
-    pub final_choice: bool,
-}
-
-impl Submission {
-    /// True when it has a score to show (`scored`, or queued again for a
-    /// re-score and still showing its previous one).
-    pub fn has_score(&self) -> bool {
-        self.public_json.is_some()
-    }
-}
-
-/// An upload the format check refused: never an entry, but counted
-/// against its team's cap on refused uploads.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct FormatFailure {
-    /// The team.
-    pub team_id: i64,
-    /// When (Unix seconds).
-    pub created_s: i64,
-    /// The harness's message, as the team was shown it.
-    pub error: String,
-}
-
-/// How many entries are in each state, and how many uploads the format
-/// check refused (what the organisers' page and `/metrics` show).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct QueueCounts {
-    /// Entries waiting for a worker.
-    pub queued: u64,
-    /// Entries being scored.
-    pub scoring: u64,
-    /// Entries scored.
-    pub scored: u64,
-    /// Entries the scorer refused.
-    pub refused: u64,
-    /// Uploads refused by the format check (never entries).
-    pub format_refusals: u64,
-}
-
-/// The challenge's storage. Every method is one transaction.
-pub trait Store: Send {
-    /// A setting (`run`, `quota`, `revealed`, ...).
-    fn meta(&self, key: &str) -> Result<Option<String>, StoreError>;
-    /// Sets a setting.
-    fn set_meta(&mut self, key: &str, value: &str) -> Result<(), StoreError>;
-    /// Adds a team with the SHA-256 of its token.
-    fn add_team(&mut self, name: &str, token_sha256: &str, now_s: i64) -> Result<i64, StoreError>;
-    /// A team by name.
-    fn team_by_name(&self, name: &str) -> Result<Option<Team>, StoreError>;
-    /// The team whose (unrevoked) token has this SHA-256.
-    fn team_by_token(&self, token_sha256: &str) -> Result<Option<Team>, StoreError>;
-    /// Replaces a team's token hash (and un-revokes it).
-    fn set_token(&mut self, team_id: i64, token_sha256: &str) -> Result<(), StoreError>;
-    /// Revokes a team's token.
-    fn revoke(&mut self, team_id: i64) -> Result<(), StoreError>;
-    /// Every team, by id.
-    fn teams(&self) -> Result<Vec<Team>, StoreError>;
-    /// Queues an accepted upload; returns its id.
-    fn insert_submission(
-        &mut self,
-        team_id: i64,
-        sha256: &str,
-        bytes: i64,
-        now_s: i64,
-    ) -> Result<i64, StoreError>;
-    /// A team's entry with the same bytes, if any.
-    fn find_duplicate(&self, team_id: i64, sha256: &str) -> Result<Option<i64>, StoreError>;
-    /// One submission.
-    fn submission(&self, id: i64) -> Result<Option<Submission>, StoreError>;
-    /// A team's submissions, newest first.
-    fn submissions_of(&self, team_id: i64) -> Result<Vec<Submission>, StoreError>;
-    /// Every submission, by id.
-    fn all_submissions(&self) -> Result<Vec<Submission>, StoreError>;
-    /// Creation times of a team's accepted submissions since `since_s`.
-    fn accepted_since(&self, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError>;
-    /// Records a refused upload (format check); returns nothing.
-    fn add_format_failure(
-        &mut self,
-        team_id: i64,
-        error: &str,
-        now_s: i64,
-    ) -> Result<(), StoreError>;
-    /// Times of a team's refused uploads since `since_s`.
-    fn format_failures_since(&self, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError>;
-    /// The newest `limit` refused uploads, of one team or (`None`) of all,
-    /// newest first.
-    fn format_failures(
-        &self,
-        team_id: Option<i64>,
-        limit: usize,
-    ) -> Result<Vec<FormatFailure>, StoreError>;
-    /// Entries by state and the count of refused uploads.
-    fn queue_counts(&self) -> Result<QueueCounts, StoreError>;
-    /// How many uploads of each team the format check refused, all time
-    /// (team id, count), by team id.
-    fn format_failure_counts(&self) -> Result<Vec<(i64, u64)>, StoreError>;
-    /// Takes the oldest queued job of a team that has none scoring.
-    fn claim_job(&mut self, now_s: i64) -> Result<Option<Submission>, StoreError>;
-    /// Ends a job: `scored` with its feedback, or `refused` with a message.
-    fn finish_job(
-        &mut self,
-        id: i64,
-        result: Result<(String, Option<String>), String>,
-        scorer_version: &str,
-        now_s: i64,
-    ) -> Result<(), StoreError>;
-    /// Puts jobs left `scoring` by a stopped server back in the queue.
-    fn requeue_interrupted(&mut self) -> Result<usize, StoreError>;
-    /// Sets a team's role.
-    fn set_role(&mut self, team_id: i64, role: Role) -> Result<(), StoreError>;
-    /// Makes `ids` the team's final entries (and no other); the caller
-    /// checks them ([`crate::challenge::choose_final_entries`]). Ids of
-    /// other teams are left alone.
-    fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<(), StoreError>;
-    /// The entries a team chose as final, by id (empty: none chosen).
-    fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError>;
-    /// Queues again every scored entry that has no score by
-    /// `scorer_version`; returns how many. Their previous scores stay shown
-    /// until the new ones are recorded, and stay in [`Store::scores_of`].
-    fn rescore(&mut self, scorer_version: &str) -> Result<usize, StoreError>;
-    /// Every score of an entry, the most recently recorded first.
-    fn scores_of(&self, submission_id: i64) -> Result<Vec<Score>, StoreError>;
-}
-
-/// [`Store`] on one SQLite file.
-pub struct SqliteStore {
+/// The connection and its file's name: what the blocking threads use.
+struct Conn {
     conn: Connection,
     path: String,
-}
-
-impl std::fmt::Debug for SqliteStore {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "SqliteStore({})", self.path)
-    }
 }
 
 const SUBMISSION_COLUMNS: &str = "id, team_id, sha256, bytes, created_s, status, error, \
@@ -362,6 +119,12 @@ fn row_score(r: &rusqlite::Row<'_>) -> rusqlite::Result<Score> {
     })
 }
 
+fn meta_of(conn: &Connection) -> rusqlite::Result<HashMap<String, String>> {
+    let mut st = conn.prepare_cached("SELECT key, value FROM meta")?;
+    let rows = st.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?;
+    rows.collect()
+}
+
 fn row_team(r: &rusqlite::Row<'_>) -> rusqlite::Result<Team> {
     Ok(Team {
         id: r.get(0)?,
@@ -371,10 +134,8 @@ fn row_team(r: &rusqlite::Row<'_>) -> rusqlite::Result<Team> {
     })
 }
 
-impl SqliteStore {
-    /// Opens (creating when `create`) the database and applies the
-    /// migrations it lacks.
-    pub fn open(path: &Path, create: bool) -> Result<Self, StoreError> {
+impl Conn {
+    fn open(path: &Path, create: bool) -> Result<Self, StoreError> {
         use rusqlite::OpenFlags;
         let name = path.display().to_string();
         let db = |e: rusqlite::Error| StoreError::Db {
@@ -455,7 +216,7 @@ impl SqliteStore {
     }
 }
 
-impl Store for SqliteStore {
+impl Conn {
     fn meta(&self, key: &str) -> Result<Option<String>, StoreError> {
         self.conn
             .query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0))
@@ -549,17 +310,6 @@ impl Store for SqliteStore {
             )
             .map_err(|e| self.err(e))?;
         Ok(self.conn.last_insert_rowid())
-    }
-
-    fn find_duplicate(&self, team_id: i64, sha256: &str) -> Result<Option<i64>, StoreError> {
-        self.conn
-            .query_row(
-                "SELECT id FROM submissions WHERE team_id = ?1 AND sha256 = ?2 ORDER BY id LIMIT 1",
-                params![team_id, sha256],
-                |r| r.get(0),
-            )
-            .optional()
-            .map_err(|e| self.err(e))
     }
 
     fn submission(&self, id: i64) -> Result<Option<Submission>, StoreError> {
@@ -683,15 +433,21 @@ impl Store for SqliteStore {
         Ok(c)
     }
 
-    fn claim_job(&mut self, now_s: i64) -> Result<Option<Submission>, StoreError> {
+    fn claim_job(&mut self, lease: &Lease, now_s: i64) -> Result<Option<Submission>, StoreError> {
+        // One statement: SQLite runs one writer at a time, so two claims
+        // (of any processes) never take one job.
         let id: Option<i64> = self
             .conn
             .query_row(
-                "UPDATE submissions SET status = 'scoring', started_s = ?1 WHERE id = (\
-                   SELECT id FROM submissions WHERE status = 'queued' AND team_id NOT IN \
-                   (SELECT team_id FROM submissions WHERE status = 'scoring') \
-                   ORDER BY id LIMIT 1) RETURNING id",
-                [now_s],
+                "UPDATE submissions SET status = 'scoring', started_s = ?1, worker = ?2, \
+                 lease_until_s = ?1 + ?3 WHERE id = (\
+                   SELECT s.id FROM submissions s WHERE (s.status = 'queued' OR \
+                   (s.status = 'scoring' AND COALESCE(s.lease_until_s, 0) < ?1)) \
+                   AND NOT EXISTS (SELECT 1 FROM submissions o WHERE o.team_id = s.team_id \
+                   AND o.id <> s.id AND o.status = 'scoring' \
+                   AND COALESCE(o.lease_until_s, 0) >= ?1) \
+                   ORDER BY s.id LIMIT 1) RETURNING id",
+                params![now_s, lease.worker, lease.seconds],
                 |r| r.get(0),
             )
             .optional()
@@ -702,13 +458,25 @@ impl Store for SqliteStore {
         }
     }
 
+    fn renew_lease(&mut self, id: i64, lease: &Lease, now_s: i64) -> Result<bool, StoreError> {
+        self.conn
+            .execute(
+                "UPDATE submissions SET lease_until_s = ?3 + ?4 \
+                 WHERE id = ?1 AND status = 'scoring' AND worker = ?2",
+                params![id, lease.worker, now_s, lease.seconds],
+            )
+            .map(|n| n == 1)
+            .map_err(|e| self.err(e))
+    }
+
     fn finish_job(
         &mut self,
         id: i64,
+        worker: &str,
         result: Result<(String, Option<String>), String>,
         scorer_version: &str,
         now_s: i64,
-    ) -> Result<(), StoreError> {
+    ) -> Result<bool, StoreError> {
         let (status, error, public, holdout) = match result {
             Ok((p, h)) => ("scored", None, Some(p), h),
             Err(e) => ("refused", Some(e), None, None),
@@ -723,8 +491,18 @@ impl Store for SqliteStore {
             .execute(
                 "UPDATE submissions SET status = ?2, error = ?3, public_json = ?4, \
                  holdout_json = ?5, scorer_version = ?6, finished_s = ?7, \
-                 n_scorings = n_scorings + 1 WHERE id = ?1 AND status = 'scoring'",
-                params![id, status, error, public, holdout, scorer_version, now_s],
+                 n_scorings = n_scorings + 1, lease_until_s = NULL \
+                 WHERE id = ?1 AND status = 'scoring' AND worker = ?8",
+                params![
+                    id,
+                    status,
+                    error,
+                    public,
+                    holdout,
+                    scorer_version,
+                    now_s,
+                    worker
+                ],
             )
             .map_err(db)?;
         if changed == 1 {
@@ -739,14 +517,83 @@ impl Store for SqliteStore {
             )
             .map_err(db)?;
         }
-        tx.commit().map_err(db)
+        tx.commit().map_err(db)?;
+        Ok(changed == 1)
+    }
+
+    fn admit(
+        &mut self,
+        team_id: i64,
+        sha256: &str,
+        bytes: i64,
+        now_s: i64,
+        since_s: i64,
+        accept: &(dyn Fn(&Ledger) -> bool + Send + Sync),
+    ) -> Result<Admission, StoreError> {
+        let path = self.path.clone();
+        let db = |e: rusqlite::Error| StoreError::Db {
+            path: path.clone(),
+            message: e.to_string(),
+        };
+        // IMMEDIATE: the write lock from the first read, so no other
+        // process inserts between this check and this insert.
+        let tx = self
+            .conn
+            .transaction_with_behavior(rusqlite::TransactionBehavior::Immediate)
+            .map_err(db)?;
+        let dup: Option<(i64, String)> = tx
+            .query_row(
+                "SELECT id, status FROM submissions WHERE team_id = ?1 AND sha256 = ?2 \
+                 ORDER BY id LIMIT 1",
+                params![team_id, sha256],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()
+            .map_err(db)?;
+        if let Some((id, status)) = dup {
+            return Ok(Admission::Duplicate(id, status));
+        }
+        let times = |sql: &str| -> Result<Vec<i64>, StoreError> {
+            let mut st = tx.prepare_cached(sql).map_err(db)?;
+            let rows = st
+                .query_map(params![team_id, since_s], |r| r.get(0))
+                .and_then(|it| it.collect::<rusqlite::Result<Vec<i64>>>());
+            rows.map_err(db)
+        };
+        let ledger = Ledger {
+            meta: meta_of(&tx).map_err(db)?,
+            accepted: times(
+                "SELECT created_s FROM submissions WHERE team_id = ?1 AND created_s > ?2 \
+                 ORDER BY created_s",
+            )?,
+            refused: times(
+                "SELECT created_s FROM format_failures WHERE team_id = ?1 AND created_s > ?2 \
+                 ORDER BY created_s",
+            )?,
+        };
+        if !accept(&ledger) {
+            return Ok(Admission::Declined(ledger));
+        }
+        tx.execute(
+            "INSERT INTO submissions (team_id, sha256, bytes, created_s, status) \
+             VALUES (?1, ?2, ?3, ?4, 'queued')",
+            params![team_id, sha256, bytes, now_s],
+        )
+        .map_err(db)?;
+        let id = tx.last_insert_rowid();
+        tx.commit().map_err(db)?;
+        Ok(Admission::Inserted(id))
+    }
+
+    fn all_meta(&self) -> Result<HashMap<String, String>, StoreError> {
+        meta_of(&self.conn).map_err(|e| self.err(e))
     }
 
     fn requeue_interrupted(&mut self) -> Result<usize, StoreError> {
         self.conn
             .execute(
-                "UPDATE submissions SET status = 'queued', started_s = NULL \
-                 WHERE status = 'scoring'",
+                "UPDATE submissions SET status = 'queued', started_s = NULL, \
+                 lease_until_s = NULL, worker = NULL WHERE status = 'scoring'",
                 [],
             )
             .map_err(|e| self.err(e))
@@ -762,13 +609,25 @@ impl Store for SqliteStore {
             .map_err(|e| self.err(e))
     }
 
-    fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<(), StoreError> {
+    fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<bool, StoreError> {
         let path = self.path.clone();
         let db = |e: rusqlite::Error| StoreError::Db {
             path: path.clone(),
             message: e.to_string(),
         };
-        let tx = self.conn.transaction().map_err(db)?;
+        let tx = self
+            .conn
+            .transaction_with_behavior(rusqlite::TransactionBehavior::Immediate)
+            .map_err(db)?;
+        let closed: Option<String> = tx
+            .query_row("SELECT value FROM meta WHERE key = 'closed'", [], |r| {
+                r.get(0)
+            })
+            .optional()
+            .map_err(db)?;
+        if closed.as_deref() == Some("true") {
+            return Ok(false);
+        }
         tx.execute(
             "UPDATE submissions SET final = 0 WHERE team_id = ?1 AND final = 1",
             [team_id],
@@ -781,7 +640,8 @@ impl Store for SqliteStore {
             )
             .map_err(db)?;
         }
-        tx.commit().map_err(db)
+        tx.commit().map_err(db)?;
+        Ok(true)
     }
 
     fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError> {
@@ -800,8 +660,8 @@ impl Store for SqliteStore {
     fn rescore(&mut self, scorer_version: &str) -> Result<usize, StoreError> {
         self.conn
             .execute(
-                "UPDATE submissions SET status = 'queued', started_s = NULL \
-                 WHERE status = 'scored' AND NOT EXISTS (SELECT 1 FROM scores \
+                "UPDATE submissions SET status = 'queued', started_s = NULL, \
+                 lease_until_s = NULL, worker = NULL WHERE status = 'scored' AND NOT EXISTS (SELECT 1 FROM scores \
                  WHERE scores.submission_id = submissions.id AND scores.scorer_version = ?1)",
                 [scorer_version],
             )
@@ -818,5 +678,237 @@ impl Store for SqliteStore {
             .query_map([submission_id], row_score)
             .and_then(|it| it.collect::<rusqlite::Result<Vec<_>>>());
         rows.map_err(|e| self.err(e))
+    }
+}
+
+/// [`Store`] on one SQLite file.
+#[derive(Clone)]
+pub struct SqliteStore {
+    inner: Arc<Mutex<Conn>>,
+    path: String,
+}
+
+impl std::fmt::Debug for SqliteStore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SqliteStore({})", self.path)
+    }
+}
+
+impl SqliteStore {
+    /// Opens (creating when `create`) the database and applies the
+    /// migrations it lacks.
+    pub async fn open(path: &Path, create: bool) -> Result<Self, StoreError> {
+        let owned = path.to_path_buf();
+        let name = path.display().to_string();
+        let conn = tokio::task::spawn_blocking(move || Conn::open(&owned, create))
+            .await
+            .map_err(|e| StoreError::Db {
+                path: name.clone(),
+                message: e.to_string(),
+            })??;
+        Ok(Self {
+            inner: Arc::new(Mutex::new(conn)),
+            path: name,
+        })
+    }
+
+    /// Runs `f` on the connection on a blocking thread.
+    async fn run<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut Conn) -> Result<T, StoreError> + Send + 'static,
+    ) -> Result<T, StoreError> {
+        let inner = self.inner.clone();
+        tokio::task::spawn_blocking(move || {
+            let mut conn = inner
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            f(&mut conn)
+        })
+        .await
+        .map_err(|e| StoreError::Db {
+            path: self.path.clone(),
+            message: format!("the store's thread failed: {e}"),
+        })?
+    }
+}
+
+#[async_trait::async_trait]
+impl Store for SqliteStore {
+    fn describe(&self) -> String {
+        format!("sqlite:{}", self.path)
+    }
+
+    async fn meta(&self, key: &str) -> Result<Option<String>, StoreError> {
+        let key = key.to_owned();
+        self.run(move |c| c.meta(&key)).await
+    }
+
+    async fn all_meta(&self) -> Result<HashMap<String, String>, StoreError> {
+        self.run(|c| c.all_meta()).await
+    }
+
+    async fn set_meta(&self, key: &str, value: &str) -> Result<(), StoreError> {
+        let (key, value) = (key.to_owned(), value.to_owned());
+        self.run(move |c| c.set_meta(&key, &value)).await
+    }
+
+    async fn add_team(
+        &self,
+        name: &str,
+        token_sha256: &str,
+        now_s: i64,
+    ) -> Result<i64, StoreError> {
+        let (name, token) = (name.to_owned(), token_sha256.to_owned());
+        self.run(move |c| c.add_team(&name, &token, now_s)).await
+    }
+
+    async fn team_by_name(&self, name: &str) -> Result<Option<Team>, StoreError> {
+        let name = name.to_owned();
+        self.run(move |c| c.team_by_name(&name)).await
+    }
+
+    async fn team_by_token(&self, token_sha256: &str) -> Result<Option<Team>, StoreError> {
+        let token = token_sha256.to_owned();
+        self.run(move |c| c.team_by_token(&token)).await
+    }
+
+    async fn set_token(&self, team_id: i64, token_sha256: &str) -> Result<(), StoreError> {
+        let token = token_sha256.to_owned();
+        self.run(move |c| c.set_token(team_id, &token)).await
+    }
+
+    async fn revoke(&self, team_id: i64) -> Result<(), StoreError> {
+        self.run(move |c| c.revoke(team_id)).await
+    }
+
+    async fn teams(&self) -> Result<Vec<Team>, StoreError> {
+        self.run(|c| c.teams()).await
+    }
+
+    async fn admit(
+        &self,
+        team_id: i64,
+        sha256: &str,
+        bytes: i64,
+        now_s: i64,
+        since_s: i64,
+        accept: Rule,
+    ) -> Result<Admission, StoreError> {
+        let sha = sha256.to_owned();
+        self.run(move |c| c.admit(team_id, &sha, bytes, now_s, since_s, accept.as_ref()))
+            .await
+    }
+
+    async fn insert_submission(
+        &self,
+        team_id: i64,
+        sha256: &str,
+        bytes: i64,
+        now_s: i64,
+    ) -> Result<i64, StoreError> {
+        let sha = sha256.to_owned();
+        self.run(move |c| c.insert_submission(team_id, &sha, bytes, now_s))
+            .await
+    }
+
+    async fn submission(&self, id: i64) -> Result<Option<Submission>, StoreError> {
+        self.run(move |c| c.submission(id)).await
+    }
+
+    async fn submissions_of(&self, team_id: i64) -> Result<Vec<Submission>, StoreError> {
+        self.run(move |c| c.submissions_of(team_id)).await
+    }
+
+    async fn all_submissions(&self) -> Result<Vec<Submission>, StoreError> {
+        self.run(|c| c.all_submissions()).await
+    }
+
+    async fn accepted_since(&self, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError> {
+        self.run(move |c| c.accepted_since(team_id, since_s)).await
+    }
+
+    async fn add_format_failure(
+        &self,
+        team_id: i64,
+        error: &str,
+        now_s: i64,
+    ) -> Result<(), StoreError> {
+        let error = error.to_owned();
+        self.run(move |c| c.add_format_failure(team_id, &error, now_s))
+            .await
+    }
+
+    async fn format_failures_since(
+        &self,
+        team_id: i64,
+        since_s: i64,
+    ) -> Result<Vec<i64>, StoreError> {
+        self.run(move |c| c.format_failures_since(team_id, since_s))
+            .await
+    }
+
+    async fn format_failures(
+        &self,
+        team_id: Option<i64>,
+        limit: usize,
+    ) -> Result<Vec<FormatFailure>, StoreError> {
+        self.run(move |c| c.format_failures(team_id, limit)).await
+    }
+
+    async fn queue_counts(&self) -> Result<QueueCounts, StoreError> {
+        self.run(|c| c.queue_counts()).await
+    }
+
+    async fn format_failure_counts(&self) -> Result<Vec<(i64, u64)>, StoreError> {
+        self.run(|c| c.format_failure_counts()).await
+    }
+
+    async fn claim_job(&self, lease: &Lease, now_s: i64) -> Result<Option<Submission>, StoreError> {
+        let lease = lease.clone();
+        self.run(move |c| c.claim_job(&lease, now_s)).await
+    }
+
+    async fn renew_lease(&self, id: i64, lease: &Lease, now_s: i64) -> Result<bool, StoreError> {
+        let lease = lease.clone();
+        self.run(move |c| c.renew_lease(id, &lease, now_s)).await
+    }
+
+    async fn finish_job(
+        &self,
+        id: i64,
+        worker: &str,
+        result: Result<(String, Option<String>), String>,
+        scorer_version: &str,
+        now_s: i64,
+    ) -> Result<bool, StoreError> {
+        let (worker, version) = (worker.to_owned(), scorer_version.to_owned());
+        self.run(move |c| c.finish_job(id, &worker, result, &version, now_s))
+            .await
+    }
+
+    async fn requeue_interrupted(&self) -> Result<usize, StoreError> {
+        self.run(|c| c.requeue_interrupted()).await
+    }
+
+    async fn set_role(&self, team_id: i64, role: Role) -> Result<(), StoreError> {
+        self.run(move |c| c.set_role(team_id, role)).await
+    }
+
+    async fn set_final_entries(&self, team_id: i64, ids: &[i64]) -> Result<bool, StoreError> {
+        let ids = ids.to_vec();
+        self.run(move |c| c.set_final_entries(team_id, &ids)).await
+    }
+
+    async fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError> {
+        self.run(move |c| c.final_entries(team_id)).await
+    }
+
+    async fn rescore(&self, scorer_version: &str) -> Result<usize, StoreError> {
+        let version = scorer_version.to_owned();
+        self.run(move |c| c.rescore(&version)).await
+    }
+
+    async fn scores_of(&self, submission_id: i64) -> Result<Vec<Score>, StoreError> {
+        self.run(move |c| c.scores_of(submission_id)).await
     }
 }
