@@ -8,7 +8,12 @@ use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use stepsim_harness::part::{Part, PublicFeedback, score_part};
 use stepsim_harness::pipeline::ScoreOptions;
-use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
+use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+
+/// Runs a call of the async store to its end.
+fn bo<F: std::future::Future>(f: F) -> F::Output {
+    stepsim_server::block_on(f).unwrap()
+}
 
 fn stepsim(args: &[&str]) -> std::process::Output {
     let out = Command::new(env!("CARGO_BIN_EXE_stepsim"))
@@ -25,6 +30,11 @@ type Log = std::sync::Arc<std::sync::Mutex<Vec<String>>>;
 /// Starts `stepsim serve` on a free port (its log as JSON with `json`);
 /// returns the child, its address and its log.
 fn serve(state: &Path, json: bool) -> (Child, String, Log) {
+    serve_with(state, json, &[])
+}
+
+/// [`serve`] with more arguments.
+fn serve_with(state: &Path, json: bool, more: &[&str]) -> (Child, String, Log) {
     let format = if json { "json" } else { "plain" };
     let mut child = Command::new(env!("CARGO_BIN_EXE_stepsim"))
         .args([
@@ -35,7 +45,12 @@ fn serve(state: &Path, json: bool) -> (Child, String, Log) {
             "127.0.0.1:0",
             "--log-format",
             format,
+            // A job the kill interrupted is taken again once its lease
+            // runs out.
+            "--lease-s",
+            "3",
         ])
+        .args(more)
         .stderr(Stdio::piped())
         .stdout(Stdio::null())
         .spawn()
@@ -78,9 +93,9 @@ fn http(addr: &str, method: &str, path: &str, token: &str, body: &[u8]) -> (u16,
     (status, body)
 }
 
-#[test]
-fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
-    let tmp = tempfile::tempdir().unwrap();
+/// A challenge run of 2 PSFs × 2 shears (fields 0-1) and a held-out part
+/// (fields 2-3) written to `dir/run/private`; returns it.
+fn write_challenge_run(dir: &Path) -> SynthRun {
     let mut spec = SynthSpec::small(2);
     spec.psfs.truncate(2);
     spec.shears = vec![(0.0, 0.0), (0.05, 0.0)];
@@ -100,8 +115,22 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
         all.datasets.datasets.push(d);
     }
     all.truth.extend(held.truth.clone());
+    all.write(&dir.join("run").join("private")).unwrap();
+    all
+}
+
+/// A catalogue of `all` with multiplicative bias `m`.
+fn catalogue(all: &SynthRun, m: f64) -> String {
+    let rows =
+        all.submission(&|t, _| (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0)));
+    submission_text(&all.index(), &rows)
+}
+
+#[test]
+fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
+    let tmp = tempfile::tempdir().unwrap();
+    let all = write_challenge_run(tmp.path());
     let run = tmp.path().join("run");
-    all.write(&run.join("private")).unwrap();
     let state = tmp.path().join("state");
     let (r, s) = (run.to_str().unwrap(), state.to_str().unwrap());
     // A run without held-out datasets would be refused; this one is taken.
@@ -129,10 +158,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     let mut ids = Vec::new();
     let mut files = Vec::new();
     for m in [0.0, 0.01, 0.02] {
-        let rows = all.submission(&|t, _| {
-            (!t.is_star()).then_some(((1.0 + m) * t.e1, (1.0 + m) * t.e2, 1.0))
-        });
-        let text = submission_text(&all.index(), &rows);
+        let text = catalogue(&all, m);
         let file = tmp.path().join(format!("cat{}.txt", files.len()));
         std::fs::write(&file, &text).unwrap();
         files.push(file);
@@ -188,10 +214,10 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     let started = count("scoring started");
     assert!(started <= ids.len(), "{log:?}");
     assert_eq!(count("scoring ended: scored"), started, "{log:?}");
-    let ch = stepsim_server::Challenge::open(&state).unwrap();
+    let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
     let truth = run.join("private");
     for (id, file) in ids.iter().zip(&files) {
-        let sub = ch.store.submission(*id).unwrap().unwrap();
+        let sub = bo(ch.store.submission(*id)).unwrap().unwrap();
         assert_eq!(
             (sub.status.as_str(), sub.n_scorings),
             ("scored", 1),
@@ -363,17 +389,17 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
         s,
     ];
     assert!(stepsim(&mark).status.success());
-    let ch = stepsim_server::Challenge::open(&state).unwrap();
-    let team = ch.store.team_by_name("KSB").unwrap().unwrap();
+    let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
+    let team = bo(ch.store.team_by_name("KSB")).unwrap().unwrap();
     assert_eq!(team.role, stepsim_server::store::Role::Baseline);
-    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
     assert_eq!(
         phase.deadline_s,
         Some(4_071_002_645),
         "2099-01-02T02:04:05Z"
     );
     assert_eq!(
-        ch.store.meta("name").unwrap().as_deref(),
+        bo(ch.store.meta("name")).unwrap().as_deref(),
         Some("STEP-mini <test>")
     );
     drop(ch);
@@ -391,8 +417,8 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
             .status
             .success()
     );
-    let ch = stepsim_server::Challenge::open(&state).unwrap();
-    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
+    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
     assert_eq!(
         (phase.deadline_s, phase.frozen, phase.closed),
         (Some(1_906_502_400), true, false)
@@ -414,9 +440,189 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
             .status
             .success()
     );
-    let ch = stepsim_server::Challenge::open(&state).unwrap();
-    let phase = stepsim_server::challenge::Phase::read(ch.store.as_ref()).unwrap();
+    let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
+    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
     assert!(phase.closed && phase.frozen);
-    assert!(ch.verify_organiser_password("a long enough secret"));
-    assert!(!ch.verify_organiser_password("a long enough secret\nsecond line"));
+    assert!(bo(ch.verify_organiser_password("a long enough secret")));
+    assert!(!bo(
+        ch.verify_organiser_password("a long enough secret\nsecond line")
+    ));
+}
+
+/// A fresh, empty database on the PostgreSQL server of `admin` (a URL
+/// whose user may create databases); returns its URL.
+fn fresh_database(admin: &str) -> String {
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let (client, conn) = tokio_postgres::connect(admin, tokio_postgres::NoTls)
+            .await
+            .unwrap_or_else(|e| panic!("STEPSIM_TEST_POSTGRES={admin}: {e}"));
+        tokio::spawn(conn);
+        let name = format!(
+            "stepsim_p_{}_{}",
+            std::process::id(),
+            stepsim_server::now_s()
+        );
+        client
+            .batch_execute(&format!("CREATE DATABASE {name}"))
+            .await
+            .unwrap();
+        let (base, _) = admin.rsplit_once('/').unwrap();
+        format!("{base}/{name}")
+    })
+}
+
+/// Starts `stepsim worker` on `state` with a short lease; its log goes to
+/// a file beside the state.
+fn worker(state: &Path, name: &str) -> Child {
+    let log = std::fs::File::create(state.with_extension(format!("{name}.log"))).unwrap();
+    Command::new(env!("CARGO_BIN_EXE_stepsim"))
+        .args([
+            "worker",
+            "--state",
+            state.to_str().unwrap(),
+            "--lease-s",
+            "3",
+        ])
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .unwrap()
+}
+
+/// Two `serve` (with no workers of their own) and two `worker` processes
+/// share one challenge: on the state directory's SQLite file, and on a
+/// PostgreSQL database when `STEPSIM_TEST_POSTGRES` names a server
+/// (`tests/all.sh` starts one). Uploads go to both servers; one worker is
+/// killed with SIGKILL while it scores; its job is taken again by the
+/// other once the lease runs out, and every accepted upload ends scored
+/// exactly once.
+#[test]
+fn two_servers_and_two_workers_score_every_upload_once_though_a_worker_is_killed() {
+    let mut stores = vec![None];
+    if let Ok(admin) = std::env::var("STEPSIM_TEST_POSTGRES") {
+        stores.push(Some(fresh_database(&admin)));
+    }
+    for store in stores {
+        several_processes_on_one_store(store.as_deref());
+    }
+}
+
+fn several_processes_on_one_store(store: Option<&str>) {
+    let tmp = tempfile::tempdir().unwrap();
+    let all = write_challenge_run(tmp.path());
+    let run = tmp.path().join("run");
+    let state = tmp.path().join("state");
+    let (r, s) = (run.to_str().unwrap(), state.to_str().unwrap());
+    let mut init = vec![
+        "challenge",
+        "init",
+        "--run",
+        r,
+        "--state",
+        s,
+        "--quota",
+        "9",
+    ];
+    if let Some(url) = store {
+        init.extend(["--store", url]);
+    }
+    assert!(stepsim(&init).status.success());
+    assert_eq!(state.join("store.url").exists(), store.is_some());
+    let tokens: Vec<String> = ["A", "B"]
+        .iter()
+        .map(|t| {
+            let out = stepsim(&["challenge", "team", "add", t, "--state", s]);
+            assert!(out.status.success());
+            let text = String::from_utf8(out.stdout).unwrap();
+            text.lines().last().unwrap().to_string()
+        })
+        .collect();
+    let mut workers = [worker(&state, "w1"), worker(&state, "w2")];
+    let servers = [
+        serve_with(&state, false, &["--workers", "0"]),
+        serve_with(&state, false, &["--workers", "0"]),
+    ];
+    // Six uploads, three per team, alternating between the servers.
+    let mut ids = Vec::new();
+    for k in 0..6 {
+        let (_, addr, _) = &servers[k % 2];
+        let text = catalogue(&all, 0.01 * k as f64);
+        let (status, body) = http(
+            addr,
+            "POST",
+            "/api/submissions",
+            &tokens[k % 2],
+            text.as_bytes(),
+        );
+        assert_eq!(status, 202, "{body}");
+        let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+        ids.push(v["id"].as_i64().unwrap());
+    }
+    // Kill the first worker while it scores (its name holds its pid).
+    let victim = format!(":{}:", workers[0].id());
+    let t0 = std::time::Instant::now();
+    let mut killed = None;
+    while killed.is_none() && t0.elapsed() < std::time::Duration::from_secs(60) {
+        let held: Option<i64> = bo(async {
+            let ch = stepsim_server::Challenge::open(&state).await.unwrap();
+            leased_by(&ch, &victim).await
+        });
+        if let Some(id) = held {
+            workers[0].kill().unwrap(); // SIGKILL
+            workers[0].wait().unwrap();
+            killed = Some(id);
+        } else {
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+    }
+    let killed = killed.expect("the first worker took a job");
+    let t0 = std::time::Instant::now();
+    let mut subs = Vec::new();
+    while t0.elapsed() < std::time::Duration::from_secs(120) {
+        let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
+        subs = bo(ch.store.all_submissions()).unwrap();
+        if subs.len() == ids.len() && subs.iter().all(|s| s.status == "scored") {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    for (mut child, _, _) in servers {
+        child.kill().unwrap();
+        child.wait().unwrap();
+    }
+    workers[1].kill().unwrap();
+    workers[1].wait().unwrap();
+    let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
+    assert_eq!(subs.len(), ids.len(), "{subs:?}");
+    for sub in &subs {
+        assert!(ids.contains(&sub.id), "entry {} was not accepted", sub.id);
+        assert_eq!(
+            (sub.status.as_str(), sub.n_scorings),
+            ("scored", 1),
+            "entry {} (the killed worker's job: {killed})",
+            sub.id
+        );
+        let scores = bo(ch.store.scores_of(sub.id)).unwrap();
+        assert_eq!(scores.len(), 1, "{scores:?}");
+        assert_eq!(scores[0].n_scorings, 1, "{scores:?}");
+    }
+    // The surviving worker scored the job the killed one held.
+    let log = std::fs::read_to_string(state.with_extension("w2.log")).unwrap();
+    assert!(
+        log.lines()
+            .any(|l| l.contains("scoring ended: scored") && l.contains(&format!("entry={killed} "))),
+        "{log}"
+    );
+}
+
+/// The job held now under a lease by a worker whose name contains `who`.
+async fn leased_by(ch: &stepsim_server::Challenge, who: &str) -> Option<i64> {
+    let subs = ch.store.all_submissions().await.ok()?;
+    subs.iter()
+        .find(|s| s.status == "scoring" && s.worker.as_deref().is_some_and(|w| w.contains(who)))
+        .map(|s| s.id)
 }

@@ -122,10 +122,8 @@ async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() 
     let locker = std::thread::spawn(move || match pg {
         None => {
             let c = rusqlite::Connection::open(&db).unwrap();
-            c.execute_batch(
-                "BEGIN EXCLUSIVE; UPDATE meta SET value = value WHERE key = 'name';",
-            )
-            .unwrap();
+            c.execute_batch("BEGIN EXCLUSIVE; UPDATE meta SET value = value WHERE key = 'name';")
+                .unwrap();
             std::thread::sleep(Duration::from_secs(15));
             c.execute_batch("COMMIT").unwrap();
         }

@@ -269,7 +269,7 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
             );
         }
         Command::OrganiserPassword { state } => {
-            let mut ch = Challenge::open(state).await?;
+            let ch = Challenge::open(state).await?;
             let mut line = String::new();
             std::io::stdin()
                 .read_line(&mut line)

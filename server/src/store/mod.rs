@@ -149,6 +149,8 @@ pub struct Submission {
     pub scorer_version: Option<String>,
     /// True when its team chose it as a final entry.
     pub final_choice: bool,
+    /// The worker that holds its lease (while `scoring`) or last held it.
+    pub worker: Option<String>,
 }
 
 impl Submission {

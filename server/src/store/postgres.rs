@@ -130,7 +130,7 @@ impl std::ops::DerefMut for Held<'_> {
 }
 
 const SUBMISSION_COLUMNS: &str = "id, team_id, sha256, bytes, created_s, status, error, \
-                                  public_json, holdout_json, n_scorings, scorer_version, final";
+                                  public_json, holdout_json, n_scorings, scorer_version, final, worker";
 
 fn row_submission(r: &Row) -> Submission {
     Submission {
@@ -146,6 +146,7 @@ fn row_submission(r: &Row) -> Submission {
         n_scorings: r.get(9),
         scorer_version: r.get(10),
         final_choice: r.get(11),
+        worker: r.get(12),
     }
 }
 

@@ -84,7 +84,7 @@ struct Conn {
 }
 
 const SUBMISSION_COLUMNS: &str = "id, team_id, sha256, bytes, created_s, status, error, \
-                                  public_json, holdout_json, n_scorings, scorer_version, final";
+                                  public_json, holdout_json, n_scorings, scorer_version, final, worker";
 
 fn row_submission(r: &rusqlite::Row<'_>) -> rusqlite::Result<Submission> {
     Ok(Submission {
@@ -100,6 +100,7 @@ fn row_submission(r: &rusqlite::Row<'_>) -> rusqlite::Result<Submission> {
         n_scorings: r.get(9)?,
         scorer_version: r.get(10)?,
         final_choice: r.get::<_, i64>(11)? != 0,
+        worker: r.get(12)?,
     })
 }
 

@@ -160,9 +160,7 @@ pub async fn store_text(state: &Path) -> String {
             }
             text
         }
-        Err(_) => {
-            String::from_utf8_lossy(&std::fs::read(state.join("challenge.db")).unwrap())
-                .into_owned()
-        }
+        Err(_) => String::from_utf8_lossy(&std::fs::read(state.join("challenge.db")).unwrap())
+            .into_owned(),
     }
 }
