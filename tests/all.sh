@@ -2,8 +2,12 @@
 # The test suite, as README's second command and as CI runs it: installs
 # what the tests need that a machine with only Rust lacks (a C compiler and
 # make for the bundled cfitsio; Debian's chromium and chromium-driver for
-# the browser test; slurm-wlm and munge for the one-node Slurm run), then
-# runs `cargo test --workspace` and the real Slurm run (tests/slurm/run.sh).
+# the browser test; postgresql for the store's second backend; slurm-wlm
+# and munge for the one-node Slurm run), then runs `cargo test --workspace`
+# (the server on SQLite), the server's tests again on a PostgreSQL server
+# started here (initdb + pg_ctl in a temporary directory, on a free port,
+# stopped on exit; STEPSIM_TEST_POSTGRES names it), and the real Slurm run
+# (tests/slurm/run.sh).
 # The Debian packages are installed in the background while the tests
 # compile and waited for before the first test runs; the install's log is
 # shown if it fails. Installing needs root (or sudo) and apt-get: without
@@ -48,12 +52,27 @@ if [ "${STEPSIM_SKIP_BROWSER:-0}" != 1 ] &&
   { ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; }; then
   want+=(chromium chromium-driver)
 fi
+pg_bin() { ls -d /usr/lib/postgresql/*/bin 2>/dev/null | sort -V | tail -n 1; }
+if [ -z "$(pg_bin)" ]; then
+  want+=(postgresql)
+fi
 if [ "$root" = 1 ] && { ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; }; then
   want+=(slurm-wlm munge)
 fi
 apt_pid=""
 apt_log=$(mktemp)
-trap '[ -n "$apt_pid" ] && kill "$apt_pid" 2>/dev/null; rm -f "$apt_log"' EXIT
+pg_dir=""
+stop_pg() {
+  if [ -n "$pg_dir" ]; then
+    as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -m fast stop >/dev/null 2>&1 || true
+    rm -rf "$pg_dir"
+  fi
+}
+# initdb refuses root: as root the cluster is the postgres user's.
+as_pg() {
+  if [ "$root" = 1 ]; then runuser -u postgres -- "$@"; else "$@"; fi
+}
+trap '[ -n "$apt_pid" ] && kill "$apt_pid" 2>/dev/null; rm -f "$apt_log"; stop_pg' EXIT
 if [ ${#want[@]} -gt 0 ]; then
   need_install "${want[@]}"
   ( as_root apt-get update -qq &&
@@ -75,6 +94,26 @@ if [ -n "$apt_pid" ]; then
 fi
 echo "== cargo test --workspace"
 cargo test --workspace "$@"
+echo "== the server's tests again, on PostgreSQL"
+pg_dir=$(mktemp -d /tmp/stepsim-pg.XXXXXX)
+chmod 755 "$pg_dir"
+[ "$root" = 1 ] && chown postgres "$pg_dir"
+pg_port=""
+for _ in $(seq 50); do
+  p=$((20000 + RANDOM % 40000))
+  if ! (echo >"/dev/tcp/127.0.0.1/$p") 2>/dev/null; then pg_port=$p; break; fi
+done
+[ -n "$pg_port" ] || { echo "tests/all.sh: no free port for PostgreSQL"; exit 1; }
+as_pg "$(pg_bin)/initdb" -D "$pg_dir/data" -A trust -U postgres >"$pg_dir/initdb.log" 2>&1 ||
+  { cat "$pg_dir/initdb.log"; echo "tests/all.sh: initdb failed"; exit 1; }
+as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -l "$pg_dir/log" -w \
+  -o "-p $pg_port -k $pg_dir -c listen_addresses=127.0.0.1 -c max_connections=300 -c fsync=off" start >/dev/null ||
+  { cat "$pg_dir/log"; echo "tests/all.sh: PostgreSQL did not start"; exit 1; }
+STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres" \
+  cargo test --workspace --test api --test pages --test hardening --test prober \
+  --test browser --test binary_restart "$@"
+stop_pg
+pg_dir=""
 echo "== a real one-node Slurm (tests/slurm/run.sh, docs/cluster.md)"
 if [ "$root" = 1 ]; then
   # `cargo test --workspace` has just built target/debug/stepsim for the
