@@ -26,6 +26,12 @@ fn role(text: &str) -> Result<Role, String> {
 pub struct Args {
     #[command(subcommand)]
     command: Command,
+    /// The store, when not the one the state directory names:
+    /// postgres://USER@HOST:PORT/DATABASE (for `init`: an empty database,
+    /// named then in DIR/store.url) or sqlite:PATH (default:
+    /// DIR/challenge.db).
+    #[arg(long, value_name = "URL", value_parser = store_url, global = true)]
+    store: Option<StoreUrl>,
 }
 
 #[derive(Debug, clap::Subcommand)]
@@ -57,11 +63,6 @@ enum Command {
         /// object and 64 KiB per image, at least 256 MiB).
         #[arg(long, value_name = "BYTES")]
         max_upload_bytes: Option<u64>,
-        /// The store: postgres://USER@HOST:PORT/DATABASE (an empty
-        /// database, for several hosts; named in DIR/store.url) or
-        /// sqlite:PATH (default: DIR/challenge.db).
-        #[arg(long, value_name = "URL", value_parser = store_url)]
-        store: Option<StoreUrl>,
     },
     /// Set the deadline: uploads are refused from then on.
     Deadline {
@@ -167,6 +168,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 async fn run_async(args: &Args) -> anyhow::Result<()> {
+    let store = args.store.as_ref();
+    let open = async |state: &std::path::Path| Challenge::open_with_store(state, store).await;
     match &args.command {
         Command::Init {
             run,
@@ -176,7 +179,6 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
             deadline,
             name,
             max_upload_bytes,
-            store,
         } => {
             if let Some(n) = name {
                 let n = n.trim();
@@ -186,8 +188,7 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
                     );
                 }
             }
-            let mut ch =
-                Challenge::init_with_store(run, state, *quota, *no_holdout, store.as_ref()).await?;
+            let mut ch = Challenge::init_with_store(run, state, *quota, *no_holdout, store).await?;
             if let Some(n) = name {
                 ch.set_name(n).await?;
             }
@@ -212,26 +213,26 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
         }
         Command::Team { command } => match command {
             TeamCommand::Add { name, state } => {
-                let token = Challenge::open(state).await?.add_team(name).await?;
+                let token = open(state).await?.add_team(name).await?;
                 println!("team {name:?} added; its token (shown only now):");
                 println!("{token}");
             }
             TeamCommand::Rotate { name, state } => {
-                let token = Challenge::open(state).await?.rotate_token(name).await?;
+                let token = open(state).await?.rotate_token(name).await?;
                 println!("team {name:?} has a new token (shown only now):");
                 println!("{token}");
             }
             TeamCommand::Revoke { name, state } => {
-                Challenge::open(state).await?.revoke(name).await?;
+                open(state).await?.revoke(name).await?;
                 eprintln!("stepsim: the token of team {name:?} is revoked");
             }
             TeamCommand::Mark { name, role, state } => {
-                Challenge::open(state).await?.set_role(name, *role).await?;
+                open(state).await?.set_role(name, *role).await?;
                 eprintln!("stepsim: team {name:?} is marked {}", role.name());
             }
         },
         Command::Export { state, out } => {
-            let e = Challenge::open(state).await?.export(out).await?;
+            let e = open(state).await?.export(out).await?;
             eprintln!(
                 "stepsim: leaderboard written: {}, {} and {} reports",
                 e.json.display(),
@@ -240,36 +241,33 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
             );
         }
         Command::Reveal { state } => {
-            Challenge::open(state).await?.reveal().await?;
+            open(state).await?.reveal().await?;
             eprintln!("stepsim: revealed (and closed): held-out scores are on the leaderboard");
         }
         Command::Deadline { state, at } => {
-            Challenge::open(state)
-                .await?
-                .set_deadline(Some(*at))
-                .await?;
+            open(state).await?.set_deadline(Some(*at)).await?;
             eprintln!(
                 "stepsim: uploads are refused from {}",
                 stepsim_server::utc_text(*at)
             );
         }
         Command::Freeze { state } => {
-            Challenge::open(state).await?.freeze().await?;
+            open(state).await?.freeze().await?;
             eprintln!("stepsim: frozen: no more uploads; final entries can still be chosen");
         }
         Command::Close { state } => {
-            Challenge::open(state).await?.close().await?;
+            open(state).await?.close().await?;
             eprintln!("stepsim: closed: no more uploads or choices of final entries");
         }
         Command::Rescore { state } => {
-            let n = Challenge::open(state).await?.rescore().await?;
+            let n = open(state).await?.rescore().await?;
             eprintln!(
                 "stepsim: {n} scored entries queued again for {}",
                 stepsim_server::worker::SCORER_VERSION
             );
         }
         Command::OrganiserPassword { state } => {
-            let ch = Challenge::open(state).await?;
+            let ch = open(state).await?;
             let mut line = String::new();
             std::io::stdin()
                 .read_line(&mut line)

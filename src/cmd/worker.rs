@@ -19,9 +19,9 @@ pub struct Args {
     /// are read from it, reports written to it).
     #[arg(long, value_name = "DIR")]
     state: PathBuf,
-    /// Scoring workers in this process.
+    /// Scoring workers in this process (each scores one job at a time).
     #[arg(long, value_name = "N", default_value_t = 1)]
-    workers: usize,
+    threads: usize,
     #[command(flatten)]
     worker: super::serve::WorkerArgs,
     /// The log on standard error: `plain` or `json`.
@@ -50,10 +50,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         opts.store.as_ref(),
     ))??;
     let pool =
-        stepsim_server::worker::WorkerPool::start_with(&args.state, args.workers.max(1), opts);
+        stepsim_server::worker::WorkerPool::start_with(&args.state, args.threads.max(1), opts);
     eprintln!(
         "stepsim worker: {} worker(s) scoring the queue of {}",
-        args.workers.max(1),
+        args.threads.max(1),
         args.state.display()
     );
     while !STOP.load(Ordering::SeqCst) && pool.live().load(Ordering::SeqCst) > 0 {
