@@ -525,14 +525,14 @@ fn several_processes_on_one_store(store: Option<&str>) {
         "--state",
         s,
         "--quota",
-        "9",
+        "3",
     ];
     if let Some(url) = store {
         init.extend(["--store", url]);
     }
     assert!(stepsim(&init).status.success());
     assert_eq!(state.join("store.url").exists(), store.is_some());
-    let tokens: Vec<String> = ["A", "B"]
+    let tokens: Vec<String> = ["A", "B", "C"]
         .iter()
         .map(|t| {
             let out = stepsim(&["challenge", "team", "add", t, "--state", s]);
@@ -541,45 +541,82 @@ fn several_processes_on_one_store(store: Option<&str>) {
             text.lines().last().unwrap().to_string()
         })
         .collect();
-    let mut workers = [worker(&state, "w1"), worker(&state, "w2")];
     let servers = [
         serve_with(&state, false, &["--workers", "0"]),
         serve_with(&state, false, &["--workers", "0"]),
     ];
-    // Six uploads, three per team, alternating between the servers.
+    let addrs: Vec<String> = servers.iter().map(|(_, a, _)| a.clone()).collect();
+    let mut logs = vec!["w1".to_string()];
+    let mut w1 = worker(&state, "w1");
+    // Teams A and B: three uploads each (their quota), each team through
+    // both servers.
     let mut ids = Vec::new();
     for k in 0..6 {
-        let (_, addr, _) = &servers[k % 2];
         let text = catalogue(&all, 0.01 * k as f64);
-        let (status, body) = http(
-            addr,
-            "POST",
-            "/api/submissions",
-            &tokens[k % 2],
-            text.as_bytes(),
-        );
+        let (addr, token) = (&addrs[(k / 2) % 2], &tokens[k % 2]);
+        let (status, body) = http(addr, "POST", "/api/submissions", token, text.as_bytes());
         assert_eq!(status, 202, "{body}");
         let v: serde_json::Value = serde_json::from_str(&body).unwrap();
         ids.push(v["id"].as_i64().unwrap());
     }
-    // Kill the first worker while it scores (its name holds its pid).
-    let victim = format!(":{}:", workers[0].id());
-    let t0 = std::time::Instant::now();
+    // Team C: six uploads at once, three to each server; the quota of 3
+    // holds across the two.
+    let burst: Vec<_> = (0..6)
+        .map(|k| {
+            let (addr, token) = (addrs[k % 2].clone(), tokens[2].clone());
+            let text = catalogue(&all, 0.1 + 0.01 * k as f64);
+            std::thread::spawn(move || {
+                http(&addr, "POST", "/api/submissions", &token, text.as_bytes())
+            })
+        })
+        .collect();
+    let mut c_accepted = 0;
+    for h in burst {
+        let (status, body) = h.join().unwrap();
+        assert!(status == 202 || status == 429, "{status} {body}");
+        if status == 202 {
+            c_accepted += 1;
+            let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+            ids.push(v["id"].as_i64().unwrap());
+        }
+    }
+    assert!(
+        (1..=3).contains(&c_accepted),
+        "team C: {c_accepted} accepted"
+    );
+    let w2 = worker(&state, "w2");
+    logs.push("w2".into());
+    // Kill the first worker while it scores (its name holds its pid): a
+    // job still `scoring` under its name after the kill was cut off
+    // mid-scoring. Should it have finished in the instant between, a new
+    // first worker is started and killed in turn.
     let mut killed = None;
-    while killed.is_none() && t0.elapsed() < std::time::Duration::from_secs(60) {
+    let t0 = std::time::Instant::now();
+    while killed.is_none() && t0.elapsed() < std::time::Duration::from_secs(90) {
+        let victim = format!(":{}:", w1.id());
         let held: Option<i64> = bo(async {
             let ch = stepsim_server::Challenge::open(&state).await.unwrap();
             leased_by(&ch, &victim).await
         });
-        if let Some(id) = held {
-            workers[0].kill().unwrap(); // SIGKILL
-            workers[0].wait().unwrap();
-            killed = Some(id);
-        } else {
-            std::thread::sleep(std::time::Duration::from_millis(20));
+        if held.is_none() {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+            continue;
+        }
+        w1.kill().unwrap(); // SIGKILL
+        w1.wait().unwrap();
+        // Any job still `scoring` under the dead worker's name was cut off
+        // (it may have finished the one seen and taken another since).
+        killed = bo(async {
+            let ch = stepsim_server::Challenge::open(&state).await.unwrap();
+            leased_by(&ch, &victim).await
+        });
+        if killed.is_none() {
+            let name = format!("w1-{}", logs.len());
+            w1 = worker(&state, &name);
+            logs.push(name);
         }
     }
-    let killed = killed.expect("the first worker took a job");
+    let killed = killed.expect("the first worker was killed while it scored");
     let t0 = std::time::Instant::now();
     let mut subs = Vec::new();
     while t0.elapsed() < std::time::Duration::from_secs(120) {
@@ -594,8 +631,10 @@ fn several_processes_on_one_store(store: Option<&str>) {
         child.kill().unwrap();
         child.wait().unwrap();
     }
-    workers[1].kill().unwrap();
-    workers[1].wait().unwrap();
+    for mut w in [w1, w2] {
+        let _ = w.kill();
+        w.wait().unwrap();
+    }
     let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
     assert_eq!(subs.len(), ids.len(), "{subs:?}");
     for sub in &subs {
@@ -610,13 +649,24 @@ fn several_processes_on_one_store(store: Option<&str>) {
         assert_eq!(scores.len(), 1, "{scores:?}");
         assert_eq!(scores[0].n_scorings, 1, "{scores:?}");
     }
-    // The surviving worker scored the job the killed one held.
-    let log = std::fs::read_to_string(state.with_extension("w2.log")).unwrap();
-    assert!(
-        log.lines()
-            .any(|l| l.contains("scoring ended: scored") && l.contains(&format!("entry={killed} "))),
-        "{log}"
-    );
+    // Every job was started once, but the killed one twice: the second
+    // worker did not take a job under a live lease, and took the killed
+    // one's after its lease ran out.
+    let text: String = logs
+        .iter()
+        .map(|n| std::fs::read_to_string(state.with_extension(format!("{n}.log"))).unwrap())
+        .collect();
+    for id in &ids {
+        let starts = text
+            .lines()
+            .filter(|l| l.contains("scoring started") && l.contains(&format!("entry={id} ")))
+            .count();
+        assert_eq!(
+            starts,
+            if *id == killed { 2 } else { 1 },
+            "entry {id}: {text}"
+        );
+    }
 }
 
 /// The job held now under a lease by a worker whose name contains `who`.

@@ -201,8 +201,15 @@ impl Challenge {
         for sub in ["uploads", "entries"] {
             std::fs::create_dir_all(dir.join(sub)).map_err(|e| state(e.to_string()))?;
         }
-        if let StoreUrl::Postgres(u) = &url {
-            write_private(&dir.join(crate::store::STORE_FILE), &format!("{u}\n"))
+        // Any store but the directory's own file is named in the
+        // directory, so that every command given `--state` finds it.
+        let own = StoreUrl::Sqlite(dir.join(DB_FILE));
+        if url != own {
+            let text = match &url {
+                StoreUrl::Postgres(u) => u.clone(),
+                StoreUrl::Sqlite(p) => format!("sqlite:{}", p.display()),
+            };
+            write_private(&dir.join(crate::store::STORE_FILE), &format!("{text}\n"))
                 .map_err(|e| state(format!("cannot write {}: {e}", crate::store::STORE_FILE)))?;
         }
         Ok(Self {

@@ -71,6 +71,29 @@ pub fn score_upload(
     settings: &Settings,
     sub: &Submission,
 ) -> Result<(String, Option<String>), String> {
+    score_upload_unless(dir, settings, sub, &AtomicBool::new(false))
+}
+
+/// The message of a scoring given up because `cancel` was set (its worker
+/// lost the job's lease, or ran out of time): nothing of it is written.
+const CANCELLED: &str = "scoring given up";
+
+/// [`score_upload`] that writes nothing once `cancel` is set (checked
+/// before each report is written): a worker that lost the job's lease must
+/// not write over the reports of the worker that holds it now.
+pub fn score_upload_unless(
+    dir: &Path,
+    settings: &Settings,
+    sub: &Submission,
+    cancel: &AtomicBool,
+) -> Result<(String, Option<String>), String> {
+    let go_on = || {
+        if cancel.load(Ordering::SeqCst) {
+            Err(CANCELLED.to_string())
+        } else {
+            Ok(())
+        }
+    };
     let upload = dir.join("uploads").join(&sub.sha256);
     let entry_dir = |part: Part| {
         dir.join("entries")
@@ -85,6 +108,7 @@ pub fn score_upload(
     // The upload is read and checked once; both parts are scored from it.
     let prepared = prepare(&opts).map_err(msg)?;
     let public = score_prepared_part(&prepared, Part::Public, &opts).map_err(msg)?;
+    go_on()?;
     write_outputs(&entry_dir(Part::Public), &public, true).map_err(msg)?;
     let feedback =
         serde_json::to_string(&PublicFeedback::of_report(&public)).map_err(|e| e.to_string())?;
@@ -96,6 +120,7 @@ pub fn score_upload(
         // at reveal like any held-out figure).
         let held = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             let report = score_prepared_part(&prepared, Part::Holdout, &opts).map_err(msg)?;
+            go_on()?;
             write_outputs(&entry_dir(Part::Holdout), &report, true).map_err(msg)?;
             serde_json::to_string(&report.summary).map_err(|e| e.to_string())
         }))
@@ -263,9 +288,11 @@ pub async fn work(
         let started = std::time::Instant::now();
         let (tx, mut rx) = tokio::sync::oneshot::channel();
         let (dir2, settings2, job2) = (ch.dir.clone(), ch.settings.clone(), job.clone());
+        let cancel = Arc::new(AtomicBool::new(false));
+        let cancel2 = cancel.clone();
         std::thread::spawn(move || {
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                score_upload(&dir2, &settings2, &job2)
+                score_upload_unless(&dir2, &settings2, &job2, &cancel2)
             }))
             .unwrap_or_else(|_| Err("the scorer failed on this upload".into()));
             let _ = tx.send(result);
@@ -279,6 +306,7 @@ pub async fn work(
                     break r.unwrap_or_else(|_| Err("the scorer failed on this upload".into()));
                 }
                 _ = tokio::time::sleep_until(deadline) => {
+                    cancel.store(true, Ordering::SeqCst);
                     break Err(format!(
                         "scoring took longer than {} s and was stopped",
                         opts.timeout.as_secs()
@@ -303,6 +331,10 @@ pub async fn work(
                 worker = name,
                 "scoring abandoned: the lease ran out and another worker took the job"
             );
+            // It writes nothing more; waited for (up to the job's limit)
+            // so that abandoned scorings never pile up beside new jobs.
+            cancel.store(true, Ordering::SeqCst);
+            let _ = tokio::time::timeout_at(deadline, &mut rx).await;
             continue;
         }
         let seconds = started.elapsed().as_secs_f64();
@@ -337,6 +369,13 @@ pub async fn work(
                         "result dropped: the lease ran out and another worker took the job"
                     );
                     break;
+                }
+                Err(e) if stop.load(Ordering::Relaxed) => {
+                    // Stopping: the job stays `scoring` under a lease that
+                    // runs out, and another worker takes it then.
+                    tracing::warn!(entry = job.id, error = %e,
+                        "worker: stopping without recording the entry");
+                    return;
                 }
                 Err(e) => {
                     tracing::warn!(entry = job.id, error = %e,

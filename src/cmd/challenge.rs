@@ -12,10 +12,6 @@ fn rfc3339(text: &str) -> Result<i64, String> {
 }
 
 /// Reads a role for `team mark --role`.
-fn store_url(text: &str) -> Result<StoreUrl, String> {
-    StoreUrl::parse(text)
-}
-
 fn role(text: &str) -> Result<Role, String> {
     Role::from_name(text)
         .ok_or_else(|| format!("{text:?} is not a role: organisers, baseline or participant"))
@@ -30,8 +26,8 @@ pub struct Args {
     /// postgres://USER@HOST:PORT/DATABASE (for `init`: an empty database,
     /// named then in DIR/store.url) or sqlite:PATH (default:
     /// DIR/challenge.db).
-    #[arg(long, value_name = "URL", value_parser = store_url, global = true)]
-    store: Option<StoreUrl>,
+    #[arg(long, value_name = "URL", global = true)]
+    store: Option<String>,
 }
 
 #[derive(Debug, clap::Subcommand)]
@@ -168,7 +164,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 async fn run_async(args: &Args) -> anyhow::Result<()> {
-    let store = args.store.as_ref();
+    // Read here, not by clap, whose refusal would repeat the value (and a
+    // password in it).
+    let store = args
+        .store
+        .as_deref()
+        .map(StoreUrl::parse)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!(e))?;
+    let store = store.as_ref();
     let open = async |state: &std::path::Path| Challenge::open_with_store(state, store).await;
     match &args.command {
         Command::Init {

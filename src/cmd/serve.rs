@@ -10,8 +10,8 @@ use stepsim_server::store::StoreUrl;
 pub struct WorkerArgs {
     /// The store, when not the one the state directory names:
     /// postgres://USER@HOST:PORT/DATABASE or sqlite:PATH.
-    #[arg(long, value_name = "URL", value_parser = StoreUrl::parse)]
-    store: Option<StoreUrl>,
+    #[arg(long, value_name = "URL")]
+    store: Option<String>,
     /// Give up a scoring job after this many seconds.
     #[arg(long, value_name = "S", default_value_t = 600)]
     timeout_s: u64,
@@ -23,13 +23,21 @@ pub struct WorkerArgs {
 }
 
 impl WorkerArgs {
-    /// The worker's options.
-    pub fn options(&self) -> stepsim_server::worker::WorkerOptions {
-        stepsim_server::worker::WorkerOptions {
+    /// The worker's options; refuses a `--store` that is not a store
+    /// address (read here, not by clap, whose refusal would repeat the
+    /// value and a password in it).
+    pub fn options(&self) -> anyhow::Result<stepsim_server::worker::WorkerOptions> {
+        let store = self
+            .store
+            .as_deref()
+            .map(StoreUrl::parse)
+            .transpose()
+            .map_err(|e| anyhow::anyhow!(e))?;
+        Ok(stepsim_server::worker::WorkerOptions {
             timeout: Duration::from_secs(self.timeout_s),
             lease_s: self.lease_s,
-            store: self.store.clone(),
-        }
+            store,
+        })
     }
 }
 
@@ -115,7 +123,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.state.clone(),
         &args.listen,
         args.workers,
-        args.worker.options(),
+        args.worker.options()?,
         limits,
         args.open_metrics,
     )?;

@@ -42,7 +42,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             libc::signal(sig, on_stop as *const () as libc::sighandler_t);
         }
     }
-    let opts = args.worker.options();
+    let opts = args.worker.options()?;
     // Opened once here so that a wrong directory or store is an error now,
     // not a retry loop.
     stepsim_server::block_on(stepsim_server::Challenge::open_with_store(

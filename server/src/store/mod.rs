@@ -397,11 +397,12 @@ impl StoreUrl {
             }
             Ok(Self::Sqlite(PathBuf::from(p)))
         } else {
-            Err(format!(
-                "--store {:?} is not a store: give postgres://USER@HOST:PORT/DATABASE or \
-                 sqlite:PATH",
-                clip(t)
-            ))
+            // The value is not repeated: it may hold a password.
+            Err(
+                "--store: not a store address; give postgres://USER@HOST:PORT/DATABASE or \
+                 sqlite:PATH"
+                    .into(),
+            )
         }
     }
 
@@ -415,22 +416,35 @@ impl StoreUrl {
     }
 }
 
-fn clip(t: &str) -> String {
-    t.chars().take(80).collect()
-}
-
-/// A PostgreSQL URL with its password (if any) replaced by `***`.
+/// A PostgreSQL URL with its password (if any: `user:PASSWORD@`, or a
+/// `password=` parameter) replaced by `***`.
 pub fn hide_password(url: &str) -> String {
     let Some((scheme, rest)) = url.split_once("://") else {
         return url.to_string();
     };
-    let (auth, host) = match rest.rsplit_once('@') {
-        Some((a, h)) => (a, h),
-        None => return url.to_string(),
+    let (rest, query) = match rest.split_once('?') {
+        Some((r, q)) => (r, Some(q)),
+        None => (rest, None),
     };
-    match auth.split_once(':') {
-        Some((user, _)) => format!("{scheme}://{user}:***@{host}"),
-        None => url.to_string(),
+    let rest = match rest.rsplit_once('@') {
+        Some((auth, host)) => match auth.split_once(':') {
+            Some((user, _)) => format!("{user}:***@{host}"),
+            None => format!("{auth}@{host}"),
+        },
+        None => rest.to_string(),
+    };
+    let query = query.map(|q| {
+        q.split('&')
+            .map(|kv| match kv.split_once('=') {
+                Some((k, _)) if k.eq_ignore_ascii_case("password") => format!("{k}=***"),
+                _ => kv.to_string(),
+            })
+            .collect::<Vec<_>>()
+            .join("&")
+    });
+    match query {
+        Some(q) => format!("{scheme}://{rest}?{q}"),
+        None => format!("{scheme}://{rest}"),
     }
 }
 
@@ -485,12 +499,26 @@ mod tests {
             "postgresql://u@h/c"
         );
         assert_eq!(
+            hide_password("postgres://u@h/c?sslmode=disable&password=pw2&x=1"),
+            "postgres://u@h/c?sslmode=disable&password=***&x=1"
+        );
+        assert_eq!(
+            hide_password("postgres://u:p@ss@h/c?PASSWORD=z"),
+            "postgres://u:***@h/c?PASSWORD=***"
+        );
+        assert_eq!(
             StoreUrl::parse("sqlite:/x/c.db").unwrap(),
             StoreUrl::Sqlite("/x/c.db".into())
         );
-        for bad in ["", "sqlite:", "mysql://h/d", "/x/c.db"] {
+        for bad in [
+            "",
+            "sqlite:",
+            "mysql://h/d",
+            "/x/c.db",
+            "postgres:/u:secret@h",
+        ] {
             let e = StoreUrl::parse(bad).unwrap_err();
-            assert!(e.contains("--store"), "{bad}: {e}");
+            assert!(e.contains("--store") && !e.contains("secret"), "{bad}: {e}");
         }
     }
 }

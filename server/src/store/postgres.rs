@@ -4,7 +4,12 @@
 //! together is one transaction: an admission locks its team's row, a claim
 //! takes its job and its team's row with `FOR UPDATE SKIP LOCKED`, a choice
 //! of finals reads `closed` under a share lock. Every connection, wait and
-//! statement has a bound ([`CONNECT_TIMEOUT`], [`STATEMENT_TIMEOUT_MS`]).
+//! statement has a bound: on the server ([`STATEMENT_TIMEOUT_MS`], an idle
+//! transaction ends after [`IDLE_IN_TRANSACTION_MS`]) and on the client
+//! ([`CONNECT_TIMEOUT`], [`OPERATION_TIMEOUT`], TCP keepalives and a user
+//! timeout, so a database that vanishes mid-statement is an error within a
+//! minute, not a hang). Leases are timed by the database's clock, so hosts
+//! whose clocks disagree do not take each other's live jobs.
 
 use super::{
     Admission, FormatFailure, Lease, Ledger, QueueCounts, Role, Rule, Score, Store, StoreError,
@@ -22,6 +27,15 @@ pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 /// The longest a statement may run (and wait for a lock) before the
 /// database cancels it.
 pub const STATEMENT_TIMEOUT_MS: u32 = 30_000;
+/// A session left inside a transaction this long is ended by the database
+/// (a client that vanished mid-transaction releases its locks).
+pub const IDLE_IN_TRANSACTION_MS: u32 = 60_000;
+/// The longest one store call (all its statements) may take on the
+/// client's side; the connection is then dropped, not reused.
+pub const OPERATION_TIMEOUT: Duration = Duration::from_secs(40);
+
+/// The database's clock in Unix seconds (SQL).
+const DB_NOW: &str = "EXTRACT(EPOCH FROM clock_timestamp())::BIGINT";
 
 /// The schema, version by version (table `schema_version` counts those
 /// applied). Never edit one that has shipped: add another. The first is
@@ -97,11 +111,17 @@ impl std::fmt::Debug for PgStore {
 struct Held<'a> {
     store: &'a PgStore,
     client: Option<Client>,
+    /// Set when the call using it ended (not cut off by a timeout): only
+    /// then may the connection serve another call.
+    done: bool,
     _permit: tokio::sync::SemaphorePermit<'a>,
 }
 
 impl Drop for Held<'_> {
     fn drop(&mut self) {
+        if !self.done {
+            return;
+        }
         if let Some(c) = self.client.take().filter(|c| !c.is_closed()) {
             self.store
                 .idle
@@ -163,20 +183,30 @@ type Params<'a> = &'a [&'a (dyn ToSql + Sync)];
 
 impl PgStore {
     /// Connects to the database at `url` (libpq's URL form) and applies the
-    /// schema versions it lacks. `create` is accepted for symmetry with
-    /// SQLite: the database itself must exist (an organiser's
-    /// `createdb`); its tables are made here.
+    /// schema versions it lacks. The database itself must exist (an
+    /// organiser's `createdb`); its tables are made here when `create`, and
+    /// a database without them is refused otherwise (nothing is written
+    /// to a wrong database).
     pub async fn open(url: &str, create: bool) -> Result<Self, StoreError> {
-        let _ = create;
         let shown = super::hide_password(url);
         let mut config: tokio_postgres::Config = url.parse().map_err(|e| StoreError::Db {
             path: shown.clone(),
             message: format!("not a PostgreSQL address: {e}"),
         })?;
         config.connect_timeout(CONNECT_TIMEOUT);
-        config.options(format!(
-            "-c statement_timeout={STATEMENT_TIMEOUT_MS} -c lock_timeout={STATEMENT_TIMEOUT_MS}"
-        ));
+        config.keepalives(true);
+        config.keepalives_idle(Duration::from_secs(15));
+        config.tcp_user_timeout(Duration::from_secs(30));
+        let own = format!(
+            "-c statement_timeout={STATEMENT_TIMEOUT_MS} -c lock_timeout={STATEMENT_TIMEOUT_MS} \
+             -c idle_in_transaction_session_timeout={IDLE_IN_TRANSACTION_MS}"
+        );
+        // Options given in the URL are kept, after these.
+        let given = config.get_options().map(str::to_string);
+        config.options(match given {
+            Some(g) if !g.is_empty() => format!("{own} {g}"),
+            _ => own,
+        });
         config.application_name("stepsim");
         let store = Self {
             config,
@@ -184,7 +214,7 @@ impl PgStore {
             idle: std::sync::Mutex::new(Vec::new()),
             permits: tokio::sync::Semaphore::new(POOL_SIZE),
         };
-        store.migrate().await?;
+        store.migrate(create).await?;
         Ok(store)
     }
 
@@ -235,60 +265,108 @@ impl PgStore {
         Ok(Held {
             store: self,
             client: Some(client),
+            done: false,
             _permit: permit,
         })
     }
 
-    async fn migrate(&self) -> Result<(), StoreError> {
-        let mut c = self.conn().await?;
-        let tx = c.transaction().await.map_err(|e| self.err(e))?;
-        // One process at a time applies the schema (others wait here).
-        tx.execute("SELECT pg_advisory_xact_lock(7305262006)", &[])
-            .await
-            .map_err(|e| self.err(e))?;
-        tx.batch_execute("CREATE TABLE IF NOT EXISTS schema_version (version BIGINT NOT NULL)")
-            .await
-            .map_err(|e| self.err(e))?;
-        let version: i64 = tx
-            .query_opt("SELECT version FROM schema_version", &[])
-            .await
-            .map_err(|e| self.err(e))?
-            .map_or(0, |r| r.get(0));
-        let known = PG_MIGRATIONS.len() as i64;
-        if version > known {
-            return Err(StoreError::TooNew {
-                path: self.shown.clone(),
-                found: version,
-                known,
-            });
-        }
-        for sql in PG_MIGRATIONS.iter().skip(version as usize) {
-            tx.batch_execute(sql).await.map_err(|e| self.err(e))?;
-        }
-        if version < known {
-            tx.execute("DELETE FROM schema_version", &[])
+    async fn migrate(&self, create: bool) -> Result<(), StoreError> {
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = async {
+                let tx = c.transaction().await.map_err(|e| self.err(e))?;
+                // One process at a time applies the schema (others wait here).
+                tx.execute("SELECT pg_advisory_xact_lock(7305262006)", &[])
+                    .await
+                    .map_err(|e| self.err(e))?;
+                tx.batch_execute(
+                    "CREATE TABLE IF NOT EXISTS schema_version (version BIGINT NOT NULL)",
+                )
                 .await
                 .map_err(|e| self.err(e))?;
-            tx.execute("INSERT INTO schema_version VALUES ($1)", &[&known])
-                .await
-                .map_err(|e| self.err(e))?;
-        }
-        tx.commit().await.map_err(|e| self.err(e))
+                let version: i64 = tx
+                    .query_opt("SELECT version FROM schema_version", &[])
+                    .await
+                    .map_err(|e| self.err(e))?
+                    .map_or(0, |r| r.get(0));
+                let known = PG_MIGRATIONS.len() as i64;
+                if version == 0 && !create {
+                    return Err(self.err(
+                        "holds no challenge (no stepsim tables): give the database that \
+                         `stepsim challenge init --store` was given",
+                    ));
+                }
+                if version > known {
+                    return Err(StoreError::TooNew {
+                        path: self.shown.clone(),
+                        found: version,
+                        known,
+                    });
+                }
+                for sql in PG_MIGRATIONS.iter().skip(version as usize) {
+                    tx.batch_execute(sql).await.map_err(|e| self.err(e))?;
+                }
+                if version < known {
+                    tx.execute("DELETE FROM schema_version", &[])
+                        .await
+                        .map_err(|e| self.err(e))?;
+                    tx.execute("INSERT INTO schema_version VALUES ($1)", &[&known])
+                        .await
+                        .map_err(|e| self.err(e))?;
+                }
+                tx.commit().await.map_err(|e| self.err(e))
+            }
+            .await;
+            c.done = true;
+            r
+        })
+        .await
+    }
+
+    /// `f` cut off after [`OPERATION_TIMEOUT`] (its connection is then
+    /// dropped with it).
+    async fn timed<T>(
+        &self,
+        f: impl std::future::Future<Output = Result<T, StoreError>>,
+    ) -> Result<T, StoreError> {
+        tokio::time::timeout(OPERATION_TIMEOUT, f)
+            .await
+            .unwrap_or_else(|_| {
+                Err(self.err(format!(
+                    "no answer within {} s",
+                    OPERATION_TIMEOUT.as_secs()
+                )))
+            })
     }
 
     async fn rows(&self, sql: &str, p: Params<'_>) -> Result<Vec<Row>, StoreError> {
-        let c = self.conn().await?;
-        c.query(sql, p).await.map_err(|e| self.err(e))
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = c.query(sql, p).await.map_err(|e| self.err(e));
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn opt(&self, sql: &str, p: Params<'_>) -> Result<Option<Row>, StoreError> {
-        let c = self.conn().await?;
-        c.query_opt(sql, p).await.map_err(|e| self.err(e))
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = c.query_opt(sql, p).await.map_err(|e| self.err(e));
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn exec(&self, sql: &str, p: Params<'_>) -> Result<u64, StoreError> {
-        let c = self.conn().await?;
-        c.execute(sql, p).await.map_err(|e| self.err(e))
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = c.execute(sql, p).await.map_err(|e| self.err(e));
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn times(&self, sql: &str, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError> {
@@ -425,59 +503,69 @@ impl Store for PgStore {
         since_s: i64,
         accept: Rule,
     ) -> Result<Admission, StoreError> {
-        let mut c = self.conn().await?;
-        let tx = c.transaction().await.map_err(|e| self.err(e))?;
-        // The team's row, locked to the end: admissions of one team, on
-        // any host, run one after the other.
-        tx.execute("SELECT id FROM teams WHERE id = $1 FOR UPDATE", &[&team_id])
-            .await
-            .map_err(|e| self.err(e))?;
-        let dup = tx
-            .query_opt(
-                "SELECT id, status FROM submissions WHERE team_id = $1 AND sha256 = $2 \
-                 ORDER BY id LIMIT 1",
-                &[&team_id, &sha256],
-            )
-            .await
-            .map_err(|e| self.err(e))?;
-        if let Some(r) = dup {
-            return Ok(Admission::Duplicate(r.get(0), r.get(1)));
-        }
-        let times = |rows: Vec<Row>| rows.iter().map(|r| r.get(0)).collect::<Vec<i64>>();
-        let meta = tx
-            .query("SELECT key, value FROM meta", &[])
-            .await
-            .map_err(|e| self.err(e))?
-            .iter()
-            .map(|r| (r.get(0), r.get(1)))
-            .collect();
-        let accepted = tx
-            .query(ACCEPTED_SINCE, &[&team_id, &since_s])
-            .await
-            .map_err(|e| self.err(e))?;
-        let refused = tx
-            .query(REFUSED_SINCE, &[&team_id, &since_s])
-            .await
-            .map_err(|e| self.err(e))?;
-        let ledger = Ledger {
-            meta,
-            accepted: times(accepted),
-            refused: times(refused),
-        };
-        if !accept(&ledger) {
-            return Ok(Admission::Declined(ledger));
-        }
-        let id: i64 = tx
-            .query_one(
-                "INSERT INTO submissions (team_id, sha256, bytes, created_s, status) \
-                 VALUES ($1, $2, $3, $4, 'queued') RETURNING id",
-                &[&team_id, &sha256, &bytes, &now_s],
-            )
-            .await
-            .map_err(|e| self.err(e))?
-            .get(0);
-        tx.commit().await.map_err(|e| self.err(e))?;
-        Ok(Admission::Inserted(id))
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = async {
+                let tx = c.transaction().await.map_err(|e| self.err(e))?;
+                // The team's row, locked to the end: admissions of one team, on
+                // any host, run one after the other.
+                tx.execute("SELECT id FROM teams WHERE id = $1 FOR UPDATE", &[&team_id])
+                    .await
+                    .map_err(|e| self.err(e))?;
+                let dup = tx
+                    .query_opt(
+                        "SELECT id, status FROM submissions WHERE team_id = $1 AND sha256 = $2 \
+                         ORDER BY id LIMIT 1",
+                        &[&team_id, &sha256],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?;
+                if let Some(r) = dup {
+                    return Ok(Admission::Duplicate(r.get(0), r.get(1)));
+                }
+                let times = |rows: Vec<Row>| rows.iter().map(|r| r.get(0)).collect::<Vec<i64>>();
+                let meta = tx
+                    // Under a share lock: a `freeze` or `close` on another
+                    // host waits for this admission, or this one sees it.
+                    .query("SELECT key, value FROM meta FOR SHARE", &[])
+                    .await
+                    .map_err(|e| self.err(e))?
+                    .iter()
+                    .map(|r| (r.get(0), r.get(1)))
+                    .collect();
+                let accepted = tx
+                    .query(ACCEPTED_SINCE, &[&team_id, &since_s])
+                    .await
+                    .map_err(|e| self.err(e))?;
+                let refused = tx
+                    .query(REFUSED_SINCE, &[&team_id, &since_s])
+                    .await
+                    .map_err(|e| self.err(e))?;
+                let ledger = Ledger {
+                    meta,
+                    accepted: times(accepted),
+                    refused: times(refused),
+                };
+                if !accept(&ledger) {
+                    return Ok(Admission::Declined(ledger));
+                }
+                let id: i64 = tx
+                    .query_one(
+                        "INSERT INTO submissions (team_id, sha256, bytes, created_s, status) \
+                         VALUES ($1, $2, $3, $4, 'queued') RETURNING id",
+                        &[&team_id, &sha256, &bytes, &now_s],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?
+                    .get(0);
+                tx.commit().await.map_err(|e| self.err(e))?;
+                Ok(Admission::Inserted(id))
+            }
+            .await;
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn insert_submission(
@@ -602,49 +690,80 @@ impl Store for PgStore {
     }
 
     async fn claim_job(&self, lease: &Lease, now_s: i64) -> Result<Option<Submission>, StoreError> {
-        let mut c = self.conn().await?;
-        let tx = c.transaction().await.map_err(|e| self.err(e))?;
-        // The job's row and its team's row, skipping those another claim
-        // holds: two workers never take one job, nor two jobs of one team
-        // at once (the second sees the team locked, then its job scoring).
-        let row = tx
-            .query_opt(
-                "SELECT s.id FROM submissions s JOIN teams t ON t.id = s.team_id \
-                 WHERE (s.status = 'queued' OR \
-                 (s.status = 'scoring' AND COALESCE(s.lease_until_s, 0) < $1)) \
-                 AND NOT EXISTS (SELECT 1 FROM submissions o WHERE o.team_id = s.team_id \
-                 AND o.id <> s.id AND o.status = 'scoring' \
-                 AND COALESCE(o.lease_until_s, 0) >= $1) \
-                 ORDER BY s.id LIMIT 1 FOR UPDATE OF s, t SKIP LOCKED",
-                &[&now_s],
-            )
-            .await
-            .map_err(|e| self.err(e))?;
-        let Some(row) = row else {
-            return Ok(None);
-        };
-        let id: i64 = row.get(0);
-        let until = now_s.saturating_add(lease.seconds);
-        let sql = format!(
-            "UPDATE submissions SET status = 'scoring', started_s = $2, worker = $3, \
-             lease_until_s = $4 WHERE id = $1 RETURNING {SUBMISSION_COLUMNS}"
-        );
-        let sub = tx
-            .query_one(&sql, &[&id, &now_s, &lease.worker, &until])
-            .await
-            .map_err(|e| self.err(e))?;
-        tx.commit().await.map_err(|e| self.err(e))?;
-        Ok(Some(row_submission(&sub)))
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = async {
+                let tx = c.transaction().await.map_err(|e| self.err(e))?;
+                // The lease is timed by the database's clock (`now_s` is
+                // this host's, and hosts' clocks may disagree).
+                let now: i64 = tx
+                    .query_one(&format!("SELECT {DB_NOW}"), &[])
+                    .await
+                    .map_err(|e| self.err(e))?
+                    .get(0);
+                let _ = now_s;
+                // The job's row and its team's row, skipping those another
+                // claim holds: two workers never take one job.
+                let row = tx
+                    .query_opt(
+                        "SELECT s.id, s.team_id FROM submissions s JOIN teams t ON t.id = s.team_id \
+                         WHERE (s.status = 'queued' OR \
+                         (s.status = 'scoring' AND COALESCE(s.lease_until_s, 0) < $1)) \
+                         AND NOT EXISTS (SELECT 1 FROM submissions o WHERE o.team_id = s.team_id \
+                         AND o.id <> s.id AND o.status = 'scoring' \
+                         AND COALESCE(o.lease_until_s, 0) >= $1) \
+                         ORDER BY s.id LIMIT 1 FOR UPDATE OF s, t SKIP LOCKED",
+                        &[&now],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?;
+                let Some(row) = row else {
+                    return Ok(None);
+                };
+                let (id, team): (i64, i64) = (row.get(0), row.get(1));
+                // The query above saw the table as it was when it started:
+                // a claim of another job of this team that committed since
+                // (it held the team's row, which this one now holds) shows
+                // only to a new statement. Seen, this claim takes nothing.
+                let busy = tx
+                    .query_opt(
+                        "SELECT 1 FROM submissions WHERE team_id = $1 AND id <> $2 \
+                         AND status = 'scoring' AND COALESCE(lease_until_s, 0) >= $3",
+                        &[&team, &id, &now],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?;
+                if busy.is_some() {
+                    return Ok(None);
+                }
+                let until = now.saturating_add(lease.seconds);
+                let sql = format!(
+                    "UPDATE submissions SET status = 'scoring', started_s = $2, worker = $3, \
+                     lease_until_s = $4 WHERE id = $1 RETURNING {SUBMISSION_COLUMNS}"
+                );
+                let sub = tx
+                    .query_one(&sql, &[&id, &now, &lease.worker, &until])
+                    .await
+                    .map_err(|e| self.err(e))?;
+                tx.commit().await.map_err(|e| self.err(e))?;
+                Ok(Some(row_submission(&sub)))
+            }
+            .await;
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn renew_lease(&self, id: i64, lease: &Lease, now_s: i64) -> Result<bool, StoreError> {
-        let until = now_s.saturating_add(lease.seconds);
+        // The database's clock, as for the claim (`now_s` is this host's).
+        let _ = now_s;
+        let sql = format!(
+            "UPDATE submissions SET lease_until_s = {DB_NOW} + $3 \
+             WHERE id = $1 AND status = 'scoring' AND worker = $2"
+        );
         Ok(self
-            .exec(
-                "UPDATE submissions SET lease_until_s = $3 \
-                 WHERE id = $1 AND status = 'scoring' AND worker = $2",
-                &[&id, &lease.worker, &until],
-            )
+            .exec(&sql, &[&id, &lease.worker, &lease.seconds])
             .await?
             == 1)
     }
@@ -661,50 +780,58 @@ impl Store for PgStore {
             Ok((p, h)) => ("scored", None, Some(p), h),
             Err(e) => ("refused", Some(e), None, None),
         };
-        let mut c = self.conn().await?;
-        let tx = c.transaction().await.map_err(|e| self.err(e))?;
-        let changed = tx
-            .execute(
-                "UPDATE submissions SET status = $2, error = $3, public_json = $4, \
-                 holdout_json = $5, scorer_version = $6, finished_s = $7, \
-                 n_scorings = n_scorings + 1, lease_until_s = NULL \
-                 WHERE id = $1 AND status = 'scoring' AND worker = $8",
-                &[
-                    &id,
-                    &status,
-                    &error,
-                    &public,
-                    &holdout,
-                    &scorer_version,
-                    &now_s,
-                    &worker,
-                ],
-            )
-            .await
-            .map_err(|e| self.err(e))?;
-        if changed == 1 {
-            tx.execute(
-                "INSERT INTO scores (submission_id, scorer_version, status, finished_s, error, \
-                 public_json, holdout_json) VALUES ($1, $2, $3, $4, $5, $6, $7) \
-                 ON CONFLICT (submission_id, scorer_version) DO UPDATE SET \
-                 status = excluded.status, finished_s = excluded.finished_s, \
-                 error = excluded.error, public_json = excluded.public_json, \
-                 holdout_json = excluded.holdout_json, n_scorings = scores.n_scorings + 1",
-                &[
-                    &id,
-                    &scorer_version,
-                    &status,
-                    &now_s,
-                    &error,
-                    &public,
-                    &holdout,
-                ],
-            )
-            .await
-            .map_err(|e| self.err(e))?;
-        }
-        tx.commit().await.map_err(|e| self.err(e))?;
-        Ok(changed == 1)
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = async {
+                let tx = c.transaction().await.map_err(|e| self.err(e))?;
+                let changed = tx
+                    .execute(
+                        "UPDATE submissions SET status = $2, error = $3, public_json = $4, \
+                         holdout_json = $5, scorer_version = $6, finished_s = $7, \
+                         n_scorings = n_scorings + 1, lease_until_s = NULL \
+                         WHERE id = $1 AND status = 'scoring' AND worker = $8",
+                        &[
+                            &id,
+                            &status,
+                            &error,
+                            &public,
+                            &holdout,
+                            &scorer_version,
+                            &now_s,
+                            &worker,
+                        ],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?;
+                if changed == 1 {
+                    tx.execute(
+                        "INSERT INTO scores (submission_id, scorer_version, status, finished_s, error, \
+                         public_json, holdout_json) VALUES ($1, $2, $3, $4, $5, $6, $7) \
+                         ON CONFLICT (submission_id, scorer_version) DO UPDATE SET \
+                         status = excluded.status, finished_s = excluded.finished_s, \
+                         error = excluded.error, public_json = excluded.public_json, \
+                         holdout_json = excluded.holdout_json, n_scorings = scores.n_scorings + 1",
+                        &[
+                            &id,
+                            &scorer_version,
+                            &status,
+                            &now_s,
+                            &error,
+                            &public,
+                            &holdout,
+                        ],
+                    )
+                    .await
+                    .map_err(|e| self.err(e))?;
+                }
+                tx.commit().await.map_err(|e| self.err(e))?;
+                Ok(changed == 1)
+            }
+            .await;
+            c.done = true;
+            r
+        })
+        .await
     }
 
     async fn requeue_interrupted(&self) -> Result<usize, StoreError> {
@@ -727,32 +854,40 @@ impl Store for PgStore {
     }
 
     async fn set_final_entries(&self, team_id: i64, ids: &[i64]) -> Result<bool, StoreError> {
-        let mut c = self.conn().await?;
-        let tx = c.transaction().await.map_err(|e| self.err(e))?;
-        // `closed` under a share lock: a `challenge close` on another host
-        // waits for this choice, or this choice sees it closed.
-        let closed = tx
-            .query_opt("SELECT value FROM meta WHERE key = 'closed' FOR SHARE", &[])
-            .await
-            .map_err(|e| self.err(e))?
-            .is_some_and(|r| r.get::<_, &str>(0) == "true");
-        if closed {
-            return Ok(false);
-        }
-        tx.execute(
-            "UPDATE submissions SET final = FALSE WHERE team_id = $1 AND final",
-            &[&team_id],
-        )
+        self.timed(async {
+            let mut c = self.conn().await?;
+            let r = async {
+                let tx = c.transaction().await.map_err(|e| self.err(e))?;
+                // `closed` under a share lock: a `challenge close` on another host
+                // waits for this choice, or this choice sees it closed.
+                let closed = tx
+                    .query_opt("SELECT value FROM meta WHERE key = 'closed' FOR SHARE", &[])
+                    .await
+                    .map_err(|e| self.err(e))?
+                    .is_some_and(|r| r.get::<_, &str>(0) == "true");
+                if closed {
+                    return Ok(false);
+                }
+                tx.execute(
+                    "UPDATE submissions SET final = FALSE WHERE team_id = $1 AND final",
+                    &[&team_id],
+                )
+                .await
+                .map_err(|e| self.err(e))?;
+                tx.execute(
+                    "UPDATE submissions SET final = TRUE WHERE team_id = $1 AND id = ANY($2)",
+                    &[&team_id, &ids],
+                )
+                .await
+                .map_err(|e| self.err(e))?;
+                tx.commit().await.map_err(|e| self.err(e))?;
+                Ok(true)
+            }
+            .await;
+            c.done = true;
+            r
+        })
         .await
-        .map_err(|e| self.err(e))?;
-        tx.execute(
-            "UPDATE submissions SET final = TRUE WHERE team_id = $1 AND id = ANY($2)",
-            &[&team_id, &ids],
-        )
-        .await
-        .map_err(|e| self.err(e))?;
-        tx.commit().await.map_err(|e| self.err(e))?;
-        Ok(true)
     }
 
     async fn final_entries(&self, team_id: i64) -> Result<Vec<i64>, StoreError> {

@@ -168,11 +168,22 @@ impl Conn {
     }
 
     fn migrate(&mut self) -> Result<(), StoreError> {
-        let version: i64 = self
-            .conn
-            .pragma_query_value(None, "user_version", |r| r.get(0))
-            .map_err(|e| self.err(e))?;
+        let path = self.path.clone();
+        let db = |e: rusqlite::Error| StoreError::Db {
+            path: path.clone(),
+            message: e.to_string(),
+        };
         let known = MIGRATIONS.len() as i64;
+        // The version is read inside the write lock: two processes opening
+        // an old database at once (a `serve` and a `worker` after an
+        // upgrade) apply each migration once, the second finding it done.
+        let tx = self
+            .conn
+            .transaction_with_behavior(rusqlite::TransactionBehavior::Immediate)
+            .map_err(db)?;
+        let version: i64 = tx
+            .pragma_query_value(None, "user_version", |r| r.get(0))
+            .map_err(db)?;
         if version > known {
             return Err(StoreError::TooNew {
                 path: self.path.clone(),
@@ -180,19 +191,12 @@ impl Conn {
                 known,
             });
         }
-        let path = self.path.clone();
-        let db = |e: rusqlite::Error| StoreError::Db {
-            path: path.clone(),
-            message: e.to_string(),
-        };
         for (i, sql) in MIGRATIONS.iter().enumerate().skip(version as usize) {
-            let tx = self.conn.transaction().map_err(db)?;
             tx.execute_batch(sql).map_err(db)?;
             tx.pragma_update(None, "user_version", (i + 1) as i64)
                 .map_err(db)?;
-            tx.commit().map_err(db)?;
         }
-        Ok(())
+        tx.commit().map_err(db)
     }
 
     fn times(&self, sql: &str, team_id: i64, since_s: i64) -> Result<Vec<i64>, StoreError> {

@@ -160,7 +160,12 @@ pub async fn store_text(state: &Path) -> String {
             }
             text
         }
-        Err(_) => String::from_utf8_lossy(&std::fs::read(state.join("challenge.db")).unwrap())
-            .into_owned(),
+        // The file and its write-ahead log (WAL mode: recent writes are
+        // there until a checkpoint).
+        Err(_) => ["challenge.db", "challenge.db-wal"]
+            .iter()
+            .filter_map(|f| std::fs::read(state.join(f)).ok())
+            .map(|b| String::from_utf8_lossy(&b).into_owned())
+            .collect(),
     }
 }
