@@ -346,8 +346,9 @@ pub trait Store: Send + Sync + std::fmt::Debug {
         scorer_version: &str,
         now_s: i64,
     ) -> Result<bool, StoreError>;
-    /// Puts every job left `scoring` back in the queue, leases or not (for
-    /// an organiser who knows no worker runs); returns how many.
+    /// Puts every job left `scoring` back in the queue, leases or not;
+    /// returns how many. No command calls it (leases do this job); the
+    /// tests use it to make a crash's state.
     async fn requeue_interrupted(&self) -> Result<usize, StoreError>;
     /// Sets a team's role.
     async fn set_role(&self, team_id: i64, role: Role) -> Result<(), StoreError>;
