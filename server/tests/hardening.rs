@@ -62,20 +62,9 @@ impl Fixture {
             workers,
         ))
     }
+    /// Scores every queued job now (what a worker does).
     async fn score_queue(&self) {
-        let ch = Challenge::open(&self.state).await.unwrap();
-        while let Some(job) = ch
-            .store
-            .claim_job(&common::lease(), stepsim_server::now_s())
-            .await
-            .unwrap()
-        {
-            let r = worker::score_entry(&ch, &job);
-            ch.store
-                .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
-                .await
-                .unwrap();
-        }
+        common::score_queue(&self.state).await;
     }
     /// Serves the app on a free local port (the real connection layer).
     async fn serve(&self, limits: Limits) -> std::net::SocketAddr {

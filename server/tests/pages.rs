@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::api::{AppState, router};
-use stepsim_server::{Challenge, web, worker};
+use stepsim_server::{Challenge, web};
 use tower::ServiceExt;
 
 const HOST: &str = "challenge.test";
@@ -64,20 +64,9 @@ impl Fixture {
     async fn app(&self) -> axum::Router {
         router(AppState::new(Challenge::open(&self.state).await.unwrap()))
     }
+    /// Scores every queued job now (what a worker does).
     async fn score_queue(&self) {
-        let ch = Challenge::open(&self.state).await.unwrap();
-        while let Some(job) = ch
-            .store
-            .claim_job(&common::lease(), stepsim_server::now_s())
-            .await
-            .unwrap()
-        {
-            let r = worker::score_entry(&ch, &job);
-            ch.store
-                .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
-                .await
-                .unwrap();
-        }
+        common::score_queue(&self.state).await;
     }
     async fn reveal(&self) {
         Challenge::open(&self.state)
