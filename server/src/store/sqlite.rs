@@ -120,6 +120,14 @@ fn row_score(r: &rusqlite::Row<'_>) -> rusqlite::Result<Score> {
     })
 }
 
+/// Turns SQLite's errors on the database at `path` into the store's.
+fn db_error(path: &str) -> impl Fn(rusqlite::Error) -> StoreError + Copy + '_ {
+    move |e| StoreError::Db {
+        path: path.to_string(),
+        message: e.to_string(),
+    }
+}
+
 fn meta_of(conn: &Connection) -> rusqlite::Result<HashMap<String, String>> {
     let mut st = conn.prepare_cached("SELECT key, value FROM meta")?;
     let rows = st.query_map([], |r| Ok((r.get(0)?, r.get(1)?)))?;
@@ -161,18 +169,11 @@ impl Conn {
     }
 
     fn err(&self, e: rusqlite::Error) -> StoreError {
-        StoreError::Db {
-            path: self.path.clone(),
-            message: e.to_string(),
-        }
+        db_error(&self.path)(e)
     }
 
     fn migrate(&mut self) -> Result<(), StoreError> {
-        let path = self.path.clone();
-        let db = |e: rusqlite::Error| StoreError::Db {
-            path: path.clone(),
-            message: e.to_string(),
-        };
+        let db = db_error(&self.path);
         let known = MIGRATIONS.len() as i64;
         // The version is read inside the write lock: two processes opening
         // an old database at once (a `serve` and a `worker` after an
@@ -486,11 +487,7 @@ impl Conn {
             Ok((p, h)) => ("scored", None, Some(p), h),
             Err(e) => ("refused", Some(e), None, None),
         };
-        let path = self.path.clone();
-        let db = |e: rusqlite::Error| StoreError::Db {
-            path: path.clone(),
-            message: e.to_string(),
-        };
+        let db = db_error(&self.path);
         let tx = self.conn.transaction().map_err(db)?;
         let changed = tx
             .execute(
@@ -535,11 +532,7 @@ impl Conn {
         since_s: i64,
         accept: &(dyn Fn(&Ledger) -> bool + Send + Sync),
     ) -> Result<Admission, StoreError> {
-        let path = self.path.clone();
-        let db = |e: rusqlite::Error| StoreError::Db {
-            path: path.clone(),
-            message: e.to_string(),
-        };
+        let db = db_error(&self.path);
         // IMMEDIATE: the write lock from the first read, so no other
         // process inserts between this check and this insert.
         let tx = self
@@ -615,11 +608,7 @@ impl Conn {
     }
 
     fn set_final_entries(&mut self, team_id: i64, ids: &[i64]) -> Result<bool, StoreError> {
-        let path = self.path.clone();
-        let db = |e: rusqlite::Error| StoreError::Db {
-            path: path.clone(),
-            message: e.to_string(),
-        };
+        let db = db_error(&self.path);
         let tx = self
             .conn
             .transaction_with_behavior(rusqlite::TransactionBehavior::Immediate)
