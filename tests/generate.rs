@@ -683,6 +683,52 @@ fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
 }
 
 #[test]
+fn a_run_that_fits_only_before_its_psfs_are_solved_is_refused_before_any_image() {
+    // Before solving, the PSF file is counted at 128 px; solved, it is
+    // the renderer's side (several times that) and its store file is
+    // counted too: a disk between the two refuses after the solve, before
+    // any image, keeping the solved PSF for the next attempt.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("c.json"), OPTICAL).unwrap();
+    let plan = stepsim_sim::plan::Plan::load(&d.join("c.json"), &[]).unwrap();
+    let before = stepsim_sim::disk::generate_estimate(&plan, None).total_bytes();
+    let limit = (before + (1 << 20)).to_string();
+    let args = ["generate", "--config", "c.json", "--out", "r"];
+    let o = run_env(&args, d, &[("STEPSIM_DISK_LIMIT_BYTES", &limit)]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(
+        err.contains("stepsim: built PSF 1/1 (coma), stored in "),
+        "{err}"
+    );
+    assert!(err.contains("1 PSF file ("), "{err}");
+    assert!(
+        err.contains("the solved PSFs (private/psf/cache/): "),
+        "{err}"
+    );
+    assert!(
+        err.contains("kept in private/psf/cache/ for the next attempt"),
+        "{err}"
+    );
+    assert!(!err.contains("until solved"), "{err}");
+    assert!(
+        files(&d.join("r/public"))
+            .keys()
+            .all(|k| !k.to_string_lossy().ends_with(".fits")),
+        "an image was written"
+    );
+    // With the space, the next attempt reuses the solved PSF.
+    let o = generate(d, "r", &[]);
+    let err = stderr(&o);
+    assert!(
+        err.contains("stepsim: reused PSF 1/1 (coma) from "),
+        "{err}"
+    );
+    assert!(manifest(&d.join("r"))["images"].as_array().unwrap().len() == 2);
+}
+
+#[test]
 fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

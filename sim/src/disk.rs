@@ -14,12 +14,25 @@
 //!   (`id` 8 bytes, the other integer columns 4, the float columns 8);
 //! * **model** (`output.write_model`): one float32 image per image;
 //! * **PSFs** (`output.write_psf`): per PSF a float64 image at pixel
-//!   sampling and one oversampled;
+//!   sampling and one oversampled, in one file. Their side is the extent
+//!   the renderer gives the PSF ([`renderer_side_px`]), known only once the
+//!   PSF is solved: before that it is counted at its least,
+//!   [`DEFAULT_SIZE_PX`] (0.14 of the STEP1 PSFs' 328 px files), and
+//!   `generate` checks the space again with the solved sides before it
+//!   writes the first image;
+//! * **PSF store** (`private/psf/cache/`): the solved PSFs, counted from
+//!   their files once solved (nothing before: their size, like the files',
+//!   follows from the solution);
 //! * **small files**: sidecars, manifest, datasets, config, README (4 KiB
 //!   per image, 64 KiB for the run).
 
+use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX};
 use crate::memory::{MemoryEstimate, Part};
 use crate::plan::Plan;
+use std::collections::BTreeMap;
+
+#[cfg(doc)]
+use crate::io::psf_fits::renderer_side_px;
 
 /// FITS files grow in blocks of this many bytes.
 pub const FITS_BLOCK_BYTES: u64 = 2880;
@@ -50,8 +63,34 @@ pub fn truth_row_bytes() -> u64 {
     8 + 4 * crate::truth::INT_COLUMNS.len() as u64 + 8 * crate::truth::FLOAT_COLUMNS.len() as u64
 }
 
-/// What `stepsim generate` writes for the whole run, by file kind.
-pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
+/// What the solved PSFs of a run write, measured once they are solved.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct SolvedPsfs {
+    /// Side (pixels) of the pixel-scale image of each PSF file, by PSF
+    /// index ([`renderer_side_px`]); a PSF not listed is counted at
+    /// [`DEFAULT_SIZE_PX`].
+    pub file_side_px: BTreeMap<usize, usize>,
+    /// Bytes of the run's PSF store files.
+    pub store_bytes: u64,
+}
+
+/// Bytes of one PSF file: the float64 image of `side` px and the one
+/// oversampled [`DEFAULT_OVERSAMPLE`] times, in two HDUs.
+pub fn psf_file_bytes(side: usize) -> u64 {
+    let side = side as u64;
+    let fine = side.saturating_mul(DEFAULT_OVERSAMPLE as u64);
+    let blocks = |n: u64| {
+        n.saturating_mul(n)
+            .saturating_mul(8)
+            .div_ceil(FITS_BLOCK_BYTES)
+    };
+    (blocks(side) + blocks(fine) + FITS_HEADER_BLOCKS).saturating_mul(FITS_BLOCK_BYTES)
+}
+
+/// What `stepsim generate` writes for the whole run, by file kind: before
+/// the PSFs are solved (`solved` `None`, PSF files counted at their least,
+/// the store not at all) or after.
+pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEstimate {
     let img = &plan.image();
     let out = &plan.output();
     let n = images_in_run(plan);
@@ -94,14 +133,33 @@ pub fn generate_estimate(plan: &Plan) -> MemoryEstimate {
         });
     }
     if out.write_psf {
-        use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX};
-        let side = DEFAULT_SIZE_PX as u64;
-        let fine = side * DEFAULT_OVERSAMPLE as u64;
-        let one = fits_file_bytes(8 * side * side) + fits_file_bytes(8 * fine * fine);
-        let k = plan.psfs().len() as u64;
+        let k = plan.psfs().len();
+        let known = BTreeMap::new();
+        let sides = solved.map_or(&known, |s| &s.file_side_px);
+        let side = |p: usize| sides.get(&p).copied().unwrap_or(DEFAULT_SIZE_PX);
+        let bytes = (0..k).map(|p| psf_file_bytes(side(p))).sum::<u64>();
+        let (lo, hi) = (0..k)
+            .map(side)
+            .fold((usize::MAX, 0), |(lo, hi), s| (lo.min(s), hi.max(s)));
+        let span = if lo == hi {
+            format!("{lo}")
+        } else {
+            format!("{lo}–{hi}")
+        };
+        let plural = if k == 1 { "" } else { "s" };
         parts.push(Part {
-            what: format!("{k} PSF file{}", if k == 1 { "" } else { "s" }),
-            bytes: one.saturating_mul(k),
+            what: if solved.is_some() {
+                format!("{k} PSF file{plural} ({span} px, and {DEFAULT_OVERSAMPLE}× finer)")
+            } else {
+                format!("{k} PSF file{plural} (at least {span} px each until solved)")
+            },
+            bytes,
+        });
+    }
+    if let Some(s) = solved.filter(|s| s.store_bytes > 0) {
+        parts.push(Part {
+            what: "the solved PSFs (private/psf/cache/)".into(),
+            bytes: s.store_bytes,
         });
     }
     parts.push(Part {
@@ -133,6 +191,18 @@ pub struct NoSpace {
     pub free_bytes: u64,
     /// Where that number comes from.
     pub source_of_free: String,
+}
+
+/// The space of a run's file system when `generate` starts, against which
+/// the whole run is checked before any work and again once its PSFs are
+/// solved.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DiskSpace {
+    /// Bytes of files already under the run directory (a resumed run).
+    pub present_bytes: u64,
+    /// Free bytes and where that number comes from (`None`: unknown, and
+    /// nothing is refused).
+    pub free: Option<(u64, String)>,
 }
 
 /// Refuses `estimate` when what is still to write (the estimate less the
@@ -186,7 +256,7 @@ mod tests {
         let p = plan(&text, &["run.seed=1"]);
         // 6 PSFs × 5 shears × 64 base fields (no rotated twins).
         assert_eq!(images_in_run(&p), 6 * 5 * 64);
-        let e = generate_estimate(&p);
+        let e = generate_estimate(&p, None);
         let images = e.parts[0].bytes;
         // 4096² float32 = 64 MiB of data + 3 header blocks, rounded to 2880.
         let one = (4096u64 * 4096 * 4).div_ceil(2880) * 2880 + 3 * 2880;
@@ -207,17 +277,20 @@ mod tests {
         let rest = e.total_bytes() - images;
         assert!(rest > 0 && rest < images / 4, "{rest}");
         // write_model doubles the images.
-        let m = generate_estimate(&plan(&text, &["run.seed=1", "output.write_model=true"]));
+        let m = generate_estimate(
+            &plan(&text, &["run.seed=1", "output.write_model=true"]),
+            None,
+        );
         assert_eq!(m.total_bytes() - e.total_bytes(), images);
         // Rotated twins double the images.
         let r = plan(&text, &["run.seed=1", "population.rotated_pairs=true"]);
-        assert_eq!(generate_estimate(&r).parts[0].bytes, 2 * images);
+        assert_eq!(generate_estimate(&r, None).parts[0].bytes, 2 * images);
     }
 
     #[test]
     fn check_refuses_only_what_does_not_fit_after_what_is_present() {
         let p = plan("{}", &["run.seed=1"]);
-        let e = generate_estimate(&p);
+        let e = generate_estimate(&p, None);
         let t = e.total_bytes();
         assert!(check("r", e.clone(), 0, Some((t, "x".into()))).is_ok());
         assert!(check("r", e.clone(), 0, None).is_ok());

@@ -210,11 +210,16 @@ pub fn image_bytes(plan: &Plan) -> f64 {
     drawing.max(finishing) + scratch
 }
 
-/// Expected objects (galaxies + stars) of one base field.
+/// Expected objects (galaxies + stars) of one base field: the galaxies
+/// drawn less those outside the magnitude range
+/// ([`crate::population::kept_fraction`]), and the stars.
 pub fn objects_per_field(plan: &Plan) -> f64 {
     let area = plan.placement_area().area_arcmin2;
     let galaxies = match plan.population().source {
-        crate::config::Source::Stuff => crate::population::model(plan).density_per_arcmin2(),
+        crate::config::Source::Stuff => {
+            crate::population::model(plan).density_per_arcmin2()
+                * crate::population::kept_fraction(plan)
+        }
         // A list's size is its own (read by the plan).
         crate::config::Source::SkymakerList { .. } => 0.0,
     };

@@ -51,13 +51,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         memory::generate_estimate(&plan, threads),
         memory::RUN_HINT,
     )?;
-    super::check_disk(&plan, &args.out)?;
+    let disk = super::check_disk(&plan, &args.out)?;
     let pool = super::thread_pool(threads)?;
     let progress = super::progress::Progress::new();
     let on_event = |e: Event| progress.event(e);
     let options = Options {
         shard: args.shard.unwrap_or_default(),
         submission_format: Some(stepsim_harness::SUBMISSION_FORMAT_MD.to_string()),
+        disk: Some(disk),
     };
     let summary = pool
         .install(|| generate::generate(&plan, &args.out, &options, &on_event))

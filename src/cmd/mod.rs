@@ -193,16 +193,24 @@ pub fn bytes_under(dir: &std::path::Path) -> u64 {
 }
 
 /// Refuses a `generate` whose files would not fit on the file system of
-/// `out` (before anything is written).
-pub fn check_disk(plan: &stepsim_sim::plan::Plan, out: &std::path::Path) -> anyhow::Result<()> {
-    let free = free_disk(out)?;
+/// `out` (before anything is written, with the PSF files counted at their
+/// least), and returns the space measured, against which `generate`
+/// checks again once the PSFs are solved.
+pub fn check_disk(
+    plan: &stepsim_sim::plan::Plan,
+    out: &std::path::Path,
+) -> anyhow::Result<stepsim_sim::disk::DiskSpace> {
+    let space = stepsim_sim::disk::DiskSpace {
+        present_bytes: bytes_under(out),
+        free: free_disk(out)?,
+    };
     stepsim_sim::disk::check(
         &out.display().to_string(),
-        stepsim_sim::disk::generate_estimate(plan),
-        bytes_under(out),
-        free,
+        stepsim_sim::disk::generate_estimate(plan, None),
+        space.present_bytes,
+        space.free.clone(),
     )?;
-    Ok(())
+    Ok(space)
 }
 
 /// Refuses a path that is not valid UTF-8 where FITS files are read or

@@ -97,6 +97,10 @@ pub enum GenerateError {
         /// The PSF module's error.
         source: crate::psf::PsfError,
     },
+    /// The run does not fit on its file system (checked again once the
+    /// PSFs are solved, with their sizes).
+    #[error("{0}; the solved PSFs are kept in private/psf/cache/ for the next attempt")]
+    NoSpace(#[from] Box<crate::disk::NoSpace>),
     /// The output directory holds a run made from another config.
     #[error(
         "{path} holds a run made from a different config; use another --out, or delete the whole run directory"
@@ -382,6 +386,9 @@ pub struct Options {
     /// The submission-format paragraph of the participants' README
     /// (default [`SUBMISSION_FORMAT`]).
     pub submission_format: Option<String>,
+    /// The space the run is checked against once its PSFs are solved,
+    /// before the first image is written (`None`: not checked).
+    pub disk: Option<crate::disk::DiskSpace>,
 }
 
 /// What the run reports while it works (for a progress bar).
@@ -450,6 +457,9 @@ pub struct Summary {
     /// Temporary files (`*.tmp`) still under the run directory at the end:
     /// being written by another shard right now, or not ours.
     pub stray_tmp: Vec<PathBuf>,
+    /// What the whole run writes ([`crate::disk::generate_estimate`]), with
+    /// the sides of the PSFs this process solved and the store's files.
+    pub disk_estimate: crate::memory::MemoryEstimate,
 }
 
 /// Makes (this shard's share of) the run described by `plan` in `out`.
@@ -479,6 +489,17 @@ pub fn generate(
     let work = find_pending(plan, &paths, &all, options.shard, &config_sha256)?;
     make_dataset_dirs(&paths, &all)?;
     let psfs = build_psfs(plan, &paths, &work, progress)?;
+    let disk_estimate =
+        crate::disk::generate_estimate(plan, Some(&solved_psfs(plan, &paths, &psfs)));
+    if let Some(d) = &options.disk {
+        crate::disk::check(
+            &out.display().to_string(),
+            disk_estimate.clone(),
+            d.present_bytes,
+            d.free.clone(),
+        )
+        .map_err(Box::new)?;
+    }
     progress(Event::Start {
         pending: work.pending.len(),
         done: work.mine.len() - work.pending.len(),
@@ -518,7 +539,40 @@ pub fn generate(
         stray_tmp,
         psfs_reused: psfs.reused,
         psfs_built: psfs.renderers.len() - psfs.reused,
+        disk_estimate,
     })
+}
+
+/// What the solved PSFs write: the side of each one's file (those this
+/// process built) and the bytes of the run's store files.
+fn solved_psfs(plan: &Plan, paths: &RunPaths, psfs: &Psfs) -> crate::disk::SolvedPsfs {
+    use crate::io::psf_store::{file_for, is_stored};
+    let scale = plan.pixel_scale_arcsec();
+    let max_stamp = plan.render().max_stamp_px as usize;
+    let file_side_px = psfs
+        .renderers
+        .iter()
+        .map(|(p, r)| {
+            let side = crate::io::psf_fits::renderer_side_px(r.psf().as_ref(), scale, max_stamp);
+            (*p, side)
+        })
+        .collect();
+    let accuracy = crate::psf::PsfAccuracy::default();
+    let files: std::collections::BTreeSet<PathBuf> = plan
+        .psf_specs()
+        .iter()
+        .filter(|spec| is_stored(spec))
+        .map(|spec| file_for(&paths.psf_store(), spec, &accuracy))
+        .collect();
+    let store_bytes = files
+        .iter()
+        .filter_map(|f| std::fs::metadata(f).ok())
+        .map(|m| m.len())
+        .sum();
+    crate::disk::SolvedPsfs {
+        file_side_px,
+        store_bytes,
+    }
 }
 
 /// Refuses files and shared contents another run left in the directory,
@@ -1393,6 +1447,94 @@ mod tests {
         let other = plan(&["run.seed=5"]);
         let err = generate(&other, dir.path(), &Options::default(), &quiet).unwrap_err();
         assert!(matches!(err, GenerateError::DifferentRun { .. }), "{err}");
+    }
+
+    /// Bytes of the files under `dir` whose path passes `keep`.
+    fn bytes_where(dir: &Path, keep: &dyn Fn(&Path) -> bool) -> u64 {
+        let mut total = 0;
+        for e in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = e.path();
+            if path.is_dir() {
+                total += bytes_where(&path, keep);
+            } else if keep(&path) {
+                total += e.metadata().unwrap().len();
+            }
+        }
+        total
+    }
+
+    #[test]
+    fn the_disk_estimate_matches_what_a_run_writes() {
+        // An optical PSF (solved, stored, written at the renderer's side)
+        // and a Gaussian one, float32 images.
+        let dir = tempfile::tempdir().unwrap();
+        let p = plan(&[
+            "image.width_px=256",
+            "image.height_px=256",
+            "psfs=[{\"name\":\"o\",\"model\":\"optical\",\"aberration\":\"none\",\"fwhm_arcsec\":0.9},{\"name\":\"g\",\"model\":\"gaussian\"}]",
+        ]);
+        let before = crate::disk::generate_estimate(&p, None);
+        let s = generate(&p, dir.path(), &Options::default(), &|_: Event| {}).unwrap();
+        let after = &s.disk_estimate;
+        let part = |e: &crate::memory::MemoryEstimate, what: &str| {
+            e.parts
+                .iter()
+                .find(|x| x.what.contains(what))
+                .map_or(0, |x| x.bytes)
+        };
+        let root = dir.path();
+        let under = |sub: &str, ext: &str| {
+            bytes_where(&root.join(sub), &|f| {
+                f.extension().is_some_and(|x| x == ext)
+                    && !f.starts_with(root.join("private/psf/cache"))
+            })
+        };
+        let block = crate::disk::FITS_BLOCK_BYTES;
+        // Images: at most three header blocks more than written, each.
+        let images = under("public", "fits");
+        let est = part(after, "images of");
+        assert!(
+            est >= images && est - images <= 3 * block * 8,
+            "{est} {images}"
+        );
+        // PSF files: the solved side, at most one block more per file; the
+        // optical one's side (> 128) was counted at 128 before solving.
+        let psf_files = under("private/psf", "fits");
+        let est = part(after, "PSF file");
+        assert!(
+            est >= psf_files && est - psf_files <= 2 * block,
+            "{est} {psf_files}"
+        );
+        assert!(part(&before, "PSF file") < psf_files / 2);
+        assert!(
+            after
+                .parts
+                .iter()
+                .any(|x| x.what.starts_with("2 PSF files (128–"))
+        );
+        // The store: its files, exactly; unknown before solving.
+        let store = bytes_where(&root.join("private/psf/cache"), &|_| true);
+        assert!(store > 0);
+        assert_eq!(part(after, "private/psf/cache"), store);
+        assert_eq!(part(&before, "private/psf/cache"), 0);
+        // Truth: the expected rows of a field; what was written has the
+        // rows drawn (Poisson), so it lies within 5σ of the estimate.
+        let truth = under("private/truth", "fits");
+        let est = part(after, "truth tables") as f64;
+        let expected = crate::memory::objects_per_field(&p);
+        let rel = 5.0 / expected.sqrt();
+        assert!(expected > 20.0, "{expected}");
+        assert!(
+            (truth as f64 / est - 1.0).abs() < rel,
+            "truth {truth} against {est} ({expected} objects)"
+        );
+        // Everything else fits in the small files' share.
+        let all = bytes_where(root, &|_| true);
+        let rest = all - images - psf_files - store - truth;
+        assert!(rest <= part(after, "small files"), "{rest}");
+        // And the whole: within the truth tables' spread.
+        let total = after.total_bytes() as f64;
+        assert!((all as f64 / total - 1.0).abs() < 0.1, "{all} {total}");
     }
 
     #[test]

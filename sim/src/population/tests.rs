@@ -587,3 +587,25 @@ fn skymaker_lists_are_found_beside_the_config_and_read_once() {
         "{err}"
     );
 }
+
+#[test]
+fn the_galaxies_kept_per_field_are_the_expected_count_less_those_out_of_range() {
+    // What the disk estimate counts per truth table: the galaxies drawn
+    // (Poisson, density × area) times the fraction kept in the magnitude
+    // range: within 4σ of the mean of 4 fields.
+    let plan = plan_with(&["image.width_px=2048", "image.height_px=2048"]);
+    let drawn = model(&plan).density_per_arcmin2() * plan.placement_area().area_arcmin2;
+    let kept = kept_fraction(&plan);
+    assert!((0.5..0.95).contains(&kept), "{kept}");
+    let fields = 4;
+    let mean = (0..fields)
+        .map(|f| galaxies_of(&base_field(&plan, f).unwrap()).len() as f64)
+        .sum::<f64>()
+        / f64::from(fields);
+    let want = drawn * kept;
+    let sigma = (want / f64::from(fields)).sqrt() + want * 0.006;
+    assert!(
+        (mean - want).abs() < 4.0 * sigma,
+        "{mean} kept per field, {want} expected ({drawn} drawn × {kept})"
+    );
+}
