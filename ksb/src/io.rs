@@ -89,13 +89,18 @@ pub fn format_submission<'a>(
     s.push_str(SUBMISSION_HEADER);
     s.push('\n');
     for (image, o) in rows {
-        let _ = writeln!(
-            s,
-            "{image} {:.3} {:.3} {:.6} {:.6} {:.6} {}",
-            o.x, o.y, o.e1, o.e2, o.weight, o.flags
-        );
+        push_row(&mut s, image, o);
     }
     s
+}
+
+/// Appends the submission line of `o` on image `image` to `s`.
+pub fn push_row(s: &mut String, image: &str, o: &MeasuredObject) {
+    let _ = writeln!(
+        s,
+        "{image} {:.3} {:.3} {:.6} {:.6} {:.6} {}",
+        o.x, o.y, o.e1, o.e2, o.weight, o.flags
+    );
 }
 
 /// Writes a submission atomically.

@@ -20,13 +20,15 @@
 //! nothing, each image falls back to its own.
 
 use crate::error::KsbError;
-use crate::io::{read_fits_image, read_manifest, write_submission};
+use crate::io::{SUBMISSION_HEADER, push_row, read_fits_image, read_manifest};
 use crate::params::KsbParams;
 use crate::pipeline::{Detections, ImageInfo, ImageMeasurement, detect_image};
 use crate::stars::{StarSelection, select_stars};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::io::{Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use stepsim_contract::io::{IoError, write_atomically};
 
 /// Summary of one measured image.
 #[derive(Debug, Clone, PartialEq)]
@@ -58,9 +60,8 @@ pub fn measure_run(
     params: &KsbParams,
     progress: Progress,
 ) -> Result<Vec<ImageSummary>, KsbError> {
-    let (images, measured) = measure_datasets(public_dir, threads, params, |_| true, progress)?;
-    write_submission(out, rows(&images, &measured))?;
-    Ok(summaries(&images, &measured))
+    let measured = measure_datasets(public_dir, out, threads, params, |_| true, progress)?;
+    measured.write(out, &[])
 }
 
 /// The datasets of shard `k` of `n` (1-based): the dataset ids of the
@@ -104,21 +105,17 @@ pub fn measure_shard(
     let manifest = read_manifest(&manifest_path)?;
     let all: Vec<&str> = manifest.images.iter().map(|i| i.dataset.as_str()).collect();
     let mine = shard_datasets(&all, k, n);
-    let (images, measured) = measure_datasets(
+    let path = part_path(out, k, n);
+    let measured = measure_datasets(
         public_dir,
+        &path,
         threads,
         params,
         |d| mine.iter().any(|m| m == d),
         progress,
     )?;
-    let text = crate::io::format_submission(rows(&images, &measured));
-    let text = with_manifest_line(&text, &manifest_sha256(&manifest_path)?);
-    let path = part_path(out, k, n);
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| stepsim_contract::io::IoError::os(dir, e))?;
-    }
-    stepsim_contract::io::write_bytes_atomically(&path, text.as_bytes())?;
-    Ok(summaries(&images, &measured))
+    let sha = manifest_sha256(&manifest_path)?;
+    measured.write(&path, &[format!("{MANIFEST_LINE}{sha}")])
 }
 
 const MANIFEST_LINE: &str = "# manifest-sha256 ";
@@ -126,11 +123,6 @@ const MANIFEST_LINE: &str = "# manifest-sha256 ";
 fn manifest_sha256(path: &Path) -> Result<String, KsbError> {
     let bytes = std::fs::read(path).map_err(|e| stepsim_contract::io::IoError::os(path, e))?;
     Ok(stepsim_contract::digest::sha256_hex(&bytes))
-}
-
-fn with_manifest_line(submission: &str, sha: &str) -> String {
-    let (header, body) = submission.split_once('\n').unwrap_or((submission, ""));
-    format!("{header}\n{MANIFEST_LINE}{sha}\n{body}")
 }
 
 /// Joins the parts of an `n`-shard measure of `public_dir` into the one
@@ -216,49 +208,125 @@ pub fn parts_count(out: &Path) -> Result<u32, KsbError> {
     }
 }
 
-fn rows<'a>(
-    images: &'a [stepsim_contract::run_layout::ManifestImage],
-    measured: &'a [ImageMeasurement],
-) -> impl Iterator<Item = (&'a str, &'a crate::pipeline::MeasuredObject)> {
-    images
-        .iter()
-        .zip(measured)
-        .flat_map(|(im, m)| m.objects.iter().map(move |o| (im.image.as_str(), o)))
+fn summary(im: &stepsim_contract::run_layout::ManifestImage, m: &ImageMeasurement) -> ImageSummary {
+    ImageSummary {
+        image: im.image.clone(),
+        n_objects: m.objects.len(),
+        n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
+        n_stars: m.n_stars,
+        rg_star_px: m.locus.map(|l| l.rg_star),
+        psf_order: m.psf_order,
+    }
 }
 
-fn summaries(
-    images: &[stepsim_contract::run_layout::ManifestImage],
-    measured: &[ImageMeasurement],
-) -> Vec<ImageSummary> {
-    images
-        .iter()
-        .zip(measured)
-        .map(|(im, m)| ImageSummary {
-            image: im.image.clone(),
-            n_objects: m.objects.len(),
-            n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
-            n_stars: m.n_stars,
-            rg_star_px: m.locus.map(|l| l.rg_star),
-            psf_order: m.psf_order,
+/// The rows of measured images, kept in a file beside the submission
+/// (`<SUB>.rows.tmp`) until they are written in image-id order: images are
+/// measured in groups of whole datasets, scattered in id order, and the
+/// rows of a full STEP1 preset (19.8 M) held in memory took 7.9 GiB. The
+/// file is removed when this is dropped, whether the submission was
+/// written or not.
+struct Spill {
+    path: PathBuf,
+    file: std::fs::File,
+    end: u64,
+    /// (offset, length) of each image's rows, by position in id order.
+    blocks: Vec<(u64, usize)>,
+}
+
+impl Spill {
+    fn beside(sub: &Path, n_images: usize) -> Result<Self, KsbError> {
+        let mut name = sub.as_os_str().to_owned();
+        name.push(".rows.tmp");
+        let path = PathBuf::from(name);
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
+        }
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&path)
+            .map_err(|e| IoError::os(&path, e))?;
+        Ok(Self {
+            path,
+            file,
+            end: 0,
+            blocks: vec![(0, 0); n_images],
         })
-        .collect()
+    }
+
+    /// Keeps the rows of image `i` (position in id order).
+    fn put(&mut self, i: usize, rows: &str) -> Result<(), KsbError> {
+        self.file
+            .write_all(rows.as_bytes())
+            .map_err(|e| IoError::os(&self.path, e))?;
+        self.blocks[i] = (self.end, rows.len());
+        self.end += rows.len() as u64;
+        Ok(())
+    }
+
+    /// Copies every image's rows, in id order, to `w` (writing `dest`).
+    fn copy_in_order(&mut self, w: &mut impl Write, dest: &Path) -> Result<(), KsbError> {
+        let mut buf = Vec::new();
+        for &(at, len) in &self.blocks {
+            buf.resize(len, 0);
+            self.file
+                .seek(SeekFrom::Start(at))
+                .and_then(|_| self.file.read_exact(&mut buf))
+                .map_err(|e| IoError::os(&self.path, e))?;
+            w.write_all(&buf).map_err(|e| IoError::os(dest, e))?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Spill {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// What [`measure_datasets`] made: each image's summary, and its rows.
+struct Measured {
+    summaries: Vec<ImageSummary>,
+    rows: Spill,
+}
+
+impl Measured {
+    /// Writes the submission `sub` atomically: the header, the `extra`
+    /// lines, then the rows of every image in image-id order (each image's
+    /// sorted by y, then x).
+    fn write(mut self, sub: &Path, extra: &[String]) -> Result<Vec<ImageSummary>, KsbError> {
+        write_atomically(sub, |tmp| -> Result<(), KsbError> {
+            let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
+            let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
+            let mut head = format!("{SUBMISSION_HEADER}\n");
+            for line in extra {
+                head.push_str(line);
+                head.push('\n');
+            }
+            w.write_all(head.as_bytes())
+                .map_err(|e| IoError::os(tmp, e))?;
+            self.rows.copy_in_order(&mut w, tmp)?;
+            w.flush().map_err(|e| IoError::os(tmp, e))?;
+            Ok(())
+        })?;
+        Ok(self.summaries)
+    }
 }
 
 /// Measures the images of the datasets `keep` accepts (in image-id order),
-/// pooling star candidates per dataset (two passes).
+/// pooling star candidates per dataset (two passes), keeping their rows
+/// beside the submission `sub` ([`Spill`]).
 fn measure_datasets(
     public_dir: &Path,
+    sub: &Path,
     threads: usize,
     params: &KsbParams,
     keep: impl Fn(&str) -> bool,
     progress: Progress,
-) -> Result<
-    (
-        Vec<stepsim_contract::run_layout::ManifestImage>,
-        Vec<ImageMeasurement>,
-    ),
-    KsbError,
-> {
+) -> Result<Measured, KsbError> {
     params.validate()?;
     let manifest_path = public_dir.join("manifest.json");
     let manifest = read_manifest(&manifest_path)?;
@@ -303,12 +371,12 @@ fn measure_datasets(
     // and keeps the result, the locus of each dataset is found on the
     // pooled candidates, and pass 2 finishes every image with it.
     const GROUP_IMAGES: usize = 64;
-    let mut measured: Vec<ImageMeasurement> = Vec::with_capacity(images.len());
+    let mut rows = Spill::beside(sub, images.len())?;
     let mut by_dataset: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
     for (i, im) in images.iter().enumerate() {
         by_dataset.entry(im.dataset.as_str()).or_default().push(i);
     }
-    let mut slots: Vec<Option<ImageMeasurement>> = vec![None; images.len()];
+    let mut slots: Vec<Option<ImageSummary>> = vec![None; images.len()];
     let mut group: Vec<usize> = Vec::new();
     let datasets: Vec<&Vec<usize>> = by_dataset.values().collect();
     let mut n_done = 0;
@@ -319,17 +387,23 @@ fn measure_datasets(
         }
         group.sort_unstable();
         let done = pool.install(|| measure_group(&images, &group, &read, &info, params))?;
-        for (i, m) in group.iter().zip(done) {
-            slots[*i] = Some(m);
+        for (&i, m) in group.iter().zip(done) {
+            let mut text = String::new();
+            for o in &m.objects {
+                push_row(&mut text, &images[i].image, o);
+            }
+            rows.put(i, &text)?;
+            slots[i] = Some(summary(&images[i], &m));
         }
         n_done += group.len();
         progress(n_done, images.len());
         group.clear();
     }
-    for m in slots {
-        measured.push(m.expect("every image is in one group"));
-    }
-    Ok((images, measured))
+    let summaries = slots
+        .into_iter()
+        .map(|m| m.expect("every image is in one group"))
+        .collect();
+    Ok(Measured { summaries, rows })
 }
 
 /// Measures the images `group` (indices into `images`, ascending; whole
@@ -468,6 +542,19 @@ mod tests {
         write_public_run(dir.path(), &refs).unwrap();
         let out = dir.path().join("sub.txt");
         measure_run(dir.path(), &out, 2, &params, &|_, _| {}).unwrap();
+        // The rows kept beside it while measuring are gone.
+        assert!(!dir.path().join("sub.txt.rows.tmp").exists());
+
+        // A damaged image: refused, and neither the submission nor the
+        // kept rows are left.
+        let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
+        let damaged = dir.path().join(&manifest.images[3].file);
+        let bytes = std::fs::read(&damaged).unwrap();
+        std::fs::write(&damaged, &bytes[..bytes.len() / 2]).unwrap();
+        let bad = dir.path().join("bad.txt");
+        assert!(measure_run(dir.path(), &bad, 2, &params, &|_, _| {}).is_err());
+        assert!(!bad.exists() && !dir.path().join("bad.txt.rows.tmp").exists());
+        std::fs::write(&damaged, &bytes).unwrap();
 
         // The electrons measure_run sees: the written file, read back.
         let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
@@ -507,7 +594,11 @@ mod tests {
             )
             .collect();
         let want = dir.path().join("twice.txt");
-        write_submission(&want, rows(&images, &twice)).unwrap();
+        let rows = images
+            .iter()
+            .zip(&twice)
+            .flat_map(|(im, m)| m.objects.iter().map(move |o| (im.image.as_str(), o)));
+        crate::io::write_submission(&want, rows).unwrap();
         let (got, want) = (std::fs::read(&out).unwrap(), std::fs::read(&want).unwrap());
         assert!(got.len() > 500);
         assert!(got == want, "submissions differ");
