@@ -19,7 +19,12 @@
 //! set before the process starts; this allocator does it from inside, for
 //! the Rust allocations (which hold the image buffers). Measured side by
 //! side, the tunable removed somewhat more system time (BENCHMARKS.md).
+//!
+//! The allocator also keeps large freed blocks for the next request of the
+//! same size ([`crate::block_cache`]), so that an image's buffers are
+//! faulted in once per process rather than once per image.
 
+use crate::block_cache::BlockCache;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -32,13 +37,29 @@ pub const MIN_ADVISED_BYTES: usize = HUGE_PAGE;
 
 static ENABLED: AtomicBool = AtomicBool::new(true);
 
-/// Reads `STEPSIM_HUGE_PAGES` (`0`, `off` or `false` turn the advice off).
-/// Called once at the start of `main`.
+/// Large freed blocks kept for reuse, and whether they are.
+static CACHE: BlockCache = BlockCache::new();
+static CACHING: AtomicBool = AtomicBool::new(true);
+
+/// Reads `STEPSIM_HUGE_PAGES` and `STEPSIM_BLOCK_CACHE` (`0`, `off` or
+/// `false` turn the advice, or the cache of large blocks, off). Called once
+/// at the start of `main`.
 pub fn configure() {
-    let off = std::env::var("STEPSIM_HUGE_PAGES")
-        .map(|v| matches!(v.trim(), "0" | "off" | "false"))
-        .unwrap_or(false);
-    ENABLED.store(!off, Ordering::Relaxed);
+    let off = |name: &str| {
+        std::env::var(name)
+            .map(|v| matches!(v.trim(), "0" | "off" | "false"))
+            .unwrap_or(false)
+    };
+    ENABLED.store(!off("STEPSIM_HUGE_PAGES"), Ordering::Relaxed);
+    CACHING.store(!off("STEPSIM_BLOCK_CACHE"), Ordering::Relaxed);
+}
+
+/// A kept block of exactly this layout, if caching.
+fn reuse(layout: Layout) -> Option<*mut u8> {
+    if !CACHING.load(Ordering::Relaxed) {
+        return None;
+    }
+    CACHE.take(layout.size(), layout.align())
 }
 
 /// The 2 MB-aligned part `[start, end)` of the block at `addr` of `size`
@@ -72,8 +93,13 @@ pub struct HugePageAlloc;
 
 // SAFETY: every call is forwarded to `System` with the caller's arguments;
 // the advice touches no memory.
+// A kept block came from System with exactly the layout it is reused for,
+// was advised then, and is handed to one caller at a time.
 unsafe impl GlobalAlloc for HugePageAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        if let Some(p) = reuse(layout) {
+            return p;
+        }
         // SAFETY: the caller's contract is System's.
         let p = unsafe { System.alloc(layout) };
         advise(p, layout.size());
@@ -81,6 +107,11 @@ unsafe impl GlobalAlloc for HugePageAlloc {
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        if let Some(p) = reuse(layout) {
+            // SAFETY: the kept block holds layout.size() writable bytes.
+            unsafe { std::ptr::write_bytes(p, 0, layout.size()) };
+            return p;
+        }
         // SAFETY: as for `alloc`.
         let p = unsafe { System.alloc_zeroed(layout) };
         advise(p, layout.size());
@@ -88,6 +119,15 @@ unsafe impl GlobalAlloc for HugePageAlloc {
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        let release = |p: *mut u8, size: usize, align: usize| {
+            // SAFETY: a kept block came from System with this size and
+            // alignment (a valid layout then).
+            unsafe { System.dealloc(p, Layout::from_size_align_unchecked(size, align)) }
+        };
+        if CACHING.load(Ordering::Relaxed) && CACHE.put(ptr, layout.size(), layout.align(), release)
+        {
+            return;
+        }
         // SAFETY: `ptr` came from System with this layout.
         unsafe { System.dealloc(ptr, layout) }
     }
@@ -170,8 +210,11 @@ mod tests {
         assert_eq!(v.iter().map(|&b| usize::from(b)).sum::<usize>(), 16384);
         if mode.contains("[madvise]") {
             // Without the advice the kernel uses 4 kB pages in this mode.
+            // (Nor from a kept block, advised when it was made.)
             ENABLED.store(false, Ordering::Relaxed);
+            CACHING.store(false, Ordering::Relaxed);
             let mut w = vec![0u8; 64 << 20];
+            CACHING.store(true, Ordering::Relaxed);
             ENABLED.store(true, Ordering::Relaxed);
             for b in w.iter_mut().step_by(4096) {
                 *b = 1;

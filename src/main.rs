@@ -3,6 +3,7 @@
 //! Exit codes: 0 success; 1 the input was refused (the message says which file,
 //! line or key, and why); 2 usage error (from the argument parser).
 
+mod block_cache;
 mod cmd;
 mod huge_pages;
 

@@ -807,30 +807,49 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
 }
 
 #[test]
-fn huge_pages_on_and_off_write_identical_bytes() {
-    // 1024 × 768 images: the canvas, model and FITS buffers are 3 MB, so the
-    // allocator advises them (src/huge_pages.rs); the bytes must not care.
+fn huge_pages_and_the_block_cache_on_and_off_write_identical_bytes() {
+    // 2048² images: the canvas, model and FITS buffers are 16 MiB, so the
+    // allocator advises them (src/huge_pages.rs) and keeps them for the
+    // next image (src/block_cache.rs); the bytes must not care, in
+    // `generate` nor in `measure`.
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let config = r#"{
       "run": {"seed": 424242},
-      "image": {"width_px": 1024, "height_px": 768, "n_images": 1},
+      "image": {"width_px": 2048, "height_px": 2048, "n_images": 2},
       "psfs": [{"name": "p", "model": "moffat", "beta": 3.5, "fwhm_arcsec": 0.85}],
       "shears": [{"g1": 0.02, "g2": -0.01}]
     }"#;
     std::fs::write(d.join("c.json"), config).unwrap();
     for (out, value) in [("on", "1"), ("off", "0")] {
-        let o = common::run_env(
-            &["generate", "--config", "c.json", "--out", out],
-            d,
-            &[("STEPSIM_HUGE_PAGES", value)],
-        );
+        let env = [
+            ("STEPSIM_HUGE_PAGES", value),
+            ("STEPSIM_BLOCK_CACHE", value),
+        ];
+        let o = common::run_env(&["generate", "--config", "c.json", "--out", out], d, &env);
+        assert!(o.status.success(), "{out}: {}", stderr(&o));
+        let sub = format!("{out}.txt");
+        let args = [
+            "measure",
+            "--run",
+            "on/public",
+            "--out",
+            &sub,
+            "--threads",
+            "2",
+        ];
+        let o = common::run_env(&args, d, &env);
         assert!(o.status.success(), "{out}: {}", stderr(&o));
     }
     let (on, off) = (release(&d.join("on")), release(&d.join("off")));
-    // One image: the image, its truth table and sidecar, and five shared files.
-    assert_eq!(on.len(), 3 + 5, "{:?}", on.keys().collect::<Vec<_>>());
+    // Two images: each with its truth table and sidecar, and five shared files.
+    assert_eq!(on.len(), 2 * 3 + 5, "{:?}", on.keys().collect::<Vec<_>>());
     assert_eq!(on, off);
+    let (a, b) = (
+        std::fs::read(d.join("on.txt")).unwrap(),
+        std::fs::read(d.join("off.txt")).unwrap(),
+    );
+    assert!(a.len() > 10_000 && a == b, "the submissions differ");
 }
 
 /// A Gaussian PSF image of σ = 0.2″ sampled at 0.05″ (49²), as a FITS file.
