@@ -15,7 +15,7 @@
 //! object's own width matches it (as *hfindpeaks*' optimal scale).
 
 use crate::image::Image;
-use crate::moments::ksb_integrals;
+use crate::moments::window_moments;
 
 /// Result of the windowed centroid.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -63,7 +63,7 @@ pub fn windowed(
     let (mut x, mut y, mut rg) = (x0, y0, rg0.clamp(s.rg_min, s.rg_max));
     let mut at_bound = false;
     for it in 1..=s.max_iter {
-        let m = ksb_integrals(img, x, y, rg, s.radius_rg * rg, None);
+        let m = window_moments(img, x, y, rg, s.radius_rg * rg);
         if m.s0.is_nan() || m.s0 <= 0.0 {
             return None;
         }
