@@ -9,8 +9,9 @@ use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stepsim_harness::synthetic::SynthRun;
-use stepsim_server::api::{AppState, router};
-use stepsim_server::{Challenge, web};
+use stepsim_server::Challenge;
+use stepsim_server::http::pages as web;
+use stepsim_server::http::{AppState, router};
 use tower::ServiceExt;
 
 const HOST: &str = "challenge.test";
@@ -1388,3 +1389,4 @@ async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
         assert!(!r.body.contains(zero), "{zero}: {}", r.body);
     }
 }
+

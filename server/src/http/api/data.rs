@@ -10,7 +10,7 @@
 //! ustar, written here: `public/SHA256SUMS`, then every listed file under
 //! `public/`), its length known before the first byte, every time stamp 0.
 
-use crate::api::{ApiError, AppState};
+use crate::http::{ApiError, AppState};
 use axum::body::Body;
 use axum::extract::{Path as UrlPath, State};
 use axum::http::{HeaderValue, StatusCode, header};
@@ -44,7 +44,7 @@ fn sha256_of(path: &std::path::Path) -> std::io::Result<String> {
     let mut f = std::fs::File::open(path)?;
     let mut h = Sha256::new();
     std::io::copy(&mut f, &mut h)?;
-    Ok(crate::challenge::hex(&h.finalize()))
+    Ok(crate::hex(&h.finalize()))
 }
 
 /// The files of the run's public part in the manifest's order:
@@ -59,7 +59,7 @@ pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String>
     let size = |p: &str| std::fs::metadata(public.join(p)).map(|m| m.len());
     let mut files = vec![PublicFile {
         path: "manifest.json".into(),
-        sha256: crate::challenge::hex(&Sha256::digest(text.as_bytes())),
+        sha256: crate::hex(&Sha256::digest(text.as_bytes())),
         bytes: text.len() as u64,
     }];
     if let Ok(bytes) = size("README.md") {
