@@ -1,5 +1,5 @@
 //! Uploads (`POST /api/submissions`, and the page's upload form through
-//! [`submit`]): the turn among uploads in flight, the quota, the streamed
+//! `submit`): the turn among uploads in flight, the quota, the streamed
 //! copy, the harness's format check and the store's admission.
 
 use crate::challenge::admission::{Refusal, RefusalKind, admission_refusal, limits};
