@@ -55,10 +55,8 @@ impl Challenge {
         };
         let teams = self.store.teams().await?;
         let subs = self.store.all_submissions().await?;
-        let mut rows: Vec<serde_json::Value> = leaderboard::rows(&teams, &subs, revealed)
-            .iter()
-            .map(leaderboard::Row::json)
-            .collect();
+        let board = leaderboard::rows(&teams, &subs, revealed);
+        let mut rows = Vec::with_capacity(board.len());
         let reports_dir = out.with_extension("reports");
         let io = |p: &Path, e: String| ChallengeError::State {
             path: p.to_path_buf(),
@@ -68,12 +66,13 @@ impl Challenge {
         let mut reports = Vec::new();
         let mut csv = EXPORT_CSV_COLUMNS.join(",");
         csv.push('\n');
-        for row in &mut rows {
-            let id = row["entry"].as_i64().unwrap_or(0);
+        for r in &board {
+            let mut row = r.json();
+            let id = r.entry.id;
             // Unranked rows (organisers, baseline): an empty rank, and the
             // role in the report's name.
-            let rank = row["rank"].as_i64();
-            let role = row["role"].as_str().unwrap_or("participant").to_string();
+            let rank = r.rank;
+            let role = r.team.role.name().to_string();
             let label = rank.map_or_else(|| role.clone(), |r| r.to_string());
             let src = self.entry_dir(id, part).join("report.json");
             let dst = reports_dir.join(format!("{label}-entry{id}.json"));
@@ -88,10 +87,12 @@ impl Challenge {
             } else {
                 &row["public"]
             };
+            // Each figure as the stored JSON writes it (the row's JSON
+            // above), so that the CSV and the JSON agree to the digit.
             let num = |k: &str| figures.get(k).map(|v| v.to_string()).unwrap_or_default();
             let fields = [
                 rank.map(|r| r.to_string()).unwrap_or_default(),
-                csv_field(row["team"].as_str().unwrap_or("")),
+                csv_field(&r.team.name),
                 id.to_string(),
                 part.name().to_string(),
                 num("m_mean"),
@@ -109,6 +110,7 @@ impl Challenge {
             csv.push_str(&fields.join(","));
             csv.push('\n');
             row["report"] = serde_json::json!(name);
+            rows.push(row);
             reports.push(dst);
         }
         let doc = serde_json::json!({"revealed": revealed, "part": part.name(), "rows": rows});
