@@ -12,12 +12,13 @@
 //!               leaderboard, the challenge's state, the public data files
 //!   pages/      the pages (HTML, sessions, CSRF; templates/), one a page
 //!   auth.rs     bearer tokens and the rate limit
+//!   log.rs      the log line of each request
 //!   net.rs      the connection layer (hyper): timeouts, caps per address
 //!   limits.rs   the limits on connections, bodies, uploads, format checks
 //! worker.rs     the scoring queue: claims jobs, calls the harness, records;
 //!               store errors are waited out, never end a worker
-//! observe.rs    what the organisers see: a log line per request and per
-//!               upload, refusal and scoring job; the counters of /metrics
+//! observe.rs    what the organisers see: a log line per upload, refusal
+//!               and scoring job; the counters of /metrics
 //! challenge/    the challenge, no HTTP: its directory (init, teams and
 //!               tokens, reveal, export), phase, admission rules, final
 //!               entries, typed figures, the leaderboard
@@ -26,7 +27,7 @@
 //! ```
 //!
 //! `worker` and `observe` sit beside the handlers: they use the challenge
-//! and the store, never `http`.
+//! and the store, never `http`, and know no HTTP.
 //!
 //! A challenge lives in one directory (`--state DIR`): `challenge.db` (or
 //! `store.url`, naming a PostgreSQL database), `uploads/<sha256>`

@@ -3,7 +3,8 @@
 //!
 //! ```text
 //! http                 the handlers (axum): may use everything below
-//! worker, observe      beside the handlers: the challenge and the store
+//! worker, observe      beside the handlers: the challenge and the store,
+//!                      and no HTTP
 //! challenge            the challenge core: the store only, and no HTTP
 //! store                nothing of the crate
 //! ```
@@ -322,19 +323,21 @@ fn http_words_under(dir: &Path) -> (usize, Vec<String>) {
 }
 
 #[test]
-fn the_core_and_the_store_know_no_http() {
+fn the_core_the_store_and_the_workers_know_no_http() {
     let src = server_src();
     for dir in ["challenge", "store"] {
         let (n, found) = http_words_under(&src.join(dir));
         assert!(n >= 3, "{dir}: {n} files");
         assert!(found.is_empty(), "HTTP in {dir}/:\n{}", found.join("\n"));
     }
-    let worker = code_only(&std::fs::read_to_string(src.join("worker.rs")).unwrap());
-    let words: Vec<&str> = HTTP_WORDS
-        .into_iter()
-        .filter(|w| worker.contains(w))
-        .collect();
-    assert!(words.is_empty(), "HTTP in worker.rs: {words:?}");
+    for file in ["worker.rs", "observe.rs"] {
+        let code = code_only(&std::fs::read_to_string(src.join(file)).unwrap());
+        let words: Vec<&str> = HTTP_WORDS
+            .into_iter()
+            .filter(|w| code.contains(w))
+            .collect();
+        assert!(words.is_empty(), "HTTP in {file}: {words:?}");
+    }
     // The check sees the handlers' own HTTP.
     let (_, http) = http_words_under(&src.join("http"));
     assert!(http.iter().any(|f| f.contains("axum")), "{http:?}");

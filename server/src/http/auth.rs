@@ -126,6 +126,6 @@ pub(crate) async fn auth(state: &AppState, headers: &HeaderMap) -> Result<Team, 
         .await
         .map_err(ApiError::internal)?
         .ok_or_else(unauthorized)?;
-    crate::observe::note_team(team.id);
+    crate::http::log::note_team(team.id);
     Ok(team)
 }

@@ -30,6 +30,7 @@
 pub mod api;
 pub mod auth;
 pub mod limits;
+mod log;
 pub mod net;
 pub mod pages;
 
@@ -278,7 +279,7 @@ pub fn router(state: AppState) -> Router {
         ))
         .layer(axum::middleware::from_fn_with_state(
             state.inner.metrics.clone(),
-            crate::observe::log_requests,
+            log::log_requests,
         ))
         .with_state(state)
 }

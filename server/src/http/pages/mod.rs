@@ -361,7 +361,7 @@ impl Web {
         };
         match team {
             Some(t) => {
-                crate::observe::note_team(t.id);
+                crate::http::log::note_team(t.id);
                 Some((s, Some(t)))
             }
             None => {
