@@ -21,7 +21,7 @@
 //!               and scoring job; the counters of /metrics
 //! challenge/    the challenge, no HTTP: its directory (init, teams and
 //!               tokens, reveal, export), phase, admission rules, final
-//!               entries, typed figures, the leaderboard
+//!               entries, typed figures, the leaderboard, the public data
 //! store/        the state behind an async trait: SQLite (WAL, migrations in
 //!               the binary; the default) and PostgreSQL (several hosts)
 //! ```

@@ -1,8 +1,9 @@
 //! The challenge itself, knowing nothing of HTTP: its state directory and
 //! the organiser's operations on it (here), where it stands ([`phase`]),
 //! what admits an upload ([`admission`]), which entries count
-//! ([`finals`]), an entry's figures ([`figures`]) and the leaderboard
-//! ([`leaderboard`]). It stands on the store alone.
+//! ([`finals`]), an entry's figures ([`figures`]), the leaderboard
+//! ([`leaderboard`]) and the run's public files ([`public_data`]). It
+//! stands on the store alone.
 
 pub mod admission;
 mod export;
@@ -10,6 +11,7 @@ pub mod figures;
 pub mod finals;
 pub mod leaderboard;
 pub mod phase;
+pub mod public_data;
 
 pub use crate::hex;
 pub use crate::store::DB_FILE;

@@ -18,9 +18,10 @@ pub(crate) async fn data_index(
         };
     }
     let nav = web.nav(&state, &headers, "data").await;
-    let public = crate::http::api::data::public_dir(&state.settings().truth_dir);
+    let public = crate::challenge::public_data::public_dir(&state.settings().truth_dir);
     let listed =
-        tokio::task::spawn_blocking(move || crate::http::api::data::public_files(&public)).await;
+        tokio::task::spawn_blocking(move || crate::challenge::public_data::public_files(&public))
+            .await;
     let files = match listed {
         Ok(Ok(f)) => f,
         Ok(Err(e)) => {
@@ -53,7 +54,7 @@ pub(crate) async fn data_index(
         _ => "http",
     };
     let total: u64 = files.iter().map(|f| f.bytes).sum();
-    let archive = crate::http::api::data::archive_len(&files);
+    let archive = crate::challenge::public_data::archive_len(&files);
     let rows: Vec<Value> = files
         .iter()
         .map(|f| {
@@ -71,12 +72,12 @@ pub(crate) async fn data_index(
             "total": size_text(total as i64),
             "archive": size_text(archive as i64),
             "archive_exact": archive,
-            "sums": crate::http::api::data::SUMS_FILE,
-            "dir": crate::http::api::data::ARCHIVE_DIR,
+            "sums": crate::challenge::public_data::SUMS_FILE,
+            "dir": crate::challenge::public_data::ARCHIVE_DIR,
             "command": format!(
                 "curl -fsS {scheme}://{host}/data.tar | tar -xf - && (cd {} && sha256sum -c {})",
-                crate::http::api::data::ARCHIVE_DIR,
-                crate::http::api::data::SUMS_FILE
+                crate::challenge::public_data::ARCHIVE_DIR,
+                crate::challenge::public_data::SUMS_FILE
             ),
         }),
     )
