@@ -1,6 +1,10 @@
 //! The data page (`GET /data/`).
 
-use super::*;
+use super::{ApiError, AppState, Shared, size_text, wants_html};
+use axum::extract::{Extension, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde_json::Value;
 
 /// `GET /data/` (and `/data`): for a browser ([`wants_html`]) the data
 /// page — every public file with its size and SHA-256, the archive

@@ -1,11 +1,20 @@
 //! The team's entries page (`/entries`): its entries and quota, the upload
 //! form and the choice of final entries.
 
-use super::*;
-use super::{ApiError, AppState, Nav, Shared, Web};
+use super::{
+    ApiError, AppState, Nav, Session, Shared, Web, csrf_refused, fixed, form_pairs, origin_refused,
+    redirect, rules, same_origin, same_secret, signed, size_text, when,
+};
 use crate::challenge::admission::REFUSALS_SHOWN;
 use crate::challenge::figures::public_of_text;
 use crate::http::api;
+use crate::store::Team;
+use axum::extract::{Extension, Request, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::Response;
+use serde::Serialize;
+use serde_json::Value;
+use std::collections::HashMap;
 
 /// An entry as its team's page shows it.
 #[derive(Debug, Serialize)]

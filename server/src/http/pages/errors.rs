@@ -1,6 +1,10 @@
 //! Errors as pages for browsers, and how a request says it is a browser.
 
-use super::*;
+use super::{ApiError, AppState, Shared};
+use axum::extract::{Extension, Request, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::Response;
+use serde_json::Value;
 
 /// Whether a request asks for a page rather than JSON: its `Accept` names
 /// `text/html` (or `text/*`) with a weight above 0 and at least that of

@@ -1,6 +1,9 @@
 //! The challenge page (`GET /`): the run's README and the rules.
 
-use super::*;
+use super::{ApiError, AppState, Shared, rules, when};
+use axum::extract::{Extension, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::Response;
 
 pub(super) async fn index(
     State(state): State<AppState>,

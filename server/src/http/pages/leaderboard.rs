@@ -1,9 +1,13 @@
 //! The leaderboard page (`/leaderboard`).
 
-use super::*;
+use super::{ApiError, AppState, Shared, fixed, interval_ends, signed};
 use crate::challenge::figures::HoldoutFigures;
 use crate::challenge::leaderboard;
 use crate::store::{Submission, Team};
+use axum::extract::{Extension, State};
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::Response;
+use serde::Serialize;
 
 /// A leaderboard row for the page.
 #[derive(Debug, Serialize)]

@@ -45,9 +45,9 @@ pub(crate) use format::{fixed, interval_ends, signed};
 
 use super::{ApiError, AppState};
 use crate::challenge::{hex, token_hash};
-use crate::store::{Role, Team};
+use crate::store::Team;
 use axum::Router;
-use axum::extract::{Extension, Request, State};
+use axum::extract::{Extension, Request};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};

@@ -2,7 +2,14 @@
 
 use super::entries::{EntryView, entry_view};
 use super::signin::{signed_in, signin_fields};
-use super::*;
+use super::{
+    ApiError, AppState, Nav, ORGANISER_SIGNIN_COOKIE, Shared, Web, random_hex, set_cookie,
+};
+use crate::store::Role;
+use axum::extract::{Extension, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde_json::Value;
 
 /// The organisers' page: with an organiser session, every team and entry
 /// (statuses, rounded public feedback, final choices; no truth); without,

@@ -1,10 +1,12 @@
 //! An entry's full report and its figures, after reveal
 //! (`/entries/{id}/report`, `/entries/{id}/figures/...`).
 
-use super::*;
+use super::{ApiError, AppState, Shared, Web, tables, when};
 use crate::challenge::leaderboard;
 use axum::body::Body;
-use axum::extract::Path as UrlPath;
+use axum::extract::{Extension, Path as UrlPath, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
 use serde_json::Value;
 use stepsim_harness::pipeline::{REPORT_FIGURES, REPORT_JSON};
 

@@ -1,7 +1,16 @@
 //! Signing in with a team token, and signing out (`/signin`,
 //! `/signout`).
 
-use super::*;
+use super::{
+    ApiError, AppState, Nav, ORGANISER_SIGNIN_COOKIE, SESSION_COOKIE, SESSION_S, SIGNIN_COOKIE,
+    Shared, Web, cookie, csrf_refused, form, origin_refused, over_https, random_hex, redirect,
+    same_origin, same_secret, set_cookie,
+};
+use crate::challenge::token_hash;
+use axum::extract::{Extension, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::Response;
+use std::collections::HashMap;
 
 pub(super) async fn signin_page(
     State(state): State<AppState>,
