@@ -3,20 +3,31 @@
 //! A blind shear challenge served over HTTP (`stepsim serve`) and run by
 //! the organiser's commands (`stepsim challenge ...`; docs/server.md).
 //!
+//! Three layers, each using only those below it (`tests/module_graph.rs`
+//! checks it):
+//!
 //! ```text
-//! store/        the state behind an async trait: SQLite (WAL, migrations in
-//!               the binary; the default) and PostgreSQL (several hosts)
-//! challenge.rs  a challenge's directory: init, teams and tokens, reveal
-//! api.rs        the JSON API (axum): uploads, entries, finals, leaderboard
-//! data.rs       the run's public files, as its manifest lists them
+//! http/         the handlers: AppState, ApiError, the router, `serve`
+//!   api/        the JSON API by job: entries and finals, uploads, the
+//!               leaderboard, the challenge's state, the public data files
+//!   pages/      the pages (HTML, sessions, CSRF; templates/), one a page
+//!   auth.rs     bearer tokens and the rate limit
+//!   log.rs      the log line of each request
+//!   net.rs      the connection layer (hyper): timeouts, caps per address
+//!   limits.rs   the limits on connections, bodies, uploads, format checks
 //! worker.rs     the scoring queue: claims jobs, calls the harness, records;
 //!               store errors are waited out, never end a worker
-//! limits.rs     the limits on connections, bodies, uploads, format checks
-//! net.rs        the connection layer (hyper): timeouts, caps per address
-//! observe.rs    what the organisers see: a log line per request and per
-//!               upload, refusal and scoring job; the counters of /metrics
-//! web.rs        the participants' pages (HTML, sessions, CSRF), templates/
+//! observe.rs    what the organisers see: a log line per upload, refusal
+//!               and scoring job; the counters of /metrics
+//! challenge/    the challenge, no HTTP: its directory (init, teams and
+//!               tokens, reveal, export), phase, admission rules, final
+//!               entries, typed figures, the leaderboard, the public data
+//! store/        the state behind an async trait: SQLite (WAL, migrations in
+//!               the binary; the default) and PostgreSQL (several hosts)
 //! ```
+//!
+//! `worker` and `observe` sit beside the handlers: they use the challenge
+//! and the store, never `http`, and know no HTTP.
 //!
 //! A challenge lives in one directory (`--state DIR`): `challenge.db` (or
 //! `store.url`, naming a PostgreSQL database), `uploads/<sha256>`
@@ -25,14 +36,10 @@
 //! network file system) and the database.
 #![deny(missing_docs)]
 
-pub mod api;
 pub mod challenge;
-pub mod data;
-pub mod limits;
-pub mod net;
+pub mod http;
 pub mod observe;
 pub mod store;
-pub mod web;
 pub mod worker;
 
 pub use challenge::{Challenge, ChallengeError, Settings};
@@ -45,6 +52,11 @@ pub fn block_on<F: std::future::Future>(f: F) -> Result<F::Output, ChallengeErro
         .build()
         .map_err(|e| ChallengeError::Run(format!("cannot start a runtime: {e}")))?;
     Ok(rt.block_on(f))
+}
+
+/// Lower-case hex of bytes.
+pub fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Seconds since the Unix epoch, now.

@@ -3,18 +3,15 @@
 //! upload, refusal and scoring job, through `tracing` (plain text or one
 //! JSON object a line, on standard error), and the counters behind
 //! `GET /metrics` in the Prometheus text format (docs/server.md,
-//! "Watching a server").
+//! "Watching a server"). The request's line is written by the handlers'
+//! middleware (`http::log`); this module knows no HTTP.
 //!
 //! Nothing here is shown to participants: the log goes to the server's
 //! standard error, and `/metrics` answers only the organisers (their
 //! token or their signed-in session) unless `serve --open-metrics`.
 
-use axum::extract::Request;
-use axum::middleware::Next;
-use axum::response::Response;
 use std::collections::BTreeMap;
 use std::sync::Mutex;
-use std::time::Instant;
 
 /// How `stepsim serve` writes its log.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -49,17 +46,6 @@ pub fn init_logging(format: LogFormat) {
         LogFormat::Plain => builder.try_init(),
         LogFormat::Json => builder.json().flatten_event(true).try_init(),
     };
-}
-
-tokio::task_local! {
-    /// The team of the request being answered on this task, once known.
-    static TEAM: std::cell::Cell<Option<i64>>;
-}
-
-/// Records the team of the request being answered (called where a token
-/// or a session is checked), for its log line.
-pub(crate) fn note_team(team_id: i64) {
-    let _ = TEAM.try_with(|t| t.set(Some(team_id)));
 }
 
 /// The server's counters since it started (one set a process).
@@ -224,31 +210,6 @@ pub fn log_text(text: &str, max: usize) -> String {
 /// refusal's reason in a log line).
 pub(crate) fn first_line(message: &str) -> String {
     log_text(message.lines().next().unwrap_or_default(), 300)
-}
-
-/// The middleware that logs a line per request and counts it.
-pub(crate) async fn log_requests(
-    axum::extract::State(metrics): axum::extract::State<std::sync::Arc<Metrics>>,
-    req: Request,
-    next: Next,
-) -> Response {
-    let start = Instant::now();
-    let method = req.method().clone();
-    // The path is the client's: clipped and escaped (a 60 KB path of
-    // look-alike spaces must not become a 60 KB line of forged fields).
-    let path = log_text(req.uri().path(), 200);
-    let (response, team) = TEAM
-        .scope(std::cell::Cell::new(None), async move {
-            let r = next.run(req).await;
-            (r, TEAM.with(std::cell::Cell::get))
-        })
-        .await;
-    let status = response.status().as_u16();
-    metrics.request(status);
-    let ms = start.elapsed().as_secs_f64() * 1e3;
-    let team = team.map_or_else(|| "-".to_string(), |t| t.to_string());
-    tracing::info!(%method, %path, status, ms = %format_args!("{ms:.1}"), team = %team, "request");
-    response
 }
 
 #[cfg(test)]

@@ -14,8 +14,7 @@ use stepsim_harness::part::{Part, PublicFeedback, score_prepared_part};
 use stepsim_harness::pipeline::{ScoreOptions, prepare};
 use stepsim_harness::write_outputs;
 
-/// Recorded with every score: a scorer change shows in the database.
-pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VERSION"));
+pub use crate::challenge::SCORER_VERSION;
 
 /// Default limit on one scoring job.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(600);
@@ -49,7 +48,7 @@ pub fn server_wording(message: &str) -> String {
 
 /// The harness's options for scoring (or format-checking) the upload at
 /// `upload` against the challenge's run: the one place both the format
-/// check of an upload (`api::submit`) and the worker build them, so that a
+/// check of an upload (`http::api::upload::submit`) and the worker build them, so that a
 /// limit set here holds for both.
 pub fn upload_options(settings: &Settings, upload: &Path) -> ScoreOptions {
     let mut opts = ScoreOptions::new(&settings.truth_dir, upload);

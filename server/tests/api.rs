@@ -12,7 +12,7 @@ use std::sync::atomic::AtomicBool;
 use stepsim_harness::part::{Part, PublicFeedback, score_part};
 use stepsim_harness::pipeline::ScoreOptions;
 use stepsim_harness::synthetic::SynthRun;
-use stepsim_server::api::{AppState, router};
+use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
@@ -1318,7 +1318,7 @@ async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
     // the quota's check in the store.
     let app = router(AppState::with_limits(
         Challenge::open(&f.state).await.unwrap(),
-        stepsim_server::limits::Limits {
+        stepsim_server::http::limits::Limits {
             uploads_per_team: 6,
             uploads_at_once: 6,
             ..Default::default()

@@ -21,7 +21,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 use stepsim_harness::synthetic::SynthRun;
-use stepsim_server::api::{AppState, router};
+use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 

@@ -14,8 +14,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 use stepsim_harness::synthetic::SynthRun;
-use stepsim_server::api::{AppState, router};
-use stepsim_server::limits::Limits;
+use stepsim_server::challenge::leaderboard;
+use stepsim_server::http::limits::Limits;
+use stepsim_server::http::{AppState, router};
 use stepsim_server::worker::WorkerPool;
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
@@ -71,7 +72,7 @@ impl Fixture {
         let app = self.app(limits.clone(), None).await;
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
-        tokio::spawn(stepsim_server::net::serve_with_limits(
+        tokio::spawn(stepsim_server::http::net::serve_with_limits(
             listener, app, limits,
         ));
         addr
@@ -521,7 +522,7 @@ async fn bearer_tokens_are_parsed_strictly_and_rate_limited_by_the_token() {
             .unwrap()
     };
     assert_eq!(
-        stepsim_server::api::bearer_token(b"Bearer abc-._~+/9=="),
+        stepsim_server::http::auth::bearer_token(b"Bearer abc-._~+/9=="),
         Some("abc-._~+/9==")
     );
     for bad in [
@@ -724,18 +725,30 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
         assert_eq!(s, StatusCode::ACCEPTED, "{body}");
     }
     f.score_queue().await;
-    let rows = async |revealed: bool| {
+    // Each row as (team, held-out Q_c interval, tied above), `None` for
+    // what the row does not have (before reveal: no interval, no tie).
+    type BoardSummary = Vec<(String, Option<[f64; 2]>, Option<bool>)>;
+    let rows = async |revealed: bool| -> BoardSummary {
         let ch = Challenge::open(&f.state).await.unwrap();
         let teams = ch.store.teams().await.unwrap();
         let subs = ch.store.all_submissions().await.unwrap();
-        stepsim_server::api::leaderboard_rows(&teams, &subs, revealed)
+        leaderboard::rows(&teams, &subs, revealed)
+            .iter()
+            .map(|r| {
+                (
+                    r.team.name.clone(),
+                    leaderboard::q_c_interval(r),
+                    r.revealed.as_ref().map(|v| v.tied_above),
+                )
+            })
+            .collect()
     };
     // Before reveal no interval and no tie is shown.
     assert!(
         rows(false)
             .await
             .iter()
-            .all(|r| r.get("tied_above").is_none())
+            .all(|r| r.1.is_none() && r.2.is_none())
     );
     Challenge::open(&f.state)
         .await
@@ -743,16 +756,10 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
         .reveal()
         .await
         .unwrap();
-    let r = rows(true).await;
-    let summary: Vec<(String, Option<[f64; 2]>, bool)> = r
-        .iter()
-        .map(|r| {
-            (
-                r["team"].as_str().unwrap().to_string(),
-                stepsim_server::api::q_c_interval(&r["holdout"]),
-                r["tied_above"].as_bool().unwrap(),
-            )
-        })
+    let summary: Vec<(String, Option<[f64; 2]>, bool)> = rows(true)
+        .await
+        .into_iter()
+        .map(|(team, ci, tied)| (team, ci, tied.unwrap()))
         .collect();
     eprintln!("{summary:?}");
     let teams: Vec<&str> = summary.iter().map(|s| s.0.as_str()).collect();

@@ -9,8 +9,9 @@ use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stepsim_harness::synthetic::SynthRun;
-use stepsim_server::api::{AppState, router};
-use stepsim_server::{Challenge, web};
+use stepsim_server::Challenge;
+use stepsim_server::http::pages as web;
+use stepsim_server::http::{AppState, router};
 use tower::ServiceExt;
 
 const HOST: &str = "challenge.test";
@@ -1387,4 +1388,107 @@ async fn the_report_page_shows_no_interval_of_no_width_and_says_why() {
     for zero in ["± 0.000<", "± 0.0000<", "± 0.00000<"] {
         assert!(!r.body.contains(zero), "{zero}: {}", r.body);
     }
+}
+
+/// The text of each `<td>` cell of the row of `body` whose text holds
+/// `marker`, tags inside a cell dropped.
+fn row_cells(body: &str, marker: &str) -> Vec<String> {
+    let at = body
+        .find(marker)
+        .unwrap_or_else(|| panic!("no {marker:?} in {body}"));
+    let start = body[..at].rfind("<tr").unwrap();
+    let end = at + body[at..].find("</tr>").unwrap();
+    let mut cells = Vec::new();
+    let mut rest = &body[start..end];
+    while let Some(i) = rest.find("<td") {
+        rest = &rest[i..];
+        let open = rest.find('>').unwrap() + 1;
+        let close = rest.find("</td>").unwrap();
+        let mut text = String::new();
+        let mut in_tag = false;
+        for c in rest[open..close].chars() {
+            match c {
+                '<' => in_tag = true,
+                '>' => in_tag = false,
+                c if !in_tag => text.push(c),
+                _ => {}
+            }
+        }
+        cells.push(text.trim().to_string());
+        rest = &rest[close + 5..];
+    }
+    cells
+}
+
+/// The figure `key` of `figures` as a page cell shows it with `dp`
+/// decimals: `—` when the harness gave none, else its digits (the page's
+/// sign aside).
+fn shown(figures: &serde_json::Value, key: &str, dp: usize) -> String {
+    match figures[key].as_f64() {
+        Some(v) => format!("{:.dp$}", v.abs()),
+        None => "—".to_string(),
+    }
+}
+
+/// Every figure the harness stored for an entry is on its team's entries
+/// page and on the board: the pages read the harness's fields, so a
+/// figure renamed on one side is a compile error, not a cell of "—".
+#[tokio::test]
+async fn every_figure_the_harness_gave_is_on_the_pages() {
+    let f = fixture(&["alpha"]).await;
+    let app = f.app().await;
+    let mut alpha = Agent::new(app.clone());
+    alpha.sign_in(&f.tokens[0]).await;
+    let csrf = alpha.get("/entries").await.csrf();
+    let r = alpha
+        .upload(Some(&csrf), catalogue(&f.all, 0.02).as_bytes())
+        .await;
+    assert_eq!(r.status, StatusCode::SEE_OTHER);
+    f.score_queue().await;
+    let (s, v) = api_get(&app, "/api/submissions/1", &f.tokens[0]).await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    let public = &v["public"];
+    let keys = ["m_mean", "sigma_c", "q_c", "pct_stars", "pct_false"];
+    for k in keys {
+        assert!(public[k].is_number(), "the harness gave {k}: {public}");
+    }
+    // Entries page: ⟨m⟩, σ_c, Q_c, stars %, false % after five fixed cells.
+    let r = alpha.get("/entries").await;
+    let cells = row_cells(&r.body, "id=\"entry-1\"");
+    for (cell, (k, dp)) in cells[5..10]
+        .iter()
+        .zip(keys.into_iter().zip([3, 4, 0, 1, 1]))
+    {
+        let want = shown(public, k, dp);
+        assert!(cell.contains(&want), "{k}: {cell:?} shows {want:?}");
+        assert_ne!(cell, "—", "{k}");
+    }
+    f.reveal().await;
+    let (_, v) = api_get(&app, "/api/submissions/1", &f.tokens[0]).await;
+    let holdout = &v["holdout"];
+    for k in ["m_mean", "sigma_c", "q_c"] {
+        assert!(holdout[k].is_number(), "the harness gave {k}: {holdout}");
+    }
+    // Board after reveal: rank, team, entries, entry, then held-out Q_c,
+    // its interval, ⟨m⟩, σ_c, then public Q_c, ⟨m⟩, σ_c.
+    let r = alpha.get("/leaderboard").await;
+    let cells = row_cells(&r.body, "href=\"/entries/1/report\"");
+    let figures = [
+        (4, holdout, "q_c", 1),
+        (6, holdout, "m_mean", 4),
+        (7, holdout, "sigma_c", 5),
+        (8, public, "q_c", 0),
+        (9, public, "m_mean", 3),
+        (10, public, "sigma_c", 4),
+    ];
+    for (i, part, k, dp) in figures {
+        let want = shown(part, k, dp);
+        assert!(
+            cells[i].contains(&want),
+            "{k}: cell {i} {:?} shows {want:?} ({cells:?})",
+            cells[i]
+        );
+        assert_ne!(cells[i], "—", "{k}");
+    }
+    assert_eq!(cells[0], "1", "{cells:?}");
 }

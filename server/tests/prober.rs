@@ -18,7 +18,7 @@ use http_body_util::BodyExt;
 use serde_json::Value;
 use std::path::Path;
 use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
-use stepsim_server::api::{AppState, router};
+use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 use std::time::Duration;
-use stepsim_server::limits as l;
+use stepsim_server::http::limits as l;
 use stepsim_server::store::StoreUrl;
 
 /// What `serve` and `worker` share: the store, and how a job is run.
@@ -119,7 +119,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .unwrap_or_else(l::default_checks_at_once),
         check_budget: Duration::from_secs(args.check_budget_s),
     };
-    stepsim_server::api::serve_blocking(
+    stepsim_server::http::serve_blocking(
         args.state.clone(),
         &args.listen,
         args.workers,

@@ -91,7 +91,7 @@ impl Role {
 pub struct Score {
     /// The entry.
     pub submission_id: i64,
-    /// The scorer that made it ([`crate::worker::SCORER_VERSION`]).
+    /// The scorer that made it (`challenge::SCORER_VERSION`).
     pub scorer_version: String,
     /// `scored` or `refused`.
     pub status: String,
@@ -235,11 +235,7 @@ pub fn worker_name(n: usize) -> String {
         .unwrap_or_else(|_| "host".into());
     let mut b = [0u8; 4];
     let _ = getrandom::fill(&mut b);
-    format!(
-        "{host}:{}:{n}:{}",
-        std::process::id(),
-        crate::challenge::hex(&b)
-    )
+    format!("{host}:{}:{n}:{}", std::process::id(), crate::hex(&b))
 }
 
 /// The challenge's storage. Every method is one transaction; every method
@@ -355,7 +351,7 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Makes `ids` the team's final entries (and no other), unless the
     /// challenge is closed (setting `closed`), in one transaction; returns
     /// false, changing nothing, when closed. The caller checks the ids
-    /// ([`crate::challenge::choose_final_entries`]). Ids of other teams are
+    /// (`challenge::choose_final_entries`). Ids of other teams are
     /// left alone.
     async fn set_final_entries(&self, team_id: i64, ids: &[i64]) -> Result<bool, StoreError>;
     /// The entries a team chose as final, by id (empty: none chosen).
@@ -457,6 +453,9 @@ pub async fn open(url: &StoreUrl, create: bool) -> Result<std::sync::Arc<dyn Sto
     })
 }
 
+/// Name of the SQLite database in a state directory.
+pub const DB_FILE: &str = "challenge.db";
+
 /// The file in a state directory that names its store when it is not the
 /// directory's own SQLite file (`challenge init --store URL` writes it,
 /// readable by its owner only: the URL may hold a password).
@@ -473,7 +472,7 @@ pub fn url_of_state(dir: &Path, given: Option<&StoreUrl>) -> Result<StoreUrl, St
         Ok(text) => StoreUrl::parse(text.lines().next().unwrap_or(""))
             .map_err(|e| format!("{}: {e}", file.display())),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            Ok(StoreUrl::Sqlite(dir.join(crate::challenge::DB_FILE)))
+            Ok(StoreUrl::Sqlite(dir.join(DB_FILE)))
         }
         Err(e) => Err(format!("{}: {e}", file.display())),
     }

@@ -1,6 +1,6 @@
 //! The connection layer of `stepsim serve`: hyper's HTTP/1 server under a
 //! watchdog per connection, caps on connections, and a guard on every
-//! request body ([`crate::limits::Limits`]; docs/server.md, "Threat model").
+//! request body ([`super::limits::Limits`]; docs/server.md, "Threat model").
 //!
 //! axum's own `serve` has no timeouts: a client that sends half a request
 //! and waits held its connection (and a task) for ever. Here each
@@ -18,7 +18,7 @@
 //! `max_connections`, or past `max_connections_per_addr` from one address,
 //! are answered 503 and closed at once, before a byte is read.
 
-use crate::limits::Limits;
+use super::limits::Limits;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::{ConnectInfo, Request};
@@ -89,7 +89,7 @@ pub(crate) fn guarded_body(body: Body, limits: Limits, cut: Arc<AtomicBool>) -> 
 /// server's limits (a handler that reads a body cannot be held by one
 /// that stalls).
 pub(crate) async fn guard_body(
-    axum::extract::State(state): axum::extract::State<crate::api::AppState>,
+    axum::extract::State(state): axum::extract::State<super::AppState>,
     mut req: Request,
     next: axum::middleware::Next,
 ) -> axum::response::Response {

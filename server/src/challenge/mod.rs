@@ -1,14 +1,35 @@
-//! A challenge's state directory and the organiser's operations on it.
+//! The challenge itself, knowing nothing of HTTP: its state directory and
+//! the organiser's operations on it (here), where it stands ([`phase`]),
+//! what admits an upload ([`admission`]), which entries count
+//! ([`finals`]), an entry's figures ([`figures`]), the leaderboard
+//! ([`leaderboard`]) and the run's public files ([`public_data`]). It
+//! stands on the store alone.
 
-use crate::store::{Role, Store, StoreError, StoreUrl, Submission};
+pub mod admission;
+mod export;
+pub mod figures;
+pub mod finals;
+pub mod leaderboard;
+pub mod phase;
+pub mod public_data;
+
+pub use crate::hex;
+pub use crate::store::DB_FILE;
+pub use export::{EXPORT_CSV_COLUMNS, Export, csv_field};
+pub use finals::{
+    ChoiceError, MAX_FINAL_ENTRIES, best_public, choose_final_entries, final_entries_or_default,
+};
+pub use phase::Phase;
+
+use crate::store::{Role, Store, StoreError, StoreUrl};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use stepsim_harness::part::has_holdout;
 use stepsim_harness::truth_set::load_truth_set;
 
-/// Name of the database in the state directory.
-pub const DB_FILE: &str = "challenge.db";
+/// The scorer of this binary: a score records the version that made it.
+pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VERSION"));
 /// Default rolling 24-hour quota of scored submissions per team.
 pub const DEFAULT_QUOTA: u32 = 4;
 /// The floor of the cap on one upload, in bytes: the harness's own floor.
@@ -82,11 +103,6 @@ impl std::fmt::Debug for Challenge {
 /// SHA-256 of a token, lower-case hex (what the store keeps).
 pub fn token_hash(token: &str) -> String {
     hex(&Sha256::digest(token.as_bytes()))
-}
-
-/// Lower-case hex of bytes.
-pub fn hex(bytes: &[u8]) -> String {
-    bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// A new random token: `stp_` and 64 hex digits (256 bits from the
@@ -385,10 +401,10 @@ impl Challenge {
     }
 
     /// Queues every scored entry again for this binary's scorer
-    /// ([`crate::worker::SCORER_VERSION`]), except those it has scored
+    /// ([`SCORER_VERSION`]), except those it has scored
     /// already; returns how many. Old scores are kept.
     pub async fn rescore(&self) -> Result<usize, ChallengeError> {
-        Ok(self.store.rescore(crate::worker::SCORER_VERSION).await?)
+        Ok(self.store.rescore(SCORER_VERSION).await?)
     }
 
     /// Stores the organiser password as an Argon2id PHC hash (a random
@@ -434,125 +450,6 @@ impl Challenge {
     }
 }
 
-/// What [`Challenge::export`] wrote.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Export {
-    /// The leaderboard as JSON (`{"revealed", "part", "rows"}`).
-    pub json: PathBuf,
-    /// The same rows as CSV.
-    pub csv: PathBuf,
-    /// One `report.json` per ranked row (`stepsim leaderboard DIR/*.json`
-    /// ranks them again).
-    pub reports: Vec<PathBuf>,
-}
-
-/// The CSV columns of an export (rows of the leaderboard).
-pub const EXPORT_CSV_COLUMNS: [&str; 9] = [
-    "rank", "team", "entry", "part", "m_mean", "sigma_c", "q_c", "report", "role",
-];
-
-/// A text field of the CSV export: neutralised when a spreadsheet would
-/// read it as a formula (it starts with `=`, `+`, `-`, `@`, a tab or a
-/// carriage return: a `'` goes first, as OWASP advises for CSV injection),
-/// then quoted when it holds a comma, quote or line break.
-pub fn csv_field(s: &str) -> String {
-    let s = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
-        format!("'{s}")
-    } else {
-        s.to_string()
-    };
-    if s.contains([',', '"', '\n', '\r']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s
-    }
-}
-
-impl Challenge {
-    /// Writes the leaderboard to `out` (JSON), `out` with extension `csv`,
-    /// and each ranked entry's report of the part it is ranked on (held-out
-    /// after reveal, public before) into the directory `out` with extension
-    /// `reports`, named `RANK-entryID.json` (`organisers-entryID.json`,
-    /// `baseline-entryID.json` for unranked rows). Every file is written
-    /// atomically.
-    pub async fn export(&self, out: &Path) -> Result<Export, ChallengeError> {
-        use stepsim_contract::io::write_bytes_atomically;
-        let revealed = self.revealed().await?;
-        let part = if revealed && self.settings.holdout {
-            stepsim_harness::part::Part::Holdout
-        } else {
-            stepsim_harness::part::Part::Public
-        };
-        let teams = self.store.teams().await?;
-        let subs = self.store.all_submissions().await?;
-        let mut rows = crate::api::leaderboard_rows(&teams, &subs, revealed);
-        let reports_dir = out.with_extension("reports");
-        let io = |p: &Path, e: String| ChallengeError::State {
-            path: p.to_path_buf(),
-            message: e,
-        };
-        std::fs::create_dir_all(&reports_dir).map_err(|e| io(&reports_dir, e.to_string()))?;
-        let mut reports = Vec::new();
-        let mut csv = EXPORT_CSV_COLUMNS.join(",");
-        csv.push('\n');
-        for row in &mut rows {
-            let id = row["entry"].as_i64().unwrap_or(0);
-            // Unranked rows (organisers, baseline): an empty rank, and the
-            // role in the report's name.
-            let rank = row["rank"].as_i64();
-            let role = row["role"].as_str().unwrap_or("participant").to_string();
-            let label = rank.map_or_else(|| role.clone(), |r| r.to_string());
-            let src = self.entry_dir(id, part).join("report.json");
-            let dst = reports_dir.join(format!("{label}-entry{id}.json"));
-            let bytes = std::fs::read(&src).map_err(|e| io(&src, e.to_string()))?;
-            write_bytes_atomically(&dst, &bytes).map_err(|e| io(&dst, e.to_string()))?;
-            let name = dst
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let figures = if part == stepsim_harness::part::Part::Holdout {
-                &row["holdout"]
-            } else {
-                &row["public"]
-            };
-            let num = |k: &str| figures.get(k).map(|v| v.to_string()).unwrap_or_default();
-            let fields = [
-                rank.map(|r| r.to_string()).unwrap_or_default(),
-                csv_field(row["team"].as_str().unwrap_or("")),
-                id.to_string(),
-                part.name().to_string(),
-                num("m_mean"),
-                num("sigma_c"),
-                num("q_c"),
-                csv_field(&format!(
-                    "{}/{name}",
-                    reports_dir
-                        .file_name()
-                        .map(|n| n.to_string_lossy().into_owned())
-                        .unwrap_or_default()
-                )),
-                role,
-            ];
-            csv.push_str(&fields.join(","));
-            csv.push('\n');
-            row["report"] = serde_json::json!(name);
-            reports.push(dst);
-        }
-        let doc = serde_json::json!({"revealed": revealed, "part": part.name(), "rows": rows});
-        let mut json = serde_json::to_string_pretty(&doc).map_err(|e| io(out, e.to_string()))?;
-        json.push('\n');
-        write_bytes_atomically(out, json.as_bytes()).map_err(|e| io(out, e.to_string()))?;
-        let csv_path = out.with_extension("csv");
-        write_bytes_atomically(&csv_path, csv.as_bytes())
-            .map_err(|e| io(&csv_path, e.to_string()))?;
-        Ok(Export {
-            json: out.to_path_buf(),
-            csv: csv_path,
-            reports,
-        })
-    }
-}
-
 /// Writes `text` to a new file at `path` readable by its owner only.
 fn write_private(path: &Path, text: &str) -> std::io::Result<()> {
     use std::io::Write;
@@ -591,197 +488,4 @@ pub fn verify_phc(phc: &str, password: &str) -> bool {
     argon2::Argon2::default()
         .verify_password(password.as_bytes(), &hash)
         .is_ok()
-}
-
-/// Where a challenge stands: its deadline and whether it is frozen, closed
-/// or revealed (settings `deadline`, `frozen`, `closed`, `revealed`).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
-pub struct Phase {
-    /// The deadline (Unix seconds), if one is set.
-    pub deadline_s: Option<i64>,
-    /// No more uploads (`challenge freeze`).
-    pub frozen: bool,
-    /// Nothing changes any more (`challenge close`, or reveal).
-    pub closed: bool,
-    /// Held-out scores are open.
-    pub revealed: bool,
-}
-
-impl Phase {
-    /// The phase recorded in a store.
-    pub async fn read(store: &dyn Store) -> Result<Self, StoreError> {
-        Ok(Self::of_meta(&store.all_meta().await?))
-    }
-
-    /// The phase of the settings `meta`.
-    pub fn of_meta(meta: &std::collections::HashMap<String, String>) -> Self {
-        let flag = |k: &str| meta.get(k).map(String::as_str) == Some("true");
-        Self {
-            deadline_s: meta.get("deadline").and_then(|v| v.parse().ok()),
-            frozen: flag("frozen"),
-            closed: flag("closed"),
-            revealed: flag("revealed"),
-        }
-    }
-
-    /// Why an upload at `now_s` is refused, if it is (closed, frozen, or
-    /// past the deadline).
-    pub fn upload_refusal(&self, now_s: i64) -> Option<String> {
-        if self.closed {
-            Some("the challenge is closed: no more uploads are accepted".into())
-        } else if self.frozen {
-            Some("the challenge is frozen: no more uploads are accepted".into())
-        } else {
-            self.deadline_s.filter(|&d| now_s >= d).map(|d| {
-                format!(
-                    "the deadline ({}) has passed: no more uploads are accepted",
-                    crate::utc_text(d)
-                )
-            })
-        }
-    }
-
-    /// True when uploads are accepted at `now_s`.
-    pub fn uploads_open(&self, now_s: i64) -> bool {
-        self.upload_refusal(now_s).is_none()
-    }
-}
-
-/// Why a choice of final entries is refused.
-#[derive(Debug, thiserror::Error)]
-pub enum ChoiceError {
-    /// The challenge is closed (HTTP 403).
-    #[error("the challenge is closed: final entries can no longer be chosen")]
-    Closed,
-    /// More than [`MAX_FINAL_ENTRIES`] (HTTP 422).
-    #[error("at most {MAX_FINAL_ENTRIES} final entries can be chosen; {0} were given")]
-    TooMany(usize),
-    /// No entry of the team has this id (HTTP 404, as for another team's).
-    #[error("entry {0} not found")]
-    NotFound(i64),
-    /// The entry has no score (HTTP 422).
-    #[error("entry {0} is not scored; only scored entries can be final")]
-    NotScored(i64),
-    /// The store failed (HTTP 500).
-    #[error(transparent)]
-    Store(#[from] StoreError),
-}
-
-/// How many final entries a team may choose.
-pub const MAX_FINAL_ENTRIES: usize = 2;
-
-/// Checks and records a team's choice of final entries (up to
-/// [`MAX_FINAL_ENTRIES`] of its own scored entries; an empty list goes
-/// back to the default, its best public entry). Repeated ids count once.
-/// Returns the chosen ids, sorted. Allowed while frozen, refused once
-/// closed. Nothing changes when it is refused.
-pub async fn choose_final_entries(
-    store: &dyn Store,
-    team_id: i64,
-    ids: &[i64],
-) -> Result<Vec<i64>, ChoiceError> {
-    if Phase::read(store).await?.closed {
-        return Err(ChoiceError::Closed);
-    }
-    let mut ids = ids.to_vec();
-    ids.sort_unstable();
-    ids.dedup();
-    if ids.len() > MAX_FINAL_ENTRIES {
-        return Err(ChoiceError::TooMany(ids.len()));
-    }
-    for &id in &ids {
-        let sub = store
-            .submission(id)
-            .await?
-            .filter(|s| s.team_id == team_id)
-            .ok_or(ChoiceError::NotFound(id))?;
-        if !sub.has_score() {
-            return Err(ChoiceError::NotScored(id));
-        }
-    }
-    // Closed since the check above (by another host): the transaction
-    // that sets them reads `closed` again.
-    if !store.set_final_entries(team_id, &ids).await? {
-        return Err(ChoiceError::Closed);
-    }
-    Ok(ids)
-}
-
-/// The key by which entries are compared (smaller is better): higher Q_c,
-/// then smaller |⟨m⟩|. A figure missing counts as the worst.
-pub fn rank_key(figures: &serde_json::Value) -> (f64, f64) {
-    let number = |k: &str| figures.get(k).and_then(serde_json::Value::as_f64);
-    (
-        -number("q_c").unwrap_or(f64::NEG_INFINITY),
-        number("m_mean").map_or(f64::INFINITY, f64::abs),
-    )
-}
-
-/// The figures of a stored JSON text (`Null` when absent or unreadable).
-pub fn parse_figures(text: Option<&str>) -> serde_json::Value {
-    text.and_then(|t| serde_json::from_str(t).ok())
-        .unwrap_or(serde_json::Value::Null)
-}
-
-/// A team's best entry by public feedback (the earlier entry, the smaller
-/// id, on ties), among those with a score, whatever the order of `subs`:
-/// the team's own view lists its entries newest first and the board oldest
-/// first, and both must name the same entry (issue #27).
-pub fn best_public<'a>(subs: &[&'a Submission]) -> Option<&'a Submission> {
-    let mut best: Option<(&Submission, (f64, f64))> = None;
-    for s in subs.iter().filter(|s| s.has_score()) {
-        let k = rank_key(&parse_figures(s.public_json.as_deref()));
-        let better = best.is_none_or(|(b, bk)| match k.partial_cmp(&bk) {
-            Some(std::cmp::Ordering::Less) => true,
-            Some(std::cmp::Ordering::Equal) => s.id < b.id,
-            _ => false,
-        });
-        if better {
-            best = Some((s, k));
-        }
-    }
-    best.map(|b| b.0)
-}
-
-/// The entries of one team that count at reveal: those it chose (with a
-/// score), or, when it chose none, its best public entry ([`best_public`]).
-/// `subs` are the team's entries, in any order; the answer is in the order
-/// of their ids.
-pub fn final_entries_or_default<'a>(subs: &[&'a Submission]) -> Vec<&'a Submission> {
-    let mut chosen: Vec<&Submission> = subs
-        .iter()
-        .copied()
-        .filter(|s| s.final_choice && s.has_score())
-        .collect();
-    chosen.sort_by_key(|s| s.id);
-    if chosen.is_empty() {
-        best_public(subs).into_iter().collect()
-    } else {
-        chosen
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::csv_field;
-
-    #[test]
-    fn csv_fields_that_a_spreadsheet_would_run_are_neutralised() {
-        assert_eq!(
-            csv_field("=HYPERLINK(\"http://x\",\"a\")"),
-            "\"'=HYPERLINK(\"\"http://x\"\",\"\"a\"\")\""
-        );
-        for (t, want) in [
-            ("+1", "'+1"),
-            ("-1+2", "'-1+2"),
-            ("@SUM(A1)", "'@SUM(A1)"),
-            ("\tx", "'\tx"),
-            ("\rx", "\"'\rx\""),
-            ("Lensing Group A", "Lensing Group A"),
-            ("a=b", "a=b"),
-            ("a,b", "\"a,b\""),
-        ] {
-            assert_eq!(csv_field(t), want, "{t:?}");
-        }
-    }
 }
