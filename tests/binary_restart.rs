@@ -188,6 +188,15 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
         assert!(!statuses.iter().any(|s| s == "refused"), "{statuses:?}");
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
+    // A job is recorded as scored before its "scoring ended" line is
+    // written: give the last line a moment before the kill.
+    for _ in 0..100 {
+        let text = log.lock().unwrap().join("\n");
+        if text.matches("scoring started").count() == text.matches("scoring ended").count() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
     server.kill().unwrap();
     server.wait().unwrap();
     assert!(done, "every accepted upload is scored");

@@ -163,21 +163,17 @@ fn window_range(c: f64, radius: f64, n: usize) -> (usize, usize, bool) {
 /// other seven sums. The same pixels, weights and sums in the same order,
 /// so the values are those of [`ksb_integrals`] bit for bit (its twin).
 pub fn window_moments(img: &Image, xc: f64, yc: f64, sigma_w: f64, radius: f64) -> WindowMoments {
-    let (x0, x1, cx) = window_range(xc, radius, img.width);
-    let (y0, y1, cy) = window_range(yc, radius, img.height);
-    let inv2s2 = 1.0 / (2.0 * sigma_w * sigma_w);
-    let r2max = radius * radius;
-    let wx: Vec<f64> = (x0..=x1)
-        .map(|i| {
-            let d = i as f64 - xc;
-            (-d * d * inv2s2).exp()
-        })
-        .collect();
+    let Window {
+        x0,
+        x1,
+        rows,
+        clipped,
+        inv2s2,
+        r2max,
+        wx,
+    } = Window::new(img, xc, yc, sigma_w, radius);
     let (mut s0, mut sx, mut sy, mut sr2) = (0.0, 0.0, 0.0, 0.0);
-    for iy in y0..=y1.min(img.height.saturating_sub(1)) {
-        if y0 > y1 {
-            break;
-        }
+    for iy in rows {
         let dy = iy as f64 - yc;
         let dy2 = dy * dy;
         if dy2 > r2max {
@@ -202,7 +198,49 @@ pub fn window_moments(img: &Image, xc: f64, yc: f64, sigma_w: f64, radius: f64) 
         s0,
         first: [sx, sy],
         trace: sr2,
-        clipped: cx || cy,
+        clipped,
+    }
+}
+
+/// The pixels of a window (columns `x0..=x1`, rows `rows`), whether it
+/// reaches past the image, and the x factor of the Gaussian weight of each
+/// column: what [`window_moments`] and [`ksb_integrals`] share.
+struct Window {
+    x0: usize,
+    x1: usize,
+    rows: std::ops::Range<usize>,
+    clipped: bool,
+    inv2s2: f64,
+    r2max: f64,
+    wx: Vec<f64>,
+}
+
+impl Window {
+    fn new(img: &Image, xc: f64, yc: f64, sigma_w: f64, radius: f64) -> Self {
+        let (x0, x1, cx) = window_range(xc, radius, img.width);
+        let (y0, y1, cy) = window_range(yc, radius, img.height);
+        let inv2s2 = 1.0 / (2.0 * sigma_w * sigma_w);
+        let wx: Vec<f64> = (x0..=x1)
+            .map(|i| {
+                let d = i as f64 - xc;
+                (-d * d * inv2s2).exp()
+            })
+            .collect();
+        // An empty window (y0 > y1) has no rows.
+        let rows = if y0 > y1 {
+            0..0
+        } else {
+            y0..y1.min(img.height.saturating_sub(1)) + 1
+        };
+        Self {
+            x0,
+            x1,
+            rows,
+            clipped: cx || cy,
+            inv2s2,
+            r2max: radius * radius,
+            wx,
+        }
     }
 }
 
@@ -230,16 +268,15 @@ pub fn ksb_integrals(
     radius: f64,
     noise: Option<PixelNoise>,
 ) -> KsbIntegrals {
-    let (x0, x1, cx) = window_range(xc, radius, img.width);
-    let (y0, y1, cy) = window_range(yc, radius, img.height);
-    let inv2s2 = 1.0 / (2.0 * sigma_w * sigma_w);
-    let r2max = radius * radius;
-    let wx: Vec<f64> = (x0..=x1)
-        .map(|i| {
-            let d = i as f64 - xc;
-            (-d * d * inv2s2).exp()
-        })
-        .collect();
+    let Window {
+        x0,
+        x1,
+        rows,
+        clipped,
+        inv2s2,
+        r2max,
+        wx,
+    } = Window::new(img, xc, yc, sigma_w, radius);
     // Raw sums: S0, Sx, Sy, Sr2, Seta[2], See[3] (11, 12, 22), Ser2[2].
     let (mut s0, mut sx, mut sy, mut sr2) = (0.0, 0.0, 0.0, 0.0);
     let (mut se1, mut se2) = (0.0, 0.0);
@@ -247,10 +284,7 @@ pub fn ksb_integrals(
     let (mut ser1, mut ser2) = (0.0, 0.0);
     // Noise sums: Σ v W², Σ v W² η⊗η (diagonal), Σ v W² η θ², Σ v W² θ⁴.
     let (mut nw2, mut nee1, mut nee2, mut ner1, mut ner2, mut nr4) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for iy in y0..=y1.min(img.height.saturating_sub(1)) {
-        if y0 > y1 {
-            break;
-        }
+    for iy in rows {
         let dy = iy as f64 - yc;
         let dy2 = dy * dy;
         if dy2 > r2max {
@@ -329,7 +363,7 @@ pub fn ksb_integrals(
         esm,
         var_e,
         var_s0: nw2,
-        clipped: cx || cy,
+        clipped,
     }
 }
 

@@ -1,0 +1,225 @@
+//! Reading a crate's module graph from its sources, shared by the
+//! module-graph tests of sim (`sim/tests/module_graph.rs`) and the server
+//! (`server/tests/module_graph.rs`), which include this file by path.
+//!
+//! Every `crate::name` path (including `use crate::{a, b::c}` groups) in a
+//! file under `src/<module>` is an edge `<module> -> name`; comments and
+//! string literals are left out, so that prose never makes an edge.
+
+#![allow(dead_code)]
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+pub type Graph = BTreeMap<String, BTreeSet<String>>;
+
+/// The text of `source` without `//` comments (doc comments included) and
+/// without string literals' contents, so that prose never makes an edge.
+pub fn code_only(source: &str) -> String {
+    let mut out = String::with_capacity(source.len());
+    let mut chars = source.chars().peekable();
+    let mut in_string = false;
+    while let Some(c) = chars.next() {
+        if in_string {
+            match c {
+                '\\' => {
+                    chars.next();
+                }
+                '"' => {
+                    in_string = false;
+                    out.push('"');
+                }
+                '\n' => out.push('\n'),
+                _ => {}
+            }
+            continue;
+        }
+        match c {
+            '/' if chars.peek() == Some(&'/') => {
+                for d in chars.by_ref() {
+                    if d == '\n' {
+                        out.push('\n');
+                        break;
+                    }
+                }
+            }
+            '"' => {
+                in_string = true;
+                out.push('"');
+            }
+            // A char literal '"' must not open a string.
+            '\'' => {
+                out.push('\'');
+                let rest: String = chars.clone().take(3).collect();
+                if rest.starts_with("\"'") {
+                    chars.next();
+                    chars.next();
+                    out.push('\'');
+                }
+            }
+            _ => out.push(c),
+        }
+    }
+    out
+}
+
+/// The top-level names a piece of code reaches through `crate::`.
+pub fn crate_paths(code: &str) -> BTreeSet<String> {
+    let mut found = BTreeSet::new();
+    let mut rest = code;
+    while let Some(i) = rest.find("crate::") {
+        let before = rest[..i].chars().next_back();
+        rest = &rest[i + "crate::".len()..];
+        if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '$') {
+            continue; // e.g. `$crate::` or `mycrate::`
+        }
+        if let Some(group) = rest.strip_prefix('{') {
+            // `crate::{a, b::{c, d}, e}`: the names at depth one.
+            let mut depth = 1;
+            let mut name = String::new();
+            let mut at_start = true;
+            for c in group.chars() {
+                match c {
+                    '{' => depth += 1,
+                    '}' => {
+                        depth -= 1;
+                        if depth == 0 {
+                            break;
+                        }
+                    }
+                    ',' if depth == 1 => at_start = true,
+                    c if depth == 1 && at_start && (c.is_alphanumeric() || c == '_') => {
+                        name.push(c)
+                    }
+                    _ if depth == 1 && at_start && !name.is_empty() => {
+                        found.insert(std::mem::take(&mut name));
+                        at_start = false;
+                    }
+                    _ => {}
+                }
+            }
+            if !name.is_empty() {
+                found.insert(name);
+            }
+        } else {
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_alphanumeric() || *c == '_')
+                .collect();
+            if !name.is_empty() {
+                found.insert(name);
+            }
+        }
+    }
+    found
+}
+
+pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The module graph of the crate whose sources are in `src`.
+pub fn module_graph(src: &Path) -> Graph {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let top_of = |p: &Path| -> String {
+        let rel = p.strip_prefix(src).unwrap();
+        let first = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
+        first.trim_end_matches(".rs").to_string()
+    };
+    let modules: BTreeSet<String> = files
+        .iter()
+        .map(|p| top_of(p.as_path()))
+        .filter(|m| m != "lib")
+        .collect();
+    let mut g: Graph = modules
+        .iter()
+        .map(|m| (m.clone(), BTreeSet::new()))
+        .collect();
+    for f in &files {
+        let from = top_of(f);
+        if from == "lib" {
+            continue;
+        }
+        let code = code_only(&std::fs::read_to_string(f).unwrap());
+        for to in crate_paths(&code) {
+            if to != from && modules.contains(&to) {
+                g.get_mut(&from).unwrap().insert(to);
+            }
+        }
+    }
+    g
+}
+
+/// A cycle of `g` (first node repeated at the end), if there is one.
+pub fn find_cycle(g: &Graph) -> Option<Vec<String>> {
+    #[derive(Clone, Copy, PartialEq)]
+    enum Mark {
+        New,
+        Open,
+        Done,
+    }
+    fn visit(
+        n: &str,
+        g: &Graph,
+        marks: &mut BTreeMap<String, Mark>,
+        stack: &mut Vec<String>,
+    ) -> Option<Vec<String>> {
+        marks.insert(n.into(), Mark::Open);
+        stack.push(n.into());
+        for m in g.get(n).into_iter().flatten() {
+            match marks.get(m.as_str()).copied().unwrap_or(Mark::New) {
+                Mark::Open => {
+                    let start = stack.iter().position(|s| s == m).unwrap();
+                    let mut cycle = stack[start..].to_vec();
+                    cycle.push(m.clone());
+                    return Some(cycle);
+                }
+                Mark::New => {
+                    if let Some(c) = visit(m, g, marks, stack) {
+                        return Some(c);
+                    }
+                }
+                Mark::Done => {}
+            }
+        }
+        stack.pop();
+        marks.insert(n.into(), Mark::Done);
+        None
+    }
+    let mut marks = BTreeMap::new();
+    for n in g.keys() {
+        if marks.get(n.as_str()).copied().unwrap_or(Mark::New) == Mark::New {
+            if let Some(c) = visit(n, g, &mut marks, &mut Vec::new()) {
+                return Some(c);
+            }
+        }
+    }
+    None
+}
+
+/// The graph as ARCHITECTURE.md lists it: one `module -> a, b, c` line per
+/// module that uses another.
+pub fn listing(g: &Graph) -> String {
+    g.iter()
+        .filter(|(_, to)| !to.is_empty())
+        .map(|(from, to)| {
+            format!(
+                "{from} -> {}\n",
+                to.iter().cloned().collect::<Vec<_>>().join(", ")
+            )
+        })
+        .collect()
+}
