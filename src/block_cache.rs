@@ -13,7 +13,8 @@
 //! asked for zeroed memory). Blocks of other sizes, and the oldest when the
 //! budget is full, go back to the system. The bytes a program computes are
 //! the same with or without it: `STEPSIM_BLOCK_CACHE=0` turns it off (the
-//! plain allocator, its slow twin).
+//! plain allocator, its slow twin). Only `measure` turns it on
+//! ([`crate::huge_pages::keep_large_blocks`]).
 
 use std::sync::Mutex;
 

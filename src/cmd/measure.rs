@@ -45,6 +45,7 @@ pub struct Args {
 
 /// Measures every image of the run and writes the submission.
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    crate::huge_pages::keep_large_blocks();
     super::fits_path("--run", &args.run)?;
     let params = KsbParams {
         psf_order: usize::from(args.psf_order),
