@@ -185,6 +185,7 @@ mod tests {
             sn: 30.0,
             mag: 22.0,
             pgamma: 0.5,
+            metacal: None,
         };
         let s = format_submission([
             ("img1", &o),

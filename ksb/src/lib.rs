@@ -28,6 +28,10 @@
 //! (estimator, weights, cuts, [`flags`]). [`pipeline`] strings them together;
 //! [`run`] reads a public run directory and writes a submission.
 //!
+//! With [`params::Method::Metacal`] the shear estimate is metacalibration
+//! ([`metacal`]) instead of [`shear`]; detection, stars and cuts on the
+//! detection are shared.
+//!
 //! Every fast routine has a slow, obvious twin in the same module (marked
 //! "reference"), used by the tests.
 #![deny(missing_docs)]
@@ -41,6 +45,7 @@ pub mod flags;
 pub mod image;
 pub mod io;
 pub mod linalg;
+pub mod metacal;
 pub mod moments;
 pub mod params;
 pub mod pipeline;

@@ -15,6 +15,16 @@ pub enum PgammaMode {
     FitSize,
 }
 
+/// The shear method (`stepsim measure --method`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// KSB+ (paper appendix A; docs/ksb.md).
+    Ksb,
+    /// Metacalibration ([`crate::metacal`]): the response measured by
+    /// shearing each galaxy's deconvolved image, selection included.
+    Metacal,
+}
+
 /// The pipeline's parameters. `KsbParams::default()` is the setting used by
 /// `stepsim measure`; every default is justified next to its field.
 #[derive(Debug, Clone, PartialEq)]
@@ -110,6 +120,12 @@ pub struct KsbParams {
     pub pgamma_mode: PgammaMode,
     /// Include the objects' own photon noise in the pixel variance (true).
     pub poisson_variance: bool,
+    /// The shear method (KSB+).
+    pub method: Method,
+    /// Metacalibration keeps galaxies whose reconvolved size r_g exceeds
+    /// this × the reconvolution's σ (1.2, i.e. (r_g² − σ²)/σ² > 0.44, about
+    /// KSB's r_g > 1.25 r_g*).
+    pub metacal_size_min_factor: f64,
 }
 
 impl Default for KsbParams {
@@ -151,6 +167,8 @@ impl Default for KsbParams {
             close_pair_px: 10.0,
             pgamma_mode: PgammaMode::PerObject,
             poisson_variance: true,
+            method: Method::Ksb,
+            metacal_size_min_factor: 1.2,
         }
     }
 }
@@ -197,6 +215,7 @@ impl KsbParams {
         pos("rg_min_px", self.rg_min_px)?;
         pos("rg_max_px", self.rg_max_px - self.rg_min_px)?;
         pos("window_radius_rg", self.window_radius_rg - 1.0)?;
+        pos("metacal_size_min_factor", self.metacal_size_min_factor)?;
         pos("star_min_sn", self.star_min_sn)?;
         pos("locus_bandwidth", self.locus_bandwidth)?;
         pos("locus_nsigma", self.locus_nsigma)?;

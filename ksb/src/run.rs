@@ -380,13 +380,28 @@ fn measure_datasets(
     let mut group: Vec<usize> = Vec::new();
     let datasets: Vec<&Vec<usize>> = by_dataset.values().collect();
     let mut n_done = 0;
+    let mut group_start = 0;
     for (n, members) in datasets.iter().enumerate() {
+        if group.is_empty() {
+            group_start = n;
+        }
         group.extend_from_slice(members);
         if group.len() < GROUP_IMAGES && n + 1 < datasets.len() {
             continue;
         }
         group.sort_unstable();
-        let done = pool.install(|| measure_group(&images, &group, &read, &info, params))?;
+        let mut done = pool.install(|| measure_group(&images, &group, &read, &info, params))?;
+        if params.method == crate::params::Method::Metacal {
+            // One response per dataset: its images share the PSF and the shear.
+            for members in datasets[group_start..=n].iter() {
+                let objs = group
+                    .iter()
+                    .zip(done.iter_mut())
+                    .filter(|(i, _)| members.contains(i))
+                    .flat_map(|(_, m)| m.objects.iter_mut());
+                crate::metacal::apply_response(objs);
+            }
+        }
         for (&i, m) in group.iter().zip(done) {
             let mut text = String::new();
             for o in &m.objects {

@@ -1,7 +1,7 @@
 //! `stepsim measure`: the KSB+ reference shear pipeline on a public run.
 
 use std::path::PathBuf;
-use stepsim_ksb::params::{KsbParams, PgammaMode};
+use stepsim_ksb::params::{KsbParams, Method, PgammaMode};
 
 /// How P^γ is applied.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -10,6 +10,17 @@ pub enum Pgamma {
     PerObject,
     /// ½Tr P^γ fitted against size r_g per image.
     FitSize,
+}
+
+/// The shear method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodArg {
+    /// KSB+ (docs/ksb.md).
+    Ksb,
+    /// Metacalibration: each galaxy deconvolved, sheared by ±0.01,
+    /// reconvolved and measured again; rows are R⁻¹ e with R the
+    /// dataset's response, selection included (docs/metacal.md).
+    Metacal,
 }
 
 /// Arguments of `stepsim measure`.
@@ -32,6 +43,9 @@ pub struct Args {
     /// How P^γ is applied.
     #[arg(long, value_enum, default_value_t = Pgamma::PerObject)]
     pgamma: Pgamma,
+    /// The shear method.
+    #[arg(long, value_enum, default_value_t = MethodArg::Ksb)]
+    method: MethodArg,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
     /// parts into FILE.
@@ -52,6 +66,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         pgamma_mode: match args.pgamma {
             Pgamma::PerObject => PgammaMode::PerObject,
             Pgamma::FitSize => PgammaMode::FitSize,
+        },
+        method: match args.method {
+            MethodArg::Ksb => Method::Ksb,
+            MethodArg::Metacal => Method::Metacal,
         },
         ..KsbParams::default()
     };

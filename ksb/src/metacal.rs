@@ -1,0 +1,661 @@
+//! Metacalibration (Huff & Mandelbaum 2017; Sheldon & Huff 2017) on the
+//! pipeline's detections: `stepsim measure --method metacal`.
+//!
+//! For each galaxy, with Î its stamp's Fourier transform (about its
+//! windowed centroid c), P̂ the PSF's (a stack of the image's PSF stars,
+//! pixel included) and Γ a round Gaussian slightly wider than the PSF, the
+//! version sheared by g is
+//!
+//! Ĵ_g(k) = Î(M k) / P̂(M k) · Γ(k),  M = A⁻¹ = (1 − |g|²)^(−½) [[1 + g₁, g₂], [g₂, 1 − g₁]],
+//!
+//! the Fourier transform of (galaxy sheared as SPEC §1: I′(x) = I(A x))
+//! convolved with Γ. Î(M k) and P̂(M k) are evaluated off the grid by their
+//! Taylor series to second order in δk = (M − 1) k, whose terms are the
+//! exact transforms of the stamp weighted by (x − c) and (x − c)²; with
+//! |g| = 0.01 the third-order term is below 2e-4 of Î wherever Γ is above
+//! 1e-3. Five versions are made (no shear, ±0.01 in g₁ and in g₂), each
+//! measured the same way: windowed centroid and size ([`crate::centroid`],
+//! a round adaptive Gaussian weight) and the KSB weighted ellipticity
+//! e = q / T ([`crate::moments`]).
+//!
+//! The response of a dataset is R = R_γ + R_S, both 2 × 2 means over its
+//! galaxies: R_γ,ij = ⟨(e_i(+g_j) − e_i(−g_j)) / 0.02⟩ over the galaxies
+//! selected on the unsheared version, and the selection response
+//! R_S,ij = (⟨e_i(0)⟩ over those selected on the +g_j version − the same
+//! over −g_j) / 0.02. Each selected galaxy's row is R⁻¹ e(0), so that the
+//! harness's mean of a dataset's rows is R⁻¹ ⟨e⟩, the estimate of g.
+//!
+//! Γ's σ is the smallest of 1.2, 1.3, … 3.0 × r_g* for which Γ(k) stays
+//! below 1.5 |P̂(k)| on the grid (so that no frequency is amplified more
+//! than 1.5× by the deconvolution, also where an aberrated PSF's transfer
+//! function has zeros).
+
+use crate::centroid::{WindowSettings, windowed};
+use crate::flags;
+use crate::image::Image;
+use crate::moments::ksb_integrals;
+use crate::params::KsbParams;
+use crate::pipeline::MeasuredObject;
+use rand::RngExt;
+use rustfft::num_complex::Complex64;
+use rustfft::{Fft, FftPlanner};
+use std::f64::consts::PI;
+use std::sync::Arc;
+use stepsim_contract::seed::{SeedKey, Stream};
+
+/// The shear of the sheared versions.
+pub const STEP: f64 = 0.01;
+
+/// The five versions: no shear, +g₁, −g₁, +g₂, −g₂.
+pub const VERSIONS: [[f64; 2]; 5] = [
+    [0.0, 0.0],
+    [STEP, 0.0],
+    [-STEP, 0.0],
+    [0.0, STEP],
+    [0.0, -STEP],
+];
+
+/// Side of the PSF stack.
+pub const PSF_SIDE: usize = 32;
+
+/// Stamp sides used for galaxies (the smallest that holds 8 r_g of the
+/// reconvolved galaxy).
+pub const STAMP_SIDES: [usize; 3] = [32, 48, 64];
+
+/// One galaxy's five measurements.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct McMeasure {
+    /// Weighted ellipticity e = q / T of each version.
+    pub e: [[f64; 2]; 5],
+    /// Windowed size r_g of each version (pixels).
+    pub rg: [f64; 5],
+    /// Weighted flux Σ W J of each version.
+    pub s0: [f64; 5],
+    /// The version's centroid converged and its moments are defined.
+    pub ok: [bool; 5],
+}
+
+/// Transforms of one stamp: F and its first and second k-derivatives as
+/// the transforms of the stamp weighted by (x − c) and (x − c)².
+struct Transforms {
+    side: usize,
+    /// Î, Σ(x−c)I, Σ(y−c)I, Σ(x−c)²I, Σ(x−c)(y−c)I, Σ(y−c)²I, each side².
+    f: [Vec<Complex64>; 6],
+}
+
+/// Signed frequency of FFT index `a` on a grid of `side`, cycles per pixel.
+fn freq(a: usize, side: usize) -> f64 {
+    let a = a as f64;
+    let s = side as f64;
+    if a < s / 2.0 { a / s } else { a / s - 1.0 }
+}
+
+/// The FFT plans of one side (forward and inverse).
+#[derive(Clone)]
+pub struct Plans {
+    side: usize,
+    fwd: Arc<dyn Fft<f64>>,
+    inv: Arc<dyn Fft<f64>>,
+}
+
+impl Plans {
+    /// Plans for a grid of `side`.
+    pub fn new(side: usize) -> Self {
+        let mut p = FftPlanner::new();
+        Self {
+            side,
+            fwd: p.plan_fft_forward(side),
+            inv: p.plan_fft_inverse(side),
+        }
+    }
+
+    /// In-place 2-D transform of a row-major side × side array.
+    fn fft2(&self, buf: &mut [Complex64], inverse: bool) {
+        let s = self.side;
+        let plan = if inverse { &self.inv } else { &self.fwd };
+        for row in buf.chunks_exact_mut(s) {
+            plan.process(row);
+        }
+        let mut col = vec![Complex64::new(0.0, 0.0); s];
+        for x in 0..s {
+            for y in 0..s {
+                col[y] = buf[y * s + x];
+            }
+            plan.process(&mut col);
+            for y in 0..s {
+                buf[y * s + x] = col[y];
+            }
+        }
+    }
+}
+
+/// The six transforms of `stamp` (row-major side × side, pixel (i, j) at
+/// x = i, y = j) about the centre `c`, each multiplied by e^{2πi k·c} so
+/// that they are sums of e^{−2πi k·(x − c)}.
+fn transforms(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Transforms {
+    let s = plans.side;
+    let weights: [fn(f64, f64) -> f64; 6] = [
+        |_, _| 1.0,
+        |dx, _| dx,
+        |_, dy| dy,
+        |dx, _| dx * dx,
+        |dx, dy| dx * dy,
+        |_, dy| dy * dy,
+    ];
+    let f = weights.map(|w| {
+        let mut buf: Vec<Complex64> = (0..s * s)
+            .map(|p| {
+                let (i, j) = (p % s, p / s);
+                Complex64::new(stamp[p] * w(i as f64 - c[0], j as f64 - c[1]), 0.0)
+            })
+            .collect();
+        plans.fft2(&mut buf, false);
+        for b in 0..s {
+            for a in 0..s {
+                let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
+                buf[b * s + a] *= Complex64::from_polar(1.0, ph);
+            }
+        }
+        buf
+    });
+    Transforms { side: s, f }
+}
+
+impl Transforms {
+    /// The transform at M k for grid index (a, b), by its Taylor series to
+    /// second order in δk = (M − 1) k.
+    fn at_sheared(&self, p: usize, dk: [f64; 2]) -> Complex64 {
+        let f = &self.f;
+        let i = Complex64::new(0.0, 1.0);
+        // ∂_j F = −2πi F_j, ∂_ij F = −4π² F_ij.
+        let first = (f[1][p] * dk[0] + f[2][p] * dk[1]) * (-2.0 * PI * i);
+        let second = (f[3][p] * (dk[0] * dk[0])
+            + f[4][p] * (2.0 * dk[0] * dk[1])
+            + f[5][p] * (dk[1] * dk[1]))
+            * (-4.0 * PI * PI * 0.5);
+        f[0][p] + first + second
+    }
+}
+
+/// M − 1 for the shear g (M = A⁻¹ of SPEC §1).
+fn m_minus_one(g: [f64; 2]) -> [[f64; 2]; 2] {
+    let n = 1.0 / (1.0 - g[0] * g[0] - g[1] * g[1]).sqrt();
+    [
+        [n * (1.0 + g[0]) - 1.0, n * g[1]],
+        [n * g[1], n * (1.0 - g[0]) - 1.0],
+    ]
+}
+
+/// The image's PSF, as a normalised stack of its PSF stars.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PsfStack {
+    /// Pixel values on a PSF_SIDE² grid, the centre at index PSF_SIDE / 2
+    /// in both axes; they sum to 1.
+    pub pix: Vec<f64>,
+    /// Number of stars stacked.
+    pub n_stars: usize,
+}
+
+/// Stacks the stars at `stars` (array coordinates of their windowed
+/// centroids) of the background-subtracted image `sub`: each star's stamp
+/// is moved to the grid centre by its transform's phase (exact for a
+/// band-limited image), divided by its flux, and the stack is the median of
+/// the stars pixel by pixel (a neighbour in one star's stamp does not
+/// enter), normalised to sum 1. `None` without a star whose PSF_SIDE²
+/// stamp lies inside the image.
+pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
+    let s = PSF_SIDE;
+    let plans = Plans::new(s);
+    let h = (s / 2) as f64;
+    let norm = (s * s) as f64;
+    let mut centred: Vec<Vec<f64>> = Vec::new();
+    for &(x, y) in stars {
+        let Some((stamp, c)) = cut(sub, x, y, s) else {
+            continue;
+        };
+        let mut t = transforms_one(&stamp, c, &plans);
+        let flux = t[0].re;
+        if !(flux > 0.0 && flux.is_finite()) {
+            continue;
+        }
+        // Centre at index s/2: multiply by e^{−2πi k·(s/2)}.
+        for b in 0..s {
+            for a in 0..s {
+                let ph = -2.0 * PI * (freq(a, s) * h + freq(b, s) * h);
+                t[b * s + a] *= Complex64::from_polar(1.0 / flux, ph);
+            }
+        }
+        plans.fft2(&mut t, true);
+        centred.push(t.iter().map(|v| v.re / norm).collect());
+    }
+    if centred.is_empty() {
+        return None;
+    }
+    let mut column = vec![0.0; centred.len()];
+    let mut pix: Vec<f64> = (0..s * s)
+        .map(|p| {
+            for (v, star) in column.iter_mut().zip(&centred) {
+                *v = star[p];
+            }
+            column.sort_by(f64::total_cmp);
+            let n = column.len();
+            if n % 2 == 1 {
+                column[n / 2]
+            } else {
+                0.5 * (column[n / 2 - 1] + column[n / 2])
+            }
+        })
+        .collect();
+    let total: f64 = pix.iter().sum();
+    pix.iter_mut().for_each(|v| *v /= total);
+    Some(PsfStack {
+        pix,
+        n_stars: centred.len(),
+    })
+}
+
+/// Only the plain transform of a stamp about `c`.
+fn transforms_one(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Vec<Complex64> {
+    let s = plans.side;
+    let mut buf: Vec<Complex64> = stamp.iter().map(|&v| Complex64::new(v, 0.0)).collect();
+    plans.fft2(&mut buf, false);
+    for b in 0..s {
+        for a in 0..s {
+            let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
+            buf[b * s + a] *= Complex64::from_polar(1.0, ph);
+        }
+    }
+    buf
+}
+
+/// The side × side stamp of `img` around (x, y) and the centre in stamp
+/// coordinates; `None` if it does not lie inside the image.
+fn cut(img: &Image, x: f64, y: f64, side: usize) -> Option<(Vec<f64>, [f64; 2])> {
+    let h = (side / 2) as i64;
+    let (ix, iy) = (x.round() as i64, y.round() as i64);
+    let (x0, y0) = (ix - h, iy - h);
+    if x0 < 0
+        || y0 < 0
+        || x0 + side as i64 > img.width as i64
+        || y0 + side as i64 > img.height as i64
+    {
+        return None;
+    }
+    let mut stamp = Vec::with_capacity(side * side);
+    for j in 0..side {
+        let row = (y0 as usize + j) * img.width + x0 as usize;
+        stamp.extend(img.data[row..row + side].iter().map(|&v| f64::from(v)));
+    }
+    Some((stamp, [x - x0 as f64, y - y0 as f64]))
+}
+
+/// The PSF's transforms on one stamp grid, and the reconvolution.
+pub struct Deconvolver {
+    plans: Plans,
+    psf: Transforms,
+    /// Γ(k) on the grid.
+    gamma: Vec<f64>,
+    /// σ of Γ (pixels).
+    pub sigma: f64,
+}
+
+impl Deconvolver {
+    /// Prepares stamps of `side` for the PSF `psf` and a reconvolution of
+    /// σ `sigma`.
+    pub fn new(psf: &PsfStack, side: usize, sigma: f64) -> Self {
+        let plans = Plans::new(side);
+        let mut stamp = vec![0.0; side * side];
+        let (h, o) = (PSF_SIDE / 2, side / 2);
+        for j in 0..PSF_SIDE {
+            for i in 0..PSF_SIDE {
+                stamp[(j + o - h) * side + (i + o - h)] = psf.pix[j * PSF_SIDE + i];
+            }
+        }
+        let c = [o as f64, o as f64];
+        let psf = transforms(&stamp, c, &plans);
+        let gamma = (0..side * side)
+            .map(|p| {
+                let k2 = freq(p % side, side).powi(2) + freq(p / side, side).powi(2);
+                (-2.0 * PI * PI * sigma * sigma * k2).exp()
+            })
+            .collect();
+        Self {
+            plans,
+            psf,
+            gamma,
+            sigma,
+        }
+    }
+
+    /// The largest Γ(k) / |P̂(k)| on the grid.
+    pub fn max_amplification(&self) -> f64 {
+        self.gamma
+            .iter()
+            .zip(&self.psf.f[0])
+            .map(|(g, p)| g / p.norm())
+            .fold(0.0, f64::max)
+    }
+
+    /// The version of `stamp` (centre `c`) sheared by `g`, reconvolved:
+    /// a side × side image with the galaxy at `c`.
+    pub fn version(&self, gal: &[f64], c: [f64; 2], g: [f64; 2]) -> Image {
+        let t = transforms(gal, c, &self.plans);
+        self.version_of(&t, c, g)
+    }
+
+    fn version_of(&self, t: &Transforms, c: [f64; 2], g: [f64; 2]) -> Image {
+        let s = t.side;
+        let d = m_minus_one(g);
+        let mut buf = vec![Complex64::new(0.0, 0.0); s * s];
+        for b in 0..s {
+            for a in 0..s {
+                let p = b * s + a;
+                let gm = self.gamma[p];
+                if gm < 1e-12 {
+                    continue;
+                }
+                let k = [freq(a, s), freq(b, s)];
+                let dk = [
+                    d[0][0] * k[0] + d[0][1] * k[1],
+                    d[1][0] * k[0] + d[1][1] * k[1],
+                ];
+                let ratio = t.at_sheared(p, dk) / self.psf.at_sheared(p, dk);
+                let ph = -2.0 * PI * (k[0] * c[0] + k[1] * c[1]);
+                buf[p] = ratio * gm * Complex64::from_polar(1.0, ph);
+            }
+        }
+        self.plans.fft2(&mut buf, true);
+        let norm = (s * s) as f64;
+        Image {
+            width: s,
+            height: s,
+            data: buf.iter().map(|v| (v.re / norm) as f32).collect(),
+        }
+    }
+
+    /// The five measured versions of the galaxy at (x, y) of `sub` with
+    /// windowed size `rg`; `None` if its stamp leaves the image.
+    pub fn measure(
+        &self,
+        sub: &Image,
+        x: f64,
+        y: f64,
+        rg: f64,
+        win: &WindowSettings,
+        noise_sigma: f64,
+    ) -> Option<McMeasure> {
+        let (stamp, c) = cut(sub, x, y, self.plans.side)?;
+        let t = transforms(&stamp, c, &self.plans);
+        // Noise correction ("fixnoise", Sheldon & Huff 2017 §4.2): shearing
+        // the deconvolved image shears its noise too, and the noise's
+        // correlations respond to the shear. A white noise stamp of the
+        // image's σ, rotated by 90°, made into each version and rotated
+        // back, responds the opposite way; adding it cancels that response
+        // (at √2 the noise). Its seed is the stamp's position in the image.
+        let side = self.plans.side;
+        let noise = (noise_sigma > 0.0).then(|| {
+            let key = SeedKey::base(FIXNOISE_SEED, 0, Stream::Noise)
+                .with_index((y.round() as u64) << 32 | x.round() as u64);
+            let mut rng = key.rng();
+            let n: Vec<f64> = (0..side * side)
+                .map(|_| noise_sigma * rng.sample::<f64, _>(rand_distr::StandardNormal))
+                .collect();
+            let cr = rot90_point(c, side);
+            (transforms(&rot90(&n, side), cr, &self.plans), cr)
+        });
+        let mut m = McMeasure {
+            e: [[0.0; 2]; 5],
+            rg: [0.0; 5],
+            s0: [0.0; 5],
+            ok: [false; 5],
+        };
+        let rg0 = (rg * rg + self.sigma * self.sigma).sqrt();
+        for (v, g) in VERSIONS.iter().enumerate() {
+            let mut img = self.version_of(&t, c, *g);
+            if let Some((tn, cr)) = &noise {
+                let nv = self.version_of(tn, *cr, *g);
+                let back = rot270(&nv.data, side);
+                for (a, b) in img.data.iter_mut().zip(back) {
+                    *a += b;
+                }
+            }
+            let Some(w) = windowed(&img, c[0], c[1], rg0, true, win) else {
+                continue;
+            };
+            let ints = ksb_integrals(&img, w.x, w.y, w.rg, win.radius_rg * w.rg, None);
+            if ints.clipped || !(ints.s0 > 0.0 && ints.trace > 0.0) {
+                continue;
+            }
+            m.e[v] = [ints.q[0] / ints.trace, ints.q[1] / ints.trace];
+            m.rg[v] = w.rg;
+            m.s0[v] = ints.s0;
+            m.ok[v] = w.converged && !w.at_bound;
+        }
+        Some(m)
+    }
+}
+
+/// The run seed of the noise-correction stamps.
+const FIXNOISE_SEED: u64 = 0x6d65_7461_6361_6c00;
+
+/// `a` (side × side, pixel (i, j) at index j·side + i) rotated by 90°
+/// counter-clockwise about the stamp's centre: (i, j) → (side − 1 − j, i).
+fn rot90<T: Copy>(a: &[T], side: usize) -> Vec<T> {
+    let mut out = a.to_vec();
+    for j in 0..side {
+        for i in 0..side {
+            out[i * side + (side - 1 - j)] = a[j * side + i];
+        }
+    }
+    out
+}
+
+/// The inverse of [`rot90`], as f32 pixels to add.
+fn rot270(a: &[f32], side: usize) -> Vec<f32> {
+    let mut out = a.to_vec();
+    for j in 0..side {
+        for i in 0..side {
+            out[j * side + i] = a[i * side + (side - 1 - j)];
+        }
+    }
+    out
+}
+
+/// Where [`rot90`] takes the point `c`.
+fn rot90_point(c: [f64; 2], side: usize) -> [f64; 2] {
+    [(side - 1) as f64 - c[1], c[0]]
+}
+
+/// What metacalibration needs of one image: the deconvolvers of each stamp
+/// side for its PSF stack.
+pub struct ImageMetacal {
+    /// One per [`STAMP_SIDES`].
+    decs: Vec<Deconvolver>,
+    /// σ of the reconvolution (pixels).
+    pub sigma: f64,
+    /// Stars stacked.
+    pub n_stars: usize,
+}
+
+impl ImageMetacal {
+    /// From the PSF stars at `stars` of `sub` and the stellar size
+    /// `rg_star`; `None` without a star to stack.
+    pub fn new(sub: &Image, stars: &[(f64, f64)], rg_star: f64) -> Option<Self> {
+        let psf = stack_psf(sub, stars)?;
+        let sigma = reconvolution_sigma(&psf, rg_star);
+        Some(Self {
+            decs: STAMP_SIDES
+                .iter()
+                .map(|&side| Deconvolver::new(&psf, side, sigma))
+                .collect(),
+            sigma,
+            n_stars: psf.n_stars,
+        })
+    }
+}
+
+/// Measures the galaxy row `o` (detection flags `det_flags`) by
+/// metacalibration: its five versions and their cuts, its flags for the
+/// unsheared version. `e1`, `e2` and the weight stay 0 until
+/// [`apply_response`].
+pub fn measure_object(
+    mut o: MeasuredObject,
+    det_flags: u32,
+    sub: &Image,
+    mc: Option<&ImageMetacal>,
+    params: &KsbParams,
+    noise_sigma: f64,
+) -> MeasuredObject {
+    o.flags = det_flags;
+    o.pgamma = f64::NAN;
+    let Some(mc) = mc else {
+        o.flags |= flags::NO_PSF;
+        return o;
+    };
+    let Some(side) = stamp_side(o.rg_px, mc.sigma) else {
+        o.flags |= flags::LARGE;
+        return o;
+    };
+    let k = STAMP_SIDES
+        .iter()
+        .position(|&s| s == side)
+        .expect("a stamp side");
+    let win = params.window_settings();
+    let Some(m) = mc.decs[k].measure(sub, o.x - 1.0, o.y - 1.0, o.rg_px, &win, noise_sigma) else {
+        o.flags |= flags::EDGE;
+        return o;
+    };
+    let min_rg = params.metacal_size_min_factor * mc.sigma;
+    let pass = |v: usize| {
+        det_flags == 0
+            && m.ok[v]
+            && m.s0[0] > 0.0
+            && o.sn * m.s0[v] / m.s0[0] >= params.min_sn
+            && m.rg[v] > min_rg
+    };
+    let selected = [pass(0), pass(1), pass(2), pass(3), pass(4)];
+    if !m.ok[0] {
+        o.flags |= flags::CENTROID;
+    } else if m.rg[0] <= min_rg {
+        o.flags |= flags::SMALL;
+    }
+    if o.sn < params.min_sn {
+        o.flags |= flags::LOW_SN;
+    }
+    if o.flags == 0 && !selected[0] {
+        o.flags |= flags::LOW_SN;
+    }
+    o.metacal = Some((m, selected));
+    o
+}
+
+/// Sets `e1`, `e2` (R⁻¹ e of the unsheared version) and the weight (1 for
+/// a galaxy selected on the unsheared version, 0 otherwise) of the rows
+/// `objs`, which share one response: a dataset's (a run) or an image's
+/// ([`crate::pipeline::measure_image`]). Without a response every row is
+/// flagged NO_PSF. Returns R.
+pub fn apply_response<'a>(
+    objs: impl Iterator<Item = &'a mut MeasuredObject>,
+) -> Option<[[f64; 2]; 2]> {
+    let mut rows: Vec<&mut MeasuredObject> = objs.filter(|o| o.metacal.is_some()).collect();
+    let ms: Vec<(McMeasure, [bool; 5])> = rows.iter().filter_map(|o| o.metacal).collect();
+    let r = response(&ms);
+    for o in &mut rows {
+        let (m, sel) = o.metacal.expect("filtered");
+        let Some(r) = r else {
+            o.flags |= flags::NO_PSF;
+            o.weight = 0.0;
+            continue;
+        };
+        let g = apply_inverse(&r, m.e[0]);
+        if !(g[0].is_finite() && g[1].is_finite()) {
+            o.flags |= flags::MOMENTS;
+            continue;
+        }
+        if g[0].abs().max(g[1].abs()) <= stepsim_contract::MAX_ABS_SHEAR {
+            o.e1 = g[0];
+            o.e2 = g[1];
+        }
+        if sel[0] && o.flags == 0 {
+            o.weight = 1.0;
+        }
+    }
+    r
+}
+
+/// The stamp side for a galaxy of windowed size `rg` reconvolved with σ
+/// `sigma`, `None` if even the largest is too small.
+pub fn stamp_side(rg: f64, sigma: f64) -> Option<usize> {
+    let need = 8.0 * (rg * rg + sigma * sigma).sqrt();
+    STAMP_SIDES.iter().copied().find(|&s| s as f64 >= need)
+}
+
+/// σ of Γ for the PSF `psf` with stellar size `rg_star`: the smallest of
+/// 1.2, 1.3, … 3.0 × `rg_star` whose Γ stays below 1.5 |P̂| on the largest
+/// stamp grid (the last one tried otherwise).
+pub fn reconvolution_sigma(psf: &PsfStack, rg_star: f64) -> f64 {
+    let side = *STAMP_SIDES.last().expect("sides");
+    let mut sigma = 0.0;
+    for step in 12..=30 {
+        sigma = rg_star * f64::from(step) / 10.0;
+        if Deconvolver::new(psf, side, sigma).max_amplification() <= 1.5 {
+            break;
+        }
+    }
+    sigma
+}
+
+/// The two parts of a dataset's response, (R_γ, R_S), from its galaxies'
+/// measurements and their selection on each version (`selected[v]`);
+/// `None` without a galaxy selected on every version.
+pub fn response_parts(objs: &[(McMeasure, [bool; 5])]) -> Option<[[[f64; 2]; 2]; 2]> {
+    let mut rg = [[0.0; 2]; 2];
+    let mut rs = [[0.0; 2]; 2];
+    let sel0: Vec<&McMeasure> = objs.iter().filter(|o| o.1[0]).map(|o| &o.0).collect();
+    if sel0.is_empty() {
+        return None;
+    }
+    let n0 = sel0.len() as f64;
+    for j in 0..2 {
+        for i in 0..2 {
+            rg[i][j] = sel0
+                .iter()
+                .map(|m| (m.e[1 + 2 * j][i] - m.e[2 + 2 * j][i]) / (2.0 * STEP))
+                .sum::<f64>()
+                / n0;
+            let mean_on = |v: usize| -> Option<f64> {
+                let (s, n) = objs
+                    .iter()
+                    .filter(|o| o.1[v])
+                    .fold((0.0, 0usize), |(s, n), o| (s + o.0.e[0][i], n + 1));
+                (n > 0).then(|| s / n as f64)
+            };
+            rs[i][j] = (mean_on(1 + 2 * j)? - mean_on(2 + 2 * j)?) / (2.0 * STEP);
+        }
+    }
+    Some([rg, rs])
+}
+
+/// A dataset's response R = R_γ + R_S ([`response_parts`]); `None`
+/// without a galaxy selected on every version or with a singular R.
+pub fn response(objs: &[(McMeasure, [bool; 5])]) -> Option<[[f64; 2]; 2]> {
+    let [rg, rs] = response_parts(objs)?;
+    let r = [
+        [rg[0][0] + rs[0][0], rg[0][1] + rs[0][1]],
+        [rg[1][0] + rs[1][0], rg[1][1] + rs[1][1]],
+    ];
+    let det = r[0][0] * r[1][1] - r[0][1] * r[1][0];
+    (det.is_finite() && det.abs() > 1e-6).then_some(r)
+}
+
+/// R⁻¹ e.
+pub fn apply_inverse(r: &[[f64; 2]; 2], e: [f64; 2]) -> [f64; 2] {
+    let det = r[0][0] * r[1][1] - r[0][1] * r[1][0];
+    [
+        (r[1][1] * e[0] - r[0][1] * e[1]) / det,
+        (-r[1][0] * e[0] + r[0][0] * e[1]) / det,
+    ]
+}
+
+#[cfg(test)]
+mod tests;
