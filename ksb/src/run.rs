@@ -530,6 +530,98 @@ mod tests {
     }
 
     #[test]
+    fn metacal_rows_are_one_response_per_dataset_at_any_thread_count() {
+        // Two datasets of two images each, measured with --method metacal
+        // on 1 and on 2 threads: the same bytes. Every weighted row has
+        // weight 1 and is R⁻¹ e(0) with R its dataset's response, computed
+        // here from the images measured alone.
+        let dir = tempfile::tempdir().unwrap();
+        let params = KsbParams {
+            method: crate::params::Method::Metacal,
+            ..KsbParams::default()
+        };
+        let mut scenes = Vec::new();
+        for (id, dataset, seed) in [
+            ("ia", "d0", 21),
+            ("ib", "d0", 22),
+            ("ic", "d1", 23),
+            ("id", "d1", 24),
+        ] {
+            let (_, img) = synthetic_scene(&spec(80, seed));
+            scenes.push((dataset, id, img));
+        }
+        let refs: Vec<(&str, &str, &Image)> =
+            scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
+        write_public_run(dir.path(), &refs).unwrap();
+        let one = dir.path().join("one.txt");
+        let two = dir.path().join("two.txt");
+        measure_run(dir.path(), &one, 1, &params, &|_, _| {}).unwrap();
+        measure_run(dir.path(), &two, 2, &params, &|_, _| {}).unwrap();
+        let text = std::fs::read_to_string(&one).unwrap();
+        assert_eq!(text, std::fs::read_to_string(&two).unwrap());
+
+        let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
+        let gain = manifest.instrument.gain_e_per_adu as f32;
+        let info = ImageInfo {
+            zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
+            saturation_e: Some(65534.5 * 4.0),
+        };
+        let mut weighted = 0;
+        for dataset in ["d0", "d1"] {
+            let ims: Vec<_> = manifest
+                .images
+                .iter()
+                .filter(|im| im.dataset == dataset)
+                .collect();
+            let mut all = Vec::new();
+            let mut rows = Vec::new();
+            let mut pooled = Vec::new();
+            let dets: Vec<_> = ims
+                .iter()
+                .map(|im| {
+                    let img = read_fits_image(&dir.path().join(&im.file))
+                        .unwrap()
+                        .scaled(gain);
+                    let (d, sub) = detect_image(&img, &info, &params).unwrap();
+                    pooled.extend_from_slice(d.star_candidates());
+                    (im.image.clone(), d, sub)
+                })
+                .collect();
+            let sel = select_stars(&pooled, &params);
+            for (id, d, sub) in dets {
+                let m = d.finish(&sub, &info, &params, sel);
+                all.extend(m.objects.iter().filter_map(|o| o.metacal));
+                rows.extend(m.objects.into_iter().map(|o| (id.clone(), o)));
+            }
+            let r = crate::metacal::response(&all).expect("a response");
+            for (id, o) in rows {
+                let Some((mc, sel)) = o.metacal else {
+                    continue;
+                };
+                if !(sel[0] && o.flags == 0) {
+                    continue;
+                }
+                let e = crate::metacal::apply_inverse(&r, mc.e[0]);
+                let line = format!(
+                    "{id} {:.3} {:.3} {:.6} {:.6} 1.000000 0",
+                    o.x, o.y, e[0], e[1]
+                );
+                assert!(
+                    text.lines().any(|l| l == line),
+                    "{line} not in the submission"
+                );
+                weighted += 1;
+            }
+        }
+        let n = text
+            .lines()
+            .filter(|l| !l.starts_with('#') && l.split(' ').nth(5) != Some("0.000000"))
+            .count();
+        assert_eq!(n, weighted);
+        assert!(weighted > 60, "{weighted}");
+    }
+
+    #[test]
     fn keeping_the_first_pass_gives_the_rows_of_measuring_twice() {
         // The slow, obvious twin of measure_group: every image measured
         // alone from its pixels, the pooled locus per dataset, then every
