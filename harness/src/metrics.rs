@@ -510,11 +510,11 @@ impl ModelWhy {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Response {
     /// m and its error.
-    pub m: (Option<f64>, Option<f64>),
+    pub m: ValErr,
     /// q and its error (q = 0, error `None` when linear).
-    pub q: (Option<f64>, Option<f64>),
+    pub q: ValErr,
     /// c and its error.
-    pub c: (Option<f64>, Option<f64>),
+    pub c: ValErr,
     /// True when the linear model was kept.
     pub linear: bool,
     /// Why that model.
@@ -535,8 +535,11 @@ impl Response {
     }
 }
 
-fn coef(f: &PolyFit, k: usize) -> (Option<f64>, Option<f64>) {
-    (Some(f.coef[k]), f.err[k])
+fn coef(f: &PolyFit, k: usize) -> ValErr {
+    ValErr {
+        value: Some(f.coef[k]),
+        err: f.err[k],
+    }
 }
 
 /// Fits γ − γ_true = q γ_true² + m γ_true + c over points (γ_true, γ, σ),
@@ -677,30 +680,38 @@ fn response(
     if let Some(f) = fit_fields(x, y, s, series, 2) {
         return Response {
             m: coef(&f, 1),
-            q: (Some(0.0), None),
+            q: ValErr {
+                value: Some(0.0),
+                err: None,
+            },
             c: coef(&f, 0),
             linear: true,
             why,
         };
     }
-    let (c, ce) = plain_mean(y, s, series);
     Response {
-        m: (None, None),
-        q: (None, None),
-        c: (c, ce),
+        m: ValErr::default(),
+        q: ValErr::default(),
+        c: plain_mean(y, s, series),
         linear: true,
         why,
     }
 }
 
 /// A value and its error, either possibly missing.
-pub type ValErr = (Option<f64>, Option<f64>);
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ValErr {
+    /// The value.
+    pub value: Option<f64>,
+    /// Its error (one σ).
+    pub err: Option<f64>,
+}
 
 /// Plain mean of `y`; its error from the fields when `series` is given and
 /// it is defined, else sqrt(Σσ²)/n when every σ is known.
 fn plain_mean(y: &[f64], s: &[Option<f64>], series: Option<&[&FieldSeries]>) -> ValErr {
     if y.is_empty() {
-        return (None, None);
+        return ValErr::default();
     }
     let n = y.len() as f64;
     let mean = y.iter().sum::<f64>() / n;
@@ -711,7 +722,10 @@ fn plain_mean(y: &[f64], s: &[Option<f64>], series: Option<&[&FieldSeries]>) -> 
             .sum::<Option<f64>>()
             .map(|v| v.sqrt() / n)
     });
-    (Some(mean), err)
+    ValErr {
+        value: Some(mean),
+        err,
+    }
 }
 
 /// The fit model of each PSF (`true` = linear), chosen on the full data
@@ -785,51 +799,51 @@ fn psf_numbers(
     };
     let rep = PsfReport {
         psf: name.to_owned(),
-        m: r1.m.0,
-        m_err: r1.m.1,
-        q: r1.q.0,
-        q_err: r1.q.1,
-        c1: r1.c.0,
-        c1_err: r1.c.1,
-        c2: c2.0,
-        c2_err: c2.1,
+        m: r1.m.value,
+        m_err: r1.m.err,
+        q: r1.q.value,
+        q_err: r1.q.err,
+        c1: r1.c.value,
+        c1_err: r1.c.err,
+        c2: c2.value,
+        c2_err: c2.err,
         linear: r1.linear,
         fit: Some(r1.choice()),
         fit2: r2.as_ref().map(Response::choice),
-        m2: r2.as_ref().and_then(|r| r.m.0),
-        m2_err: r2.as_ref().and_then(|r| r.m.1),
-        q2: r2.as_ref().and_then(|r| r.q.0),
-        q2_err: r2.as_ref().and_then(|r| r.q.1),
-        m_uncontaminated: ru.m.0,
-        m_uncontaminated_err: ru.m.1,
-        q_uncontaminated: ru.q.0,
-        q_uncontaminated_err: ru.q.1,
+        m2: r2.as_ref().and_then(|r| r.m.value),
+        m2_err: r2.as_ref().and_then(|r| r.m.err),
+        q2: r2.as_ref().and_then(|r| r.q.value),
+        q2_err: r2.as_ref().and_then(|r| r.q.err),
+        m_uncontaminated: ru.m.value,
+        m_uncontaminated_err: ru.m.err,
+        q_uncontaminated: ru.q.value,
+        q_uncontaminated_err: ru.q.err,
         fit_uncontaminated: Some(ru.choice()),
-        m_selc: rs.m.0,
-        m_selc_err: rs.m.1,
-        q_selc: rs.q.0,
-        q_selc_err: rs.q.1,
+        m_selc: rs.m.value,
+        m_selc_err: rs.m.err,
+        q_selc: rs.q.value,
+        q_selc_err: rs.q.err,
         fit_selc: Some(rs.choice()),
-        c1_selc: rs.c.0,
-        c1_selc_err: rs.c.1,
-        c2_selc: c2_selc.0,
-        c2_selc_err: c2_selc.1,
-        m_weight: rw.m.0,
-        m_weight_err: rw.m.1,
-        q_weight: rw.q.0,
-        q_weight_err: rw.q.1,
+        c1_selc: rs.c.value,
+        c1_selc_err: rs.c.err,
+        c2_selc: c2_selc.value,
+        c2_selc_err: c2_selc.err,
+        m_weight: rw.m.value,
+        m_weight_err: rw.m.err,
+        q_weight: rw.q.value,
+        q_weight_err: rw.q.err,
         fit_weight: Some(rw.choice()),
-        c1_weight: rw.c.0,
-        c1_weight_err: rw.c.1,
-        m_isolated: ri.m.0,
-        m_isolated_err: ri.m.1,
-        q_isolated: ri.q.0,
-        q_isolated_err: ri.q.1,
+        c1_weight: rw.c.value,
+        c1_weight_err: rw.c.err,
+        m_isolated: ri.m.value,
+        m_isolated_err: ri.m.err,
+        q_isolated: ri.q.value,
+        q_isolated_err: ri.q.err,
         fit_isolated: Some(ri.choice()),
-        c1_isolated: ri.c.0,
-        c1_isolated_err: ri.c.1,
-        c2_isolated: c2_iso.0,
-        c2_isolated_err: c2_iso.1,
+        c1_isolated: ri.c.value,
+        c1_isolated_err: ri.c.err,
+        c2_isolated: c2_iso.value,
+        c2_isolated_err: c2_iso.err,
     };
     (rep, used)
 }
@@ -985,17 +999,17 @@ fn bin_report(
         let (_, y, s, kept) = fit_inputs(&vec![0.0; refs.len()], &refs, |_| 0.0);
         plain_mean(&y, &s, Some(&kept))
     };
-    let (g1, g1e) = comp(0);
-    let (g2, g2e) = comp(1);
+    let g1 = comp(0);
+    let g2 = comp(1);
     let edge = |e: f64| e.is_finite().then_some(e);
     BinReport {
         lo: edge(lo),
         hi: edge(hi),
         n_objects: n,
-        g1_residual: g1,
-        g1_residual_err: g1e,
-        g2_residual: g2,
-        g2_residual_err: g2e,
+        g1_residual: g1.value,
+        g1_residual_err: g1.err,
+        g2_residual: g2.value,
+        g2_residual_err: g2.err,
     }
 }
 
@@ -1208,9 +1222,9 @@ mod tests {
             .collect();
         let r = fit_response(&quad);
         assert!(!r.linear);
-        assert!((r.q.0.unwrap() - 1.5).abs() < 1e-9);
-        assert!((r.m.0.unwrap() + 0.02).abs() < 1e-10);
-        assert!((r.c.0.unwrap() - 0.001).abs() < 1e-12);
+        assert!((r.q.value.unwrap() - 1.5).abs() < 1e-9);
+        assert!((r.m.value.unwrap() + 0.02).abs() < 1e-10);
+        assert!((r.c.value.unwrap() - 0.001).abs() < 1e-12);
         let lin: Vec<_> = xs
             .iter()
             .enumerate()
@@ -1224,8 +1238,14 @@ mod tests {
             .collect();
         let r = fit_response(&lin);
         assert!(r.linear);
-        assert_eq!(r.q, (Some(0.0), None));
-        assert!((r.m.0.unwrap() - 0.03).abs() < 5e-3);
+        assert_eq!(
+            r.q,
+            ValErr {
+                value: Some(0.0),
+                err: None
+            }
+        );
+        assert!((r.m.value.unwrap() - 0.03).abs() < 5e-3);
     }
 
     #[test]

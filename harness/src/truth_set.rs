@@ -97,13 +97,10 @@ pub struct TruthSet {
 /// id, shear and PSF of the run, so two runs share an identity only when
 /// they agree on all of it (and then their scores are comparable).
 pub fn run_identity(datasets_json: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    let digest = Sha256::digest(datasets_json);
-    let mut s = String::from("sha256:");
-    for b in digest {
-        s.push_str(&format!("{b:02x}"));
-    }
-    s
+    format!(
+        "sha256:{}",
+        stepsim_contract::digest::sha256_hex(datasets_json)
+    )
 }
 
 /// Reads `DIR/datasets.json` (DIR = `RUN/private`).

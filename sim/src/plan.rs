@@ -25,7 +25,7 @@ use crate::config::{
     ConfigError, RawConfig, RawImage, RawInstrument, RawOutput, RawPopulation, RawPsf, RawPsfModel,
     RawRender, RawShear, RawTelescope, SeedOrigin, Source, draw_seed,
 };
-use crate::config::{Part, RawChallenge};
+use crate::config::{Invalid, Part, RawChallenge};
 use crate::io::IoError;
 use crate::io::psf_fits::read_psf_fits_and_bytes;
 use crate::io::skymaker::{ListError, ListObject, read_list_and_bytes};
@@ -156,11 +156,7 @@ impl Plan {
     /// the operating system ([`draw_seed`]; [`SeedOrigin::Drawn`]).
     pub fn new(mut config: RawConfig, source: &Path) -> Result<Self, PlanError> {
         config.validate(source)?;
-        check_sky_below_saturation(&config).map_err(|(key, message)| ConfigError::Invalid {
-            path: source.into(),
-            key,
-            message,
-        })?;
+        check_sky_below_saturation(&config).map_err(|e| e.in_file(source))?;
         let seed_origin = match config.run.seed {
             Some(_) => SeedOrigin::Config,
             None => {
@@ -544,13 +540,13 @@ pub fn list_path(config: &Path, pattern: &str, field: u32) -> PathBuf {
 
 /// The sky alone must stay below the clip level, or every pixel of every
 /// image is the saturation value (a blank image).
-fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), (String, String)> {
+fn check_sky_below_saturation(raw: &RawConfig) -> Result<(), Invalid> {
     let ins = &raw.instrument;
     let sky_adu = sky_e_per_pixel(ins, raw.image.pixel_scale_arcsec) / ins.gain_e_per_adu;
     if sky_adu.is_finite() && sky_adu < ins.saturation_adu {
         return Ok(());
     }
-    Err((
+    Err(Invalid::new(
         "instrument".into(),
         format!(
             "the sky alone gives {sky_adu:.4e} ADU per pixel, at or above instrument.saturation_adu = {}: every pixel would be clipped (a blank image); lower instrument.exposure_s or image.pixel_scale_arcsec, or raise instrument.sky_mag_arcsec2 or instrument.gain_e_per_adu",

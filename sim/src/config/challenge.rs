@@ -9,7 +9,7 @@
 
 pub use crate::run_layout::Part;
 
-use super::short_number;
+use super::{Invalid, short_number};
 use serde::{Deserialize, Serialize};
 
 /// `challenge`: how many base fields are held out, and their shears' range.
@@ -44,17 +44,17 @@ impl RawChallenge {
     }
 
     /// Checks the section against the number of base fields.
-    pub(crate) fn validate(&self, n_fields: u32) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self, n_fields: u32) -> Result<(), Invalid> {
         let g = self.holdout_g_max;
         if !(g.is_finite() && g > 0.0 && g < 1.0) {
-            return Err((
+            return Err(Invalid::new(
                 "challenge.holdout_g_max".into(),
                 format!("must be > 0 and < 1, got {}", short_number(g)),
             ));
         }
         let h = self.holdout_fields;
         if h != 0 && u64::from(h) * 2 != u64::from(n_fields) {
-            return Err((
+            return Err(Invalid::new(
                 "challenge.holdout_fields".into(),
                 format!(
                     "must be 0 or half of image.n_images ({n_fields}), got {h}: public and \

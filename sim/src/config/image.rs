@@ -1,6 +1,6 @@
 //! Image geometry, detector and telescope sections of the config.
 
-use super::{check_positive, check_range};
+use super::{Invalid, check_positive, check_range};
 use serde::{Deserialize, Serialize};
 
 /// Allowed `image.pixel_scale_arcsec`.
@@ -49,14 +49,17 @@ impl Default for RawImage {
 }
 
 impl RawImage {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         for (k, v) in [
             ("image.width_px", self.width_px),
             ("image.height_px", self.height_px),
             ("image.n_images", self.n_images),
         ] {
             if v == 0 || v > 65_536 {
-                return Err((k.into(), format!("must be in [1, 65536], got {v}")));
+                return Err(Invalid::new(
+                    k.into(),
+                    format!("must be in [1, 65536], got {v}"),
+                ));
             }
         }
         // 0.03″ (JWST-like sampling) to 5″ per pixel. Finer scales cost
@@ -114,7 +117,7 @@ impl Default for RawInstrument {
 }
 
 impl RawInstrument {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         check_range(
             "instrument.sky_mag_arcsec2",
             self.sky_mag_arcsec2,
@@ -191,7 +194,7 @@ impl Default for RawTelescope {
 }
 
 impl RawTelescope {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         check_positive("telescope.diameter_m", self.diameter_m)?;
         check_range(
             "telescope.obstruction_m",
@@ -200,7 +203,7 @@ impl RawTelescope {
             self.diameter_m * 0.95,
         )?;
         if self.spider_arms > 16 {
-            return Err((
+            return Err(Invalid::new(
                 "telescope.spider_arms".into(),
                 format!("must be ≤ 16, got {}", self.spider_arms),
             ));

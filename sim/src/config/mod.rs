@@ -102,6 +102,39 @@ pub enum ConfigError {
     },
 }
 
+/// A value a validator refused: the dotted key and what is wrong with it.
+/// The file is named by the caller ([`Invalid::in_file`]).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Invalid {
+    /// Dotted key path.
+    pub key: String,
+    /// What is wrong, with the offending value.
+    pub message: String,
+}
+
+impl Invalid {
+    pub(crate) fn new(key: String, message: String) -> Self {
+        Self { key, message }
+    }
+
+    /// The same refusal for a key inside `prefix` (`psfs.2` + `name`).
+    pub(crate) fn under(self, prefix: &str) -> Self {
+        Self {
+            key: format!("{prefix}.{}", self.key),
+            message: self.message,
+        }
+    }
+
+    /// The refusal as the error of the config file `path`.
+    pub(crate) fn in_file(self, path: &Path) -> ConfigError {
+        ConfigError::Invalid {
+            path: path.into(),
+            key: self.key,
+            message: self.message,
+        }
+    }
+}
+
 fn shape_where(key: &str) -> String {
     if key.is_empty() {
         "the config".into()
@@ -423,31 +456,24 @@ impl RawConfig {
     /// refuses before resolving anything); the error names `source` and the
     /// offending key.
     pub fn validate(&self, source: &Path) -> Result<(), ConfigError> {
-        let invalid = |key: &str, message: String| ConfigError::Invalid {
-            path: source.into(),
-            key: key.into(),
-            message,
-        };
-        self.image.validate().map_err(|(k, m)| invalid(&k, m))?;
-        self.instrument
-            .validate()
-            .map_err(|(k, m)| invalid(&k, m))?;
-        self.telescope.validate().map_err(|(k, m)| invalid(&k, m))?;
-        self.population
-            .validate()
-            .map_err(|(k, m)| invalid(&k, m))?;
-        self.render.validate().map_err(|(k, m)| invalid(&k, m))?;
-        self.output.validate().map_err(|(k, m)| invalid(&k, m))?;
+        let invalid =
+            |key: &str, message: String| Invalid::new(key.into(), message).in_file(source);
+        self.image.validate().map_err(|e| e.in_file(source))?;
+        self.instrument.validate().map_err(|e| e.in_file(source))?;
+        self.telescope.validate().map_err(|e| e.in_file(source))?;
+        self.population.validate().map_err(|e| e.in_file(source))?;
+        self.render.validate().map_err(|e| e.in_file(source))?;
+        self.output.validate().map_err(|e| e.in_file(source))?;
         self.challenge
             .validate(self.image.n_images)
-            .map_err(|(k, m)| invalid(&k, m))?;
+            .map_err(|e| e.in_file(source))?;
         if self.psfs.is_empty() {
             return Err(invalid("psfs", "at least one PSF is needed".into()));
         }
         let mut names = std::collections::HashSet::new();
         for (i, p) in self.psfs.iter().enumerate() {
             p.validate()
-                .map_err(|(k, m)| invalid(&format!("psfs.{i}.{k}"), m))?;
+                .map_err(|e| e.under(&format!("psfs.{i}")).in_file(source))?;
             if !names.insert(p.name.clone()) {
                 return Err(invalid(
                     &format!("psfs.{i}.name"),
@@ -472,11 +498,11 @@ impl RawConfig {
 }
 
 /// Checks that `value` lies in `[lo, hi]`; the error names `key`.
-pub(crate) fn check_range(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), (String, String)> {
+pub(crate) fn check_range(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), Invalid> {
     if value.is_finite() && value >= lo && value <= hi {
         Ok(())
     } else {
-        Err((
+        Err(Invalid::new(
             key.into(),
             format!(
                 "must be in [{}, {}], got {}",
@@ -500,11 +526,11 @@ pub fn short_number(v: f64) -> String {
 }
 
 /// Checks that `value` is finite and strictly positive; the error names `key`.
-pub(crate) fn check_positive(key: &str, value: f64) -> Result<(), (String, String)> {
+pub(crate) fn check_positive(key: &str, value: f64) -> Result<(), Invalid> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err((
+        Err(Invalid::new(
             key.into(),
             format!("must be > 0, got {}", short_number(value)),
         ))

@@ -3,7 +3,7 @@
 //! The Stuff-style model parameters (luminosity functions, sizes, B/T,
 //! K-corrections) are documented in `docs/population.md`.
 
-use super::{check_positive, check_range};
+use super::{Invalid, check_positive, check_range};
 use serde::{Deserialize, Serialize};
 
 /// `population`.
@@ -299,12 +299,12 @@ impl Default for Cosmology {
 }
 
 impl RawPopulation {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         let f = &self.galaxies.flattening;
         check_range("population.galaxies.flattening.min", f.min, 0.0, 1.0)?;
         check_range("population.galaxies.flattening.max", f.max, 0.0, 1.0)?;
         if f.min >= f.max {
-            return Err((
+            return Err(Invalid::new(
                 "population.galaxies.flattening".into(),
                 format!("empty range: min {} ≥ max {}", f.min, f.max),
             ));
@@ -315,7 +315,7 @@ impl RawPopulation {
         let cdf = crate::stats::normal_cdf;
         let accept = cdf((f.max - f.mean) / f.sigma) - cdf((f.min - f.mean) / f.sigma);
         if accept < 1e-3 {
-            return Err((
+            return Err(Invalid::new(
                 "population.galaxies.flattening".into(),
                 format!(
                     "only a fraction {accept:.2e} of N({}, {}) lies in [{}, {}] (need ≥ 1e-3)",
@@ -350,7 +350,7 @@ impl RawPopulation {
         check_range("population.galaxies.abs_mag_limits.0", lo, -40.0, 0.0)?;
         check_range("population.galaxies.abs_mag_limits.1", hi, lo, 0.0)?;
         if g.types.len() != 6 {
-            return Err((
+            return Err(Invalid::new(
                 "population.galaxies.types".into(),
                 format!(
                     "exactly six types (E, S0, Sab, Sbc, Scd, Irr) are needed, got {}",
@@ -407,7 +407,7 @@ impl RawPopulation {
         )?;
         if let Source::SkymakerList { path } = &self.source {
             if path.is_empty() {
-                return Err((
+                return Err(Invalid::new(
                     "population.source.skymaker_list.path".into(),
                     "empty path".into(),
                 ));
@@ -431,26 +431,26 @@ mod tests {
             min: 0.3,
             max: 1.0,
         };
-        let (k, m) = p.validate().unwrap_err();
+        let Invalid { key: k, message: m } = p.validate().unwrap_err();
         assert_eq!(k, "population.galaxies.flattening");
         assert!(m.contains("fraction"), "{m}");
         let mut p = RawPopulation::default();
         p.galaxies.types[3].bt = 1.5;
         assert_eq!(
-            p.validate().unwrap_err().0,
+            p.validate().unwrap_err().key,
             "population.galaxies.types.3.bt"
         );
         let mut p = RawPopulation::default();
         p.galaxies.types.pop();
-        assert_eq!(p.validate().unwrap_err().0, "population.galaxies.types");
+        assert_eq!(p.validate().unwrap_err().key, "population.galaxies.types");
         let mut p = RawPopulation::default();
         p.galaxies.sizes.disk_re_star_kpc_h = -1.0;
         assert_eq!(
-            p.validate().unwrap_err().0,
+            p.validate().unwrap_err().key,
             "population.galaxies.sizes.disk_re_star_kpc_h"
         );
         let mut p = RawPopulation::default();
         p.galaxies.z_max = 8.0;
-        assert_eq!(p.validate().unwrap_err().0, "population.galaxies.z_max");
+        assert_eq!(p.validate().unwrap_err().key, "population.galaxies.z_max");
     }
 }

@@ -1,6 +1,6 @@
 //! `psfs` section: one entry per PSF model (SPEC §3).
 
-use super::{check_positive, check_range};
+use super::{Invalid, check_positive, check_range};
 use serde::{Deserialize, Serialize};
 
 /// The optical aberration of an `optical` PSF.
@@ -115,14 +115,14 @@ impl RawPsf {
         ]
     }
 
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         if self.name.is_empty()
             || !self
                 .name
                 .chars()
                 .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
         {
-            return Err((
+            return Err(Invalid::new(
                 "name".into(),
                 format!("must be non-empty [A-Za-z0-9_-], got {:?}", self.name),
             ));
@@ -143,7 +143,10 @@ impl RawPsf {
             }
             RawPsfModel::Gaussian { e1, e2 } => {
                 if e1.hypot(*e2) >= 1.0 || !e1.is_finite() || !e2.is_finite() {
-                    return Err(("e1".into(), format!("|e| must be < 1, got ({e1}, {e2})")));
+                    return Err(Invalid::new(
+                        "e1".into(),
+                        format!("|e| must be < 1, got ({e1}, {e2})"),
+                    ));
                 }
             }
             RawPsfModel::Moffat { beta, trunc_fwhm } => {
@@ -155,7 +158,7 @@ impl RawPsf {
                 pixel_scale_arcsec,
             } => {
                 if path.is_empty() {
-                    return Err(("path".into(), "empty path".into()));
+                    return Err(Invalid::new("path".into(), "empty path".into()));
                 }
                 check_positive("pixel_scale_arcsec", *pixel_scale_arcsec)?;
             }

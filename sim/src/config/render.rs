@@ -1,6 +1,6 @@
 //! `render` and `output` sections.
 
-use super::check_range;
+use super::{Invalid, check_range};
 use serde::{Deserialize, Serialize};
 
 /// `render`: accuracy of the stamp renderer (GalSim GSParams-like). The
@@ -52,7 +52,7 @@ impl Default for RawRender {
 }
 
 impl RawRender {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         check_range(
             "render.folding_threshold",
             self.folding_threshold,
@@ -62,7 +62,7 @@ impl RawRender {
         check_range("render.maxk_threshold", self.maxk_threshold, 1e-8, 0.1)?;
         check_range("render.edge_sky_sigma", self.edge_sky_sigma, 1e-4, 10.0)?;
         if !(16..=8192).contains(&self.max_stamp_px) {
-            return Err((
+            return Err(Invalid::new(
                 "render.max_stamp_px".into(),
                 format!("must be in [16, 8192], got {}", self.max_stamp_px),
             ));
@@ -120,9 +120,9 @@ impl Default for RawOutput {
 }
 
 impl RawOutput {
-    pub(crate) fn validate(&self) -> Result<(), (String, String)> {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
         if self.compression == Compression::Rice && self.format == SampleFormat::Float32 {
-            return Err((
+            return Err(Invalid::new(
                 "output.compression".into(),
                 "rice compression is lossless only for integer output: set output.format to \"int32\"".into(),
             ));

@@ -27,6 +27,7 @@
 use crate::profile::devaucouleurs::GL8;
 use crate::profile::galaxy::{Galaxy, RowError};
 use crate::truth::TruthRow;
+use stepsim_numerics::stats::normal_cdf;
 
 /// The real-space reference renderer.
 #[derive(Debug, Clone, Copy)]
@@ -43,10 +44,6 @@ const GL2: [(f64, f64); 2] = [
     (-0.577_350_269_189_625_8, 1.0),
     (0.577_350_269_189_625_8, 1.0),
 ];
-
-fn norm_cdf(x: f64) -> f64 {
-    0.5 * (1.0 + libm::erf(x / std::f64::consts::SQRT_2))
-}
 
 impl ReferenceRenderer {
     /// Draws `row` on the `nx × ny` pixels whose first pixel has 0-based
@@ -69,7 +66,7 @@ impl ReferenceRenderer {
                         let centre = (first + 1 + i as i64) as f64; // FITS pixel
                         let lo = (centre - 0.5 - c) * p / sigma;
                         let hi = (centre + 0.5 - c) * p / sigma;
-                        norm_cdf(hi) - norm_cdf(lo)
+                        normal_cdf(hi) - normal_cdf(lo)
                     })
                     .collect()
             };
@@ -175,7 +172,7 @@ fn convolve_gaussian(
     let w: Vec<f64> = (0..=2 * m)
         .map(|k| {
             let d = (k as f64 - m as f64) * h;
-            norm_cdf((d + 0.5 * h) / sig) - norm_cdf((d - 0.5 * h) / sig)
+            normal_cdf((d + 0.5 * h) / sig) - normal_cdf((d - 0.5 * h) / sig)
         })
         .collect();
     let ox = fx - 2 * m;
