@@ -109,9 +109,12 @@ as_pg "$(pg_bin)/initdb" -D "$pg_dir/data" -A trust -U postgres >"$pg_dir/initdb
 as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -l "$pg_dir/log" -w \
   -o "-p $pg_port -k $pg_dir -c listen_addresses=127.0.0.1 -c max_connections=300 -c fsync=off" start >/dev/null ||
   { cat "$pg_dir/log"; echo "tests/all.sh: PostgreSQL did not start"; exit 1; }
-STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres" \
-  cargo test --workspace --test api --test pages --test hardening --test prober \
-  --test browser --test binary_restart "$@"
+# The server's test binary whole (its module_graph tests read only the
+# sources), then the real binary's restart tests.
+export STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres"
+cargo test -p stepsim-server --test integration "$@"
+cargo test -p stepsim --test binary_restart "$@"
+unset STEPSIM_TEST_POSTGRES
 stop_pg
 pg_dir=""
 echo "== a real one-node Slurm (tests/slurm/run.sh, docs/cluster.md)"
