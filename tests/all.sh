@@ -4,9 +4,10 @@
 # make for the bundled cfitsio; Debian's chromium and chromium-driver for
 # the browser test; postgresql for the store's second backend; slurm-wlm
 # and munge for the one-node Slurm run), then runs `cargo test --workspace`
-# (the server on SQLite), the server's tests again on a PostgreSQL server
-# started here (initdb + pg_ctl in a temporary directory, on a free port,
-# stopped on exit; STEPSIM_TEST_POSTGRES names it), and the real Slurm run
+# (the server on SQLite), the server's tests and the real binary's restart
+# tests again on a PostgreSQL server started here (initdb + pg_ctl in a
+# temporary directory, on a free port, stopped on exit;
+# STEPSIM_TEST_POSTGRES names it), and the real Slurm run
 # (tests/slurm/run.sh).
 # The Debian packages are installed in the background while the tests
 # compile and waited for before the first test runs; the install's log is
@@ -110,10 +111,10 @@ as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -l "$pg_dir/log" -w \
   -o "-p $pg_port -k $pg_dir -c listen_addresses=127.0.0.1 -c max_connections=300 -c fsync=off" start >/dev/null ||
   { cat "$pg_dir/log"; echo "tests/all.sh: PostgreSQL did not start"; exit 1; }
 # The server's test binary whole (its module_graph tests read only the
-# sources), then the real binary's restart tests.
+# sources), then the root binary's restart tests (the real `serve`).
 export STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres"
 cargo test -p stepsim-server --test integration "$@"
-cargo test -p stepsim --test binary_restart "$@"
+cargo test -p stepsim --test integration binary_restart:: "$@"
 unset STEPSIM_TEST_POSTGRES
 stop_pg
 pg_dir=""
