@@ -110,12 +110,14 @@ as_pg "$(pg_bin)/initdb" -D "$pg_dir/data" -A trust -U postgres >"$pg_dir/initdb
 as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -l "$pg_dir/log" -w \
   -o "-p $pg_port -k $pg_dir -c listen_addresses=127.0.0.1 -c max_connections=300 -c fsync=off" start >/dev/null ||
   { cat "$pg_dir/log"; echo "tests/all.sh: PostgreSQL did not start"; exit 1; }
-# The server's test binary whole (its module_graph tests read only the
-# sources), then the root binary's restart tests (the real `serve`).
-export STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres"
-cargo test -p stepsim-server --test integration "$@"
-cargo test -p stepsim --test integration binary_restart:: "$@"
-unset STEPSIM_TEST_POSTGRES
+# The modules of the test binaries that use the store: the server's (all
+# but module_graph, which reads only the sources) and the root's restart
+# tests (the real `serve`). `--workspace` as above, so that nothing is
+# built again with other dependency features; the filters select no test
+# of the harness's or sim's binary.
+STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres" \
+  cargo test --workspace --test integration "$@" -- \
+  api:: pages:: hardening:: prober:: browser:: binary_restart::
 stop_pg
 pg_dir=""
 echo "== a real one-node Slurm (tests/slurm/run.sh, docs/cluster.md)"
