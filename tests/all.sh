@@ -4,9 +4,10 @@
 # make for the bundled cfitsio; Debian's chromium and chromium-driver for
 # the browser test; postgresql for the store's second backend; slurm-wlm
 # and munge for the one-node Slurm run), then runs `cargo test --workspace`
-# (the server on SQLite), the server's tests again on a PostgreSQL server
-# started here (initdb + pg_ctl in a temporary directory, on a free port,
-# stopped on exit; STEPSIM_TEST_POSTGRES names it), and the real Slurm run
+# (the server on SQLite), the server's tests and the real binary's restart
+# tests again on a PostgreSQL server started here (initdb + pg_ctl in a
+# temporary directory, on a free port, stopped on exit;
+# STEPSIM_TEST_POSTGRES names it), and the real Slurm run
 # (tests/slurm/run.sh).
 # The Debian packages are installed in the background while the tests
 # compile and waited for before the first test runs; the install's log is
@@ -109,9 +110,14 @@ as_pg "$(pg_bin)/initdb" -D "$pg_dir/data" -A trust -U postgres >"$pg_dir/initdb
 as_pg "$(pg_bin)/pg_ctl" -D "$pg_dir/data" -l "$pg_dir/log" -w \
   -o "-p $pg_port -k $pg_dir -c listen_addresses=127.0.0.1 -c max_connections=300 -c fsync=off" start >/dev/null ||
   { cat "$pg_dir/log"; echo "tests/all.sh: PostgreSQL did not start"; exit 1; }
+# The modules of the test binaries that use the store: the server's (all
+# but module_graph, which reads only the sources) and the root's restart
+# tests (the real `serve`). `--workspace` as above, so that nothing is
+# built again with other dependency features; the filters select no test
+# of the harness's or sim's binary.
 STEPSIM_TEST_POSTGRES="postgres://postgres@127.0.0.1:$pg_port/postgres" \
-  cargo test --workspace --test api --test pages --test hardening --test prober \
-  --test browser --test binary_restart "$@"
+  cargo test --workspace --test integration "$@" -- \
+  api:: pages:: hardening:: prober:: browser:: binary_restart::
 stop_pg
 pg_dir=""
 echo "== a real one-node Slurm (tests/slurm/run.sh, docs/cluster.md)"

@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-mod common;
+use crate::common;
 use common::{files, run};
 
 fn generate(dir: &Path, config: &str, out: &str, extra: &[&str]) -> String {

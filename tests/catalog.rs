@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 use stepsim_sim::io::{skymaker, truth};
 
-mod common;
+use crate::common;
 use common::{run_with, stepsim};
 
 /// `stepsim catalog --config CFG --out OUT ARGS`.

@@ -8,7 +8,7 @@ use std::process::Output;
 use stepsim_sim::config::{Part, RawConfig};
 use stepsim_sim::plan::{Plan, holdout_fields, holdout_shear};
 
-mod common;
+use crate::common;
 
 fn stepsim(args: &[&str], dir: &Path) -> Output {
     common::run(args, dir)

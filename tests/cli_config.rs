@@ -1,6 +1,6 @@
 //! End-to-end checks of `stepsim config`: exit codes and messages.
 
-mod common;
+use crate::common;
 use common::{ok, run_with, stderr, stepsim};
 
 #[test]

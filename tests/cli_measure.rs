@@ -4,7 +4,7 @@
 use std::path::Path;
 use stepsim_ksb::draw::{SceneSpec, synthetic_scene, write_public_run};
 
-mod common;
+use crate::common;
 use common::{ok, run_with, stderr, stepsim};
 
 /// Writes a public half with two 512² synthetic images (ADU, gain 4).

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-mod common;
+use crate::common;
 use common::{files, run, run_env, stderr};
 
 /// 2 PSFs × 2 shears × 2 images of 128², with secrets that are easy to grep.

@@ -10,8 +10,9 @@
 //!   tables, PSF files, manifest and datasets.
 //!
 //! When a change alters output on purpose, re-bless with
-//! `STEPSIM_BLESS=1 cargo test --test golden` and say so in CHANGELOG.md;
-//! never re-bless to make a failure go away without knowing why.
+//! `STEPSIM_BLESS=1 cargo test --test integration golden::` and say so in
+//! CHANGELOG.md; never re-bless to make a failure go away without knowing
+//! why.
 
 use rand::RngExt;
 use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
@@ -19,7 +20,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use stepsim_sim::seed::{SeedKey, Stream};
 
-mod common;
+use crate::common;
 use common::files;
 
 fn golden(name: &str) -> PathBuf {

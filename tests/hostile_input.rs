@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-mod common;
+use crate::common;
 use common::{run_env, stderr};
 
 /// 1 Gaussian PSF × 2 shears × 2 images of 256², enough objects to measure.

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::process::Output;
 use stepsim_sim::io::psf_fits::{read_image_hdu, read_psf_fits};
 
-mod common;
+use crate::common;
 use common::run;
 
 /// Writes `config` to `dir/c.json` and runs `stepsim psf` on it into

@@ -3,7 +3,7 @@
 //! same exit code and nothing written, whether the run's `datasets.json`
 //! lists its datasets in the order made or in another (issue #23).
 
-mod common;
+use crate::common;
 #[path = "../harness/tests/common/permuted.rs"]
 mod permuted;
 

@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::process::Output;
 
-mod common;
+use crate::common;
 use common::{files, ok, run, stderr};
 
 fn generate(dir: &Path, config: &str, out: &str, extra: &[&str]) -> Output {

@@ -23,7 +23,7 @@
 
 use std::path::Path;
 
-mod common;
+use crate::common;
 use common::run_ok;
 
 #[test]

@@ -8,7 +8,7 @@ use std::process::Output;
 use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
 
-mod common;
+use crate::common;
 use common::fits_table::{doubles, fits_table, text, zeros};
 use common::{run, run_with, stderr};
 

@@ -6,7 +6,7 @@ use std::process::Output;
 use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
 
-mod common;
+use crate::common;
 use common::{run_with, stepsim};
 
 fn score(dir: &Path, out: &str, force: bool) -> Output {

@@ -10,7 +10,7 @@
 //! Student's t with 7 degrees of freedom. Measured numbers:
 //! docs/scoring.md. `STEPSIM_SLOW=1` also runs 16 and 32 fields.
 
-mod synth_stats;
+use crate::synth_stats;
 
 use stepsim_harness::bootstrap::{intervals, percentile_interval, resample_summaries};
 use stepsim_harness::metrics::score_tables;

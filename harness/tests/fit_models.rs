@@ -2,7 +2,7 @@
 //! fitted only from 4 distinct shears on and kept when |q| ≥ 2σ_q, and
 //! the report says, for every family, which model was used and why.
 
-mod synth_stats;
+use crate::synth_stats;
 
 use stepsim_harness::metrics::score_tables;
 use stepsim_harness::report::{FitKind, PsfReport};

@@ -2,7 +2,7 @@
 //! extended syntax (`[1]`, `(2)`, a leading `!`) are read as the files they
 //! name.
 
-mod common;
+use crate::common;
 
 use common::index;
 use std::path::Path;

@@ -10,7 +10,7 @@
 //! With `STEPSIM_FUZZ_KEEP=DIR` the input being read is kept at a fixed
 //! path in DIR, so that a crash leaves the offending file behind.
 
-mod common;
+use crate::common;
 
 use common::{Col, doubles, fits_table, good_table, index, text, zeros};
 use rand::{RngExt, SeedableRng};

@@ -2,7 +2,7 @@
 //! naming the file (and line or row and column where there is one), never a
 //! panic, an abort, a hang or an unbounded read.
 
-mod common;
+use crate::common;
 
 use common::{Col, card, doubles, empty_primary, fits_table, good_table, index, pad, text, zeros};
 use std::path::Path;

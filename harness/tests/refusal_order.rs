@@ -3,7 +3,7 @@
 //! the same run listed in two orders, gives byte-identical messages (and
 //! identical public feedback when it is accepted).
 
-mod common;
+use crate::common;
 #[path = "common/permuted.rs"]
 mod permuted;
 

@@ -3,7 +3,7 @@
 //! the limit that follows the run, and gzip streams checked member by
 //! member.
 
-mod common;
+use crate::common;
 
 use common::{doubles, fits_table, text};
 use std::io::Write as _;

@@ -7,7 +7,7 @@ use stepsim_harness::HarnessError;
 use stepsim_harness::submission::{parse_file, read_submission};
 use stepsim_sim::seed::SimRng;
 
-mod common;
+use crate::common;
 use common::index;
 
 const GOOD: &str = "# image x y e1 e2 weight flags\n\

@@ -6,7 +6,7 @@
 //! the size of the header. Times are asserted loosely (a debug build on a
 //! busy machine): a refusal in well under a second.
 
-mod common;
+use crate::common;
 
 use common::{Col, doubles, fits_table, index, text};
 use std::io::Write as _;

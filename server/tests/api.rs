@@ -16,7 +16,7 @@ use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
-mod common;
+use crate::common;
 use common::{catalogue, write_run};
 
 struct Fixture {

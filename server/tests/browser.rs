@@ -51,7 +51,7 @@ impl Drop for Driver {
     }
 }
 
-mod common;
+use crate::common;
 use common::catalogue_mc as catalogue;
 
 fn free_port() -> u16 {

@@ -21,7 +21,7 @@ use stepsim_server::worker::WorkerPool;
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
-mod common;
+use crate::common;
 use common::{catalogue, write_run, write_run_of_fields};
 
 struct Fixture {

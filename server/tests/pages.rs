@@ -21,7 +21,7 @@ const HOSTILE: &str = "<script>alert(1)</script>";
 const BROWSER_ACCEPT: &str = "text/html,application/xhtml+xml,application/xml;q=0.9,\
                               image/avif,image/webp,image/apng,*/*;q=0.8";
 
-mod common;
+use crate::common;
 use common::catalogue;
 
 /// The shared challenge run with a participants' README.

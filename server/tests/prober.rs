@@ -22,7 +22,7 @@ use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
 use tower::ServiceExt;
 
-mod common;
+use crate::common;
 
 /// Held-out shears of the three runs (within |g| ≤ 0.1).
 const DRAWS: [[(f64, f64); 2]; 3] = [

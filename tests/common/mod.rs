@@ -1,5 +1,5 @@
-//! Helpers shared by the end-to-end tests: each test file of the root
-//! package includes this module with `mod common;`.
+//! Helpers shared by the end-to-end tests: declared once in
+//! `tests/integration.rs`, used by each test module as `crate::common`.
 //!
 //! Why a module included by path and not a dev-dependency crate: the
 //! runner needs `env!("CARGO_BIN_EXE_stepsim")`, which Cargo sets only when

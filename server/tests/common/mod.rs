@@ -1,5 +1,5 @@
-//! The challenge run the server's tests share: each test file includes this
-//! module with `mod common;`.
+//! The challenge run the server's tests share: declared once in
+//! `tests/integration.rs`, used by each test module as `crate::common`.
 #![allow(dead_code)]
 
 use std::path::Path;

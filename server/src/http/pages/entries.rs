@@ -8,6 +8,7 @@ use super::{
 use crate::challenge::admission::REFUSALS_SHOWN;
 use crate::challenge::figures::public_of_text;
 use crate::http::api;
+use crate::http::api::upload::FormFields;
 use crate::store::Team;
 use axum::extract::{Extension, Request, State};
 use axum::http::{HeaderMap, StatusCode};
@@ -216,6 +217,21 @@ async fn posting_team(
     Ok((session, team, nav))
 }
 
+/// The form's `csrf` field (the first of that name; missing counts as
+/// empty) checked against the session's token `expected`: the refusal
+/// [`csrf_refused`] when they differ. Both forms of this page post it.
+fn check_csrf(fields: &FormFields, expected: &str) -> Result<(), ApiError> {
+    let sent = fields
+        .iter()
+        .find(|(k, _)| k == "csrf")
+        .map_or("", |(_, v)| v.as_str());
+    if same_secret(sent, expected) {
+        Ok(())
+    } else {
+        Err(csrf_refused())
+    }
+}
+
 /// The final-entries form (`POST /entries/final`, checkboxes `final`):
 /// [`crate::challenge::choose_final_entries`], the path of `PUT /api/final`.
 pub(super) async fn choose_final(
@@ -233,12 +249,8 @@ pub(super) async fn choose_final(
         Ok(f) => f,
         Err(e) => return web.error(&nav, &e),
     };
-    let sent = fields
-        .iter()
-        .find(|(k, _)| k == "csrf")
-        .map_or("", |(_, v)| v.as_str());
-    if !same_secret(sent, &session.csrf) {
-        return web.error(&nav, &csrf_refused());
+    if let Err(e) = check_csrf(&fields, &session.csrf) {
+        return web.error(&nav, &e);
     }
     let ids: Vec<i64> = fields
         .iter()
@@ -286,17 +298,7 @@ pub(super) async fn upload(
             Err(page) => return *page,
         };
     let expected = session.csrf.clone();
-    let check = move |fields: &crate::http::api::upload::FormFields| {
-        let sent = fields
-            .iter()
-            .find(|(k, _)| k == "csrf")
-            .map_or("", |(_, v)| v.as_str());
-        if same_secret(sent, &expected) {
-            Ok(())
-        } else {
-            Err(csrf_refused())
-        }
-    };
+    let check = move |fields: &FormFields| check_csrf(fields, &expected);
     match crate::http::api::upload::submit(&state, &team, req, check).await {
         Ok(a) if a.duplicate => redirect(&format!("/entries?uploaded={}&duplicate=1", a.id)),
         Ok(a) => redirect(&format!("/entries?uploaded={}", a.id)),
