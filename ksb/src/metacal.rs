@@ -150,15 +150,21 @@ fn transforms(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Transforms {
             })
             .collect();
         plans.fft2(&mut buf, false);
-        for b in 0..s {
-            for a in 0..s {
-                let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
-                buf[b * s + a] *= Complex64::from_polar(1.0, ph);
-            }
-        }
+        about_centre(&mut buf, c, s);
         buf
     });
     Transforms { side: s, f }
+}
+
+/// Multiplies a side² transform by e^{2πi k·c}, so that it sums
+/// e^{−2πi k·(x − c)}: the transform about the centre `c`.
+fn about_centre(buf: &mut [Complex64], c: [f64; 2], s: usize) {
+    for b in 0..s {
+        for a in 0..s {
+            let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
+            buf[b * s + a] *= Complex64::from_polar(1.0, ph);
+        }
+    }
 }
 
 impl Transforms {
@@ -259,12 +265,7 @@ fn transforms_one(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Vec<Complex64> {
     let s = plans.side;
     let mut buf: Vec<Complex64> = stamp.iter().map(|&v| Complex64::new(v, 0.0)).collect();
     plans.fft2(&mut buf, false);
-    for b in 0..s {
-        for a in 0..s {
-            let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
-            buf[b * s + a] *= Complex64::from_polar(1.0, ph);
-        }
-    }
+    about_centre(&mut buf, c, s);
     buf
 }
 

@@ -363,7 +363,7 @@ impl Detections {
                 }
             })
             .collect();
-        if params.method == Method::Metacal {
+        let objects: Vec<MeasuredObject> = if params.method == Method::Metacal {
             let cands_of_rows: Vec<&Candidate> = cands
                 .iter()
                 .zip(&star)
@@ -372,62 +372,57 @@ impl Detections {
                 .collect();
             let mc =
                 locus.and_then(|l| crate::metacal::ImageMetacal::new(sub, &psf_stars, l.rg_star));
-            let (w, h) = (width as f64, height as f64);
-            let mut objects: Vec<MeasuredObject> = rows
-                .into_iter()
+            rows.into_iter()
                 .zip(cands_of_rows)
                 .map(|((o, _), c)| {
                     crate::metacal::measure_object(o, c.flags, sub, mc.as_ref(), params, bg.rms)
                 })
-                .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
-                .collect();
-            objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-            lap("metacal", &mut t0);
-            return ImageMeasurement {
-                objects,
-                n_detections: cands.len(),
-                n_stars: psf_stars.len(),
-                locus,
-                star_candidates: sizemag,
-                psf_order: model.as_ref().map(PsfModel::order),
-                background_rms_e: bg.rms,
-                timings,
+                .collect()
+        } else {
+            let fit = match (params.pgamma_mode, locus) {
+                (PgammaMode::FitSize, Some(l)) => {
+                    let pts: Vec<(f64, f64)> = rows
+                        .iter()
+                        .filter(|(o, _)| o.flags == 0)
+                        .filter_map(|(o, sc)| {
+                            sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c)))
+                        })
+                        .collect();
+                    PgammaFit::fit(&pts, l.rg_star)
+                }
+                _ => None,
             };
-        }
-        let fit = match (params.pgamma_mode, locus) {
-            (PgammaMode::FitSize, Some(l)) => {
-                let pts: Vec<(f64, f64)> = rows
-                    .iter()
-                    .filter(|(o, _)| o.flags == 0)
-                    .filter_map(|(o, sc)| sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c))))
-                    .collect();
-                PgammaFit::fit(&pts, l.rg_star)
+            for (o, sc) in &mut rows {
+                let Some((s, c)) = sc else { continue };
+                let est: ShearEstimate = match &fit {
+                    Some(fit) => estimate_with(s, c, fit.eval(o.rg_px)),
+                    None => estimate(s, c),
+                };
+                o.pgamma = est.pgamma;
+                if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
+                    o.flags |= flags::PGAMMA;
+                }
+                set_shear(o, est.gamma, params.max_shear);
+                if o.flags == 0 {
+                    o.weight = weight(est.sigma_gamma, params.sigma_int);
+                }
             }
-            _ => None,
+            rows.into_iter().map(|r| r.0).collect()
         };
-        for (o, sc) in &mut rows {
-            let Some((s, c)) = sc else { continue };
-            let est: ShearEstimate = match &fit {
-                Some(fit) => estimate_with(s, c, fit.eval(o.rg_px)),
-                None => estimate(s, c),
-            };
-            o.pgamma = est.pgamma;
-            if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
-                o.flags |= flags::PGAMMA;
-            }
-            set_shear(o, est.gamma, params.max_shear);
-            if o.flags == 0 {
-                o.weight = weight(est.sigma_gamma, params.sigma_int);
-            }
-        }
         let (w, h) = (width as f64, height as f64);
-        let mut objects: Vec<MeasuredObject> = rows
+        let mut objects: Vec<MeasuredObject> = objects
             .into_iter()
-            .map(|r| r.0)
             .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
             .collect();
         objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-        lap("shear", &mut t0);
+        lap(
+            if params.method == Method::Metacal {
+                "metacal"
+            } else {
+                "shear"
+            },
+            &mut t0,
+        );
         ImageMeasurement {
             objects,
             n_detections: cands.len(),

@@ -104,13 +104,7 @@ fn the_response_of_a_gaussian_is_the_finite_difference_of_its_analytic_elliptici
     };
     let sigma = 2.4;
     let dec = Deconvolver::new(&stack, side, sigma);
-    let win = WindowSettings {
-        radius_rg: 4.0,
-        rg_min: 0.5,
-        rg_max: 15.0,
-        tol: 1e-6,
-        max_iter: 200,
-    };
+    let win = test_window();
     let img = Image {
         width: side,
         height: side,
@@ -155,13 +149,7 @@ fn the_response_of_an_ensemble_recovers_its_shear() {
     };
     let sigma = 2.6;
     let dec = Deconvolver::new(&stack, side, sigma);
-    let win = WindowSettings {
-        radius_rg: 4.0,
-        rg_min: 0.5,
-        rg_max: 15.0,
-        tol: 1e-6,
-        max_iter: 200,
-    };
+    let win = test_window();
     let g = [0.03, -0.02];
     let mut objs = Vec::new();
     for k in 0..8 {
@@ -263,13 +251,7 @@ fn an_ensemble_seen_through_a_psf_with_a_halo_recovers_its_shear() {
         n_stars: 1,
     };
     let sigma = reconvolution_sigma(&stack, 1.96);
-    let win = WindowSettings {
-        radius_rg: 4.0,
-        rg_min: 0.5,
-        rg_max: 15.0,
-        tol: 1e-6,
-        max_iter: 200,
-    };
+    let win = test_window();
     let g = [0.05, 0.0];
     for side in STAMP_SIDES {
         let dec = Deconvolver::new(&stack, side, sigma);
@@ -311,4 +293,16 @@ fn rotating_by_90_degrees_and_back_is_the_identity_and_moves_the_centre_with_the
     // The pixel at (4, 1) lands where rot90_point takes (4, 1).
     let p = rot90_point([4.0, 1.0], side);
     assert_eq!(r[p[1] as usize * side + p[0] as usize], a[side + 4]);
+}
+
+/// The window settings of the deconvolution tests: tight tolerance, many
+/// iterations.
+fn test_window() -> WindowSettings {
+    WindowSettings {
+        radius_rg: 4.0,
+        rg_min: 0.5,
+        rg_max: 15.0,
+        tol: 1e-6,
+        max_iter: 200,
+    }
 }
