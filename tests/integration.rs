@@ -11,6 +11,7 @@
 
 mod common;
 
+mod architecture;
 mod binary_restart;
 mod blindness;
 mod catalog;
