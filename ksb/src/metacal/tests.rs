@@ -151,29 +151,9 @@ fn the_response_of_an_ensemble_recovers_its_shear() {
     let dec = Deconvolver::new(&stack, side, sigma);
     let win = test_window();
     let g = [0.03, -0.02];
-    let mut objs = Vec::new();
-    for k in 0..8 {
-        let ang = PI * k as f64 / 8.0;
-        let es = [0.3 * (2.0 * ang).cos(), 0.3 * (2.0 * ang).sin()];
-        let gal = shear_covariance(&covariance(2.0, es), g);
-        let img = Image {
-            width: side,
-            height: side,
-            data: gaussian_stamp(side, c, &convolve(&gal, &psf))
-                .iter()
-                .map(|&v| v as f32)
-                .collect(),
-        };
-        let m = dec
-            .measure(&img, c[0], c[1], 2.8, &win, 0.0)
-            .expect("inside");
-        objs.push((m, [true; 5]));
-    }
-    let r = response(&objs).expect("response");
-    let mean = objs
-        .iter()
-        .map(|(m, _)| apply_inverse(&r, m.e[0]))
-        .fold([0.0, 0.0], |a, e| [a[0] + e[0] / 8.0, a[1] + e[1] / 8.0]);
+    let mean = ring_mean(&dec, side, c, g, &win, |gal| {
+        gaussian_stamp(side, c, &convolve(gal, &psf))
+    });
     for i in 0..2 {
         assert!(
             (mean[i] - g[i]).abs() < 1e-3 * g[i].abs() + 2e-5,
@@ -256,26 +236,7 @@ fn an_ensemble_seen_through_a_psf_with_a_halo_recovers_its_shear() {
     for side in STAMP_SIDES {
         let dec = Deconvolver::new(&stack, side, sigma);
         let c = [(side / 2) as f64, (side / 2) as f64];
-        let mut objs = Vec::new();
-        for k in 0..8 {
-            let ang = PI * k as f64 / 8.0;
-            let es = [0.3 * (2.0 * ang).cos(), 0.3 * (2.0 * ang).sin()];
-            let gal = shear_covariance(&covariance(2.0, es), g);
-            let img = Image {
-                width: side,
-                height: side,
-                data: two(side, c, Some(&gal)).iter().map(|&v| v as f32).collect(),
-            };
-            let m = dec
-                .measure(&img, c[0], c[1], 2.8, &win, 0.0)
-                .expect("inside");
-            objs.push((m, [true; 5]));
-        }
-        let r = response(&objs).expect("response");
-        let mean = objs
-            .iter()
-            .map(|(m, _)| apply_inverse(&r, m.e[0]))
-            .fold([0.0, 0.0], |a, e| [a[0] + e[0] / 8.0, a[1] + e[1] / 8.0]);
+        let mean = ring_mean(&dec, side, c, g, &win, |gal| two(side, c, Some(gal)));
         assert!(
             (mean[0] / g[0] - 1.0).abs() < 2e-3 && mean[1].abs() < 1e-5,
             "side {side}: ⟨R⁻¹e⟩ = {mean:?}"
@@ -305,4 +266,37 @@ fn test_window() -> WindowSettings {
         tol: 1e-6,
         max_iter: 200,
     }
+}
+
+/// ⟨R⁻¹ e⟩ of a ring of eight e = 0.3 Gaussians of σ 2 px sheared by `g`,
+/// each drawn by `draw` (its sheared covariance → the observed side² stamp
+/// centred on `c`) and measured by `dec`, R from the ring itself.
+fn ring_mean(
+    dec: &Deconvolver,
+    side: usize,
+    c: [f64; 2],
+    g: [f64; 2],
+    win: &WindowSettings,
+    draw: impl Fn(&crate::linalg::Mat2) -> Vec<f64>,
+) -> [f64; 2] {
+    let objs: Vec<(McMeasure, [bool; 5])> = (0..8)
+        .map(|k| {
+            let ang = PI * k as f64 / 8.0;
+            let es = [0.3 * (2.0 * ang).cos(), 0.3 * (2.0 * ang).sin()];
+            let gal = shear_covariance(&covariance(2.0, es), g);
+            let img = Image {
+                width: side,
+                height: side,
+                data: draw(&gal).iter().map(|&v| v as f32).collect(),
+            };
+            let m = dec
+                .measure(&img, c[0], c[1], 2.8, win, 0.0)
+                .expect("inside");
+            (m, [true; 5])
+        })
+        .collect();
+    let r = response(&objs).expect("response");
+    objs.iter()
+        .map(|(m, _)| apply_inverse(&r, m.e[0]))
+        .fold([0.0, 0.0], |a, e| [a[0] + e[0] / 8.0, a[1] + e[1] / 8.0])
 }
