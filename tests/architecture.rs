@@ -50,8 +50,7 @@ fn code_map_paths(text: &str) -> Vec<String> {
             .is_some_and(|w| w.ends_with(','))
         {
             let dir = full.rsplit_once('/').map_or("", |(d, _)| d).to_owned();
-            let mut words = rest.split_whitespace().skip(1);
-            while let Some(w) = words.next() {
+            for w in rest.split_whitespace().skip(1) {
                 let name = w.trim_end_matches(',');
                 paths.push(format!("{dir}/{name}"));
                 if !w.ends_with(',') {
