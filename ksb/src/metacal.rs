@@ -150,19 +150,19 @@ fn transforms(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Transforms {
             })
             .collect();
         plans.fft2(&mut buf, false);
-        about_centre(&mut buf, c, s);
+        about_centre(&mut buf, c, s, 1.0);
         buf
     });
     Transforms { side: s, f }
 }
 
-/// Multiplies a side² transform by e^{2πi k·c}, so that it sums
-/// e^{−2πi k·(x − c)}: the transform about the centre `c`.
-fn about_centre(buf: &mut [Complex64], c: [f64; 2], s: usize) {
+/// Multiplies a side² transform by `scale` e^{2πi k·c}, so that it sums
+/// `scale` e^{−2πi k·(x − c)}: the transform about the centre `c`.
+fn about_centre(buf: &mut [Complex64], c: [f64; 2], s: usize, scale: f64) {
     for b in 0..s {
         for a in 0..s {
             let ph = 2.0 * PI * (freq(a, s) * c[0] + freq(b, s) * c[1]);
-            buf[b * s + a] *= Complex64::from_polar(1.0, ph);
+            buf[b * s + a] *= Complex64::from_polar(scale, ph);
         }
     }
 }
@@ -224,13 +224,8 @@ pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
         if !(flux > 0.0 && flux.is_finite()) {
             continue;
         }
-        // Centre at index s/2: multiply by e^{−2πi k·(s/2)}.
-        for b in 0..s {
-            for a in 0..s {
-                let ph = -2.0 * PI * (freq(a, s) * h + freq(b, s) * h);
-                t[b * s + a] *= Complex64::from_polar(1.0 / flux, ph);
-            }
-        }
+        // Centre at index s/2: multiply by e^{−2πi k·(s/2)} / flux.
+        about_centre(&mut t, [-h, -h], s, 1.0 / flux);
         plans.fft2(&mut t, true);
         centred.push(t.iter().map(|v| v.re / norm).collect());
     }
@@ -265,7 +260,7 @@ fn transforms_one(stamp: &[f64], c: [f64; 2], plans: &Plans) -> Vec<Complex64> {
     let s = plans.side;
     let mut buf: Vec<Complex64> = stamp.iter().map(|&v| Complex64::new(v, 0.0)).collect();
     plans.fft2(&mut buf, false);
-    about_centre(&mut buf, c, s);
+    about_centre(&mut buf, c, s, 1.0);
     buf
 }
 

@@ -363,7 +363,7 @@ impl Detections {
                 }
             })
             .collect();
-        let objects: Vec<MeasuredObject> = if params.method == Method::Metacal {
+        let (objects, stage): (Vec<MeasuredObject>, &str) = if params.method == Method::Metacal {
             let cands_of_rows: Vec<&Candidate> = cands
                 .iter()
                 .zip(&star)
@@ -372,12 +372,14 @@ impl Detections {
                 .collect();
             let mc =
                 locus.and_then(|l| crate::metacal::ImageMetacal::new(sub, &psf_stars, l.rg_star));
-            rows.into_iter()
+            let objects = rows
+                .into_iter()
                 .zip(cands_of_rows)
                 .map(|((o, _), c)| {
                     crate::metacal::measure_object(o, c.flags, sub, mc.as_ref(), params, bg.rms)
                 })
-                .collect()
+                .collect();
+            (objects, "metacal")
         } else {
             let fit = match (params.pgamma_mode, locus) {
                 (PgammaMode::FitSize, Some(l)) => {
@@ -407,7 +409,7 @@ impl Detections {
                     o.weight = weight(est.sigma_gamma, params.sigma_int);
                 }
             }
-            rows.into_iter().map(|r| r.0).collect()
+            (rows.into_iter().map(|r| r.0).collect(), "shear")
         };
         let (w, h) = (width as f64, height as f64);
         let mut objects: Vec<MeasuredObject> = objects
@@ -415,14 +417,7 @@ impl Detections {
             .filter(|o| o.x >= 0.5 && o.x <= w + 0.5 && o.y >= 0.5 && o.y <= h + 0.5)
             .collect();
         objects.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-        lap(
-            if params.method == Method::Metacal {
-                "metacal"
-            } else {
-                "shear"
-            },
-            &mut t0,
-        );
+        lap(stage, &mut t0);
         ImageMeasurement {
             objects,
             n_detections: cands.len(),

@@ -66,7 +66,7 @@ pub fn now_s() -> i64 {
 
 /// A Unix time as `YYYY-MM-DDTHH:MM:SSZ` (UTC, RFC 3339 by the `time`
 /// crate); a time outside the years 0000–9999, which RFC 3339 cannot
-/// write, as its seconds since 1970 (`@1e12`-style: `@1000000000000`).
+/// write, as `@` and its seconds since 1970 (`@1000000000000`).
 pub fn utc_text(t_s: i64) -> String {
     time::OffsetDateTime::from_unix_timestamp(t_s)
         .ok()

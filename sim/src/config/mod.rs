@@ -456,39 +456,45 @@ impl RawConfig {
     /// refuses before resolving anything); the error names `source` and the
     /// offending key.
     pub fn validate(&self, source: &Path) -> Result<(), ConfigError> {
-        let invalid =
-            |key: &str, message: String| Invalid::new(key.into(), message).in_file(source);
-        self.image.validate().map_err(|e| e.in_file(source))?;
-        self.instrument.validate().map_err(|e| e.in_file(source))?;
-        self.telescope.validate().map_err(|e| e.in_file(source))?;
-        self.population.validate().map_err(|e| e.in_file(source))?;
-        self.render.validate().map_err(|e| e.in_file(source))?;
-        self.output.validate().map_err(|e| e.in_file(source))?;
-        self.challenge
-            .validate(self.image.n_images)
-            .map_err(|e| e.in_file(source))?;
+        self.check_ranges().map_err(|e| e.in_file(source))
+    }
+
+    /// [`RawConfig::validate`] without the file's name.
+    fn check_ranges(&self) -> Result<(), Invalid> {
+        self.image.validate()?;
+        self.instrument.validate()?;
+        self.telescope.validate()?;
+        self.population.validate()?;
+        self.render.validate()?;
+        self.output.validate()?;
+        self.challenge.validate(self.image.n_images)?;
         if self.psfs.is_empty() {
-            return Err(invalid("psfs", "at least one PSF is needed".into()));
+            return Err(Invalid::new(
+                "psfs".into(),
+                "at least one PSF is needed".into(),
+            ));
         }
         let mut names = std::collections::HashSet::new();
         for (i, p) in self.psfs.iter().enumerate() {
-            p.validate()
-                .map_err(|e| e.under(&format!("psfs.{i}")).in_file(source))?;
+            p.validate().map_err(|e| e.under(&format!("psfs.{i}")))?;
             if !names.insert(p.name.clone()) {
-                return Err(invalid(
-                    &format!("psfs.{i}.name"),
+                return Err(Invalid::new(
+                    format!("psfs.{i}.name"),
                     format!("duplicate PSF name {:?}", p.name),
                 ));
             }
         }
         if self.shears.is_empty() {
-            return Err(invalid("shears", "at least one shear is needed".into()));
+            return Err(Invalid::new(
+                "shears".into(),
+                "at least one shear is needed".into(),
+            ));
         }
         for (i, s) in self.shears.iter().enumerate() {
             let g = s.g1.hypot(s.g2);
             if !s.g1.is_finite() || !s.g2.is_finite() || g >= 1.0 {
-                return Err(invalid(
-                    &format!("shears.{i}"),
+                return Err(Invalid::new(
+                    format!("shears.{i}"),
                     format!("|g| must be < 1, got g1={} g2={}", s.g1, s.g2),
                 ));
             }
