@@ -514,7 +514,11 @@ pub fn generate(
         shared,
         progress,
     )?;
-    let (finished, manifest_written, marker) = conclude(
+    let Concluded {
+        finished,
+        manifest_written,
+        marker,
+    } = conclude(
         plan,
         &paths,
         &all,
@@ -937,9 +941,19 @@ impl<'a> FieldPopulations<'a> {
     }
 }
 
+/// What [`conclude`] did.
+struct Concluded {
+    /// Images of the run finished (sidecar and public file present).
+    finished: usize,
+    /// Whether this process wrote `public/manifest.json`.
+    manifest_written: bool,
+    /// The shard's done-marker, for a shard of several.
+    marker: Option<PathBuf>,
+}
+
 /// Completion: a shard of several writes its done-marker, a whole run its
 /// manifest when every image is finished; then `public/` gets the run's time
-/// stamp. Returns (images finished, manifest written, marker).
+/// stamp.
 fn conclude(
     plan: &Plan,
     paths: &RunPaths,
@@ -947,17 +961,16 @@ fn conclude(
     mine: &[&Job],
     shard: Shard,
     config_sha256: &str,
-) -> Result<(usize, bool, Option<PathBuf>), GenerateError> {
+) -> Result<Concluded, GenerateError> {
     let out = if shard.n > 1 {
         let marker = write_marker(paths, shard, mine, config_sha256)?;
-        (
-            count_finished(paths, all, config_sha256)?,
-            false,
-            Some(marker),
-        )
+        Concluded {
+            finished: count_finished(paths, all, config_sha256)?,
+            manifest_written: false,
+            marker: Some(marker),
+        }
     } else {
-        let (finished, written) = write_manifest_if_complete(plan, paths, all, config_sha256)?;
-        (finished, written, None)
+        write_manifest_if_complete(plan, paths, all, config_sha256)?
     };
     times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
     Ok(out)
@@ -1113,8 +1126,8 @@ fn finish_claimed(
             removed_manifest: false,
         });
     }
-    let (_, written) = write_manifest_if_complete(plan, paths, &all, &config_sha256)?;
-    debug_assert!(written);
+    let done = write_manifest_if_complete(plan, paths, &all, &config_sha256)?;
+    debug_assert!(done.manifest_written);
     times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
     Ok(Finished {
         seed: claim.seed,
@@ -1323,15 +1336,20 @@ fn write_manifest_if_complete(
     paths: &RunPaths,
     all: &[Job],
     config_sha256: &str,
-) -> Result<(usize, bool), GenerateError> {
+) -> Result<Concluded, GenerateError> {
     let mut sides: Vec<Option<Sidecar>> = Vec::with_capacity(all.len());
     for j in all {
         let side = integrity::read_sidecar(paths, j, config_sha256)?;
         sides.push(side.filter(|_| paths.image(j).is_file()));
     }
     let finished = sides.iter().filter(|s| s.is_some()).count();
+    let mut out = Concluded {
+        finished,
+        manifest_written: false,
+        marker: None,
+    };
     if finished < all.len() {
-        return Ok((finished, false));
+        return Ok(out);
     }
     let mut images: Vec<ManifestImage> = sides
         .into_iter()
@@ -1351,7 +1369,8 @@ fn write_manifest_if_complete(
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises") + "\n";
     write_bytes_atomically(&paths.public().join("manifest.json"), text.as_bytes())?;
-    Ok((finished, true))
+    out.manifest_written = true;
+    Ok(out)
 }
 
 fn find_tmp(dir: &Path, out: &mut Vec<PathBuf>) {
