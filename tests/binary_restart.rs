@@ -6,9 +6,9 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use stepsim_harness::part::{Part, PublicFeedback, score_part};
-use stepsim_harness::pipeline::ScoreOptions;
+use stepsim_contract::run_layout::Part;
 use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
 
 /// Runs a call of the async store to its end.
 fn bo<F: std::future::Future>(f: F) -> F::Output {

@@ -9,9 +9,9 @@
 //! With `shape_noise` the shapes are drawn independently instead.
 
 use crate::error::HarnessError;
-use crate::metrics::{DatasetMeta, ImageStats, match_image};
-use crate::submission::SubRow;
-use crate::truth_set::ImageIndex;
+use crate::read::submission::SubRow;
+use crate::read::truth_set::ImageIndex;
+use crate::score::metrics::{DatasetMeta, ImageStats, match_image};
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part};
@@ -355,7 +355,8 @@ impl SynthRun {
                     &self.truth[i],
                     r,
                     (self.datasets.width_px, self.datasets.height_px),
-                    crate::isolation::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
+                    crate::score::isolation::ISOLATION_RADIUS_ARCSEC
+                        / self.datasets.pixel_scale_arcsec,
                 )
             })
             .collect()

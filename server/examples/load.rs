@@ -94,7 +94,7 @@ fn args() -> Result<Args, String> {
 /// The run's truth, read as the scorer reads it.
 fn load_run(run: &Path) -> SynthRun {
     let private = run.join("private");
-    let ts = stepsim_harness::truth_set::load_truth_set(&private).expect("the run's truth");
+    let ts = stepsim_harness::load_truth_set(&private).expect("the run's truth");
     let truth = ts
         .index
         .images

@@ -618,7 +618,7 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
         );
     }
     let held = &f.held.datasets.datasets[0];
-    let g1 = stepsim_harness::part::round_to(Some(held.g1), 4).unwrap();
+    let g1 = stepsim_harness::round_to(Some(held.g1), 4).unwrap();
     assert!(
         r.body.contains(&format!("{:.4}", g1.abs())),
         "true held-out shear {g1} shown after reveal"
