@@ -5,8 +5,8 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 use crate::common;
 use common::fits_table::{doubles, fits_table, text, zeros};

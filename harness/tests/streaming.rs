@@ -9,12 +9,12 @@ use common::{doubles, fits_table, text};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 use stepsim_harness::{
     ImageIndex, SUBMISSION_BYTES_PER_IMAGE, SUBMISSION_BYTES_PER_TRUTH_ROW, ScoreOptions, SubRow,
     load_truth_set, prepare, read_submission_limited, read_submission_spilled,
     read_submission_whole, run_submission_limit, score, score_whole,
 };
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 /// A gzip member of `data` (real CRC-32 and size).
 fn gzip(data: &[u8]) -> Vec<u8> {

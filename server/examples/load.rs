@@ -25,7 +25,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stepsim_harness::synthetic::{SynthRun, submission_text};
+use stepsim_testkit::synthetic::{SynthRun, submission_text};
 
 struct Args {
     stepsim: PathBuf,
@@ -128,7 +128,7 @@ fn catalogue(run: &SynthRun, t: usize, k: usize) -> (&'static str, Vec<u8>) {
     let index = run.index();
     // Objects off the image (the truth's margin) are not submitted.
     let (w, h) = (run.datasets.width_px as f64, run.datasets.height_px as f64);
-    let text = |rule: &stepsim_harness::synthetic::Rule| {
+    let text = |rule: &stepsim_testkit::synthetic::Rule| {
         let on = |r: &stepsim_contract::truth::TruthRow| {
             r.x > 0.5 && r.x < w + 0.5 && r.y > 0.5 && r.y < h + 0.5
         };

@@ -10,9 +10,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use stepsim_contract::run_layout::Part;
-use stepsim_harness::{PublicFeedback, ScoreOptions, score_part, synthetic::SynthRun};
+use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
 use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 use crate::common;

@@ -8,10 +8,10 @@ use axum::http::{HeaderMap, Request, StatusCode, header};
 use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::Challenge;
 use stepsim_server::http::pages as web;
 use stepsim_server::http::{AppState, router};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 const HOST: &str = "challenge.test";
