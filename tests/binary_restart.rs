@@ -6,9 +6,9 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use stepsim_harness::part::{Part, PublicFeedback, score_part};
-use stepsim_harness::pipeline::ScoreOptions;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
+use stepsim_contract::run_layout::Part;
+use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 /// Runs a call of the async store to its end.
 fn bo<F: std::future::Future>(f: F) -> F::Output {
@@ -328,7 +328,7 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
     let mut spec = SynthSpec::small(2);
     spec.psfs.truncate(1);
     spec.shears = vec![(0.0, 0.0)];
-    let (_, _, all) = stepsim_harness::synthetic::challenge_run(&spec, &[(0.03, -0.04)], 5);
+    let (_, _, all) = stepsim_testkit::synthetic::challenge_run(&spec, &[(0.03, -0.04)], 5);
     let run = tmp.path().join("run");
     all.write(&run.join("private")).unwrap();
     let state = tmp.path().join("state");

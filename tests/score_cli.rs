@@ -5,8 +5,8 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 use crate::common;
 use common::fits_table::{doubles, fits_table, text, zeros};
@@ -118,10 +118,7 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
     );
     // The run's identity: the SHA-256 of the truth's datasets.json.
     let dj = std::fs::read(fx.path("private/datasets.json")).unwrap();
-    assert_eq!(
-        r["run"],
-        stepsim_harness::truth_set::run_identity(&dj).as_str()
-    );
+    assert_eq!(r["run"], stepsim_harness::run_identity(&dj).as_str());
     assert!(
         r["run"].as_str().unwrap().starts_with("sha256:") && r["run"].as_str().unwrap().len() == 71
     );
@@ -421,7 +418,7 @@ fn score_refuses_when_any_file_it_writes_exists() {
     let fx = Fixture::new();
     let sub = fx.submission("team.txt", 0.0);
     let out = fx.path("out");
-    let all = stepsim_harness::pipeline::output_paths(&out);
+    let all = stepsim_harness::output_paths(&out);
     assert_eq!(all.len(), 10);
     for p in &all {
         let _ = std::fs::remove_dir_all(&out);
@@ -798,7 +795,7 @@ fn the_submission_limit_follows_the_option() {
     assert!(
         stderr(&o).contains(&format!(
             "limit.txt: larger than the limit of {} (the file); refused without reading it",
-            stepsim_harness::input::show_bytes(n - 1)
+            stepsim_harness::show_bytes(n - 1)
         )),
         "{}",
         stderr(&o)

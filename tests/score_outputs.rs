@@ -3,8 +3,8 @@
 
 use std::path::Path;
 use std::process::Output;
-use stepsim_harness::synthetic::{SynthSpec, make_run, submission_text};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthSpec, make_run, submission_text};
 
 use crate::common;
 use common::{run_with, stepsim};

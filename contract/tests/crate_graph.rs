@@ -7,6 +7,8 @@
 //!   directly nor through another workspace crate; a dev-dependency (tests)
 //!   is allowed.
 //! * `stepsim-contract` depends on no other workspace crate.
+//! * The test fixtures (`stepsim-testkit`) are a dev-dependency only: no
+//!   library or binary links them.
 //! * The normal and build dependencies between workspace crates form no
 //!   cycle.
 
@@ -20,6 +22,8 @@ const SCORERS: &[&str] = &["stepsim-harness", "stepsim-ksb"];
 const SIMULATOR: &str = "stepsim-sim";
 /// The contract, which depends on no workspace crate.
 const CONTRACT: &str = "stepsim-contract";
+/// The test fixtures, a dev-dependency only.
+const TESTKIT: &str = "stepsim-testkit";
 
 /// Workspace crate → the workspace crates it needs to build (normal and
 /// build dependencies; dev-dependencies are left out: they build only tests).
@@ -86,6 +90,13 @@ fn violations(metadata: &Value) -> Vec<String> {
     {
         out.push(format!("{CONTRACT} depends on workspace crates {deps:?}"));
     }
+    for (name, deps) in &graph {
+        if deps.contains(TESTKIT) {
+            out.push(format!(
+                "{name} depends on {TESTKIT}; only a dev-dependency is allowed"
+            ));
+        }
+    }
     for name in graph.keys() {
         if reachable(&graph, name).contains(name) {
             out.push(format!("{name} is on a dependency cycle"));
@@ -118,7 +129,13 @@ fn scorers_do_not_link_the_simulator_and_the_graph_is_acyclic() {
     let metadata: Value = serde_json::from_slice(&out.stdout).expect("cargo metadata JSON");
     let graph = build_graph(&metadata);
     // The check sees the workspace as it is.
-    for name in [SIMULATOR, CONTRACT, "stepsim-harness", "stepsim-ksb"] {
+    for name in [
+        SIMULATOR,
+        CONTRACT,
+        TESTKIT,
+        "stepsim-harness",
+        "stepsim-ksb",
+    ] {
         assert!(graph.contains_key(name), "{name} missing from {graph:?}");
     }
     assert!(graph["stepsim-harness"].contains(CONTRACT), "{graph:?}");
@@ -157,11 +174,28 @@ fn the_check_refuses_a_simulator_dependency_and_a_cycle() {
         (SIMULATOR, sim),
         (
             "stepsim-harness",
-            &[(CONTRACT, None), (SIMULATOR, Some("dev"))],
+            &[
+                (CONTRACT, None),
+                (SIMULATOR, Some("dev")),
+                (TESTKIT, Some("dev")),
+            ],
         ),
         ("stepsim-ksb", &[(CONTRACT, None)]),
+        (TESTKIT, &[("stepsim-harness", None)]),
     ]);
     assert_eq!(violations(&good), Vec::<String>::new());
+
+    let fixtures = fake(&[
+        (CONTRACT, &[]),
+        ("stepsim-harness", &[(CONTRACT, None)]),
+        ("stepsim-ksb", &[]),
+        ("stepsim-server", &[(TESTKIT, None)]),
+        (TESTKIT, &[("stepsim-harness", None)]),
+    ]);
+    assert_eq!(
+        violations(&fixtures),
+        ["stepsim-server depends on stepsim-testkit; only a dev-dependency is allowed"]
+    );
 
     let direct = fake(&[
         (CONTRACT, &[]),

@@ -1,7 +1,7 @@
 //! Charts as SVG, and as PNG drawn from that very SVG: axes with round
 //! ticks and tick values, a title, axis labels, a legend, points with
 //! vertical error bars, lines and shaded bands, in a grid of panels. The one
-//! plotter of the workspace: the score figures (`stepsim_harness::plots`) and
+//! plotter of the workspace: the score figures (`harness/src/report/plots.rs`) and
 //! the population plots (`sim/examples/population_report.rs`) use it.
 
 use crate::picture::xml_escape;

@@ -13,9 +13,9 @@
 //! Markdown, 8 plot files). Set `STEPSIM_BENCH_KEEP=1` to keep the run.
 
 use std::time::Instant;
-use stepsim_harness::pipeline::{ScoreOptions, build_report, match_images, prepare, write_outputs};
-use stepsim_harness::synthetic::{SynthSpec, make_run};
+use stepsim_harness::{ScoreOptions, build_report, match_images, prepare, write_outputs};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthSpec, make_run};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();

@@ -46,7 +46,7 @@ impl Rng {
 /// `score TRUTH SUBMISSION OUT [whole]`: what `stepsim score` does (the
 /// run's own limit, 200 bootstrap resamples, every output written).
 fn score(args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
-    use stepsim_harness::pipeline::{ScoreOptions, score, score_whole, write_outputs};
+    use stepsim_harness::{ScoreOptions, score, score_whole, write_outputs};
     let [truth, sub, out, rest @ ..] = args else {
         return Err("usage: full_catalogue score TRUTH SUBMISSION OUT [whole]".into());
     };
@@ -184,7 +184,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .with_type(ColumnDataType::Int)
                     .create()?,
             ];
-            for name in &stepsim_harness::truth_set::SCORING_COLUMNS[1..] {
+            for name in &stepsim_harness::SCORING_COLUMNS[1..] {
                 descs.push(
                     ColumnDescription::new(*name)
                         .with_type(ColumnDataType::Double)
@@ -193,10 +193,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             let hdu = f.create_table(stepsim_contract::io::truth::TRUTH_EXTNAME, &descs)?;
             hdu.write_col(&mut f, "kind", &kind)?;
-            for (name, c) in stepsim_harness::truth_set::SCORING_COLUMNS[1..]
-                .iter()
-                .zip(&cols)
-            {
+            for (name, c) in stepsim_harness::SCORING_COLUMNS[1..].iter().zip(&cols) {
                 hdu.write_col(&mut f, *name, c)?;
             }
         }

@@ -7,7 +7,7 @@
 //! * `datasets` and `psfs`: the rows of every report, in the order given.
 //!   A PSF may appear in one report only.
 //! * `summary`: recomputed from the combined `psfs` rows by the same
-//!   [`crate::metrics::summarize`] a single score uses (⟨m⟩, σ_c, Q_c, …),
+//!   [`crate::score::metrics::summarize`] a single score uses (⟨m⟩, σ_c, Q_c, …),
 //!   so a combined report of one-PSF runs has the summary a single run of
 //!   all the PSFs would have, given the same per-PSF rows. `pct_chance_match`
 //!   is the mean over the combined datasets.
@@ -30,8 +30,8 @@
 //! different bins, counts that overflow, sums that are not finite.
 
 use crate::error::HarnessError;
-use crate::leaderboard::read_report;
-use crate::report::{BinReport, Binned, Report};
+use crate::report::leaderboard::read_report;
+use crate::score::report::{BinReport, Binned, Report};
 use std::path::{Path, PathBuf};
 
 /// A report directory (its `report.json`) or a report file.
@@ -44,7 +44,7 @@ pub fn report_file(path: &Path) -> PathBuf {
 }
 
 /// Reads the reports at `paths` (directories or `report.json` files) and
-/// combines them ([`combine`]).
+/// combines them (`combine`).
 pub fn combine_files(paths: &[PathBuf], name: Option<&str>) -> Result<Report, HarnessError> {
     let mut reports = Vec::with_capacity(paths.len());
     for p in paths {
@@ -158,7 +158,7 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         .iter()
         .flat_map(|(_, r)| r.datasets.clone())
         .collect();
-    let mut summary = crate::metrics::summarize(&psfs);
+    let mut summary = crate::score::metrics::summarize(&psfs);
     let chance: Vec<f64> = datasets.iter().filter_map(|d| d.pct_chance_match).collect();
     summary.pct_chance_match =
         (!chance.is_empty()).then(|| chance.iter().sum::<f64>() / chance.len() as f64);
@@ -326,7 +326,7 @@ fn combine_binned(all: &[(&PathBuf, &Binned, f64)]) -> Result<Binned, HarnessErr
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::report::{DatasetReport, PsfReport};
+    use crate::score::report::{DatasetReport, PsfReport};
 
     fn psf(name: &str, m: f64, c1: f64, c2: f64) -> PsfReport {
         let mut p: PsfReport = serde_json::from_value(serde_json::json!({
@@ -363,7 +363,7 @@ mod tests {
     }
 
     fn report(run: &str, psfs: Vec<PsfReport>, bins: [f64; 2]) -> Report {
-        let summary = crate::metrics::summarize(&psfs);
+        let summary = crate::score::metrics::summarize(&psfs);
         Report {
             submission: "ksb".into(),
             run: run.into(),
@@ -405,7 +405,7 @@ mod tests {
         let mean = cs.iter().sum::<f64>() / 6.0;
         let sd = (cs.iter().map(|c| (c - mean).powi(2)).sum::<f64>() / 6.0).sqrt();
         assert!((c.summary.sigma_c.unwrap() - sd).abs() < 1e-15);
-        assert_eq!(c.summary.q_c, crate::metrics::q_c(&c.psfs));
+        assert_eq!(c.summary.q_c, crate::score::metrics::q_c(&c.psfs));
         assert!(c.summary.bootstrap.is_none());
         // Bins: mean of the reports' values, counts summed, errors combined.
         let b0 = &c.by_magnitude.bins[0];

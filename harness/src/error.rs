@@ -33,6 +33,17 @@ pub fn show_text(s: &str) -> String {
     }
 }
 
+/// Formats a number shortly, as Rust does (`0.25`, `1e308`, `-3`) but in
+/// scientific notation outside 10⁻⁴ ≤ |x| < 10¹⁵; `inf`, `-inf`, `NaN`
+/// as such.
+pub fn show_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e15).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// Where in a submission a problem sits.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Location {

@@ -13,11 +13,11 @@
 
 use crate::error::HarnessError;
 use crate::pipeline::{Prepared, ScoreOptions, build_report, match_images, prepare};
-use crate::report::{Report, Summary};
-use crate::truth_set::{ImageIndex, TruthSet};
+use crate::read::truth_set::{ImageIndex, TruthSet};
+use crate::score::report::{Report, Summary};
 use serde::{Deserialize, Serialize};
 use stepsim_contract::run_layout::Datasets;
-pub use stepsim_contract::run_layout::Part;
+use stepsim_contract::run_layout::Part;
 
 /// The datasets of `part` in a run's `datasets.json` (in file order).
 pub fn part_datasets(datasets: &Datasets, part: Part) -> Datasets {
@@ -142,7 +142,7 @@ impl PublicFeedback {
             q_c,
             ..
         } = report.summary;
-        let mean = |f: fn(&crate::report::DatasetReport) -> f64| {
+        let mean = |f: fn(&crate::score::report::DatasetReport) -> f64| {
             order_free_mean(report.datasets.iter().map(f).collect())
         };
         let d = |k: &str| {

@@ -2,15 +2,15 @@
 //! by image, compute the metrics, write the report. The stages are public so
 //! that the benchmark can time them.
 
-use crate::bootstrap::{DEFAULT_RESAMPLES, DEFAULT_SEED, bootstrap};
 use crate::error::HarnessError;
-use crate::metrics::{
+use crate::read::submission::{Submission, read_submission_limited};
+use crate::read::truth_set::{TruthSet, load_truth_set, run_submission_limit};
+use crate::score::bootstrap::{DEFAULT_RESAMPLES, DEFAULT_SEED, bootstrap};
+use crate::score::metrics::{
     DISK_EDGES_ARCSEC, DatasetMeta, ImageStats, MAG_EDGES, binned_residuals, match_image,
     score_tables,
 };
-use crate::report::Report;
-use crate::submission::{Submission, read_submission_limited};
-use crate::truth_set::{TruthSet, load_truth_set, run_submission_limit};
+use crate::score::report::Report;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -36,7 +36,7 @@ pub struct ScoreOptions {
     pub bootstrap_seed: u64,
     /// Largest submission read, in bytes, as stored and after gzip
     /// decompression (`None`: the run's own limit,
-    /// [`crate::truth_set::run_submission_limit`]).
+    /// [`crate::read::truth_set::run_submission_limit`]).
     pub max_submission_bytes: Option<u64>,
 }
 
@@ -77,14 +77,15 @@ pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
 }
 
 /// [`prepare`] reading the submission whole into memory
-/// ([`crate::submission::read_submission_whole`]): the slow twin of the
+/// ([`crate::read::submission::read_submission_whole`]): the slow twin of the
 /// streamed path, kept to test that both give the same report.
 pub fn prepare_whole(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
-    prepare_with(opts, crate::submission::read_submission_whole)
+    prepare_with(opts, crate::read::submission::read_submission_whole)
 }
 
 /// Reads a submission against an index within a byte limit.
-type Reader = fn(&Path, &crate::truth_set::ImageIndex, u64) -> Result<Submission, HarnessError>;
+type Reader =
+    fn(&Path, &crate::read::truth_set::ImageIndex, u64) -> Result<Submission, HarnessError>;
 
 fn prepare_with(opts: &ScoreOptions, read: Reader) -> Result<Prepared, HarnessError> {
     let r = opts.match_radius_arcsec;
@@ -146,7 +147,7 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
         .map(|&i| {
             let info = &p.truth.index.images[i];
             let path = p.truth.truth_path(&info.image);
-            let truth = crate::truth_set::read_scoring_columns(&path)?;
+            let truth = crate::read::truth_set::read_scoring_columns(&path)?;
             let rows = p.submission.image_rows(i)?;
             Ok(match_image(
                 info.dataset,
@@ -155,7 +156,7 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
                 &truth,
                 radius_px,
                 (p.truth.index.width_px, p.truth.index.height_px),
-                crate::isolation::ISOLATION_RADIUS_ARCSEC / p.truth.index.pixel_scale_arcsec,
+                crate::score::isolation::ISOLATION_RADIUS_ARCSEC / p.truth.index.pixel_scale_arcsec,
             ))
         })
         .collect()
@@ -270,7 +271,7 @@ pub fn write_outputs(
     check_outputs_free(dir, force)?;
     let json_path = dir.join(REPORT_JSON);
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
-    for (name, fig) in crate::plots::report_figures(report) {
+    for (name, fig) in crate::report::plots::report_figures(report) {
         files.push((dir.join(format!("{name}.svg")), fig.to_svg().into_bytes()));
         let png = dir.join(format!("{name}.png"));
         let bytes = fig.to_png().map_err(|e| HarnessError::Report {
@@ -281,7 +282,7 @@ pub fn write_outputs(
     }
     files.push((
         dir.join(REPORT_MD),
-        crate::markdown::report_markdown(report).into_bytes(),
+        crate::report::markdown::report_markdown(report).into_bytes(),
     ));
     let mut json = serde_json::to_string_pretty(report).unwrap_or_default();
     json.push('\n');

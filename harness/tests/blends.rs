@@ -16,7 +16,7 @@
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_harness::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+use stepsim_harness::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
 use stepsim_sim::plan::Plan;
 use stepsim_sim::population::{base_field, lensed, rotated, sheared};
 use stepsim_sim::render::{Accuracy, Renderer, Stamp, draw_image};

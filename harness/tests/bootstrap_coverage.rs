@@ -12,8 +12,7 @@
 
 use crate::synth_stats;
 
-use stepsim_harness::bootstrap::{intervals, percentile_interval, resample_summaries};
-use stepsim_harness::metrics::score_tables;
+use stepsim_harness::{intervals, percentile_interval, resample_summaries, score_tables};
 use synth_stats::{Case, stats};
 
 /// Realisations per design.

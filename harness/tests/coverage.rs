@@ -5,13 +5,12 @@
 //! 68 ± 5 % and 95 ± 3 % of the realisations (docs/scoring.md).
 
 use rand::{RngExt, SeedableRng};
-use stepsim_harness::metrics::{
-    FitModel, ImageStats, image_stats, score_tables, score_tables_with,
+use stepsim_harness::{
+    FitModel, ImageStats, PsfReport, image_stats, score_tables, score_tables_with,
 };
-use stepsim_harness::report::PsfReport;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run};
 use stepsim_sim::seed::{SimRng, splitmix64};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run};
 
 /// Realisations per design.
 const N_REAL: u64 = 1000;
@@ -56,7 +55,7 @@ fn stats(run: &SynthRun, m0: f64, c: (f64, f64), key: u64) -> Vec<ImageStats> {
                 .enumerate()
                 .map(|(j, t): (usize, &TruthRow)| {
                     let k = splitmix64(key ^ splitmix64((i as u64) << 20 | j as u64));
-                    stepsim_harness::submission::SubRow {
+                    stepsim_harness::SubRow {
                         x: t.x,
                         y: t.y,
                         e1: (1.0 + m0) * t.e1 + c.0 + SIGMA_MEAS * normal(k, 1),

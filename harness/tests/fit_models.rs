@@ -4,8 +4,7 @@
 
 use crate::synth_stats;
 
-use stepsim_harness::metrics::score_tables;
-use stepsim_harness::report::{FitKind, PsfReport};
+use stepsim_harness::{FitKind, PsfReport, score_tables};
 use synth_stats::{Case, stats};
 
 /// A family's (name, model, q, q_err, reason).
@@ -14,7 +13,7 @@ type Family = (&'static str, FitKind, Option<f64>, Option<f64>, String);
 /// The families of `p`, γ2 left out (γ2_true is constant here, so it is
 /// not fitted).
 fn families(p: &PsfReport) -> Vec<Family> {
-    let row = |name, f: &Option<stepsim_harness::report::FitChoice>, q, qe| {
+    let row = |name, f: &Option<stepsim_harness::FitChoice>, q, qe| {
         let f = f
             .clone()
             .unwrap_or_else(|| panic!("{name}: no model recorded"));

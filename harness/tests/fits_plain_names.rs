@@ -6,7 +6,7 @@ use crate::common;
 
 use common::index;
 use std::path::Path;
-use stepsim_harness::submission::parse_file;
+use stepsim_harness::parse_file;
 
 fn write_table(path: &Path, x: &[f64]) {
     use fitsio::tables::{ColumnDataType, ColumnDescription};

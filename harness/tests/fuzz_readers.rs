@@ -15,8 +15,7 @@ use crate::common;
 use common::{Col, doubles, fits_table, good_table, index, text, zeros};
 use rand::{RngExt, SeedableRng};
 use std::path::{Path, PathBuf};
-use stepsim_harness::leaderboard::read_report;
-use stepsim_harness::submission::{parse_file_limited, read_submission_limited};
+use stepsim_harness::{parse_file_limited, read_report, read_submission_limited};
 use stepsim_sim::seed::SimRng;
 
 fn cases() -> usize {
@@ -165,10 +164,7 @@ fn gzip(data: &[u8]) -> Vec<u8> {
 }
 
 /// Checks one outcome: rows that are sane, or an error naming the file.
-fn check(
-    p: &Path,
-    r: Result<stepsim_harness::submission::FileRows, stepsim_harness::HarnessError>,
-) -> bool {
+fn check(p: &Path, r: Result<stepsim_harness::FileRows, stepsim_harness::HarnessError>) -> bool {
     match r {
         Ok(fr) => {
             assert!(!fr.rows.is_empty());

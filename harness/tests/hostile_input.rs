@@ -6,7 +6,7 @@ use crate::common;
 
 use common::{Col, card, doubles, empty_primary, fits_table, good_table, index, pad, text, zeros};
 use std::path::Path;
-use stepsim_harness::submission::{parse_file, read_submission, read_submission_limited};
+use stepsim_harness::{parse_file, read_submission, read_submission_limited};
 
 fn parse_fits_bytes(bytes: &[u8]) -> Result<Vec<String>, String> {
     let dir = tempfile::tempdir().unwrap();

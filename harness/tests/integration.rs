@@ -17,6 +17,7 @@ mod fits_plain_names;
 mod fuzz_readers;
 mod hostile_input;
 mod known_answer;
+mod module_graph;
 mod part;
 mod refusal_order;
 mod streaming;

@@ -1,11 +1,11 @@
 //! Known-answer tests of the metrics: synthetic submissions with a chosen
 //! m, c, q, weights, contamination and selection, scored in memory.
 
-use stepsim_harness::fit::fit_line_closed_form;
-use stepsim_harness::metrics::{DISK_EDGES_ARCSEC, MAG_EDGES, binned_residuals, score_tables};
-use stepsim_harness::report::PsfReport;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run};
+use stepsim_harness::{
+    DISK_EDGES_ARCSEC, MAG_EDGES, PsfReport, binned_residuals, fit_line_closed_form, score_tables,
+};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run};
 
 const AREA: f64 = 1.0;
 
@@ -22,7 +22,7 @@ fn truth_bias(p: usize) -> (f64, f64, f64, f64) {
     (m0, c1, c2, q0)
 }
 
-fn biased(run: &SynthRun, with_q: bool) -> Vec<Vec<stepsim_harness::submission::SubRow>> {
+fn biased(run: &SynthRun, with_q: bool) -> Vec<Vec<stepsim_harness::SubRow>> {
     let ds = &run.datasets.datasets;
     run.submission(&|t: &TruthRow, d| {
         if t.is_star() {
@@ -141,7 +141,7 @@ fn contamination_is_counted_exactly_and_m_uncontaminated_removes_it() {
     for r in rows.iter_mut() {
         for k in 0..n_false_per_image {
             let x = 3.0 + (k + 1) as f64 * spec.spacing_px;
-            r.push(stepsim_harness::submission::SubRow {
+            r.push(stepsim_harness::SubRow {
                 x,
                 y: x,
                 e1: -0.4,
@@ -347,10 +347,10 @@ fn bootstrap_is_reproducible_and_brackets_the_estimate() {
     let rows = biased(&run, false);
     let stats = run.stats(&rows, 1.0);
     let meta = run.meta();
-    let a = stepsim_harness::bootstrap::bootstrap(&meta, &stats, AREA, 60, 5);
-    let b = stepsim_harness::bootstrap::bootstrap(&meta, &stats, AREA, 60, 5);
+    let a = stepsim_harness::bootstrap(&meta, &stats, AREA, 60, 5);
+    let b = stepsim_harness::bootstrap(&meta, &stats, AREA, 60, 5);
     assert_eq!(a, b);
-    let c = stepsim_harness::bootstrap::bootstrap(&meta, &stats, AREA, 60, 6);
+    let c = stepsim_harness::bootstrap(&meta, &stats, AREA, 60, 6);
     assert_ne!(a.m_mean, c.m_mean, "the seed matters");
     let s = score_tables(&meta, &stats, AREA).summary;
     let [lo, hi] = a.m_mean.unwrap();

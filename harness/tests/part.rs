@@ -2,12 +2,12 @@
 //! `stepsim score` on a run that holds only that part's datasets, and the
 //! public feedback is those numbers rounded.
 
-use stepsim_harness::part::{
-    FEEDBACK_DECIMALS, Part, PublicFeedback, has_holdout, round_to, score_part,
+use stepsim_contract::run_layout::Part;
+use stepsim_harness::{
+    FEEDBACK_DECIMALS, PublicFeedback, ScoreOptions, has_holdout, round_to, score, score_part,
 };
-use stepsim_harness::synthetic::{self, SynthRun, SynthSpec, submission_text};
-use stepsim_harness::{ScoreOptions, score};
 use stepsim_sim::truth::TruthRow;
+use stepsim_testkit::synthetic::{self, SynthRun, SynthSpec, submission_text};
 
 /// A public part (2 PSFs × 3 STEP1 shears on 2 fields) and a held-out part
 /// (the same PSFs, other shears, other fields, ids of its own).

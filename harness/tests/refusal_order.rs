@@ -10,8 +10,8 @@ mod permuted;
 use common::{doubles, fits_table, text};
 use permuted::{Row, normalise, pair};
 use std::path::Path;
-use stepsim_harness::part::{Part, PublicFeedback, score_part};
-use stepsim_harness::pipeline::{ScoreOptions, prepare};
+use stepsim_contract::run_layout::Part;
+use stepsim_harness::{PublicFeedback, ScoreOptions, prepare, score_part};
 
 fn fits(rows: &[Row]) -> Vec<u8> {
     let ids: Vec<&str> = rows.iter().map(|r| r.0.as_str()).collect();

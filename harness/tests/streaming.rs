@@ -9,15 +9,12 @@ use common::{doubles, fits_table, text};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use stepsim_harness::pipeline::{ScoreOptions, prepare, score, score_whole};
-use stepsim_harness::submission::{
-    SubRow, read_submission_limited, read_submission_spilled, read_submission_whole,
+use stepsim_harness::{
+    ImageIndex, SUBMISSION_BYTES_PER_IMAGE, SUBMISSION_BYTES_PER_TRUTH_ROW, ScoreOptions, SubRow,
+    load_truth_set, prepare, read_submission_limited, read_submission_spilled,
+    read_submission_whole, run_submission_limit, score, score_whole,
 };
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
-use stepsim_harness::truth_set::{
-    ImageIndex, SUBMISSION_BYTES_PER_IMAGE, SUBMISSION_BYTES_PER_TRUTH_ROW, load_truth_set,
-    run_submission_limit,
-};
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 /// A gzip member of `data` (real CRC-32 and size).
 fn gzip(data: &[u8]) -> Vec<u8> {
@@ -330,7 +327,7 @@ fn the_reader_holds_one_buffer_of_rows_not_the_catalogue() {
     }
     // The default buffer through the pipeline.
     let sub = read_submission_limited(&p, &idx, 64 << 20).unwrap();
-    assert!(sub.max_rows_held().unwrap() <= stepsim_harness::spill::DEFAULT_BUFFER_ROWS);
+    assert!(sub.max_rows_held().unwrap() <= stepsim_harness::DEFAULT_BUFFER_ROWS);
 }
 
 #[test]
@@ -485,7 +482,7 @@ fn gzip_members_are_checked_and_bounded() {
         )
     );
     assert!(secs < 5.0, "{secs} s");
-    assert_eq!(stepsim_harness::input::MAX_GZIP_MEMBERS, 65_536);
+    assert_eq!(stepsim_harness::MAX_GZIP_MEMBERS, 65_536);
     // Exactly the bound reads.
     let mut ok = gzip(text.as_bytes());
     for _ in 1..65_536 {

@@ -3,8 +3,7 @@
 
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
-use stepsim_harness::HarnessError;
-use stepsim_harness::submission::{parse_file, read_submission};
+use stepsim_harness::{HarnessError, parse_file, read_submission};
 use stepsim_sim::seed::SimRng;
 
 use crate::common;

@@ -12,7 +12,7 @@ use common::{Col, doubles, fits_table, index, text};
 use std::io::Write as _;
 use std::path::Path;
 use std::time::{Duration, Instant};
-use stepsim_harness::submission::{MAX_COLUMNS, parse_file, read_submission};
+use stepsim_harness::{MAX_COLUMNS, parse_file, read_submission};
 
 /// A loose bound for work that is linear in a few MB.
 const QUICK: Duration = Duration::from_millis(900);

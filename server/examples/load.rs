@@ -25,7 +25,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stepsim_harness::synthetic::{SynthRun, submission_text};
+use stepsim_testkit::synthetic::{SynthRun, submission_text};
 
 struct Args {
     stepsim: PathBuf,
@@ -94,7 +94,7 @@ fn args() -> Result<Args, String> {
 /// The run's truth, read as the scorer reads it.
 fn load_run(run: &Path) -> SynthRun {
     let private = run.join("private");
-    let ts = stepsim_harness::truth_set::load_truth_set(&private).expect("the run's truth");
+    let ts = stepsim_harness::load_truth_set(&private).expect("the run's truth");
     let truth = ts
         .index
         .images
@@ -128,7 +128,7 @@ fn catalogue(run: &SynthRun, t: usize, k: usize) -> (&'static str, Vec<u8>) {
     let index = run.index();
     // Objects off the image (the truth's margin) are not submitted.
     let (w, h) = (run.datasets.width_px as f64, run.datasets.height_px as f64);
-    let text = |rule: &stepsim_harness::synthetic::Rule| {
+    let text = |rule: &stepsim_testkit::synthetic::Rule| {
         let on = |r: &stepsim_contract::truth::TruthRow| {
             r.x > 0.5 && r.x < w + 0.5 && r.y > 0.5 && r.y < h + 0.5
         };

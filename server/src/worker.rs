@@ -1,6 +1,6 @@
 //! The scoring queue's workers: each claims the oldest queued job of a team
 //! that has none running, scores it with the harness (the library code of
-//! `stepsim score`, restricted to a part: `stepsim_harness::part`), keeps
+//! `stepsim score`, restricted to a part: `stepsim_harness::score_prepared_part`), keeps
 //! the reports per entry and records the result.
 
 use crate::challenge::{Challenge, ChallengeError, Settings};
@@ -10,9 +10,8 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Duration;
-use stepsim_harness::part::{Part, PublicFeedback, score_prepared_part};
-use stepsim_harness::pipeline::{ScoreOptions, prepare};
-use stepsim_harness::write_outputs;
+use stepsim_contract::run_layout::Part;
+use stepsim_harness::{PublicFeedback, ScoreOptions, prepare, score_prepared_part, write_outputs};
 
 pub use crate::challenge::SCORER_VERSION;
 

@@ -9,11 +9,11 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use stepsim_harness::part::{Part, PublicFeedback, score_part};
-use stepsim_harness::pipeline::ScoreOptions;
-use stepsim_harness::synthetic::SynthRun;
+use stepsim_contract::run_layout::Part;
+use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
 use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 use crate::common;

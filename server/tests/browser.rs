@@ -20,9 +20,9 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 const TEAM: &str = "Lensing Group A";

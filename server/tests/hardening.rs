@@ -13,12 +13,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
-use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::challenge::leaderboard;
 use stepsim_server::http::limits::Limits;
 use stepsim_server::http::{AppState, router};
 use stepsim_server::worker::WorkerPool;
 use stepsim_server::{Challenge, worker};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 use crate::common;
@@ -714,7 +714,7 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
                 )
             })
         });
-        stepsim_harness::synthetic::submission_text(&f.all.index(), &rows)
+        stepsim_testkit::synthetic::submission_text(&f.all.index(), &rows)
     };
     for (i, m) in [0.0, 0.0005, 0.5].into_iter().enumerate() {
         let (s, body) = call(

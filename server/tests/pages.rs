@@ -8,10 +8,10 @@ use axum::http::{HeaderMap, Request, StatusCode, header};
 use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use stepsim_harness::synthetic::SynthRun;
 use stepsim_server::Challenge;
 use stepsim_server::http::pages as web;
 use stepsim_server::http::{AppState, router};
+use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
 const HOST: &str = "challenge.test";
@@ -618,7 +618,7 @@ async fn reports_and_figures_open_at_reveal_only_and_only_named_files() {
         );
     }
     let held = &f.held.datasets.datasets[0];
-    let g1 = stepsim_harness::part::round_to(Some(held.g1), 4).unwrap();
+    let g1 = stepsim_harness::round_to(Some(held.g1), 4).unwrap();
     assert!(
         r.body.contains(&format!("{:.4}", g1.abs())),
         "true held-out shear {g1} shown after reveal"

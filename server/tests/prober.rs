@@ -17,9 +17,9 @@ use axum::http::{Request, header};
 use http_body_util::BodyExt;
 use serde_json::Value;
 use std::path::Path;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
 use stepsim_server::http::{AppState, router};
 use stepsim_server::{Challenge, worker};
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
 use tower::ServiceExt;
 
 use crate::common;
@@ -76,7 +76,7 @@ fn without_times(v: &mut Value) {
 /// its own measurement, here the first run's truth).
 fn crafted(all: &SynthRun) -> Vec<Vec<u8>> {
     let index = all.index();
-    let text = |rule: &stepsim_harness::synthetic::Rule| {
+    let text = |rule: &stepsim_testkit::synthetic::Rule| {
         submission_text(&index, &all.submission(rule)).into_bytes()
     };
     vec![

@@ -207,7 +207,7 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
                 state.display(),
                 ch.settings.truth_dir.display(),
                 ch.settings.quota,
-                stepsim_harness::input::show_bytes(ch.settings.max_upload_bytes),
+                stepsim_harness::show_bytes(ch.settings.max_upload_bytes),
                 if ch.settings.holdout {
                     ", held-out part scored at reveal"
                 } else {

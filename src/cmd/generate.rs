@@ -57,7 +57,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let on_event = |e: Event| progress.event(e);
     let options = Options {
         shard: args.shard.unwrap_or_default(),
-        submission_format: Some(stepsim_harness::SUBMISSION_FORMAT_MD.to_string()),
+        submission_format: Some(stepsim_contract::SUBMISSION_FORMAT_MD.to_string()),
         disk: Some(disk),
     };
     let summary = pool

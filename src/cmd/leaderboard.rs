@@ -1,7 +1,7 @@
 //! `stepsim leaderboard`: rank several score reports in one table.
 
 use std::path::PathBuf;
-use stepsim_harness::leaderboard::{check_comparable, leaderboard_markdown, rank, read_report};
+use stepsim_harness::{check_comparable, leaderboard_markdown, rank, read_report};
 
 /// Arguments of `stepsim leaderboard`.
 #[derive(Debug, clap::Args)]
@@ -51,7 +51,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let mut json = serde_json::to_string_pretty(&board)?;
             json.push('\n');
             let refs: Vec<&stepsim_harness::Report> = reports.iter().map(|r| &r.1).collect();
-            let fig = stepsim_harness::plots::fig3(&refs);
+            let fig = stepsim_harness::fig3(&refs);
             let bytes = [
                 fig.to_svg().into_bytes(),
                 fig.to_png()?,

@@ -1,11 +1,11 @@
 //! `stepsim score`: score a submission against a run's truth (SPEC §6, §7).
 
 use std::path::PathBuf;
-use stepsim_harness::pipeline::{DEFAULT_MATCH_RADIUS_ARCSEC, ScoreOptions};
+use stepsim_harness::{DEFAULT_MATCH_RADIUS_ARCSEC, ScoreOptions};
 
 /// Arguments of `stepsim score`.
 #[derive(Debug, clap::Args)]
-#[command(after_long_help = stepsim_harness::SUBMISSION_FORMAT_MD)]
+#[command(after_long_help = stepsim_contract::SUBMISSION_FORMAT_MD)]
 pub struct Args {
     /// The private half of the run (`RUN/private`: datasets.json, truth/).
     #[arg(long, value_name = "DIR", required_unless_present = "combine")]
@@ -35,7 +35,7 @@ pub struct Args {
     allow_missing_images: bool,
     /// Bootstrap resamples of the base fields for the intervals; 0 leaves
     /// the intervals out (a faster score, e.g. while developing a method).
-    #[arg(long, value_name = "N", default_value_t = stepsim_harness::bootstrap::DEFAULT_RESAMPLES)]
+    #[arg(long, value_name = "N", default_value_t = stepsim_harness::DEFAULT_RESAMPLES)]
     bootstrap_resamples: usize,
     /// Largest submission read, in bytes, as stored and after gzip
     /// decompression (the sum over a directory's files). Default: the run's
@@ -50,7 +50,7 @@ pub struct Args {
 
 /// Scores and writes the report.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    stepsim_harness::pipeline::check_outputs_free(&args.out, args.force)?;
+    stepsim_harness::check_outputs_free(&args.out, args.force)?;
     let report = match (&args.truth, &args.submission) {
         (Some(truth), Some(submission)) if args.combine.is_empty() => {
             super::fits_path("--truth", truth)?;
@@ -63,7 +63,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             opts.max_submission_bytes = args.max_submission_bytes;
             stepsim_harness::score(&opts)?
         }
-        _ => stepsim_harness::combine::combine_files(&args.combine, args.name.as_deref())?,
+        _ => stepsim_harness::combine_files(&args.combine, args.name.as_deref())?,
     };
     stepsim_harness::write_outputs(&args.out, &report, args.force)?;
     for w in &report.warnings {

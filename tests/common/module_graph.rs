@@ -1,5 +1,6 @@
 //! Reading a crate's module graph from its sources, shared by the
-//! module-graph tests of sim (`sim/tests/module_graph.rs`) and the server
+//! module-graph tests of sim (`sim/tests/module_graph.rs`), the harness
+//! (`harness/tests/module_graph.rs`) and the server
 //! (`server/tests/module_graph.rs`), which include this file by path.
 //!
 //! Every `crate::name` path (including `use crate::{a, b::c}` groups) in a

@@ -12,8 +12,8 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use stepsim_harness::synthetic::{self, SynthRun, SynthSpec};
 use stepsim_sim::run_layout::Datasets;
+use stepsim_testkit::synthetic::{self, SynthRun, SynthSpec};
 
 /// One submitted row: image id, x, y, e1, e2, weight.
 pub type Row = (String, f64, f64, f64, f64, f64);

@@ -8,7 +8,7 @@
 #![allow(dead_code)]
 
 use rand::{RngExt, SeedableRng};
-use stepsim_harness::metrics::{BinAcc, DatasetMeta, ImageStats};
+use stepsim_harness::{BinAcc, DatasetMeta, ImageStats};
 use stepsim_sim::seed::{SimRng, splitmix64};
 
 /// A synthetic design and its truth.

@@ -49,9 +49,9 @@ impl Challenge {
         use stepsim_contract::io::write_bytes_atomically;
         let revealed = self.revealed().await?;
         let part = if revealed && self.settings.holdout {
-            stepsim_harness::part::Part::Holdout
+            stepsim_contract::run_layout::Part::Holdout
         } else {
-            stepsim_harness::part::Part::Public
+            stepsim_contract::run_layout::Part::Public
         };
         let teams = self.store.teams().await?;
         let subs = self.store.all_submissions().await?;
@@ -82,7 +82,7 @@ impl Challenge {
                 .file_name()
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            let figures = if part == stepsim_harness::part::Part::Holdout {
+            let figures = if part == stepsim_contract::run_layout::Part::Holdout {
                 &row["holdout"]
             } else {
                 &row["public"]

@@ -1,8 +1,8 @@
 //! The figures of a scored entry, typed.
 //!
 //! The worker stores the harness's result as JSON text: the public part as
-//! `stepsim_harness::part::PublicFeedback`, the held-out part as
-//! `stepsim_harness::report::Summary` (or `{"error": ...}` when that part
+//! `stepsim_harness::PublicFeedback`, the held-out part as
+//! `stepsim_harness::Summary` (or `{"error": ...}` when that part
 //! could not be scored). They are read back here, once, into the harness's
 //! own types; the ranking and the pages read fields, never keys, so a
 //! renamed figure is a compile error and not a blank cell. The JSON API
@@ -10,8 +10,7 @@
 
 use crate::store::Submission;
 use serde::Deserialize;
-use stepsim_harness::part::PublicFeedback;
-use stepsim_harness::report::Summary;
+use stepsim_harness::{PublicFeedback, Summary};
 
 /// An entry's public feedback: the harness's rounded aggregate.
 pub type PublicFigures = PublicFeedback;
@@ -136,7 +135,7 @@ pub fn stored_json(text: Option<&str>) -> serde_json::Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stepsim_harness::report::BootstrapCi;
+    use stepsim_harness::BootstrapCi;
 
     /// A submission holding `public` and `holdout` as the worker stores
     /// them.

@@ -25,8 +25,7 @@ use crate::store::{Role, Store, StoreError, StoreUrl};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use stepsim_harness::part::has_holdout;
-use stepsim_harness::truth_set::load_truth_set;
+use stepsim_harness::{has_holdout, load_truth_set};
 
 /// The scorer of this binary: a score records the version that made it.
 pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VERSION"));
@@ -34,10 +33,10 @@ pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VER
 pub const DEFAULT_QUOTA: u32 = 4;
 /// The floor of the cap on one upload, in bytes: the harness's own floor.
 /// The cap recorded at `init` is the run's own limit
-/// (`stepsim_harness::truth_set::run_submission_limit`: 256 bytes per truth
+/// (`stepsim_harness::run_submission_limit`: 256 bytes per truth
 /// object and 64 KiB per image, never below this), unless the organiser
 /// sets another (`challenge init --max-upload-bytes`).
-pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::input::MAX_SUBMISSION_BYTES;
+pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::MAX_SUBMISSION_BYTES;
 /// Uploads refused by the format check allowed per team per 24 hours.
 pub const DEFAULT_FORMAT_FAILURE_CAP: u32 = 20;
 /// Requests allowed per token and per client address in one minute.
@@ -167,7 +166,7 @@ impl Challenge {
         }
         let truth_dir = std::fs::canonicalize(&truth_dir)
             .map_err(|e| ChallengeError::Run(format!("{}: {e}", truth_dir.display())))?;
-        let max_upload_bytes = stepsim_harness::truth_set::run_submission_limit(&truth)
+        let max_upload_bytes = stepsim_harness::run_submission_limit(&truth)
             .map_err(|e| ChallengeError::Run(e.to_string()))?;
         let url = crate::store::url_of_state(dir, store).map_err(ChallengeError::Run)?;
         let store = crate::store::open(&url, true).await?;
@@ -442,7 +441,7 @@ impl Challenge {
     }
 
     /// Where the reports of entry `id` for a part are kept.
-    pub fn entry_dir(&self, id: i64, part: stepsim_harness::part::Part) -> PathBuf {
+    pub fn entry_dir(&self, id: i64, part: stepsim_contract::run_layout::Part) -> PathBuf {
         self.dir
             .join("entries")
             .join(id.to_string())

@@ -138,7 +138,7 @@ pub struct Submission {
     pub status: String,
     /// Why it was refused.
     pub error: Option<String>,
-    /// The public feedback (JSON of `stepsim_harness::part::PublicFeedback`).
+    /// The public feedback (JSON of `stepsim_harness::PublicFeedback`).
     pub public_json: Option<String>,
     /// The held-out summary (JSON), shown only after reveal.
     pub holdout_json: Option<String>,

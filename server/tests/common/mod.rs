@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use std::path::Path;
-use stepsim_harness::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
+use stepsim_testkit::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
 
 /// A challenge run written to `dir/run/private`: the public part (2 PSFs ×
 /// 2 shears on fields 0-1) and the held-out part (other shears on fields

@@ -33,7 +33,7 @@ pub async fn challenge_json(
             "max_upload_bytes": s.max_upload_bytes,
             "requests_per_minute": s.requests_per_minute,
             "max_final_entries": MAX_FINAL_ENTRIES,
-            "feedback_decimals": stepsim_harness::part::FEEDBACK_DECIMALS
+            "feedback_decimals": stepsim_harness::FEEDBACK_DECIMALS
                 .iter()
                 .map(|(k, d)| (k.to_string(), json!(d)))
                 .collect::<serde_json::Map<String, Value>>(),

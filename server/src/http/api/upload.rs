@@ -305,11 +305,9 @@ async fn format_check(
         tokio::task::spawn_blocking(move || {
             let _turn = permit;
             let opts = crate::worker::upload_options(&settings, &tmp2);
-            stepsim_harness::pipeline::prepare(&opts)
-                .map(drop)
-                .map_err(|e| {
-                    crate::worker::participant_message(&e.to_string(), &tmp2, &settings.truth_dir)
-                })
+            stepsim_harness::prepare(&opts).map(drop).map_err(|e| {
+                crate::worker::participant_message(&e.to_string(), &tmp2, &settings.truth_dir)
+            })
         })
         .await
         .map_err(ApiError::internal)

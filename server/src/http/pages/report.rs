@@ -8,7 +8,7 @@ use axum::extract::{Extension, Path as UrlPath, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde_json::Value;
-use stepsim_harness::pipeline::{REPORT_FIGURES, REPORT_JSON};
+use stepsim_harness::{REPORT_FIGURES, REPORT_JSON};
 
 /// The entry whose report or figures a request may see: after reveal, a
 /// scored entry that is on the final board, or one of the signed-in
@@ -120,7 +120,7 @@ pub(super) async fn report_page(
         let Ok(text) = std::fs::read_to_string(dir.join(REPORT_JSON)) else {
             continue;
         };
-        let report: stepsim_harness::report::Report = match serde_json::from_str(&text) {
+        let report: stepsim_harness::Report = match serde_json::from_str(&text) {
             Ok(r) => r,
             Err(e) => {
                 return web.error(

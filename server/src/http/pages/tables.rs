@@ -5,8 +5,7 @@
 
 use super::{fixed, interval_ends, signed};
 use serde::Serialize;
-use stepsim_harness::markdown::{FEW_BASE_FIELDS, distinct_resamples};
-use stepsim_harness::report::Report;
+use stepsim_harness::{FEW_BASE_FIELDS, Report, distinct_resamples};
 
 /// One summary figure: value and bootstrap interval.
 #[derive(Debug, Serialize)]
@@ -65,7 +64,7 @@ pub(crate) struct ReportTables {
 }
 
 /// How a summary figure's interval is picked from the bootstrap.
-type Pick = fn(&stepsim_harness::report::BootstrapCi) -> Option<[f64; 2]>;
+type Pick = fn(&stepsim_harness::BootstrapCi) -> Option<[f64; 2]>;
 /// A summary row to build: (symbol, subscript, meaning, value, interval, decimals).
 type SummaryLine = (
     &'static str,

@@ -26,7 +26,7 @@ use std::path::Path;
 const MIB: u64 = 1 << 20;
 
 /// Smallest submission limit of a run, in bytes, and the limit of
-/// [`crate::submission::read_submission`]: the sum over its files, counted
+/// [`crate::read::submission::read_submission`]: the sum over its files, counted
 /// both as stored and after gzip decompression (256 MiB; about 3 million
 /// rows of text). A run's own limit grows with its truth
 /// (`truth_set::run_submission_limit`).
@@ -311,6 +311,7 @@ impl<R: Read> GzReader<R> {
     }
 
     /// Members begun so far.
+    #[cfg(test)]
     pub fn members(&self) -> u64 {
         self.members
     }

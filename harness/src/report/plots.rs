@@ -3,8 +3,8 @@
 //! values; the PNG is that same SVG rasterised with its text (resvg and a
 //! bundled font: no system font is needed, CI installs nothing).
 
-use crate::report::Report;
-pub use stepsim_figure::chart::{BLUE, Chart, Colour, Figure, GREY, Item, LIGHT, RED};
+use crate::score::report::Report;
+use stepsim_figure::chart::{BLUE, Chart, Figure, GREY, Item, LIGHT, RED};
 
 /// The report's figures, by file stem: Fig. 2 (shear response per PSF),
 /// Fig. 3 (⟨m⟩ against σ_c), Fig. 4 (m_selc against m_uncontaminated),
@@ -218,7 +218,7 @@ mod tests {
 
     /// The full preset's report (docs/full-preset): six PSFs, linear fits.
     fn preset() -> Report {
-        serde_json::from_str(include_str!("../../docs/full-preset/report.json")).unwrap()
+        serde_json::from_str(include_str!("../../../docs/full-preset/report.json")).unwrap()
     }
 
     #[test]

@@ -16,7 +16,7 @@
 //! removes it when the last handle closes, on every path out (an error, a
 //! panic, a kill).
 
-use crate::submission::SubRow;
+use crate::read::submission::SubRow;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::sync::Arc;

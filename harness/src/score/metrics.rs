@@ -7,11 +7,13 @@
 //! reruns stage 2 on resampled images. Every definition is written out in
 //! `docs/scoring.md`.
 
-use crate::fit::{PolyFit, fit_poly, mean_and_error, population_std};
-use crate::isolation::ISOLATION_FLUX_FRACTION;
-use crate::matching::match_nearest;
-use crate::report::{BinReport, Binned, DatasetReport, FitChoice, FitKind, PsfReport, Summary};
-use crate::submission::SubRow;
+use crate::read::submission::SubRow;
+use crate::score::fit::{PolyFit, fit_poly, mean_and_error, population_std};
+use crate::score::isolation::ISOLATION_FLUX_FRACTION;
+use crate::score::matching::match_nearest;
+use crate::score::report::{
+    BinReport, Binned, DatasetReport, FitChoice, FitKind, PsfReport, Summary,
+};
 use stepsim_contract::run_layout::Datasets;
 use stepsim_contract::truth::TruthRow;
 
@@ -110,7 +112,7 @@ pub struct ImageStats {
     pub by_mag: Vec<BinAcc>,
     /// Galaxy rows by true disk scale length ([`DISK_EDGES_ARCSEC`]).
     pub by_disk: Vec<BinAcc>,
-    /// Rows matched to isolated galaxies ([`crate::isolation`]).
+    /// Rows matched to isolated galaxies ([`crate::isolated`]).
     pub iso: BinAcc,
     /// Chance matches: lattice positions within the match radius of a
     /// truth object ([`chance_matches`]).
@@ -258,7 +260,7 @@ pub fn image_stats(
 /// truth object within `radius_px`, [`match_nearest`]), reduces them
 /// ([`image_stats`]), sums the rows matched to isolated galaxies (no
 /// neighbour above [`ISOLATION_FLUX_FRACTION`] of the flux within
-/// `isolation_radius_px`, [`crate::isolation::isolated`]) and measures the
+/// `isolation_radius_px`, [`crate::score::isolation::isolated`]) and measures the
 /// chance-match rate of the image (`size_px` = (width, height),
 /// [`chance_matches`]).
 pub fn match_image(
@@ -274,7 +276,8 @@ pub fn match_image(
     let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
     let m = match_nearest(&txy, &qxy, radius_px);
     let mut s = image_stats(dataset, field, rows, &m, truth);
-    let iso = crate::isolation::isolated(truth, isolation_radius_px, ISOLATION_FLUX_FRACTION);
+    let iso =
+        crate::score::isolation::isolated(truth, isolation_radius_px, ISOLATION_FLUX_FRACTION);
     for (r, j) in rows.iter().zip(&m) {
         if let Some(j) = *j
             && iso[j]
@@ -547,8 +550,8 @@ fn coef(f: &PolyFit, k: usize) -> ValErr {
 /// with at least [`MIN_SHEARS_QUADRATIC`] distinct shears, and kept when
 /// |q| ≥ [`Q_SIGNIFICANCE`] σ_q; otherwise (or when σ_q is unknown) the fit
 /// is linear, q = 0. With one point only c = γ − γ_true. The errors are
-/// those of the weighted fit ([`fit_poly`]), the points taken as
-/// independent; the scoring uses [`fit_response_fields`].
+/// those of the weighted fit (`fit_poly`), the points taken as
+/// independent; the scoring uses `fit_response_fields`.
 pub fn fit_response(points: &[(f64, f64, Option<f64>)]) -> Response {
     let x: Vec<f64> = points.iter().map(|p| p.0).collect();
     let y: Vec<f64> = points.iter().map(|p| p.1 - p.0).collect();
@@ -1015,8 +1018,8 @@ fn bin_report(
 
 /// Residuals γ − γ_true of the matched galaxies binned in a true property:
 /// for each bin and dataset, per-image weighted mean of the bin's galaxies
-/// minus the applied shear, reduced over fields ([`FieldSeries`]), then the
-/// plain mean over datasets (error from the fields, [`paired_error`]).
+/// minus the applied shear, reduced over fields (`FieldSeries`), then the
+/// plain mean over datasets (error from the fields, `paired_error`).
 pub fn binned_residuals(
     meta: &[DatasetMeta],
     stats: &[ImageStats],
@@ -1166,14 +1169,15 @@ mod tests {
         // only the former, the paper's m a mixture.
         let spec = crate::synthetic::SynthSpec::small(2);
         let run = crate::synthetic::make_run(&spec);
-        let r_px = crate::isolation::ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let r_px = crate::score::isolation::ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
         let mut iso = std::collections::HashSet::new();
         let mut counts = (0, 0);
         for t in &run.truth {
-            for (row, ok) in
-                t.iter()
-                    .zip(crate::isolation::isolated(t, r_px, ISOLATION_FLUX_FRACTION))
-            {
+            for (row, ok) in t.iter().zip(crate::score::isolation::isolated(
+                t,
+                r_px,
+                ISOLATION_FLUX_FRACTION,
+            )) {
                 if ok {
                     iso.insert((row.x.to_bits(), row.y.to_bits()));
                     counts.0 += 1;

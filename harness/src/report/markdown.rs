@@ -1,7 +1,8 @@
 //! `report.md`: the paper's Table 4 (per dataset) and Table 5 (summary) for
 //! one submission, plus the per-PSF fits and the binned residuals.
 
-use crate::report::{Binned, Report};
+use crate::error::show_number;
+use crate::score::report::{Binned, Report};
 use std::fmt::Write as _;
 
 /// Formats a number with `d` decimals when it is of a sane size
@@ -22,17 +23,6 @@ pub fn fixed(x: f64, d: usize) -> String {
 /// missing.
 pub fn num(v: Option<f64>, d: usize) -> String {
     v.map_or_else(|| "—".into(), |x| fixed(x, d))
-}
-
-/// Formats a number shortly, as Rust does (`0.25`, `1e308`, `-3`) but in
-/// scientific notation outside 10⁻⁴ ≤ |x| < 10¹⁵; `inf`, `-inf`, `NaN`
-/// as such.
-pub fn show_number(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() || (1e-4..1e15).contains(&x.abs()) {
-        format!("{x}")
-    } else {
-        format!("{x:e}")
-    }
 }
 
 /// Escapes text for a Markdown table cell or heading: `|`, backslash, backticks,
@@ -178,7 +168,7 @@ pub fn distinct_resamples(n: usize) -> u64 {
 /// each; families without a recorded model, as in reports written before
 /// it was, are left out).
 fn fit_models(o: &mut String, r: &Report) {
-    use crate::report::FitKind;
+    use crate::score::report::FitKind;
     let mut rows = Vec::new();
     for p in &r.psfs {
         let families = [
@@ -488,8 +478,8 @@ mod tests {
     #[test]
     fn an_interval_from_few_base_fields_carries_a_caveat_and_bins_say_why_no_errors() {
         let mut r: Report =
-            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
-        r.summary.bootstrap = Some(crate::report::BootstrapCi {
+            serde_json::from_str(include_str!("../../tests/data/report_minimal.json")).unwrap();
+        r.summary.bootstrap = Some(crate::score::report::BootstrapCi {
             n_resamples: 200,
             seed: 1,
             confidence: 0.95,
@@ -526,9 +516,9 @@ mod tests {
 
     #[test]
     fn every_family_says_its_fit_model_and_why() {
-        use crate::report::{FitChoice, FitKind};
+        use crate::score::report::{FitChoice, FitKind};
         let mut r: Report =
-            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+            serde_json::from_str(include_str!("../../tests/data/report_minimal.json")).unwrap();
         // A report written before the models were recorded: no table.
         assert!(!report_markdown(&r).contains("Fit model of every family"));
         let p = &mut r.psfs[0];
@@ -563,7 +553,7 @@ mod tests {
     #[test]
     fn isolated_galaxy_figures_carry_their_bootstrap_intervals() {
         let mut r: Report =
-            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+            serde_json::from_str(include_str!("../../tests/data/report_minimal.json")).unwrap();
         r.summary.m_isolated_mean = Some(-0.0123);
         r.summary.sigma_c_isolated = Some(0.00234);
         let without = report_markdown(&r);
@@ -571,7 +561,7 @@ mod tests {
             without.contains("⟨m_isolated⟩ = -0.0123; σ_c of the isolated galaxies = 0.00234."),
             "{without}"
         );
-        r.summary.bootstrap = Some(crate::report::BootstrapCi {
+        r.summary.bootstrap = Some(crate::score::report::BootstrapCi {
             n_resamples: 200,
             seed: 1,
             confidence: 0.95,
@@ -601,7 +591,7 @@ mod tests {
     #[test]
     fn report_md_of_absurd_values_stays_readable() {
         let mut r: Report =
-            serde_json::from_str(include_str!("../tests/data/report_minimal.json")).unwrap();
+            serde_json::from_str(include_str!("../../tests/data/report_minimal.json")).unwrap();
         r.submission = "evil|name\n# heading".into();
         r.match_radius_arcsec = 1e300;
         r.datasets[0].g1 = Some(1e308);

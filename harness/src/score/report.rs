@@ -17,7 +17,7 @@ pub struct Report {
     /// Submission name (`--name`, default the submission's file name).
     pub submission: String,
     /// The run scored against: `sha256:` + SHA-256 of its `datasets.json`
-    /// ([`crate::truth_set::run_identity`]). The leaderboard ranks only
+    /// ([`crate::read::truth_set::run_identity`]). The leaderboard ranks only
     /// reports of one run.
     pub run: String,
     /// Match radius used.

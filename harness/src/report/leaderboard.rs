@@ -4,9 +4,10 @@
 //! and one match radius are ranked together ([`check_comparable`]).
 
 use crate::error::HarnessError;
-use crate::input::{MAX_REPORT_BYTES, read_regular_file};
-use crate::markdown::{TABLE5_COLUMNS, escape, show_number, table, table5_cells};
-use crate::report::{Report, Summary};
+use crate::error::show_number;
+use crate::read::input::{MAX_REPORT_BYTES, read_regular_file};
+use crate::report::markdown::{TABLE5_COLUMNS, escape, table, table5_cells};
+use crate::score::report::{Report, Summary};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 

@@ -8,15 +8,12 @@
 //! (eq. 8 is holomorphic in e_s) up to terms of order (|g||e|)^ring_size.
 //! With `shape_noise` the shapes are drawn independently instead.
 
-use crate::error::HarnessError;
-use crate::metrics::{DatasetMeta, ImageStats, match_image};
-use crate::submission::SubRow;
-use crate::truth_set::ImageIndex;
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
 use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part};
 use stepsim_contract::seed::{SimRng, splitmix64};
 use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
+use stepsim_harness::{DatasetMeta, HarnessError, ImageIndex, ImageStats, SubRow, match_image};
 
 /// What to build.
 #[derive(Debug, Clone)]
@@ -355,7 +352,7 @@ impl SynthRun {
                     &self.truth[i],
                     r,
                     (self.datasets.width_px, self.datasets.height_px),
-                    crate::isolation::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
+                    stepsim_harness::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
                 )
             })
             .collect()

@@ -4,7 +4,7 @@
 //! Accepted forms, told apart by content (not by file name), each possibly
 //! gzip-compressed (inflated here within the input limit):
 //! * **FITS table** (the data start with `SIMPLE  =`): the first binary or
-//!   ASCII table extension is read through [`crate::fits_table`] (column
+//!   ASCII table extension is read through [`crate::read::fits_table`] (column
 //!   types from cfitsio's codes; extra columns of any type are ignored);
 //!   column names are matched case-insensitively; `image` must be text.
 //! * **Whitespace ASCII**: the first non-blank line is the header, `#`
@@ -36,18 +36,18 @@
 //! fields, binary content (NUL or control bytes, UTF-16), a duplicate row
 //! (same image, x and y as an earlier row), a file with no rows; and, before
 //! reading, anything that is not a regular file, a symbolic link inside a
-//! directory, and more bytes than the limit ([`crate::input`]). The
+//! directory, and more bytes than the limit ([`crate::read::input`]). The
 //! submission is only read.
 
+use crate::error::show_number;
 use crate::error::{HarnessError, show_text};
-use crate::fits_table::{ColumnKind, Table};
-use crate::input::{
+use crate::read::fits_table::{ColumnKind, Table};
+use crate::read::input::{
     CappedReader, GzReader, InputError, MAX_SUBMISSION_BYTES, gunzip_bounded, input_error, is_gzip,
     kind_of, open_regular, read_entry_file, read_regular_file, show_bytes,
 };
-use crate::markdown::show_number;
-use crate::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
-use crate::truth_set::ImageIndex;
+use crate::read::spill::{DEFAULT_BUFFER_ROWS, SpillWriter, SpilledRows};
+use crate::read::truth_set::ImageIndex;
 use rayon::prelude::*;
 use std::collections::{HashMap, HashSet};
 use std::io::Read;
@@ -185,7 +185,7 @@ pub struct FileRows {
     pub uncompressed_bytes: u64,
 }
 
-pub use stepsim_contract::MAX_ABS_SHEAR;
+use stepsim_contract::MAX_ABS_SHEAR;
 
 /// Reads a submission file or directory, within [`MAX_SUBMISSION_BYTES`]
 /// (streamed: [`read_submission_limited`]).
@@ -196,7 +196,7 @@ pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, Ha
 /// Reads a submission file or directory of at most `max_bytes` bytes (the
 /// sum over its files, both as stored and after gzip decompression),
 /// streamed: the rows are checked as they are read and spilled by image to
-/// a temporary file ([`crate::spill`]), so that memory holds at most
+/// a temporary file (`read/spill.rs`), so that memory holds at most
 /// [`DEFAULT_BUFFER_ROWS`] rows of a single table (and, for a directory,
 /// the rows of the files being read, one image each), never the catalogue.
 /// The checks and messages are those of [`read_submission_whole`], its
@@ -1359,7 +1359,7 @@ fn open_table<'p>(
     open_path: &Path,
     len: u64,
     fixed: Option<usize>,
-) -> Result<(Table<'p>, Layout, Vec<crate::fits_table::Column>), HarnessError> {
+) -> Result<(Table<'p>, Layout, Vec<crate::read::fits_table::Column>), HarnessError> {
     if path.to_str().is_none() {
         // fitsio panics converting such a name for cfitsio.
         return Err(HarnessError::submission(

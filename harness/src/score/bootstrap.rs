@@ -21,8 +21,8 @@
 //! percentile interval, rather than ±t σ_boot, keeps the skew of figures
 //! such as σ_c and Q_c. With one base field there is no interval.
 
-use crate::metrics::{DatasetMeta, ImageStats, score_tables, score_tables_with};
-use crate::report::{BootstrapCi, Summary};
+use crate::score::metrics::{DatasetMeta, ImageStats, score_tables, score_tables_with};
+use crate::score::report::{BootstrapCi, Summary};
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
 use stepsim_contract::seed::{SimRng, splitmix64};
@@ -148,7 +148,7 @@ pub fn bootstrap(
 
 /// The intervals of central probability `confidence` of every summary
 /// figure from the resampled summaries `sums` of `n_fields` base fields
-/// ([`widened_interval`]); `n` and `seed` are recorded.
+/// (`widened_interval`); `n` and `seed` are recorded.
 pub fn intervals(
     sums: &[Summary],
     n_fields: usize,
@@ -182,8 +182,8 @@ pub fn intervals(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
-    use crate::metrics::Scores;
+    use crate::score::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+    use crate::score::metrics::Scores;
     use crate::synthetic::{SynthSpec, make_run};
     use std::collections::HashSet;
 
@@ -223,7 +223,7 @@ mod tests {
             }
         });
         let (meta, stats) = (run.meta(), run.stats(&rows, 1.0));
-        let full = crate::metrics::score_tables(&meta, &stats, 1.0);
+        let full = crate::score::metrics::score_tables(&meta, &stats, 1.0);
         let err = full
             .psfs
             .iter()

@@ -106,8 +106,9 @@ pub fn run_identity(datasets_json: &[u8]) -> String {
 /// Reads `DIR/datasets.json` (DIR = `RUN/private`).
 pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
     let path = dir.join("datasets.json");
-    let bytes = crate::input::read_regular_file(&path, crate::input::MAX_DATASETS_JSON_BYTES)
-        .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
+    let bytes =
+        crate::read::input::read_regular_file(&path, crate::read::input::MAX_DATASETS_JSON_BYTES)
+            .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
     let datasets: Datasets = serde_json::from_slice(&bytes)
         .map_err(|e| HarnessError::truth(&path, format!("not a datasets.json: {e}")))?;
     if datasets.format != DATASETS_FORMAT {
@@ -134,7 +135,7 @@ pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
     })
 }
 
-/// Truth columns the metrics use ([`crate::metrics::image_stats`]).
+/// Truth columns the metrics use ([`crate::score::metrics::image_stats`]).
 pub const SCORING_COLUMNS: [&str; 8] = [
     "kind",
     "x",
@@ -156,7 +157,7 @@ pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> 
     let fe = |e: fitsio::errors::Error| {
         HarnessError::from(IoError::format(
             path,
-            crate::fits_table::fitsio_sentence(&e),
+            crate::read::fits_table::fitsio_sentence(&e),
         ))
     };
     let mut f = stepsim_contract::io::fits::open_fits(path)?;
@@ -167,7 +168,7 @@ pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> 
                 path,
                 format!(
                     "column `{name}`: {}",
-                    crate::fits_table::fitsio_sentence(&e)
+                    crate::read::fits_table::fitsio_sentence(&e)
                 ),
             )
             .into()
@@ -176,7 +177,10 @@ pub fn read_scoring_columns(path: &Path) -> Result<Vec<TruthRow>, HarnessError> 
     let kind: Vec<i32> = hdu.read_col(&mut f, "kind").map_err(|e| {
         HarnessError::from(IoError::format(
             path,
-            format!("column `kind`: {}", crate::fits_table::fitsio_sentence(&e)),
+            format!(
+                "column `kind`: {}",
+                crate::read::fits_table::fitsio_sentence(&e)
+            ),
         ))
     })?;
     let mut rows = vec![TruthRow::default(); kind.len()];
@@ -219,7 +223,7 @@ pub const SUBMISSION_BYTES_PER_IMAGE: u64 = 64 << 10;
 /// The largest submission a run takes, in bytes (as stored and after gzip
 /// decompression): [`SUBMISSION_BYTES_PER_TRUTH_ROW`] × the objects of its
 /// truth tables + [`SUBMISSION_BYTES_PER_IMAGE`] × its images, and never
-/// less than [`crate::input::MAX_SUBMISSION_BYTES`] (256 MiB). The object
+/// less than [`crate::read::input::MAX_SUBMISSION_BYTES`] (256 MiB). The object
 /// counts come from the NAXIS2 of each truth table's header (no rows are
 /// read). Errors name the truth table.
 pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
@@ -232,9 +236,9 @@ pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
         .map(|im| {
             let path = truth.truth_path(&im.image);
             let mut f = stepsim_contract::io::fits::open_fits(&path)?;
-            let hdu = f
-                .hdu(TRUTH_EXTNAME)
-                .map_err(|e| HarnessError::truth(&path, crate::fits_table::fitsio_sentence(&e)))?;
+            let hdu = f.hdu(TRUTH_EXTNAME).map_err(|e| {
+                HarnessError::truth(&path, crate::read::fits_table::fitsio_sentence(&e))
+            })?;
             match hdu.info {
                 HduInfo::TableInfo { num_rows, .. } => Ok(num_rows as u64),
                 _ => Err(HarnessError::truth(
@@ -252,7 +256,7 @@ pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
     Ok(SUBMISSION_BYTES_PER_TRUTH_ROW
         .saturating_mul(n_rows)
         .saturating_add(SUBMISSION_BYTES_PER_IMAGE.saturating_mul(n_images))
-        .max(crate::input::MAX_SUBMISSION_BYTES))
+        .max(crate::read::input::MAX_SUBMISSION_BYTES))
 }
 
 impl TruthSet {
