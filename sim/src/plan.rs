@@ -85,7 +85,7 @@ pub enum SeedOrigin {
 pub struct Dataset {
     /// Index in [`Plan::datasets`].
     pub index: u32,
-    /// Index of the PSF in [`Plan::psfs`].
+    /// Index of the PSF in [`Plan::psf_specs`].
     pub psf: usize,
     /// Index of the shear in [`Plan::shears`] (for a held-out dataset: its
     /// slot, 0..n_shears; its shear is drawn, not configured).

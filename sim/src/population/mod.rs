@@ -170,7 +170,7 @@ pub fn preflight(spec: &PopulationSpec) -> Result<(), PopulationError> {
             key: "population.galaxies.mag_faint",
         });
     }
-    let expected = &spec.stars.density_per_arcmin2 * area;
+    let expected = spec.stars.density_per_arcmin2 * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {
             what: "stars",
@@ -377,7 +377,7 @@ fn poisson(rng: &mut crate::seed::SimRng, mean: f64) -> usize {
 pub fn from_list(spec: &PopulationSpec, objects: &[ListObject]) -> Vec<TruthRow> {
     let wcs = spec.wcs;
     let ins = &spec.instrument;
-    let types = &&spec.galaxies.types;
+    let types = &spec.galaxies.types;
     objects
         .iter()
         .enumerate()
