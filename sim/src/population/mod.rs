@@ -43,7 +43,7 @@ pub const MAX_OBJECTS_PER_FIELD: f64 = 2e6;
 #[derive(Debug, thiserror::Error)]
 pub enum PopulationError {
     /// A base field beyond the plan's, asked of a SkyMaker-list source.
-    #[error("no SkyMaker list for base field {field}: the spec has {n_fields} base fields")]
+    #[error("no SkyMaker list for base field {field}: the plan has {n_fields} base fields")]
     NoList {
         /// The field asked for.
         field: u32,
