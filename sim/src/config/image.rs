@@ -5,6 +5,7 @@
 use super::{Invalid, check_positive, check_range};
 use crate::noise::Instrument;
 use crate::psf::Telescope;
+use crate::wcs::Geometry;
 use serde::{Deserialize, Serialize};
 
 /// Allowed `image.pixel_scale_arcsec`.
@@ -38,15 +39,17 @@ pub struct RawImage {
 }
 
 impl Default for RawImage {
+    /// STEP1's images ([`Geometry::step1`]), 64 base fields.
     fn default() -> Self {
+        let g = Geometry::step1();
         Self {
-            width_px: 4096,
-            height_px: 4096,
-            pixel_scale_arcsec: 0.206,
+            width_px: g.width_px,
+            height_px: g.height_px,
+            pixel_scale_arcsec: g.pixel_scale_arcsec,
             n_images: 64,
             margin_arcsec: 10.0,
-            field_ra_deg: 150.0,
-            field_dec_deg: 2.0,
+            field_ra_deg: g.ra_deg,
+            field_dec_deg: g.dec_deg,
             field_spacing_deg: 1.0,
         }
     }
