@@ -36,7 +36,7 @@ fn the_step1_presets_carry_no_seed() {
         assert_eq!(raw.run.seed, None, "{name}");
         assert_eq!(
             load(name).seed_origin(),
-            stepsim_sim::config::SeedOrigin::Drawn
+            stepsim_sim::plan::SeedOrigin::Drawn
         );
     }
 }
@@ -44,18 +44,18 @@ fn the_step1_presets_carry_no_seed() {
 #[test]
 fn step1_is_the_paper_design() {
     let p = load("step1.json");
-    let im = p.image();
-    assert_eq!((im.width_px, im.height_px, im.n_images), (4096, 4096, 64));
+    let im = p.geometry();
+    assert_eq!((im.width_px, im.height_px, p.n_fields()), (4096, 4096, 64));
     assert_eq!(im.pixel_scale_arcsec, 0.206);
-    assert_eq!(p.psfs().len(), 6);
+    assert_eq!(p.n_psfs(), 6);
     let g1: Vec<f64> = p.shears().iter().map(|s| s.g1).collect();
     assert_eq!(g1, [0.0, 0.005, 0.01, 0.05, 0.1]);
     assert!(p.shears().iter().all(|s| s.g2 == 0.0));
     assert_eq!(p.datasets().len(), 30);
     assert_eq!(p.instrument().sky_mag_arcsec2, 19.2);
     // STEP1 sheared shapes only: positions are not lensed (κ = 0).
-    assert!(!p.population().lens_positions);
-    assert!(!load("step1-mini.json").population().lens_positions);
+    assert!(!p.lens_positions());
+    assert!(!load("step1-mini.json").lens_positions());
 }
 
 #[test]
@@ -70,12 +70,18 @@ fn mini_has_the_same_datasets_on_small_images() {
             .collect::<Vec<_>>()
     };
     assert_eq!(design(&mini), design(&full));
-    assert_eq!(mini.psfs(), full.psfs());
+    let psfs = |p: &stepsim_sim::plan::Plan| {
+        p.psf_specs()
+            .iter()
+            .map(|s| (s.name.clone(), s.fwhm_arcsec, s.model.clone()))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(psfs(&mini), psfs(&full));
     assert_eq!(
         (
-            mini.image().width_px,
-            mini.image().height_px,
-            mini.image().n_images
+            mini.geometry().width_px,
+            mini.geometry().height_px,
+            mini.n_fields()
         ),
         (1024, 1024, 2)
     );

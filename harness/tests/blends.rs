@@ -86,8 +86,9 @@ fn stamp_pixel(s: &Stamp, i: usize, j: usize) -> f64 {
 type Sums = [(f64, f64, usize, f64); 2];
 
 fn measure(plan: &Plan, renderer: &Renderer, field: u32, lens: bool) -> Sums {
-    let base = base_field(plan, field).unwrap();
-    let r_px = ISOLATION_RADIUS_ARCSEC / plan.image().pixel_scale_arcsec;
+    let population = plan.population();
+    let base = base_field(&population, field).unwrap();
+    let r_px = ISOLATION_RADIUS_ARCSEC / plan.geometry().pixel_scale_arcsec;
     let iso = isolated(&base, r_px, ISOLATION_FLUX_FRACTION);
     let twin = rotated(&base);
     // Per galaxy id: (view, χ1 in the image, χ1 alone); view = 2·twin + (g > 0).
@@ -96,7 +97,7 @@ fn measure(plan: &Plan, renderer: &Renderer, field: u32, lens: bool) -> Sums {
         for (up, sign) in [(0, -1.0), (1, 1.0)] {
             let mut view = sheared(rows, sign * G, 0.0);
             if lens {
-                view = lensed(plan, field, &view, sign * G, 0.0);
+                view = lensed(&population, field, &view, sign * G, 0.0);
             }
             let img: Vec<f64> = draw_image(renderer, &view, W as u32, W as u32)
                 .into_iter()
@@ -176,7 +177,7 @@ fn run(n_fields: [u32; 2]) -> [[(f64, f64, usize); 2]; 2] {
     let psf = Arc::new(stepsim_sim::psf::GaussianPsf::round(0.9));
     let renderer = Renderer::new(
         psf,
-        plan.image().pixel_scale_arcsec,
+        plan.geometry().pixel_scale_arcsec,
         Accuracy::default(),
         283.0,
     );
@@ -277,7 +278,10 @@ fn the_ratio_error_is_the_scatter_over_fields() {
 fn the_scene_is_fixed_by_its_seed() {
     let (a, b) = (plan(3), plan(3));
     assert_eq!(a.seed(), SEED);
-    let (fa, fb) = (base_field(&a, 2).unwrap(), base_field(&b, 2).unwrap());
+    let (fa, fb) = (
+        base_field(&a.population(), 2).unwrap(),
+        base_field(&b.population(), 2).unwrap(),
+    );
     assert!(!fa.is_empty());
     assert_eq!(fa, fb);
 }

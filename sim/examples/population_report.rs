@@ -43,7 +43,7 @@ fn main() {
     let area = area1 * f64::from(FIELDS);
     let mut rows: Vec<TruthRow> = Vec::new();
     for f in 0..FIELDS {
-        rows.extend(base_field(&plan, f).unwrap());
+        rows.extend(base_field(&plan.population(), f).unwrap());
     }
     let gals: Vec<&TruthRow> = rows.iter().filter(|r| !r.is_star()).collect();
     let per_field = gals.len() as f64 / f64::from(FIELDS);

@@ -13,7 +13,7 @@ use stepsim_sim::render::{Accuracy, Method, Renderer, StageTimes};
 fn main() {
     let plan = Plan::from_json("{}", Path::new("t"), &["run.seed=20060101"]).unwrap();
     let rows = stepsim_sim::population::sheared(
-        &stepsim_sim::population::base_field(&plan, 0).unwrap(),
+        &stepsim_sim::population::base_field(&plan.population(), 0).unwrap(),
         0.1,
         0.0,
     );

@@ -91,7 +91,7 @@ pub fn psf_file_bytes(side: usize) -> u64 {
 /// the PSFs are solved (`solved` `None`, PSF files counted at their least,
 /// the store not at all) or after.
 pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEstimate {
-    let img = &plan.image();
+    let img = &plan.geometry();
     let out = &plan.output();
     let n = images_in_run(plan);
     let pixels = u64::from(img.width_px) * u64::from(img.height_px);
@@ -111,12 +111,12 @@ pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEsti
                 img.width_px,
                 img.height_px,
                 match out.format {
-                    crate::config::SampleFormat::Float32 => "float32",
-                    crate::config::SampleFormat::Int32 => "int32",
+                    crate::io::image_fits::SampleFormat::Float32 => "float32",
+                    crate::io::image_fits::SampleFormat::Int32 => "int32",
                 },
                 match out.compression {
-                    crate::config::Compression::Rice => " (Rice, counted uncompressed)",
-                    crate::config::Compression::None => "",
+                    crate::io::image_fits::Compression::Rice => " (Rice, counted uncompressed)",
+                    crate::io::image_fits::Compression::None => "",
                 }
             ),
             bytes: image.saturating_mul(n),
@@ -133,7 +133,7 @@ pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEsti
         });
     }
     if out.write_psf {
-        let k = plan.psfs().len();
+        let k = plan.n_psfs();
         let known = BTreeMap::new();
         let sides = solved.map_or(&known, |s| &s.file_side_px);
         let side = |p: usize| sides.get(&p).copied().unwrap_or(DEFAULT_SIZE_PX);

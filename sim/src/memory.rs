@@ -22,8 +22,10 @@
 //! it is for the optical PSFs; for narrow PSFs the estimate is high.
 //! Measured against peak RSS in BENCHMARKS.md.
 
-use crate::config::{Compression, RenderMethod, SampleFormat};
+use crate::io::image_fits::{Compression, SampleFormat};
 use crate::plan::Plan;
+use crate::psf::PsfSpec;
+use crate::render::Method;
 use crate::truth::TruthRow;
 use std::fmt;
 
@@ -172,9 +174,9 @@ fn f32_bytes(px: f64) -> f64 {
 /// Margin (pixels) the split method's canvas can carry: at most half the
 /// largest stamp (what the optical PSFs reach).
 fn margin_px(plan: &Plan) -> f64 {
-    match plan.render().method {
-        RenderMethod::Split => (plan.render().max_stamp_px / 2).max(4) as f64,
-        RenderMethod::Stamp => 0.0,
+    match plan.accuracy().method {
+        Method::Split => (plan.accuracy().max_stamp_px / 2).max(4) as f64,
+        Method::Stamp => 0.0,
     }
 }
 
@@ -187,8 +189,8 @@ fn tile_px(m: f64, side: f64) -> f64 {
 /// Peak bytes of one image of the plan in flight (one worker).
 pub fn image_bytes(plan: &Plan) -> f64 {
     let (w, h) = (
-        f64::from(plan.image().width_px),
-        f64::from(plan.image().height_px),
+        f64::from(plan.geometry().width_px),
+        f64::from(plan.geometry().height_px),
     );
     let m = margin_px(plan);
     let px = w * h;
@@ -215,23 +217,21 @@ pub fn image_bytes(plan: &Plan) -> f64 {
 /// ([`crate::population::kept_fraction`]), and the stars.
 pub fn objects_per_field(plan: &Plan) -> f64 {
     let area = plan.placement_area().area_arcmin2;
-    let galaxies = match plan.population().source {
-        crate::config::Source::Stuff => {
-            crate::population::model(plan).density_per_arcmin2()
-                * crate::population::kept_fraction(plan)
-        }
+    let galaxies = if plan.reads_skymaker_lists() {
         // A list's size is its own (read by the plan).
-        crate::config::Source::SkymakerList { .. } => 0.0,
+        0.0
+    } else {
+        crate::population::model(&plan.population()).density_per_arcmin2()
+            * crate::population::kept_fraction(&plan.population())
     };
-    (galaxies + plan.population().stars.density_per_arcmin2) * area
+    (galaxies + plan.stars().density_per_arcmin2) * area
 }
 
 /// Bytes of the population: base field, twin, one sheared copy per image
 /// in flight, and the stamps being drawn.
 pub fn population_bytes(plan: &Plan, images_in_flight: usize) -> f64 {
     let row = std::mem::size_of::<TruthRow>() as f64;
-    let copies =
-        1.0 + f64::from(u8::from(plan.population().rotated_pairs)) + images_in_flight as f64;
+    let copies = 1.0 + f64::from(u8::from(plan.rotated_pairs())) + images_in_flight as f64;
     objects_per_field(plan) * row * copies + STAMP_BYTES as f64
 }
 
@@ -239,19 +239,16 @@ pub fn population_bytes(plan: &Plan, images_in_flight: usize) -> f64 {
 /// method), plus the transient grids of building an optical PSF.
 pub fn psf_bytes(plan: &Plan, psfs: &[usize]) -> f64 {
     let m = margin_px(plan);
-    let side = f64::from(plan.image().width_px.max(plan.image().height_px));
+    let side = f64::from(plan.geometry().width_px.max(plan.geometry().height_px));
     let kernel = if m > 0.0 {
         let n = tile_px(m, side);
         8.0 * n * (n / 2.0 + 1.0)
     } else {
         0.0
     };
-    let optical = psfs.iter().any(|&i| {
-        matches!(
-            plan.psfs().get(i).map(|p| &p.model),
-            Some(crate::config::RawPsfModel::Optical { .. })
-        )
-    });
+    let optical = psfs
+        .iter()
+        .any(|&i| plan.psf_specs().get(i).is_some_and(PsfSpec::is_optical));
     // Building an optical PSF and measuring a PSF for its file are
     // transients, one at a time.
     let build = if optical {
@@ -259,7 +256,7 @@ pub fn psf_bytes(plan: &Plan, psfs: &[usize]) -> f64 {
     } else {
         0.0
     };
-    kernel * psfs.len() as f64 + build.max(report_bytes(plan.image().pixel_scale_arcsec))
+    kernel * psfs.len() as f64 + build.max(report_bytes(plan.geometry().pixel_scale_arcsec))
 }
 
 fn to_bytes(x: f64) -> u64 {
@@ -274,9 +271,9 @@ fn to_bytes(x: f64) -> u64 {
 /// image per worker in flight.
 pub fn generate_estimate(plan: &Plan, threads: usize) -> MemoryEstimate {
     // Images are made field by field, at most one per worker.
-    let per_field = plan.datasets().len() * (1 + usize::from(plan.population().rotated_pairs));
+    let per_field = plan.datasets().len() * (1 + usize::from(plan.rotated_pairs()));
     let t = threads.max(1).min(per_field.max(1));
-    let all: Vec<usize> = (0..plan.psfs().len()).collect();
+    let all: Vec<usize> = (0..plan.n_psfs()).collect();
     run_estimate(plan, t, &all)
 }
 
@@ -287,7 +284,7 @@ pub fn bench_estimate(plan: &Plan, psf: usize) -> MemoryEstimate {
 }
 
 fn run_estimate(plan: &Plan, images: usize, psfs: &[usize]) -> MemoryEstimate {
-    let img = &plan.image();
+    let img = &plan.geometry();
     MemoryEstimate {
         parts: vec![
             Part {
@@ -354,16 +351,14 @@ pub fn psf_estimate(
     workers: usize,
 ) -> MemoryEstimate {
     let fine = (size_px * oversample) as f64;
-    let optical = plan
-        .psfs()
-        .iter()
-        .any(|p| matches!(p.model, crate::config::RawPsfModel::Optical { .. }));
+    let optical = plan.psf_specs().iter().any(PsfSpec::is_optical);
     let build = if optical {
         OPTICAL_BUILD_BYTES as f64
     } else {
         0.0
     };
-    let per = fine * fine * (8.0 + 16.0) + build.max(report_bytes(plan.image().pixel_scale_arcsec));
+    let per =
+        fine * fine * (8.0 + 16.0) + build.max(report_bytes(plan.geometry().pixel_scale_arcsec));
     MemoryEstimate {
         parts: vec![
             Part {

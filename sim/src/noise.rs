@@ -23,16 +23,65 @@
 //!
 //! Measured statistics are in `docs/noise.md`.
 
-use crate::config::RawInstrument;
 use crate::seed::{SeedKey, SimRng};
 use rand::RngExt;
 use rand_distr::{Distribution, Exp1, Normal, Poisson, StandardNormal};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// Rows per noise block (each block has its own generator). Part of the
 /// on-disk contract: changing it changes every noisy image.
 pub const BLOCK_ROWS: usize = 64;
+
+/// Sky, exposure and detector (SPEC §4 defaults); the config's
+/// `instrument` section, spelled as here.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields, default)]
+pub struct Instrument {
+    /// Sky surface brightness, I band, Vega (STEP1: 19.2 mag arcsec⁻²).
+    pub sky_mag_arcsec2: f64,
+    /// Magnitude giving 1 e⁻/s.
+    pub zeropoint_mag: f64,
+    /// Exposure time.
+    pub exposure_s: f64,
+    /// Electrons per ADU.
+    pub gain_e_per_adu: f64,
+    /// Gaussian read noise, electrons rms.
+    pub read_noise_e: f64,
+    /// Pixel values are clipped here (ADU) and SATURATE is written.
+    pub saturation_adu: f64,
+}
+
+impl Default for Instrument {
+    fn default() -> Self {
+        Self {
+            sky_mag_arcsec2: 19.2,
+            zeropoint_mag: 26.0,
+            exposure_s: 3600.0,
+            gain_e_per_adu: 4.0,
+            read_noise_e: 5.0,
+            saturation_adu: 65535.0,
+        }
+    }
+}
+
+impl Instrument {
+    /// Effective zeropoint: m = zp_eff − 2.5 log10(electrons) (SPEC §1).
+    pub fn zp_eff(&self) -> f64 {
+        self.zeropoint_mag + 2.5 * self.exposure_s.log10()
+    }
+
+    /// Total electrons of a source of magnitude `mag`.
+    pub fn mag_to_electrons(&self, mag: f64) -> f64 {
+        10f64.powf(-0.4 * (mag - self.zp_eff()))
+    }
+
+    /// Magnitude of a source with `electrons` in total.
+    pub fn electrons_to_mag(&self, electrons: f64) -> f64 {
+        self.zp_eff() - 2.5 * electrons.log10()
+    }
+}
 
 /// The detector and sky seen by one image, in electrons and ADU.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,7 +98,7 @@ pub struct Detector {
 
 impl Detector {
     /// The detector of `instrument` at pixel scale `pixel_scale_arcsec`.
-    pub fn new(instrument: &RawInstrument, pixel_scale_arcsec: f64) -> Self {
+    pub fn new(instrument: &Instrument, pixel_scale_arcsec: f64) -> Self {
         Self {
             sky_e_per_px: sky_e_per_pixel(instrument, pixel_scale_arcsec),
             gain_e_per_adu: instrument.gain_e_per_adu,
@@ -71,7 +120,7 @@ impl Detector {
 
 /// Sky electrons per pixel: the sky surface brightness converted with the
 /// instrument's effective zeropoint, times the pixel area in arcsec².
-pub fn sky_e_per_pixel(instrument: &RawInstrument, pixel_scale_arcsec: f64) -> f64 {
+pub fn sky_e_per_pixel(instrument: &Instrument, pixel_scale_arcsec: f64) -> f64 {
     instrument.mag_to_electrons(instrument.sky_mag_arcsec2)
         * pixel_scale_arcsec
         * pixel_scale_arcsec
@@ -395,7 +444,7 @@ mod tests {
     fn step1_sky_level() {
         // 19.2 mag/arcsec² with zp_eff = 26 + 2.5 log10(3600): 10^(0.4 (34.890756 − 19.2))
         // = 1.88929e6 e⁻/arcsec², times 0.206² = 0.042436 arcsec² → 80 174.6 e⁻/px.
-        let d = Detector::new(&RawInstrument::default(), 0.206);
+        let d = Detector::new(&Instrument::default(), 0.206);
         let want = 10f64.powf(0.4 * (26.0 + 2.5 * 3600f64.log10() - 19.2)) * 0.206 * 0.206;
         assert!((d.sky_e_per_px - want).abs() < 1e-6 * want);
         assert!(

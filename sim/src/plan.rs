@@ -14,26 +14,28 @@
 //! After that nothing reads the config again: consumers ask the plan for
 //! ready collaborators ([`Plan::detector`], [`Plan::accuracy`],
 //! [`Plan::image_wcs`], [`Plan::placement_area`], [`Plan::psf_spec`],
-//! [`Plan::skymaker_list`], ...) and for the validated values of a section
-//! ([`Plan::image`], [`Plan::output`], ...). The resolved config's JSON
+//! [`Plan::skymaker_list`], ...) and for the models' typed specs
+//! ([`Plan::geometry`], [`Plan::instrument`], [`Plan::telescope`],
+//! [`Plan::galaxies`], [`Plan::stars`], [`Plan::cosmology`], [`Plan::output`]):
+//! no `config` type leaves the plan, and the models never see the config. The resolved config's JSON
 //! ([`Plan::config_json`]) keeps its paths as written; what
 //! `RUN/private/config.json` holds is [`Plan::run_config_json`], whose
 //! input paths name the copies of the inputs the run keeps beside it
 //! ([`Plan::run_inputs`]), so that it reproduces the run from anywhere.
 
 use crate::config::{
-    ConfigError, RawConfig, RawImage, RawInstrument, RawOutput, RawPopulation, RawPsf, RawPsfModel,
-    RawRender, RawShear, RawTelescope, SeedOrigin, Source, draw_seed,
+    ConfigError, Invalid, Part, RawConfig, RawPsf, RawPsfModel, Source, draw_seed,
 };
-use crate::config::{Invalid, Part, RawChallenge};
 use crate::io::IoError;
+use crate::io::image_fits::{Compression, SampleFormat};
 use crate::io::psf_fits::read_psf_fits_and_bytes;
-use crate::io::skymaker::{ListError, ListObject, read_list_and_bytes};
-use crate::noise::{Detector, sky_e_per_pixel};
-use crate::psf::{Psf, PsfError, PsfFileImage, PsfSpec};
+use crate::io::skymaker::{ListError, read_list_and_bytes};
+use crate::noise::{Detector, Instrument, sky_e_per_pixel};
+use crate::population::{Cosmology, GalaxySpec, ListObject, Placement, PopulationSpec, StarSpec};
+use crate::psf::{Psf, PsfError, PsfFileImage, PsfModel, PsfSpec, Telescope};
 use crate::render::{Accuracy, Renderer};
 use crate::seed::{SeedKey, Stream};
-use crate::wcs::TanWcs;
+use crate::wcs::{Geometry, TanWcs};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
@@ -66,6 +68,16 @@ pub enum PlanError {
     },
 }
 
+/// Where a plan's master seed came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SeedOrigin {
+    /// Written in the config (or a `--set run.seed=N`): anyone who knows it
+    /// can rebuild the run, so the release is only as blind as it is secret.
+    Config,
+    /// The config gave none: drawn from the operating system's entropy.
+    Drawn,
+}
+
 /// One dataset: a PSF and a shear. Its index is stable: `psf * n_shears + shear`
 /// for the public part; held-out datasets (a `challenge` section) follow as
 /// `n_psfs * n_shears + psf * n_shears + slot`.
@@ -73,7 +85,7 @@ pub enum PlanError {
 pub struct Dataset {
     /// Index in [`Plan::datasets`].
     pub index: u32,
-    /// Index of the PSF in [`Plan::psfs`].
+    /// Index of the PSF in [`Plan::psf_specs`].
     pub psf: usize,
     /// Index of the shear in [`Plan::shears`] (for a held-out dataset: its
     /// slot, 0..n_shears; its shear is drawn, not configured).
@@ -86,17 +98,6 @@ pub struct Dataset {
     pub g1: f64,
     /// Applied g2.
     pub g2: f64,
-}
-
-/// Where objects are placed: the image plus its margin.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Placement {
-    /// Area in arcmin².
-    pub area_arcmin2: f64,
-    /// x range in FITS pixels.
-    pub x_px: (f64, f64),
-    /// y range in FITS pixels.
-    pub y_px: (f64, f64),
 }
 
 /// An input file of a run (a SkyMaker list, the image of a `fits` PSF) as
@@ -140,8 +141,9 @@ pub struct Plan {
     seed_origin: SeedOrigin,
     /// One list per base field (`skymaker_list` sources only).
     lists: Option<Arc<Vec<Vec<ListObject>>>>,
-    /// One entry per PSF: the file's image for `fits` models.
-    psf_images: Vec<Option<Arc<PsfFileImage>>>,
+    /// What each PSF is built from, in config order (with the file's image
+    /// for `fits` models).
+    specs: Arc<Vec<PsfSpec>>,
     /// One slot per PSF, filled the first time [`Plan::psf`] builds it;
     /// shared by the plan's clones.
     psfs: Arc<Vec<OnceLock<Arc<dyn Psf>>>>,
@@ -216,14 +218,23 @@ impl Plan {
                 _ => Ok(None),
             })
             .collect::<Result<Vec<_>, PlanError>>()?;
+        let specs: Vec<PsfSpec> = config
+            .psfs
+            .iter()
+            .zip(psf_images)
+            .map(|(entry, image)| PsfSpec {
+                image,
+                ..psf_spec_of(entry, &config)
+            })
+            .collect();
         Ok(Self {
             config,
             source: source.into(),
             datasets,
             seed_origin,
             lists,
-            psfs: Arc::new(psf_images.iter().map(|_| OnceLock::new()).collect()),
-            psf_images,
+            psfs: Arc::new(specs.iter().map(|_| OnceLock::new()).collect()),
+            specs: Arc::new(specs),
             inputs: Arc::new(inputs),
         })
     }
@@ -248,6 +259,13 @@ impl Plan {
         p.config.run.seed = Some(seed);
         p.datasets = challenge_datasets(&p.config);
         p
+    }
+
+    /// The seed written in a resolved config's JSON (`RUN/private/config.json`
+    /// of a run; `path` names it in nothing but parse errors), or `None`
+    /// when the text is not a config or gives no seed.
+    pub fn seed_written_in(json: &str, path: &Path) -> Option<u64> {
+        RawConfig::parse(json, path, &[]).ok()?.run.seed
     }
 
     /// The config file the plan came from.
@@ -283,11 +301,6 @@ impl Plan {
             .map(|d| d.fields.len() as u64)
             .sum::<u64>()
             * twins
-    }
-
-    /// The `challenge` section (held-out fields and their shears' range).
-    pub fn challenge(&self) -> &RawChallenge {
-        &self.config.challenge
     }
 
     /// The run's name (`run.name`).
@@ -341,9 +354,16 @@ impl Plan {
         c.to_json()
     }
 
-    /// Image geometry and the base fields' placement on the sky.
-    pub fn image(&self) -> &RawImage {
-        &self.config.image
+    /// The geometry of every image (size, pixel scale, sky position).
+    pub fn geometry(&self) -> Geometry {
+        let im = &self.config.image;
+        Geometry {
+            width_px: im.width_px,
+            height_px: im.height_px,
+            pixel_scale_arcsec: im.pixel_scale_arcsec,
+            ra_deg: im.field_ra_deg,
+            dec_deg: im.field_dec_deg,
+        }
     }
 
     /// Image pixel scale (arcsec).
@@ -352,43 +372,107 @@ impl Plan {
     }
 
     /// Detector, sky and exposure.
-    pub fn instrument(&self) -> &RawInstrument {
+    pub fn instrument(&self) -> &Instrument {
         &self.config.instrument
     }
 
     /// The telescope the optical PSFs are computed for.
-    pub fn telescope(&self) -> &RawTelescope {
+    pub fn telescope(&self) -> &Telescope {
         &self.config.telescope
     }
 
-    /// The galaxy and star population settings.
-    pub fn population(&self) -> &RawPopulation {
-        &self.config.population
+    /// The galaxy model of a drawn population (`source = stuff`).
+    pub fn galaxies(&self) -> &GalaxySpec {
+        &self.config.population.galaxies
     }
 
-    /// The renderer's settings.
-    pub fn render(&self) -> &RawRender {
-        &self.config.render
+    /// The stars of a drawn population.
+    pub fn stars(&self) -> &StarSpec {
+        &self.config.population.stars
+    }
+
+    /// Everything the base fields are drawn from (or, for
+    /// `source = skymaker_list`, the lists they are made of), for
+    /// [`crate::population::base_field`] and the other population functions.
+    pub fn population(&self) -> PopulationSpec {
+        PopulationSpec {
+            seed: self.seed(),
+            n_fields: self.n_fields(),
+            galaxies: self.galaxies().clone(),
+            stars: self.stars().clone(),
+            cosmology: self.cosmology().clone(),
+            instrument: self.instrument().clone(),
+            wcs: self.image_wcs(),
+            placement: self.placement_area(),
+            lensing_centre: self.lensing_centre(),
+            lens_positions: self.lens_positions(),
+            pixel_scale_arcsec: self.pixel_scale_arcsec(),
+            shears: self.datasets.iter().map(|d| (d.g1, d.g2)).collect(),
+            lists: self.lists.clone(),
+        }
+    }
+
+    /// The cosmology of the galaxy model.
+    pub fn cosmology(&self) -> &Cosmology {
+        &self.config.population.cosmology
+    }
+
+    /// Whether the base fields come from SkyMaker lists
+    /// ([`Plan::skymaker_list`]) rather than from the galaxy and star models.
+    pub fn reads_skymaker_lists(&self) -> bool {
+        matches!(self.config.population.source, Source::SkymakerList { .. })
+    }
+
+    /// Whether every base field also exists with its galaxies turned by 90°
+    /// (`population.rotated_pairs`).
+    pub fn rotated_pairs(&self) -> bool {
+        self.config.population.rotated_pairs
+    }
+
+    /// Whether the galaxies' positions are lensed by the dataset's shear
+    /// (`population.lens_positions`).
+    pub fn lens_positions(&self) -> bool {
+        self.config.population.lens_positions
     }
 
     /// What gets written.
-    pub fn output(&self) -> &RawOutput {
-        &self.config.output
+    pub fn output(&self) -> Output {
+        let o = &self.config.output;
+        Output {
+            noise: o.noise,
+            write_model: o.write_model,
+            write_psf: o.write_psf,
+            format: o.format,
+            compression: o.compression,
+        }
     }
 
-    /// The PSF entries, in config order (dataset `psf` indices point here).
-    pub fn psfs(&self) -> &[RawPsf] {
-        &self.config.psfs
+    /// Number of PSFs (dataset `psf` indices are below it).
+    pub fn n_psfs(&self) -> usize {
+        self.specs.len()
+    }
+
+    /// The name of PSF `index`.
+    ///
+    /// # Panics
+    /// When `index` is not a PSF of the plan (a dataset's `psf` always is).
+    pub fn psf_name(&self, index: usize) -> &str {
+        &self.specs[index].name
     }
 
     /// The PSF names, in config order.
     pub fn psf_names(&self) -> Vec<&str> {
-        self.config.psfs.iter().map(|p| p.name.as_str()).collect()
+        self.specs.iter().map(|p| p.name.as_str()).collect()
     }
 
-    /// The applied shears (dataset `shear` indices point here).
-    pub fn shears(&self) -> &[RawShear] {
-        &self.config.shears
+    /// The applied shears, in config order (dataset `shear` indices point
+    /// here).
+    pub fn shears(&self) -> Vec<Shear> {
+        self.config
+            .shears
+            .iter()
+            .map(|s| Shear { g1: s.g1, g2: s.g2 })
+            .collect()
     }
 
     /// The detector of every image: the instrument at the image pixel scale.
@@ -398,13 +482,21 @@ impl Plan {
 
     /// The renderer's tolerances (the `render` section).
     pub fn accuracy(&self) -> Accuracy {
-        Accuracy::from_config(&self.config.render)
+        let r = &self.config.render;
+        Accuracy {
+            folding_threshold: r.folding_threshold,
+            kvalue_threshold: r.maxk_threshold,
+            edge_sky_sigma: r.edge_sky_sigma,
+            max_stamp_px: r.max_stamp_px as usize,
+            method: r.method,
+            ..Accuracy::default()
+        }
     }
 
     /// The TAN WCS of every image (one for all base fields: see
     /// [`crate::wcs`]).
     pub fn image_wcs(&self) -> TanWcs {
-        TanWcs::of_images(&self.config.image)
+        TanWcs::of_images(&self.geometry())
     }
 
     /// Where objects are placed: the image plus `image.margin_arcsec` on
@@ -438,12 +530,7 @@ impl Plan {
     /// # Panics
     /// When `index` is not a PSF of the plan (a dataset's `psf` always is).
     pub fn psf_spec(&self, index: usize) -> PsfSpec {
-        PsfSpec {
-            entry: self.config.psfs[index].clone(),
-            telescope: self.config.telescope.clone(),
-            pixel_scale_arcsec: self.pixel_scale_arcsec(),
-            image: self.psf_images[index].clone(),
-        }
+        self.specs[index].clone()
     }
 
     /// PSF `index`, built from [`Plan::psf_spec`] the first time it is asked
@@ -498,10 +585,8 @@ impl Plan {
     }
 
     /// [`Plan::psf_spec`] of every PSF, in config order.
-    pub fn psf_specs(&self) -> Vec<PsfSpec> {
-        (0..self.config.psfs.len())
-            .map(|i| self.psf_spec(i))
-            .collect()
+    pub fn psf_specs(&self) -> &[PsfSpec] {
+        &self.specs
     }
 
     /// The objects of base field `field`'s SkyMaker list, read once by
@@ -513,6 +598,67 @@ impl Plan {
             .and_then(|l| l.get(field as usize))
             .map(Vec::as_slice)
     }
+}
+
+/// What the plan's writers are asked to write (the `output` section).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Output {
+    /// Add photon and read noise (false: noise-free images with sky).
+    pub noise: bool,
+    /// Also write the noise-free model beside each noisy image (private).
+    pub write_model: bool,
+    /// Write the PSF images into the private half.
+    pub write_psf: bool,
+    /// Pixel type of the images.
+    pub format: SampleFormat,
+    /// Compression of the images.
+    pub compression: Compression,
+}
+
+/// One applied shear of the configured design.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shear {
+    /// g1.
+    pub g1: f64,
+    /// g2.
+    pub g2: f64,
+}
+
+/// The model's spec of PSF entry `entry` of a validated `config` (no
+/// image: [`Plan::new`] adds the file's for a `fits` model).
+fn psf_spec_of(entry: &RawPsf, config: &RawConfig) -> PsfSpec {
+    let model = match &entry.model {
+        RawPsfModel::Optical {
+            aberration,
+            amplitude,
+            target_chi,
+            angle_deg,
+        } => PsfModel::Optical {
+            aberration: *aberration,
+            amplitude: *amplitude,
+            target_chi: *target_chi,
+            angle_deg: *angle_deg,
+        },
+        RawPsfModel::Gaussian { e1, e2 } => PsfModel::Gaussian { e1: *e1, e2: *e2 },
+        RawPsfModel::Moffat { beta, trunc_fwhm } => PsfModel::Moffat {
+            beta: *beta,
+            trunc_fwhm: *trunc_fwhm,
+        },
+        RawPsfModel::Fits {
+            path,
+            pixel_scale_arcsec,
+        } => PsfModel::Fits {
+            path: path.clone(),
+            pixel_scale_arcsec: *pixel_scale_arcsec,
+        },
+    };
+    PsfSpec::new(
+        &entry.name,
+        entry.fwhm_arcsec,
+        model,
+        config.telescope.clone(),
+        config.image.pixel_scale_arcsec,
+    )
 }
 
 /// `path` resolved against the directory of the config file `config`
@@ -669,6 +815,83 @@ mod tests {
         // Another plan of the same config owns its own.
         let other = Plan::from_json("{}", Path::new("t.json"), &[r#"psfs=[{"name":"g","model":"gaussian","fwhm_arcsec":0.9},{"name":"m","model":"moffat","fwhm_arcsec":0.8,"beta":3.0}]"#]).unwrap();
         assert!(!Arc::ptr_eq(&a, &other.psf(1).unwrap()));
+    }
+
+    #[test]
+    fn psf_specs_spell_their_entry_as_the_config_does() {
+        // The PSF store's key hashes the entry's JSON (io::psf_store::spec_digest):
+        // the spec's must be the config entry's, byte for byte, or every
+        // stored PSF would be orphaned.
+        let plan = Plan::from_json(
+            "{}",
+            Path::new("t.json"),
+            &[r#"psfs=[{"name":"o","model":"optical","aberration":"trefoil","amplitude":0.2,"angle_deg":12.5},{"name":"c","model":"optical","aberration":"coma","target_chi":0.03,"fwhm_arcsec":1.1},{"name":"g","model":"gaussian","e1":0.1},{"name":"m","model":"moffat","beta":3.0,"trunc_fwhm":4.0}]"#],
+        )
+        .unwrap();
+        let step1 = Plan::from_json("{}", Path::new("t.json"), &[]).unwrap();
+        for p in [&plan, &step1] {
+            assert_eq!(p.n_psfs(), p.config.psfs.len());
+            for (spec, entry) in p.psf_specs().iter().zip(&p.config.psfs) {
+                assert_eq!(spec.entry_json(), serde_json::to_string(entry).unwrap());
+                assert_eq!(
+                    serde_json::to_string(&spec.telescope).unwrap(),
+                    serde_json::to_string(&p.config.telescope).unwrap()
+                );
+                assert_eq!(spec.pixel_scale_arcsec, 0.206);
+            }
+        }
+        assert_eq!(step1.psf_spec(1), PsfSpec::step1(1, 0.206));
+        assert_eq!(plan.psf_name(3), "m");
+        assert!(plan.psf_spec(1).is_optical() && !plan.psf_spec(2).is_optical());
+    }
+
+    #[test]
+    fn the_models_get_the_sections_values() {
+        let plan = Plan::from_json(
+            "{}",
+            Path::new("t.json"),
+            &[
+                r#"render={"folding_threshold":1e-3,"maxk_threshold":2e-3,"edge_sky_sigma":0.5,"max_stamp_px":256,"method":"stamp"}"#,
+                "image.width_px=300",
+                "image.height_px=200",
+                "image.field_ra_deg=10",
+                "image.field_dec_deg=-5",
+                "population.rotated_pairs=true",
+            ],
+        )
+        .unwrap();
+        let acc = plan.accuracy();
+        assert_eq!(
+            acc,
+            Accuracy {
+                folding_threshold: 1e-3,
+                kvalue_threshold: 2e-3,
+                edge_sky_sigma: 0.5,
+                max_stamp_px: 256,
+                min_stamp_px: 16,
+                method: crate::render::Method::Stamp,
+            }
+        );
+        // The defaults are the renderer's own.
+        let step1 = Plan::from_json("{}", Path::new("t.json"), &[]).unwrap();
+        assert_eq!(step1.accuracy(), Accuracy::default());
+        let g = plan.geometry();
+        assert_eq!(
+            (
+                g.width_px,
+                g.height_px,
+                g.pixel_scale_arcsec,
+                g.ra_deg,
+                g.dec_deg
+            ),
+            (300, 200, 0.206, 10.0, -5.0)
+        );
+        assert_eq!(step1.geometry(), Geometry::step1());
+        let pop = plan.population();
+        assert_eq!(pop.seed, plan.seed());
+        assert_eq!(pop.placement, plan.placement_area());
+        assert_eq!(pop.shears.len(), plan.datasets().len());
+        assert!(!pop.reads_skymaker_lists() && plan.rotated_pairs());
     }
 
     #[test]

@@ -56,7 +56,7 @@ pub struct PsfSetOptions {
 /// Side of the largest PSF file image [`write_psf_set`] may write (for the
 /// memory estimate before any work).
 pub fn largest_psf_side_px(plan: &Plan, size_px: Option<usize>) -> usize {
-    size_px.unwrap_or((plan.render().max_stamp_px as usize + 2).max(psf_fits::DEFAULT_SIZE_PX))
+    size_px.unwrap_or((plan.accuracy().max_stamp_px + 2).max(psf_fits::DEFAULT_SIZE_PX))
 }
 
 /// One PSF of the set, built, measured and drawn.
@@ -81,10 +81,10 @@ pub fn write_psf_set(
     on_built: &(dyn Fn(&PsfReport, f64) + Sync),
 ) -> Result<Vec<PsfReport>, ProductError> {
     let p = plan.pixel_scale_arcsec();
-    let max_stamp_px = plan.render().max_stamp_px as usize;
+    let max_stamp_px = plan.accuracy().max_stamp_px;
     let one = |index: usize| -> Result<DonePsf, ProductError> {
         let start = std::time::Instant::now();
-        let name = &plan.psfs()[index].name;
+        let name = plan.psf_name(index);
         let built = plan.psf(index)?;
         let report = psf::report(name, built.as_ref(), p)?;
         on_built(&report, start.elapsed().as_secs_f64());
@@ -107,7 +107,7 @@ pub fn write_psf_set(
             report,
         })
     };
-    let workers = options.workers.clamp(1, plan.psfs().len().max(1));
+    let workers = options.workers.clamp(1, plan.n_psfs().max(1));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(workers)
         .build()
@@ -117,7 +117,7 @@ pub fn write_psf_set(
         })?;
     // Collected in config order: the output does not depend on scheduling.
     let done: Vec<DonePsf> = pool.install(|| {
-        (0..plan.psfs().len())
+        (0..plan.n_psfs())
             .into_par_iter()
             .with_max_len(1)
             .map(one)
@@ -157,21 +157,21 @@ pub struct CatalogCounts {
 /// plus `field_kkk_rot.*` with `population.rotated_pairs`. The population
 /// is checked ([`population::preflight`]) before the first file is written.
 pub fn write_catalog(plan: &Plan, out: &Path) -> Result<CatalogCounts, ProductError> {
-    population::preflight(plan).map_err(ProductError::Preflight)?;
+    population::preflight(&plan.population()).map_err(ProductError::Preflight)?;
     write_bytes_atomically(&out.join("config.json"), plan.config_json().as_bytes())?;
     let mut counts = CatalogCounts {
         fields: plan.n_fields(),
         galaxies: 0,
         stars: 0,
     };
-    let t_types = population::t_types(plan);
+    let t_types = population::t_types(&plan.population());
     for field in 0..plan.n_fields() {
-        let rows = population::base_field(plan, field)
+        let rows = population::base_field(&plan.population(), field)
             .map_err(|source| ProductError::Population { field, source })?;
         counts.stars += rows.iter().filter(|r| r.is_star()).count();
         counts.galaxies += rows.iter().filter(|r| !r.is_star()).count();
         write_field(plan, out, field, false, &rows, &t_types)?;
-        if plan.population().rotated_pairs {
+        if plan.rotated_pairs() {
             let twin = population::rotated(&rows);
             write_field(plan, out, field, true, &twin, &t_types)?;
         }
@@ -188,7 +188,7 @@ fn write_field(
     t_types: &[f64],
 ) -> Result<(), IoError> {
     let stem = format!("field_{field:03}{}", if rotated { "_rot" } else { "" });
-    let im = plan.image();
+    let im = plan.geometry();
     let keyword = |k: &str, v: f64, c: &str| (k.to_string(), v, c.to_string());
     let mut keywords = crate::io::truth_header::field_keywords(field, rotated);
     keywords.extend([

@@ -11,7 +11,35 @@
 //! grouped the public images into exactly the public and the held-out
 //! datasets (issue #23). With one WCS every public header is the same.
 
-use crate::config::RawImage;
+/// The geometry of every image of a run: size, pixel scale and the sky
+/// position of its centre (made by the plan from the `image` section).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Geometry {
+    /// NAXIS1.
+    pub width_px: u32,
+    /// NAXIS2.
+    pub height_px: u32,
+    /// Pixel scale (arcsec).
+    pub pixel_scale_arcsec: f64,
+    /// Right ascension of the TAN WCS reference point (the image centre).
+    pub ra_deg: f64,
+    /// Declination of the TAN WCS reference point.
+    pub dec_deg: f64,
+}
+
+impl Geometry {
+    /// STEP1's images (4096², 0.206″) at the config's default position
+    /// (150°, 2°).
+    pub fn step1() -> Self {
+        Self {
+            width_px: 4096,
+            height_px: 4096,
+            pixel_scale_arcsec: 0.206,
+            ra_deg: 150.0,
+            dec_deg: 2.0,
+        }
+    }
+}
 
 /// A TAN WCS with a diagonal CD matrix.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,12 +59,12 @@ pub struct TanWcs {
 }
 
 impl TanWcs {
-    /// The WCS of every image of `image`'s geometry.
-    pub fn of_images(image: &RawImage) -> Self {
+    /// The WCS of every image of geometry `image`.
+    pub fn of_images(image: &Geometry) -> Self {
         let s = image.pixel_scale_arcsec / 3600.0;
         Self {
-            crval1: image.field_ra_deg,
-            crval2: image.field_dec_deg,
+            crval1: image.ra_deg,
+            crval2: image.dec_deg,
             crpix1: (f64::from(image.width_px) + 1.0) / 2.0,
             crpix2: (f64::from(image.height_px) + 1.0) / 2.0,
             cd1_1: -s,
@@ -76,7 +104,7 @@ mod tests {
 
     #[test]
     fn reference_pixel_maps_to_reference_point_and_round_trips() {
-        let img = RawImage::default();
+        let img = Geometry::step1();
         let w = TanWcs::of_images(&img);
         let (ra, dec) = w.pixel_to_sky(w.crpix1, w.crpix2);
         assert!((ra - w.crval1).abs() < 1e-12 && (dec - w.crval2).abs() < 1e-12);
@@ -99,7 +127,7 @@ mod tests {
 
     #[test]
     fn scale_and_orientation() {
-        let w = TanWcs::of_images(&RawImage::default());
+        let w = TanWcs::of_images(&Geometry::step1());
         // One pixel north (+y) is 0.206″ of declination.
         let (_, d0) = w.pixel_to_sky(w.crpix1, w.crpix2);
         let (_, d1) = w.pixel_to_sky(w.crpix1, w.crpix2 + 1.0);

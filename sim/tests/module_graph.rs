@@ -17,7 +17,7 @@ fn sim_src() -> PathBuf {
 
 #[test]
 fn sim_modules_form_no_cycle() {
-    let g = module_graph(&sim_src());
+    let g = library_module_graph(&sim_src());
     assert!(g.contains_key("plan") && g.contains_key("config"), "{g:?}");
     if let Some(cycle) = find_cycle(&g) {
         panic!(
@@ -30,7 +30,7 @@ fn sim_modules_form_no_cycle() {
 
 #[test]
 fn architecture_lists_the_module_graph_as_it_is() {
-    let g = module_graph(&sim_src());
+    let g = library_module_graph(&sim_src());
     let doc_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../ARCHITECTURE.md");
     let doc = std::fs::read_to_string(&doc_path).unwrap();
     let start = "<!-- sim module graph: begin -->\n```\n";
@@ -45,6 +45,77 @@ fn architecture_lists_the_module_graph_as_it_is() {
         "ARCHITECTURE.md's sim module graph differs from the code; the graph now is:\n{}",
         listing(&g)
     );
+}
+
+/// The model layer: what a run simulates, knowing no file and no config.
+const MODELS: [&str; 7] = [
+    "psf",
+    "population",
+    "profile",
+    "render",
+    "noise",
+    "wcs",
+    "moments",
+];
+
+/// The run layer the models must not reach: the config (its schema), the
+/// plan that reads it, file formats and the run's bookkeeping.
+const RUN_LAYER: [&str; 7] = [
+    "config", "plan", "io", "generate", "products", "memory", "disk",
+];
+
+/// "model -> module" for every edge of `g` from one of `models` to one of
+/// `forbidden`.
+fn edges_between(g: &Graph, models: &[&str], forbidden: &[&str]) -> Vec<String> {
+    models
+        .iter()
+        .flat_map(|m| g.get(*m).into_iter().flatten().map(move |to| (m, to)))
+        .filter(|(_, to)| forbidden.contains(&to.as_str()))
+        .map(|(m, to)| format!("{m} -> {to}"))
+        .collect()
+}
+
+#[test]
+fn the_models_know_no_config_plan_or_files() {
+    let src = sim_src();
+    let library = library_module_graph(&src);
+    assert!(
+        MODELS.iter().all(|m| library.contains_key(*m)),
+        "{library:?}"
+    );
+    let wrong = edges_between(&library, &MODELS, &RUN_LAYER);
+    assert!(
+        wrong.is_empty(),
+        "the models (sim/src/{{{}}}) must take typed specs from the plan, not \
+         reach the run layer {RUN_LAYER:?}:\n{}",
+        MODELS.join(","),
+        wrong.join("\n")
+    );
+    // Not even a model's tests name the config: only the plan reads it.
+    let everything = module_graph(&src);
+    let wrong = edges_between(&everything, &MODELS, &["config"]);
+    assert!(
+        wrong.is_empty(),
+        "a model's code or tests use `crate::config`:\n{}",
+        wrong.join("\n")
+    );
+    // The check sees an edge when there is one.
+    let mut planted = library.clone();
+    planted.get_mut("wcs").unwrap().insert("config".into());
+    assert_eq!(
+        edges_between(&planted, &MODELS, &RUN_LAYER),
+        ["wcs -> config"]
+    );
+}
+
+#[test]
+fn library_code_leaves_out_test_modules_and_test_files() {
+    let lib = "use crate::a;\nfn f() {\n    #[cfg(test)]\n    crate::b::g();\n}\n\
+               #[cfg(test)]\nmod tests;\n#[cfg(test)]\nmod tests {\n    use crate::c;\n}\n";
+    let code = library_code(Path::new("src/x/mod.rs"), lib);
+    let found: Vec<String> = crate_paths(code).into_iter().collect();
+    assert_eq!(found, ["a", "b"]);
+    assert_eq!(library_code(Path::new("src/x/tests.rs"), lib), "");
 }
 
 #[test]

@@ -46,7 +46,7 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
         ],
     )
     .unwrap();
-    let base = stepsim_sim::population::base_field(&plan, 0).unwrap();
+    let base = stepsim_sim::population::base_field(&plan.population(), 0).unwrap();
     let (g1, g2) = (0.05, -0.03);
     let rows = stepsim_sim::population::sheared(&base, g1, g2);
     // Compact galaxies (the 512² stamp holds their second moments) of three
@@ -69,7 +69,7 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
         chosen.len()
     );
 
-    let p = plan.image().pixel_scale_arcsec;
+    let p = plan.geometry().pixel_scale_arcsec;
     let psf = Arc::new(GaussianPsf::round(0.9));
     let sigma_px = psf.sigma_arcsec() / p;
     // No k-space cut: the comparison is with untruncated analytic moments.

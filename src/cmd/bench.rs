@@ -3,9 +3,9 @@
 
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
-use stepsim_sim::config::{RawConfig, SeedOrigin};
+use stepsim_sim::config::RawConfig;
 use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
-use stepsim_sim::plan::Plan;
+use stepsim_sim::plan::{Plan, SeedOrigin};
 use stepsim_sim::stats::median;
 
 /// Arguments of `stepsim bench`.
@@ -70,8 +70,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         overrides.push(list_override(list)?);
     }
     let plan = bench_plan(args.config.as_deref(), &overrides)?;
-    let Some(psf_index) = plan.psfs().iter().position(|p| p.name == args.psf) else {
-        let names: Vec<&str> = plan.psfs().iter().map(|p| p.name.as_str()).collect();
+    let Some(psf_index) = plan.psf_names().iter().position(|p| *p == args.psf) else {
+        let names = plan.psf_names();
         bail!(
             "--psf {}: no such PSF in the config (have: {})",
             args.psf,
@@ -117,7 +117,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         (median(&mut v).unwrap_or(f64::NAN), lo, hi)
     };
-    let img = &plan.image();
+    let img = &plan.geometry();
     println!(
         "image {} × {} px, seed {}, PSF {}, {} galaxies, {} stars, {} repeats, {} threads",
         img.width_px,
@@ -211,7 +211,7 @@ mod tests {
         std::fs::write(&list, "100 10.0 12.0 20.0\n").unwrap();
         let set = list_override(&list).unwrap();
         let plan = bench_plan(None, &[set, "image.n_images=1".into()]).unwrap();
-        let rows = stepsim_sim::population::base_field(&plan, 0).unwrap();
+        let rows = stepsim_sim::population::base_field(&plan.population(), 0).unwrap();
         assert_eq!(rows.len(), 1);
         assert!(rows[0].is_star() && (rows[0].x, rows[0].y) == (10.0, 12.0));
     }

@@ -17,7 +17,7 @@
 
 use super::ConfigArgs;
 use std::path::PathBuf;
-use stepsim_sim::config::SeedOrigin;
+use stepsim_sim::plan::SeedOrigin;
 use stepsim_sim::products;
 
 /// Arguments of `stepsim catalog`.
@@ -35,7 +35,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
     // The population is refused (with its key) before the memory estimate.
-    stepsim_sim::population::preflight(&plan)?;
+    stepsim_sim::population::preflight(&plan.population())?;
     super::check_memory(
         "catalog",
         stepsim_sim::memory::catalog_estimate(&plan),

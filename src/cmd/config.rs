@@ -2,7 +2,7 @@
 //! seed when the config gives none: each `generate` draws its own).
 
 use super::ConfigArgs;
-use stepsim_sim::config::SeedOrigin;
+use stepsim_sim::plan::SeedOrigin;
 
 /// Arguments of `stepsim config`.
 #[derive(Debug, clap::Args)]
@@ -18,7 +18,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     eprintln!(
         "stepsim: {}: {} PSFs × {} shears = {} datasets of {} base fields each",
         args.config.config.display(),
-        plan.psfs().len(),
+        plan.n_psfs(),
         plan.shears().len(),
         plan.datasets().len(),
         plan.datasets()[0].fields.len()

@@ -3,9 +3,9 @@
 use super::ConfigArgs;
 use anyhow::Context as _;
 use std::path::PathBuf;
-use stepsim_sim::config::SeedOrigin;
 use stepsim_sim::generate::{self, Event, Options, SeedUse, Shard};
 use stepsim_sim::memory;
+use stepsim_sim::plan::SeedOrigin;
 
 /// Arguments of `stepsim generate`.
 #[derive(Debug, clap::Args)]

@@ -65,7 +65,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             &plan,
             products::largest_psf_side_px(&plan, size_px),
             options.oversample,
-            options.workers.min(plan.psfs().len()),
+            options.workers.min(plan.n_psfs()),
         ),
         "lower --size-px or --oversample",
     )?;

@@ -128,6 +128,36 @@ pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 
 /// The module graph of the crate whose sources are in `src`.
 pub fn module_graph(src: &Path) -> Graph {
+    graph_of(src, false)
+}
+
+/// The non-test code of `source`: empty for a file named `tests.rs`, else
+/// everything before the file's inline test module (`#[cfg(test)]` followed
+/// by `mod name {`; unit tests sit at a file's end).
+pub fn library_code<'a>(path: &Path, source: &'a str) -> &'a str {
+    if path.file_name().is_some_and(|n| n == "tests.rs") {
+        return "";
+    }
+    let mut from = 0;
+    while let Some(i) = source[from..].find("#[cfg(test)]") {
+        let at = from + i;
+        let rest = source[at + "#[cfg(test)]".len()..].trim_start();
+        let line = rest.lines().next().unwrap_or("");
+        if line.starts_with("mod ") && line.contains('{') {
+            return &source[..at];
+        }
+        from = at + 1;
+    }
+    source
+}
+
+/// [`module_graph`] of the library code alone ([`library_code`]): the edges
+/// a test makes (a model's test building its inputs from a plan) left out.
+pub fn library_module_graph(src: &Path) -> Graph {
+    graph_of(src, true)
+}
+
+fn graph_of(src: &Path, library_only: bool) -> Graph {
     let mut files = Vec::new();
     rust_files(src, &mut files);
     let top_of = |p: &Path| -> String {
@@ -154,8 +184,14 @@ pub fn module_graph(src: &Path) -> Graph {
         if from == "lib" {
             continue;
         }
-        let code = code_only(&std::fs::read_to_string(f).unwrap());
-        for to in crate_paths(&code) {
+        let text = std::fs::read_to_string(f).unwrap();
+        let code = code_only(&text);
+        let code = if library_only {
+            library_code(f, &code)
+        } else {
+            &code
+        };
+        for to in crate_paths(code) {
             if to != from && modules.contains(&to) {
                 g.get_mut(&from).unwrap().insert(to);
             }

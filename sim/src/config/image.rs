@@ -1,6 +1,11 @@
-//! Image geometry, detector and telescope sections of the config.
+//! Image geometry, detector and telescope sections of the config (the
+//! `instrument` and `telescope` types are the models' own: [`Instrument`],
+//! [`Telescope`]; their range checks are here).
 
 use super::{Invalid, check_positive, check_range};
+use crate::noise::Instrument;
+use crate::psf::Telescope;
+use crate::wcs::Geometry;
 use serde::{Deserialize, Serialize};
 
 /// Allowed `image.pixel_scale_arcsec`.
@@ -34,15 +39,17 @@ pub struct RawImage {
 }
 
 impl Default for RawImage {
+    /// STEP1's images ([`Geometry::step1`]), 64 base fields.
     fn default() -> Self {
+        let g = Geometry::step1();
         Self {
-            width_px: 4096,
-            height_px: 4096,
-            pixel_scale_arcsec: 0.206,
+            width_px: g.width_px,
+            height_px: g.height_px,
+            pixel_scale_arcsec: g.pixel_scale_arcsec,
             n_images: 64,
             margin_arcsec: 10.0,
-            field_ra_deg: 150.0,
-            field_dec_deg: 2.0,
+            field_ra_deg: g.ra_deg,
+            field_dec_deg: g.dec_deg,
             field_spacing_deg: 1.0,
         }
     }
@@ -85,144 +92,59 @@ impl RawImage {
     }
 }
 
-/// `instrument`: sky, exposure and detector (SPEC §4 defaults).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct RawInstrument {
-    /// Sky surface brightness, I band, Vega (STEP1: 19.2 mag arcsec⁻²).
-    pub sky_mag_arcsec2: f64,
-    /// Magnitude giving 1 e⁻/s.
-    pub zeropoint_mag: f64,
-    /// Exposure time.
-    pub exposure_s: f64,
-    /// Electrons per ADU.
-    pub gain_e_per_adu: f64,
-    /// Gaussian read noise, electrons rms.
-    pub read_noise_e: f64,
-    /// Pixel values are clipped here (ADU) and SATURATE is written.
-    pub saturation_adu: f64,
+/// Range checks of the `instrument` section.
+pub(crate) fn validate_instrument(ins: &Instrument) -> Result<(), Invalid> {
+    check_range("instrument.sky_mag_arcsec2", ins.sky_mag_arcsec2, 0.0, 40.0)?;
+    check_range("instrument.zeropoint_mag", ins.zeropoint_mag, 0.0, 50.0)?;
+    // 1 ms to ~11.6 days; the sky must also stay below saturation
+    // (checked with the pixel scale in `Plan::new`).
+    check_range("instrument.exposure_s", ins.exposure_s, 1e-3, 1e6)?;
+    check_range(
+        "instrument.gain_e_per_adu",
+        ins.gain_e_per_adu,
+        0.01,
+        1000.0,
+    )?;
+    check_range("instrument.read_noise_e", ins.read_noise_e, 0.0, 1e4)?;
+    // Up to the largest int32 (the integer output format).
+    check_range(
+        "instrument.saturation_adu",
+        ins.saturation_adu,
+        1.0,
+        2_147_483_647.0,
+    )?;
+    Ok(())
 }
 
-impl Default for RawInstrument {
-    fn default() -> Self {
-        Self {
-            sky_mag_arcsec2: 19.2,
-            zeropoint_mag: 26.0,
-            exposure_s: 3600.0,
-            gain_e_per_adu: 4.0,
-            read_noise_e: 5.0,
-            saturation_adu: 65535.0,
-        }
+/// Range checks of the `telescope` section.
+pub(crate) fn validate_telescope(tel: &Telescope) -> Result<(), Invalid> {
+    check_positive("telescope.diameter_m", tel.diameter_m)?;
+    check_range(
+        "telescope.obstruction_m",
+        tel.obstruction_m,
+        0.0,
+        tel.diameter_m * 0.95,
+    )?;
+    if tel.spider_arms > 16 {
+        return Err(Invalid::new(
+            "telescope.spider_arms".into(),
+            format!("must be ≤ 16, got {}", tel.spider_arms),
+        ));
     }
-}
-
-impl RawInstrument {
-    pub(crate) fn validate(&self) -> Result<(), Invalid> {
-        check_range(
-            "instrument.sky_mag_arcsec2",
-            self.sky_mag_arcsec2,
-            0.0,
-            40.0,
-        )?;
-        check_range("instrument.zeropoint_mag", self.zeropoint_mag, 0.0, 50.0)?;
-        // 1 ms to ~11.6 days; the sky must also stay below saturation
-        // (checked with the pixel scale in `Plan::new`).
-        check_range("instrument.exposure_s", self.exposure_s, 1e-3, 1e6)?;
-        check_range(
-            "instrument.gain_e_per_adu",
-            self.gain_e_per_adu,
-            0.01,
-            1000.0,
-        )?;
-        check_range("instrument.read_noise_e", self.read_noise_e, 0.0, 1e4)?;
-        // Up to the largest int32 (the integer output format).
-        check_range(
-            "instrument.saturation_adu",
-            self.saturation_adu,
-            1.0,
-            2_147_483_647.0,
-        )?;
-        Ok(())
-    }
-
-    /// Effective zeropoint: m = zp_eff − 2.5 log10(electrons) (SPEC §1).
-    pub fn zp_eff(&self) -> f64 {
-        self.zeropoint_mag + 2.5 * self.exposure_s.log10()
-    }
-
-    /// Total electrons of a source of magnitude `mag`.
-    pub fn mag_to_electrons(&self, mag: f64) -> f64 {
-        10f64.powf(-0.4 * (mag - self.zp_eff()))
-    }
-
-    /// Magnitude of a source with `electrons` in total.
-    pub fn electrons_to_mag(&self, electrons: f64) -> f64 {
-        self.zp_eff() - 2.5 * electrons.log10()
-    }
-}
-
-/// `telescope`: the pupil and wavelength of the optical PSF models
-/// (SPEC §3 defaults: CFHT-like, as SkyMaker's).
-#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields, default)]
-pub struct RawTelescope {
-    /// Primary mirror diameter.
-    pub diameter_m: f64,
-    /// Central obstruction diameter.
-    pub obstruction_m: f64,
-    /// Number of spider arms (0 for none).
-    pub spider_arms: u32,
-    /// Thickness of each arm.
-    pub spider_width_m: f64,
-    /// Angle of the first arm from the +x axis.
-    pub spider_angle_deg: f64,
-    /// Central wavelength.
-    pub wavelength_um: f64,
-}
-
-impl Default for RawTelescope {
-    fn default() -> Self {
-        Self {
-            diameter_m: 3.6,
-            obstruction_m: 1.0,
-            spider_arms: 4,
-            spider_width_m: 0.02,
-            spider_angle_deg: 0.0,
-            wavelength_um: 0.8,
-        }
-    }
-}
-
-impl RawTelescope {
-    pub(crate) fn validate(&self) -> Result<(), Invalid> {
-        check_positive("telescope.diameter_m", self.diameter_m)?;
-        check_range(
-            "telescope.obstruction_m",
-            self.obstruction_m,
-            0.0,
-            self.diameter_m * 0.95,
-        )?;
-        if self.spider_arms > 16 {
-            return Err(Invalid::new(
-                "telescope.spider_arms".into(),
-                format!("must be ≤ 16, got {}", self.spider_arms),
-            ));
-        }
-        check_range(
-            "telescope.spider_width_m",
-            self.spider_width_m,
-            0.0,
-            self.diameter_m / 4.0,
-        )?;
-        check_range(
-            "telescope.spider_angle_deg",
-            self.spider_angle_deg,
-            -360.0,
-            360.0,
-        )?;
-        check_range("telescope.wavelength_um", self.wavelength_um, 0.1, 30.0)?;
-        Ok(())
-    }
+    check_range(
+        "telescope.spider_width_m",
+        tel.spider_width_m,
+        0.0,
+        tel.diameter_m / 4.0,
+    )?;
+    check_range(
+        "telescope.spider_angle_deg",
+        tel.spider_angle_deg,
+        -360.0,
+        360.0,
+    )?;
+    check_range("telescope.wavelength_um", tel.wavelength_um, 0.1, 30.0)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -231,7 +153,7 @@ mod tests {
 
     #[test]
     fn magnitudes_and_electrons_are_inverse() {
-        let ins = RawInstrument::default();
+        let ins = Instrument::default();
         // zp_eff = 26 + 2.5 log10(3600) = 26 + 8.890756... = 34.890756...
         assert!((ins.zp_eff() - (26.0 + 2.5 * 3600f64.log10())).abs() < 1e-12);
         assert!((ins.zp_eff() - 34.890_756).abs() < 1e-6);

@@ -20,14 +20,13 @@ mod psf;
 mod render;
 
 pub use challenge::{Part, RawChallenge};
-pub use image::{RawImage, RawInstrument, RawTelescope};
-pub use population::{
-    Cosmology, Flattening, GalaxyType, InclinationLaw, RawGalaxies, RawPopulation, RawStars, Sizes,
-    Source,
-};
-pub use psf::{Aberration, RawPsf, RawPsfModel};
-pub use render::{Compression, RawOutput, RawRender, RenderMethod, SampleFormat};
+pub use image::RawImage;
+pub use population::{RawPopulation, Source};
+pub use psf::{RawPsf, RawPsfModel};
+pub use render::{RawOutput, RawRender};
 
+use crate::noise::Instrument;
+use crate::psf::Telescope;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -156,9 +155,9 @@ pub struct RawConfig {
     /// Image geometry and the number of base fields.
     pub image: RawImage,
     /// Detector, sky and exposure.
-    pub instrument: RawInstrument,
+    pub instrument: Instrument,
     /// Telescope pupil and wavelength used by the optical PSFs.
-    pub telescope: RawTelescope,
+    pub telescope: Telescope,
     /// Galaxy and star population.
     pub population: RawPopulation,
     /// The PSF models; each makes one group of datasets.
@@ -180,8 +179,8 @@ impl Default for RawConfig {
         Self {
             run: RawRun::default(),
             image: RawImage::default(),
-            instrument: RawInstrument::default(),
-            telescope: RawTelescope::default(),
+            instrument: Instrument::default(),
+            telescope: Telescope::default(),
             population: RawPopulation::default(),
             psfs: RawPsf::step1_set(),
             shears: RawShear::step1_set(),
@@ -213,16 +212,6 @@ impl Default for RawRun {
             seed: None,
         }
     }
-}
-
-/// Where a plan's master seed came from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SeedOrigin {
-    /// Written in the config (or a `--set run.seed=N`): anyone who knows it
-    /// can rebuild the run, so the release is only as blind as it is secret.
-    Config,
-    /// The config gave none: drawn from the operating system's entropy.
-    Drawn,
 }
 
 /// Why no seed could be drawn from the operating system.
@@ -462,8 +451,8 @@ impl RawConfig {
     /// [`RawConfig::validate`] without the file's name.
     fn check_ranges(&self) -> Result<(), Invalid> {
         self.image.validate()?;
-        self.instrument.validate()?;
-        self.telescope.validate()?;
+        image::validate_instrument(&self.instrument)?;
+        image::validate_telescope(&self.telescope)?;
         self.population.validate()?;
         self.render.validate()?;
         self.output.validate()?;

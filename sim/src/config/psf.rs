@@ -1,27 +1,8 @@
 //! `psfs` section: one entry per PSF model (SPEC §3).
 
 use super::{Invalid, check_positive, check_range};
+use crate::psf::Aberration;
 use serde::{Deserialize, Serialize};
-
-/// The optical aberration of an `optical` PSF.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum Aberration {
-    /// No aberration (PSF 0).
-    None,
-    /// Coma, Zernike Z7 (PSF 1).
-    Coma,
-    /// Tracking error: the optical PSF smeared along a line (PSF 2).
-    Jitter,
-    /// Defocus, Zernike Z4 (PSF 3).
-    Defocus,
-    /// Astigmatism, Zernike Z5/Z6 (PSF 4).
-    Astigmatism,
-    /// Trefoil, Zernike Z9/Z10 (PSF 5).
-    Trefoil,
-    /// Primary spherical aberration, Zernike Z11.
-    Spherical,
-}
 
 /// One PSF model, tagged by `model`.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -95,24 +76,19 @@ fn default_fwhm() -> f64 {
 impl RawPsf {
     /// The six STEP1 PSFs of SPEC §3 / paper Table 3.
     pub fn step1_set() -> Vec<Self> {
-        let optical = |name: &str, aberration, target_chi| RawPsf {
-            name: name.into(),
-            fwhm_arcsec: 0.9,
-            model: RawPsfModel::Optical {
-                aberration,
-                amplitude: None,
-                target_chi,
-                angle_deg: 0.0,
-            },
-        };
-        vec![
-            optical("none", Aberration::None, None),
-            optical("coma", Aberration::Coma, Some(0.040)),
-            optical("jitter", Aberration::Jitter, Some(0.080)),
-            optical("defocus", Aberration::Defocus, None),
-            optical("astigmatism", Aberration::Astigmatism, None),
-            optical("trefoil", Aberration::Trefoil, None),
-        ]
+        crate::psf::STEP1_PSFS
+            .iter()
+            .map(|&(name, aberration, target_chi)| RawPsf {
+                name: name.into(),
+                fwhm_arcsec: 0.9,
+                model: RawPsfModel::Optical {
+                    aberration,
+                    amplitude: None,
+                    target_chi,
+                    angle_deg: 0.0,
+                },
+            })
+            .collect()
     }
 
     pub(crate) fn validate(&self) -> Result<(), Invalid> {

@@ -1,6 +1,8 @@
 //! `render` and `output` sections.
 
 use super::{Invalid, check_range};
+use crate::io::image_fits::{Compression, SampleFormat};
+use crate::render::{Accuracy, Method};
 use serde::{Deserialize, Serialize};
 
 /// `render`: accuracy of the stamp renderer (GalSim GSParams-like). The
@@ -24,29 +26,19 @@ pub struct RawRender {
     /// How whole images apply the PSF: `split` (default; exact factoring,
     /// PSF wings applied once per image) or `stamp` (each object with the
     /// whole PSF on its own stamp). See docs/rendering.md.
-    pub method: RenderMethod,
-}
-
-/// `render.method`.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum RenderMethod {
-    /// Object ⊗ a narrow Gaussian per stamp, then one convolution of the
-    /// image with the rest of the PSF.
-    #[default]
-    Split,
-    /// Object ⊗ the whole PSF per stamp.
-    Stamp,
+    pub method: Method,
 }
 
 impl Default for RawRender {
+    /// The renderer's own defaults ([`Accuracy::default`]).
     fn default() -> Self {
+        let a = Accuracy::default();
         Self {
-            folding_threshold: 5e-3,
-            maxk_threshold: 1e-4,
-            edge_sky_sigma: 0.1,
-            max_stamp_px: 1024,
-            method: RenderMethod::Split,
+            folding_threshold: a.folding_threshold,
+            maxk_threshold: a.kvalue_threshold,
+            edge_sky_sigma: a.edge_sky_sigma,
+            max_stamp_px: a.max_stamp_px as u32,
+            method: a.method,
         }
     }
 }
@@ -69,26 +61,6 @@ impl RawRender {
         }
         Ok(())
     }
-}
-
-/// Pixel type of the written images.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum SampleFormat {
-    /// BITPIX −32.
-    Float32,
-    /// BITPIX 32 (ADU rounded to the nearest integer).
-    Int32,
-}
-
-/// Compression of the written images.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum Compression {
-    /// Plain FITS.
-    None,
-    /// Lossless Rice tile compression (integer output only).
-    Rice,
 }
 
 /// `output`: what `generate` writes.

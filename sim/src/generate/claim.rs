@@ -13,9 +13,8 @@
 //! the seed it drew is then dropped.
 
 use super::GenerateError;
-use crate::config::{RawConfig, SeedOrigin};
 use crate::io::IoError;
-use crate::plan::Plan;
+use crate::plan::{Plan, SeedOrigin};
 use std::path::{Path, PathBuf};
 
 /// How the run's seed was chosen.
@@ -79,8 +78,7 @@ pub fn claim(plan: &Plan, out: &Path) -> Result<Claim, GenerateError> {
     if plan.seed_origin() != SeedOrigin::Drawn {
         return Err(different());
     }
-    let theirs = RawConfig::parse(&existing, &path, &[]).map_err(|_| different())?;
-    let Some(seed) = theirs.run.seed else {
+    let Some(seed) = Plan::seed_written_in(&existing, &path) else {
         return Err(different());
     };
     let adopted = plan.with_seed(seed);
@@ -138,9 +136,7 @@ mod tests {
     use std::sync::{Arc, Barrier};
 
     fn plan(overrides: &[&str]) -> Plan {
-        let o: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
-        let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
-        Plan::new(raw, Path::new("t.json")).unwrap()
+        Plan::from_json("{}", Path::new("t.json"), overrides).unwrap()
     }
 
     #[test]

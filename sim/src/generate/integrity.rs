@@ -63,9 +63,9 @@ pub fn refuse_foreign_files(
         }
     }
     let psfs: HashSet<String> = plan
-        .psfs()
+        .psf_names()
         .iter()
-        .map(|p| format!("{}.fits", p.name))
+        .map(|name| format!("{name}.fits"))
         .collect();
     for file in listing(&private.join("psf"))? {
         let name = file_name(&file);

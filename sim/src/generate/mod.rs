@@ -262,7 +262,7 @@ pub fn config_sha256(plan: &Plan) -> String {
 
 /// Every image of a plan in canonical order, with its opaque ids.
 pub fn jobs(plan: &Plan, key: &BlindingKey) -> Result<Vec<Job>, GenerateError> {
-    let rotations: &[bool] = if plan.population().rotated_pairs {
+    let rotations: &[bool] = if plan.rotated_pairs() {
         &[false, true]
     } else {
         &[false]
@@ -478,7 +478,7 @@ pub fn generate(
 ) -> Result<Summary, GenerateError> {
     let paths = RunPaths { root: out.into() };
     // Everything that could fail before drawing is checked before writing.
-    crate::population::preflight(plan).map_err(GenerateError::Preflight)?;
+    crate::population::preflight(&plan.population()).map_err(GenerateError::Preflight)?;
     let claim = claim::claim(plan, out)?;
     let plan = &claim.plan;
     let config_sha256 = config_sha256(plan);
@@ -552,7 +552,7 @@ pub fn generate(
 fn solved_psfs(plan: &Plan, paths: &RunPaths, psfs: &Psfs) -> crate::disk::SolvedPsfs {
     use crate::io::psf_store::{file_for, is_stored};
     let scale = plan.pixel_scale_arcsec();
-    let max_stamp = plan.render().max_stamp_px as usize;
+    let max_stamp = plan.accuracy().max_stamp_px;
     let file_side_px = psfs
         .renderers
         .iter()
@@ -684,7 +684,7 @@ fn build_psfs(
     if plan.output().write_psf {
         for j in &work.mine {
             let p = ds[j.dataset as usize].psf;
-            if !paths.psf(&plan.psfs()[p].name).exists() {
+            if !paths.psf(plan.psf_name(p)).exists() {
                 needed.push(p);
             }
         }
@@ -701,10 +701,9 @@ fn build_psfs(
         total: needed.len(),
     });
     for &p in &needed {
-        let raw = &plan.psfs()[p];
         let psf_err = |source| GenerateError::Psf {
             index: p,
-            name: raw.name.clone(),
+            name: plan.psf_name(p).to_string(),
             source,
         };
         let (_, origin) = plan
@@ -722,7 +721,7 @@ fn build_psfs(
         let renderer = plan.renderer(p).map_err(psf_err)?;
         out.renderers.insert(p, renderer);
         progress(Event::PsfBuilt {
-            name: raw.name.clone(),
+            name: plan.psf_name(p).to_string(),
             done: out.renderers.len(),
             total: needed.len(),
             origin,
@@ -888,7 +887,7 @@ impl<'a> FieldPopulations<'a> {
     /// Draws the population of `field` and stores it unless another copy
     /// was stored first. `Err` carries this draw's own error.
     fn draw(&self, field: u32, twin: bool, cell: &PopulationCell) -> Result<(), GenerateError> {
-        match crate::population::base_field(self.plan, field) {
+        match crate::population::base_field(&self.plan.population(), field) {
             Ok(base) => {
                 let twin = twin.then(|| crate::population::rotated(&base));
                 let _ = cell.set(Some(Arc::new(Population { base, twin })));
@@ -1226,13 +1225,13 @@ fn write_shared(
     )?;
     if plan.output().write_psf {
         for (p, renderer) in renderers {
-            let raw = &plan.psfs()[*p];
+            let name = plan.psf_name(*p);
             write_psf_file(
-                &paths.psf(&raw.name),
+                &paths.psf(name),
                 renderer.psf(),
-                raw,
+                name,
                 plan.pixel_scale_arcsec(),
-                plan.render().max_stamp_px as usize,
+                plan.accuracy().max_stamp_px,
             )?;
         }
     }
@@ -1246,15 +1245,15 @@ fn write_shared(
 fn write_psf_file(
     path: &Path,
     psf: &Arc<dyn crate::psf::Psf>,
-    raw: &crate::config::RawPsf,
+    name: &str,
     pixel_scale_arcsec: f64,
     max_stamp_px: usize,
 ) -> Result<(), IoError> {
     use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
-    let report = crate::psf::report(&raw.name, psf.as_ref(), pixel_scale_arcsec)
+    let report = crate::psf::report(name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
     let drawn = crate::psf::draw_for_file(
-        &raw.name,
+        name,
         psf.as_ref(),
         pixel_scale_arcsec,
         renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
@@ -1279,7 +1278,7 @@ fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str
 
 /// `private/datasets.json` of a run.
 pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
-    let img = &plan.image();
+    let img = &plan.geometry();
     Datasets {
         format: DATASETS_FORMAT.into(),
         width_px: img.width_px,
@@ -1296,7 +1295,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
                         .map(|j| j.dataset_id.clone())
                         .unwrap_or_default(),
                     psf_id: d.psf as u32,
-                    psf: plan.psfs()[d.psf].name.clone(),
+                    psf: plan.psf_name(d.psf).to_string(),
                     g1: d.g1,
                     g2: d.g2,
                     images: images
@@ -1316,7 +1315,7 @@ pub fn datasets_json(plan: &Plan, all: &[Job]) -> Datasets {
 
 /// The public instrument facts of a plan.
 pub fn instrument_facts(plan: &Plan) -> InstrumentFacts {
-    let (img, ins) = (&plan.image(), &plan.instrument());
+    let (img, ins) = (&plan.geometry(), &plan.instrument());
     InstrumentFacts {
         width_px: img.width_px,
         height_px: img.height_px,
@@ -1390,8 +1389,7 @@ fn find_tmp(dir: &Path, out: &mut Vec<PathBuf>) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{RawConfig, SampleFormat};
-    use crate::io::image_fits::{ImageHeader, write_image_fits};
+    use crate::io::image_fits::{ImageHeader, SampleFormat, write_image_fits};
     use crate::render::try_draw_image;
 
     fn plan(overrides: &[&str]) -> Plan {
@@ -1408,8 +1406,8 @@ mod tests {
         .map(|s| s.to_string())
         .collect();
         o.extend(overrides.iter().map(|s| s.to_string()));
-        let raw = RawConfig::parse("{}", Path::new("t.json"), &o).unwrap();
-        Plan::new(raw, Path::new("t.json")).unwrap()
+        let o: Vec<&str> = o.iter().map(String::as_str).collect();
+        Plan::from_json("{}", Path::new("t.json"), &o).unwrap()
     }
 
     #[test]
@@ -1650,13 +1648,15 @@ mod tests {
         let d = &p.datasets()[3];
         assert_eq!((d.psf, d.g1, d.g2), (1, 0.04, -0.02));
         let rows = crate::population::sheared(
-            &crate::population::rotated(&crate::population::base_field(&p, 1).unwrap()),
+            &crate::population::rotated(
+                &crate::population::base_field(&p.population(), 1).unwrap(),
+            ),
             d.g1,
             d.g2,
         );
         let det = p.detector();
         let r = p.renderer(1).unwrap();
-        let (w, h) = (p.image().width_px, p.image().height_px);
+        let (w, h) = (p.geometry().width_px, p.geometry().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
         let pixels = crate::noise::realise_reference(&model, w as usize, &det, Some(noise_key));
@@ -1666,9 +1666,9 @@ mod tests {
             &pixels,
             w,
             h,
-            &ImageHeader::new(p.image(), p.instrument()),
+            &ImageHeader::new(&p.geometry(), p.instrument()),
             SampleFormat::Float32,
-            crate::config::Compression::None,
+            crate::io::image_fits::Compression::None,
         )
         .unwrap();
         let paths = RunPaths {

@@ -15,8 +15,7 @@
 //! when asked for); generate discards them, bench prints them.
 
 use super::{GenerateError, Job, Made, RunPaths, Sidecar};
-use crate::config::SampleFormat;
-use crate::io::image_fits::{ImageHeader, write_image_fits};
+use crate::io::image_fits::{ImageHeader, SampleFormat, write_image_fits};
 use crate::io::truth::write_truth_fits;
 use crate::io::truth_header::truth_keywords;
 use crate::io::write_bytes_atomically;
@@ -117,8 +116,8 @@ impl Lap {
 pub fn dataset_rows(plan: &Plan, job: &Job, base: &[TruthRow]) -> Vec<TruthRow> {
     let d = &plan.datasets()[job.dataset as usize];
     let rows = crate::population::sheared(base, d.g1, d.g2);
-    if plan.population().lens_positions {
-        crate::population::lensed(plan, job.field, &rows, d.g1, d.g2)
+    if plan.lens_positions() {
+        crate::population::lensed(&plan.population(), job.field, &rows, d.g1, d.g2)
     } else {
         rows
     }
@@ -172,7 +171,7 @@ pub(crate) fn make_image(
 ) -> Result<(), GenerateError> {
     let (plan, paths, det) = (cx.plan, cx.paths, cx.det);
     let d = &plan.datasets()[job.dataset as usize];
-    let (w, h) = (plan.image().width_px, plan.image().height_px);
+    let (w, h) = (plan.geometry().width_px, plan.geometry().height_px);
     let output = plan.output();
     let rows = dataset_rows(plan, job, base);
     t.population_s += lap.lap().0;
@@ -197,7 +196,7 @@ pub(crate) fn make_image(
     };
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
-    let header = ImageHeader::new(plan.image(), plan.instrument());
+    let header = ImageHeader::new(&plan.geometry(), plan.instrument());
     let image_path = paths.image(job);
     let format = (output.format, output.compression);
     let image_sha256 = write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
@@ -215,7 +214,7 @@ pub(crate) fn make_image(
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
             .collect();
         let path = paths.model(job);
-        let none = crate::config::Compression::None;
+        let none = crate::io::image_fits::Compression::None;
         let sha = write_image_fits(&path, &adu, w, h, &header, SampleFormat::Float32, none)?;
         t.model_s = lap.lap().0;
         Some(sha)

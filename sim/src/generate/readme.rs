@@ -1,7 +1,7 @@
 //! `public/README.md`: what participants are told. It states facts about the
 //! data and the conventions, never a PSF name, shear, seed or run name.
 
-use crate::config::{Compression, SampleFormat};
+use crate::io::image_fits::{Compression, SampleFormat};
 use crate::plan::Plan;
 use std::fmt::Write as _;
 
@@ -13,14 +13,9 @@ pub const SUBMISSION_FORMAT: &str = stepsim_contract::SUBMISSION_FORMAT_MD;
 /// describing the submission format (see [`SUBMISSION_FORMAT`]).
 pub fn participants_readme(plan: &Plan, submission_format: &str) -> String {
     let ins = plan.instrument();
-    let img = plan.image();
+    let img = plan.geometry();
     let det = plan.detector();
-    let n_per = plan.datasets()[0].fields.len() as u32
-        * if plan.population().rotated_pairs {
-            2
-        } else {
-            1
-        };
+    let n_per = plan.datasets()[0].fields.len() as u32 * if plan.rotated_pairs() { 2 } else { 1 };
     let magzero = ins.zp_eff() - 2.5 * ins.gain_e_per_adu.log10();
     let pixels = match (plan.output().format, plan.output().compression) {
         (SampleFormat::Float32, _) => "32-bit floats (BITPIX −32)".to_string(),
@@ -110,13 +105,12 @@ mod tests {
 
     #[test]
     fn readme_states_the_facts_and_names_no_secret() {
-        let raw = crate::config::RawConfig::parse(
+        let plan = Plan::from_json(
             "{}",
             Path::new("t.json"),
-            &["run.name=secretname".into(), "run.seed=97531".into()],
+            &["run.name=secretname", "run.seed=97531"],
         )
         .unwrap();
-        let plan = Plan::new(raw, Path::new("t.json")).unwrap();
         let text = participants_readme(&plan, "SUBMIT-PARAGRAPH\n");
         for fact in [
             "4096 × 4096",
@@ -151,16 +145,14 @@ mod tests {
     #[test]
     fn one_image_a_dataset_is_said_in_the_singular() {
         let text = |n: &str| {
-            let raw = crate::config::RawConfig::parse(
+            let n_images = format!("image.n_images={n}");
+            let plan = Plan::from_json(
                 "{}",
                 Path::new("t.json"),
-                &[
-                    format!("image.n_images={n}"),
-                    "population.rotated_pairs=false".into(),
-                ],
+                &[&n_images, "population.rotated_pairs=false"],
             )
             .unwrap();
-            participants_readme(&Plan::new(raw, Path::new("t.json")).unwrap(), "")
+            participants_readme(&plan, "")
         };
         assert!(
             text("1").contains("30 datasets of 1\n  image each"),

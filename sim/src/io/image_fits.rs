@@ -22,13 +22,34 @@
 use super::IoError;
 use super::fits::{Primary, fits_bytes, write_fits_hashed};
 use super::write_atomically;
-use crate::config::{Compression, RawImage, RawInstrument, SampleFormat};
-use crate::wcs::TanWcs;
+use crate::noise::Instrument;
+use crate::wcs::{Geometry, TanWcs};
 use fitsio::FitsFile;
 use fitsio::images::{ImageDescription, ImageType};
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 pub use stepsim_contract::io::image::{FitsImage, read_image_fits};
+
+/// Pixel type of the written images (the config's `output.format`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleFormat {
+    /// BITPIX −32.
+    Float32,
+    /// BITPIX 32 (ADU rounded to the nearest integer).
+    Int32,
+}
+
+/// Compression of the written images (the config's `output.compression`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Compression {
+    /// Plain FITS.
+    None,
+    /// Lossless Rice tile compression (integer output only).
+    Rice,
+}
 
 /// What goes into the header of an image besides its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,7 +73,7 @@ pub struct ImageHeader {
 impl ImageHeader {
     /// The header of every image of a run: one for all base fields,
     /// datasets and twins, so that no keyword groups the images.
-    pub fn new(image: &RawImage, instrument: &RawInstrument) -> Self {
+    pub fn new(image: &Geometry, instrument: &Instrument) -> Self {
         Self {
             wcs: TanWcs::of_images(image),
             gain_e_per_adu: instrument.gain_e_per_adu,
@@ -341,12 +362,12 @@ mod tests {
     use super::*;
 
     fn header() -> ImageHeader {
-        let img = RawImage {
+        let img = Geometry {
             width_px: 40,
             height_px: 30,
-            ..Default::default()
+            ..Geometry::step1()
         };
-        ImageHeader::new(&img, &RawInstrument::default())
+        ImageHeader::new(&img, &Instrument::default())
     }
 
     fn pixels() -> Vec<f32> {

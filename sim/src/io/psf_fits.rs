@@ -254,16 +254,7 @@ mod tests {
         // old 128² file left out), and the outer border holds almost nothing
         // (no wrapped wings).
         let p = 0.206;
-        let raw = crate::config::RawPsf::step1_set()
-            .into_iter()
-            .find(|r| r.name == "none")
-            .unwrap();
-        let psf = crate::psf::build(&crate::psf::PsfSpec::new(
-            raw,
-            crate::config::RawTelescope::default(),
-            p,
-        ))
-        .unwrap();
+        let psf = crate::psf::build(&crate::psf::PsfSpec::step1(0, p)).unwrap();
         let n = renderer_side_px(psf.as_ref(), p, 1024);
         assert_eq!(n, 328);
         let dir = tempfile::tempdir().unwrap();

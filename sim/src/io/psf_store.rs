@@ -51,7 +51,6 @@
 //! must not be a directory others can write.
 
 use super::{IoError, write_bytes_atomically};
-use crate::config::RawPsfModel;
 use crate::psf::calibrate::OpticalPsf;
 use crate::psf::optical::BandTransfer;
 use crate::psf::{Calibration, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec};
@@ -125,16 +124,17 @@ pub enum StoreError {
 
 /// True for the models kept in a store (optical ones).
 pub fn is_stored(spec: &PsfSpec) -> bool {
-    matches!(spec.entry.model, RawPsfModel::Optical { .. })
+    spec.is_optical()
 }
 
 /// Hex SHA-256 of everything the PSF's bytes depend on: the format version,
-/// the config entry (model, FWHM, aberration, amplitude or target χ, angle,
-/// name), the telescope, the pixel scale and the accuracy settings.
+/// the PSF's entry as the config spells it ([`PsfSpec::entry_json`]: model,
+/// FWHM, aberration, amplitude or target χ, angle, name), the telescope,
+/// the pixel scale and the accuracy settings.
 pub fn spec_digest(spec: &PsfSpec, accuracy: &PsfAccuracy) -> String {
     let text = format!(
         "stepsim psf store {FORMAT}\nentry {}\ntelescope {}\npixel_scale_arcsec {:?}\naccuracy {:?}\n",
-        serde_json::to_string(&spec.entry).expect("a config entry serialises"),
+        spec.entry_json(),
         serde_json::to_string(&spec.telescope).expect("the telescope serialises"),
         spec.pixel_scale_arcsec,
         accuracy,
@@ -406,15 +406,16 @@ fn decode(c: &[u8]) -> Option<(BandTransfer, Calibration)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{RawPsf, RawTelescope};
+    use crate::psf::{Aberration, PsfModel, Telescope};
 
     fn spec(target_chi: f64) -> PsfSpec {
-        let entry: RawPsf = serde_json::from_value(serde_json::json!({
-            "name": "coma", "model": "optical", "aberration": "coma",
-            "target_chi": target_chi, "fwhm_arcsec": 0.9
-        }))
-        .unwrap();
-        PsfSpec::new(entry, RawTelescope::default(), 0.206)
+        let model = PsfModel::Optical {
+            aberration: Aberration::Coma,
+            amplitude: None,
+            target_chi: Some(target_chi),
+            angle_deg: 0.0,
+        };
+        PsfSpec::new("coma", 0.9, model, Telescope::default(), 0.206)
     }
 
     fn small() -> PsfAccuracy {
@@ -650,11 +651,8 @@ mod tests {
             "{o4:?}"
         );
         // Non-optical models are built, never stored.
-        let g = PsfSpec::new(
-            serde_json::from_value(serde_json::json!({"name": "g", "model": "gaussian"})).unwrap(),
-            RawTelescope::default(),
-            0.206,
-        );
+        let gaussian = PsfModel::Gaussian { e1: 0.0, e2: 0.0 };
+        let g = PsfSpec::new("g", 0.9, gaussian, Telescope::default(), 0.206);
         assert!(!is_stored(&g) && is_stored(&s));
         assert_eq!(
             load_or_build(&g, &acc, dir.path()).unwrap().1,

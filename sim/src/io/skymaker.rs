@@ -28,6 +28,7 @@
 //! field and the offending text.
 
 use super::{IoError, write_bytes_atomically};
+pub use crate::population::ListObject;
 use crate::truth::TruthRow;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -49,47 +50,6 @@ pub enum ListError {
         field: &'static str,
         /// What is wrong, with the offending text.
         message: String,
-    },
-}
-
-/// One object of a list, as written in the file.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum ListObject {
-    /// `100 x y mag`.
-    Star {
-        /// FITS x.
-        x: f64,
-        /// FITS y.
-        y: f64,
-        /// Magnitude.
-        mag: f64,
-    },
-    /// `200 x y mag B/T bulge_re bulge_q bulge_pa disk_h disk_q disk_pa [z] [type]`.
-    Galaxy {
-        /// FITS x.
-        x: f64,
-        /// FITS y.
-        y: f64,
-        /// Magnitude.
-        mag: f64,
-        /// Bulge-to-total ratio.
-        bt: f64,
-        /// Bulge effective radius along the major axis (arcsec).
-        bulge_re_arcsec: f64,
-        /// Apparent bulge axis ratio.
-        bulge_ba: f64,
-        /// Bulge position angle (degrees).
-        bulge_pa_deg: f64,
-        /// Disk scale length along the major axis (arcsec).
-        disk_h_arcsec: f64,
-        /// Apparent disk axis ratio.
-        disk_ba: f64,
-        /// Disk position angle (degrees).
-        disk_pa_deg: f64,
-        /// Redshift, if given.
-        z: Option<f64>,
-        /// de Vaucouleurs T, if given.
-        t_type: Option<f64>,
     },
 }
 

@@ -7,7 +7,7 @@
 //! D_L = (1+z) D_M; distance modulus 5 log10(D_L / 10 pc); comoving volume
 //! element dV/dz/dΩ = D_H D_M² / E(z). Distances in Mpc.
 
-use crate::config::Cosmology;
+use super::Cosmology;
 use stepsim_numerics::quad::simpson;
 
 /// Speed of light, km/s.

@@ -16,12 +16,15 @@
 pub mod cosmology;
 pub mod shapes;
 pub mod sizes;
+mod spec;
 pub mod stars;
 pub mod stuff;
 
-use crate::config::Source;
-use crate::io::skymaker::ListObject;
-use crate::plan::{Placement, Plan};
+pub use spec::{
+    Cosmology, Flattening, GalaxySpec, GalaxyType, InclinationLaw, ListObject, Placement,
+    PopulationSpec, Sizes, StarSpec,
+};
+
 use crate::seed::{SeedKey, Stream};
 use crate::shear::{self, Complex64, Moments};
 use crate::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
@@ -61,26 +64,26 @@ pub enum PopulationError {
     },
 }
 
-/// Where galaxies are placed: [`Plan::placement_area`], widened with
-/// `population.lens_positions` so that after lensing by any shear of the plan
+/// Where galaxies are placed: [`PopulationSpec::placement`], widened with
+/// `lens_positions` so that after lensing by any shear of the run
 /// the galaxies still cover the image and its margin (the source-plane
 /// rectangle A·(image + margin), A the shear matrix, about the image
 /// centre). Lensing keeps areas, so the density on the image is unchanged.
-pub fn galaxy_placement_area(plan: &Plan) -> Placement {
-    let whole = plan.placement_area();
-    if !plan.population().lens_positions {
+pub fn galaxy_placement_area(spec: &PopulationSpec) -> Placement {
+    let whole = spec.placement;
+    if !spec.lens_positions {
         return whole;
     }
     let (xr, yr) = (whole.x_px, whole.y_px);
-    let (cx, cy) = plan.lensing_centre();
+    let (cx, cy) = spec.lensing_centre;
     let (mut hx, mut hy) = (xr.1 - cx, yr.1 - cy);
     let (hx0, hy0) = (hx, hy);
-    for d in plan.datasets() {
-        let a = crate::shear::shear_matrix(d.g1, d.g2);
+    for &(g1, g2) in &spec.shears {
+        let a = crate::shear::shear_matrix(g1, g2);
         hx = hx.max(a[0][0].abs() * hx0 + a[0][1].abs() * hy0);
         hy = hy.max(a[1][0].abs() * hx0 + a[1][1].abs() * hy0);
     }
-    let s = plan.pixel_scale_arcsec() / 60.0;
+    let s = spec.pixel_scale_arcsec / 60.0;
     Placement {
         area_arcmin2: 4.0 * hx * hy * s * s,
         x_px: (cx - hx, cx + hx),
@@ -89,17 +92,23 @@ pub fn galaxy_placement_area(plan: &Plan) -> Placement {
 }
 
 /// The galaxies of `rows` with their positions lensed by (g1, g2) about
-/// [`Plan::lensing_centre`] ([`crate::shear::lens_offset`]), sky coordinates
-/// recomputed from the images' WCS ([`Plan::image_wcs`], the same for
-/// every base field: `_field` is unused); stars unchanged. Galaxies that land
-/// beyond the image and its margin ([`Plan::placement_area`]) are left out, so
-/// every dataset has the density of an unlensed one.
-pub fn lensed(plan: &Plan, _field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
+/// [`PopulationSpec::lensing_centre`] ([`crate::shear::lens_offset`]), sky
+/// coordinates recomputed from the images' WCS ([`PopulationSpec::wcs`], the
+/// same for every base field: `_field` is unused); stars unchanged. Galaxies
+/// that land beyond the image and its margin ([`PopulationSpec::placement`])
+/// are left out, so every dataset has the density of an unlensed one.
+pub fn lensed(
+    spec: &PopulationSpec,
+    _field: u32,
+    rows: &[TruthRow],
+    g1: f64,
+    g2: f64,
+) -> Vec<TruthRow> {
     let Placement {
         x_px: xr, y_px: yr, ..
-    } = plan.placement_area();
-    let (cx, cy) = plan.lensing_centre();
-    let wcs = plan.image_wcs();
+    } = spec.placement;
+    let (cx, cy) = spec.lensing_centre;
+    let wcs = spec.wcs;
     rows.iter()
         .filter_map(|r| {
             if r.is_star() {
@@ -118,63 +127,56 @@ pub fn lensed(plan: &Plan, _field: u32, rows: &[TruthRow], g1: f64, g2: f64) -> 
         .collect()
 }
 
-/// The Stuff model of a plan for the configured galaxy magnitude range.
-pub fn model(plan: &Plan) -> StuffModel {
-    let g = &plan.population().galaxies;
-    StuffModel::new(
-        g,
-        Lcdm::new(&plan.population().cosmology),
-        g.mag_bright,
-        g.mag_faint,
-    )
+/// The Stuff model of `spec` for its galaxy magnitude range.
+pub fn model(spec: &PopulationSpec) -> StuffModel {
+    let g = &spec.galaxies;
+    StuffModel::new(g, Lcdm::new(&spec.cosmology), g.mag_bright, g.mag_faint)
 }
 
 /// All stars and galaxies of base field `field`, unsheared (g1 = g2 = 0,
 /// sheared columns equal to the intrinsic ones), with unique ids, sorted by
 /// id. Randomness comes only from `SeedKey::base(seed, field, Galaxies)` and
 /// `(…, Stars)`, so every dataset shares the field. With
-/// `population.source = skymaker_list` the field's list (read by the plan,
-/// [`Plan::skymaker_list`]) is used instead.
-pub fn base_field(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
-    if let Source::SkymakerList { .. } = plan.population().source {
-        let objects = plan.skymaker_list(field).ok_or(PopulationError::NoList {
+/// SkyMaker lists the field's list ([`PopulationSpec::skymaker_list`],
+/// read by the plan) is used instead.
+pub fn base_field(spec: &PopulationSpec, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
+    if spec.reads_skymaker_lists() {
+        let objects = spec.skymaker_list(field).ok_or(PopulationError::NoList {
             field,
-            n_fields: plan.n_fields(),
+            n_fields: spec.n_fields,
         })?;
-        return Ok(from_list(plan, objects));
+        return Ok(from_list(spec, objects));
     }
-    let mut rows = galaxies(plan, field)?;
+    let mut rows = galaxies(spec, field)?;
     let first_star = rows.len() as i64 + 1;
-    rows.extend(stars_of_field(plan, field, first_star)?);
+    rows.extend(stars_of_field(spec, field, first_star)?);
     Ok(rows)
 }
 
 /// Checks, without drawing anything, that [`base_field`] will succeed for
-/// every field of the plan: the expected object counts are within
+/// every field of `spec`: the expected object counts are within
 /// [`MAX_OBJECTS_PER_FIELD`] (a SkyMaker source's lists were read and
-/// checked by [`Plan::new`]). Commands call this before writing anything.
-pub fn preflight(plan: &Plan) -> Result<(), PopulationError> {
-    match &plan.population().source {
-        Source::Stuff => {
-            let area = galaxy_placement_area(plan).area_arcmin2;
-            let expected = model(plan).density_per_arcmin2() * area;
-            if expected > MAX_OBJECTS_PER_FIELD {
-                return Err(PopulationError::TooMany {
-                    what: "galaxies",
-                    expected,
-                    key: "population.galaxies.mag_faint",
-                });
-            }
-            let expected = plan.population().stars.density_per_arcmin2 * area;
-            if expected > MAX_OBJECTS_PER_FIELD {
-                return Err(PopulationError::TooMany {
-                    what: "stars",
-                    expected,
-                    key: "population.stars.density_per_arcmin2",
-                });
-            }
-        }
-        Source::SkymakerList { .. } => {}
+/// checked by the plan). Commands call this before writing anything.
+pub fn preflight(spec: &PopulationSpec) -> Result<(), PopulationError> {
+    if spec.reads_skymaker_lists() {
+        return Ok(());
+    }
+    let area = galaxy_placement_area(spec).area_arcmin2;
+    let expected = model(spec).density_per_arcmin2() * area;
+    if expected > MAX_OBJECTS_PER_FIELD {
+        return Err(PopulationError::TooMany {
+            what: "galaxies",
+            expected,
+            key: "population.galaxies.mag_faint",
+        });
+    }
+    let expected = spec.stars.density_per_arcmin2 * area;
+    if expected > MAX_OBJECTS_PER_FIELD {
+        return Err(PopulationError::TooMany {
+            what: "stars",
+            expected,
+            key: "population.stars.density_per_arcmin2",
+        });
     }
     Ok(())
 }
@@ -188,12 +190,12 @@ pub const KEPT_FRACTION_DRAWS: usize = 8192;
 /// `mag_faint`]. Estimated from [`KEPT_FRACTION_DRAWS`] draws of a fixed
 /// stream (the same for every seed; binomial error at most 0.006); 1 for a
 /// SkyMaker list, whose objects are all kept.
-pub fn kept_fraction(plan: &Plan) -> f64 {
-    if !matches!(plan.population().source, Source::Stuff) {
+pub fn kept_fraction(spec: &PopulationSpec) -> f64 {
+    if spec.reads_skymaker_lists() {
         return 1.0;
     }
-    let g = &plan.population().galaxies;
-    let model = model(plan);
+    let g = &spec.galaxies;
+    let model = model(spec);
     let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
     let mut rng = SeedKey::base(0, 0, Stream::Galaxies).rng();
     let kept = (0..KEPT_FRACTION_DRAWS)
@@ -209,23 +211,18 @@ pub fn kept_fraction(plan: &Plan) -> f64 {
 }
 
 /// de Vaucouleurs T of each Hubble type code (for SkyMaker lists).
-pub fn t_types(plan: &Plan) -> Vec<f64> {
-    plan.population()
-        .galaxies
-        .types
-        .iter()
-        .map(|t| t.t_type)
-        .collect()
+pub fn t_types(spec: &PopulationSpec) -> Vec<f64> {
+    spec.galaxies.types.iter().map(|t| t.t_type).collect()
 }
 
-fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
-    let g = &plan.population().galaxies;
-    let model = model(plan);
+fn galaxies(spec: &PopulationSpec, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
+    let g = &spec.galaxies;
+    let model = model(spec);
     let Placement {
         area_arcmin2: area,
         x_px: xr,
         y_px: yr,
-    } = galaxy_placement_area(plan);
+    } = galaxy_placement_area(spec);
     let expected = model.density_per_arcmin2() * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {
@@ -234,11 +231,11 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
             key: "population.galaxies.mag_faint",
         });
     }
-    let mut rng = SeedKey::base(plan.seed(), field, Stream::Galaxies).rng();
+    let mut rng = SeedKey::base(spec.seed, field, Stream::Galaxies).rng();
     let n = poisson(&mut rng, expected);
     let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
-    let wcs = plan.image_wcs();
-    let ins = plan.instrument();
+    let wcs = spec.wcs;
+    let ins = &spec.instrument;
     let sz = &g.sizes;
     let h = model.cosmo.h();
     let mut rows = Vec::with_capacity(n);
@@ -308,16 +305,16 @@ fn galaxies(plan: &Plan, field: u32) -> Result<Vec<TruthRow>, PopulationError> {
 }
 
 fn stars_of_field(
-    plan: &Plan,
+    spec: &PopulationSpec,
     field: u32,
     first_id: i64,
 ) -> Result<Vec<TruthRow>, PopulationError> {
-    let s = &plan.population().stars;
+    let s = &spec.stars;
     let Placement {
         area_arcmin2: area,
         x_px: xr,
         y_px: yr,
-    } = plan.placement_area();
+    } = spec.placement;
     let expected = s.density_per_arcmin2 * area;
     if expected > MAX_OBJECTS_PER_FIELD {
         return Err(PopulationError::TooMany {
@@ -326,10 +323,10 @@ fn stars_of_field(
             key: "population.stars.density_per_arcmin2",
         });
     }
-    let mut rng = SeedKey::base(plan.seed(), field, Stream::Stars).rng();
+    let mut rng = SeedKey::base(spec.seed, field, Stream::Stars).rng();
     let n = poisson(&mut rng, expected);
-    let wcs = plan.image_wcs();
-    let ins = plan.instrument();
+    let wcs = spec.wcs;
+    let ins = &spec.instrument;
     Ok((0..n)
         .map(|k| {
             let x = xr.0 + (xr.1 - xr.0) * rng.random::<f64>();
@@ -346,7 +343,7 @@ fn star_row(
     y: f64,
     mag: f64,
     wcs: &TanWcs,
-    ins: &crate::config::RawInstrument,
+    ins: &crate::noise::Instrument,
 ) -> TruthRow {
     let (ra, dec) = wcs.pixel_to_sky(x, y);
     TruthRow {
@@ -377,10 +374,10 @@ fn poisson(rng: &mut crate::seed::SimRng, mean: f64) -> usize {
 }
 
 /// Truth rows from a SkyMaker list (ids = 1-based object order in the file).
-pub fn from_list(plan: &Plan, objects: &[ListObject]) -> Vec<TruthRow> {
-    let wcs = plan.image_wcs();
-    let ins = plan.instrument();
-    let types = &plan.population().galaxies.types;
+pub fn from_list(spec: &PopulationSpec, objects: &[ListObject]) -> Vec<TruthRow> {
+    let wcs = spec.wcs;
+    let ins = &spec.instrument;
+    let types = &spec.galaxies.types;
     objects
         .iter()
         .enumerate()

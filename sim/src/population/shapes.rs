@@ -9,7 +9,7 @@
 //!   spheroid seen at inclination i), thin disk β = cos i.
 //! * One position angle θ uniform in [0, π), shared by bulge and disk.
 
-use crate::config::{Flattening, InclinationLaw};
+use super::{Flattening, InclinationLaw};
 use crate::seed::SimRng;
 use crate::stats::normal_cdf;
 use rand::RngExt;

@@ -7,18 +7,18 @@
 //! cumulative counts: m = log10(10^(s m_b) + u (10^(s m_f) − 10^(s m_b))) / s
 //! (uniform in m when s = 0).
 
-use crate::config::RawStars;
+use super::StarSpec;
 use crate::seed::SimRng;
 use rand::RngExt;
 
 /// Draws one star magnitude.
-pub fn draw_mag(stars: &RawStars, rng: &mut SimRng) -> f64 {
+pub fn draw_mag(stars: &StarSpec, rng: &mut SimRng) -> f64 {
     let u: f64 = rng.random();
     mag_quantile(stars, u)
 }
 
 /// The magnitude with a fraction `u` of the stars brighter than it.
-pub fn mag_quantile(stars: &RawStars, u: f64) -> f64 {
+pub fn mag_quantile(stars: &StarSpec, u: f64) -> f64 {
     let (mb, mf, s) = (stars.mag_bright, stars.mag_faint, stars.slope);
     if s.abs() < 1e-12 || mf <= mb {
         return mb + u * (mf - mb);
@@ -30,7 +30,7 @@ pub fn mag_quantile(stars: &RawStars, u: f64) -> f64 {
 }
 
 /// Fraction of the stars brighter than `m` (the CDF of [`draw_mag`]).
-pub fn mag_cdf(stars: &RawStars, m: f64) -> f64 {
+pub fn mag_cdf(stars: &StarSpec, m: f64) -> f64 {
     let (mb, mf, s) = (stars.mag_bright, stars.mag_faint, stars.slope);
     let m = m.clamp(mb, mf);
     if s.abs() < 1e-12 || mf <= mb {
@@ -48,7 +48,7 @@ mod tests {
 
     #[test]
     fn star_counts_have_slope_0_3() {
-        let stars = RawStars::default();
+        let stars = StarSpec::default();
         let mut rng = SeedKey::base(21, 0, Stream::Test).rng();
         let mags: Vec<f64> = (0..100_000).map(|_| draw_mag(&stars, &mut rng)).collect();
         assert!(mags.iter().all(|&m| (17.0..=25.0).contains(&m)));
@@ -64,9 +64,9 @@ mod tests {
 
     #[test]
     fn flat_counts_when_slope_is_zero() {
-        let stars = RawStars {
+        let stars = StarSpec {
             slope: 0.0,
-            ..RawStars::default()
+            ..StarSpec::default()
         };
         assert!((mag_quantile(&stars, 0.5) - 21.0).abs() < 1e-12);
         assert!((mag_cdf(&stars, 19.0) - 0.25).abs() < 1e-12);

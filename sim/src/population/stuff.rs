@@ -34,7 +34,7 @@
 //! exact maximum of φ_t on the range.
 
 use super::cosmology::{DistanceTable, Lcdm};
-use crate::config::{GalaxyType, InclinationLaw, RawGalaxies};
+use super::{GalaxySpec, GalaxyType, InclinationLaw};
 use crate::seed::SimRng;
 use rand::RngExt;
 
@@ -250,7 +250,7 @@ pub struct Luminous {
 impl StuffModel {
     /// Tabulates the model for observed I in [`mag_bright`, `mag_faint`]:
     /// face-on magnitudes in [`mag_bright` − A_max, `mag_faint`].
-    pub fn new(g: &RawGalaxies, cosmo: Lcdm, mag_bright: f64, mag_faint: f64) -> Self {
+    pub fn new(g: &GalaxySpec, cosmo: Lcdm, mag_bright: f64, mag_faint: f64) -> Self {
         let h = cosmo.h();
         let max_incl = g.max_inclination_deg.to_radians();
         let types: Vec<TypeModel> = g
@@ -444,7 +444,7 @@ pub fn mean_over_inclination(law: InclinationLaw, max_incl: f64, f: impl Fn(f64)
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Cosmology;
+    use crate::population::Cosmology;
 
     #[test]
     fn k_correction_limits() {
@@ -465,7 +465,7 @@ mod tests {
     #[test]
     fn schechter_integral_matches_the_gamma_function() {
         // ∫ φ dM over all M = φ* Γ(α + 1) (α = 0, 1: Γ = 1; α = −0.5: √π).
-        let g = RawGalaxies::default();
+        let g = GalaxySpec::default();
         for (alpha, gamma) in [(0.0, 1.0), (1.0, 1.0), (-0.5, std::f64::consts::PI.sqrt())] {
             let mut t = TypeModel::new(0, &g.types[0], 1.0);
             t.alpha = alpha;
@@ -479,7 +479,7 @@ mod tests {
 
     #[test]
     fn table_matches_brute_force_and_draws_follow_the_table() {
-        let g = RawGalaxies::default();
+        let g = GalaxySpec::default();
         let m = StuffModel::new(&g, Lcdm::new(&Cosmology::default()), 20.0, 24.0);
         let fast = m.density_per_arcmin2();
         let slow = m.density_by_brute_force(g.z_max, 1000, 2000);
@@ -494,7 +494,7 @@ mod tests {
 
     #[test]
     fn drawn_magnitudes_stay_in_range_and_phi_max_bounds_phi() {
-        let g = RawGalaxies::default();
+        let g = GalaxySpec::default();
         let m = StuffModel::new(&g, Lcdm::new(&Cosmology::default()), 20.0, 24.0);
         let mut rng = crate::seed::SeedKey::base(5, 0, crate::seed::Stream::Test).rng();
         for _ in 0..2000 {

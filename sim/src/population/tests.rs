@@ -1,7 +1,7 @@
 //! Validation of the population against the STEP1/SPEC §2 claims.
 
 use super::*;
-use crate::config::RawConfig;
+use crate::plan::Plan;
 use crate::population::stars::mag_cdf;
 use crate::stats::{ks_p_value, ks_statistic, median};
 use std::path::Path;
@@ -56,7 +56,7 @@ pub(crate) fn count_slope(mags: &[f64], lo: f64, hi: f64) -> f64 {
 fn galaxy_counts_match_the_deep_field_counts() {
     let plan = wide_plan();
     let area = plan.placement_area().area_arcmin2;
-    let gals = galaxies_of(&base_field(&plan, 0).unwrap());
+    let gals = galaxies_of(&base_field(&plan.population(), 0).unwrap());
     let mags: Vec<f64> = gals.iter().map(|r| r.mag).collect();
     let slope = count_slope(&mags, 20.0, 24.0);
     assert!((0.30..=0.36).contains(&slope), "slope {slope}");
@@ -80,7 +80,7 @@ fn galaxy_counts_match_the_deep_field_counts() {
 
 #[test]
 fn sizes_decrease_with_magnitude() {
-    let gals = galaxies_of(&base_field(&wide_plan(), 1).unwrap());
+    let gals = galaxies_of(&base_field(&wide_plan().population(), 1).unwrap());
     let mut last = (f64::INFINITY, f64::INFINITY);
     for lo in [19.0, 20.0, 21.0, 22.0, 23.0, 24.0] {
         let bin: Vec<&TruthRow> = gals
@@ -113,14 +113,14 @@ fn sizes_decrease_with_magnitude() {
 fn star_counts_have_the_configured_slope_and_density() {
     let plan = plan_with(&["population.stars.density_per_arcmin2=400"]);
     let area = plan.placement_area().area_arcmin2;
-    let rows = base_field(&plan, 0).unwrap();
+    let rows = base_field(&plan.population(), 0).unwrap();
     let stars: Vec<f64> = rows.iter().filter(|r| r.is_star()).map(|r| r.mag).collect();
     // Poisson mean 400 × area ≈ 80 000: within 5σ.
     let want = 400.0 * area;
     assert!((stars.len() as f64 - want).abs() < 5.0 * want.sqrt());
     let slope = count_slope(&stars, 17.0, 25.0);
     assert!((slope - 0.30).abs() < 0.02, "{slope}");
-    let s = &plan.population().stars;
+    let s = plan.stars();
     let d = ks_statistic(&stars, |m| mag_cdf(s, m));
     assert!(ks_p_value(d, stars.len()) > 1e-3, "D = {d}");
 }
@@ -128,9 +128,9 @@ fn star_counts_have_the_configured_slope_and_density() {
 #[test]
 fn base_field_rows_are_consistent() {
     let plan = plan_with(&["image.width_px=2048", "image.height_px=2048"]);
-    let rows = base_field(&plan, 3).unwrap();
+    let rows = base_field(&plan.population(), 3).unwrap();
     assert!(rows.len() > 1000);
-    let crate::plan::Placement {
+    let Placement {
         x_px: xr, y_px: yr, ..
     } = plan.placement_area();
     let wcs = plan.image_wcs();
@@ -194,11 +194,11 @@ fn base_field_rows_are_consistent() {
 #[test]
 fn same_seed_same_field_other_seed_or_field_differs() {
     let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
-    let a = base_field(&plan, 0).unwrap();
-    assert_eq!(a, base_field(&plan, 0).unwrap());
-    assert_ne!(a, base_field(&plan, 1).unwrap());
+    let a = base_field(&plan.population(), 0).unwrap();
+    assert_eq!(a, base_field(&plan.population(), 0).unwrap());
+    assert_ne!(a, base_field(&plan.population(), 1).unwrap());
     let other = plan_with(&["image.width_px=1024", "image.height_px=1024", "run.seed=7"]);
-    assert_ne!(a, base_field(&other, 0).unwrap());
+    assert_ne!(a, base_field(&other.population(), 0).unwrap());
     // The shear, the PSFs and the noise do not enter the base field.
     let psf = plan_with(&[
         "image.width_px=1024",
@@ -206,7 +206,7 @@ fn same_seed_same_field_other_seed_or_field_differs() {
         "shears.0.g1=0.03",
         "render.folding_threshold=0.01",
     ]);
-    assert_eq!(a, base_field(&psf, 0).unwrap());
+    assert_eq!(a, base_field(&psf.population(), 0).unwrap());
 }
 
 #[test]
@@ -216,7 +216,7 @@ fn sheared_view_obeys_eq8_and_recovers_the_shear() {
         "image.height_px=8192",
         "population.galaxies.mag_faint=23.5",
     ]);
-    let base = base_field(&plan, 2).unwrap();
+    let base = base_field(&plan.population(), 2).unwrap();
     let (g1, g2) = (0.05, -0.02);
     let g = Complex64::new(g1, g2);
     let view = sheared(&base, g1, g2);
@@ -274,7 +274,7 @@ fn sheared_view_obeys_eq8_and_recovers_the_shear() {
 #[test]
 fn rotated_twin_cancels_intrinsic_shapes() {
     let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
-    let base = base_field(&plan, 0).unwrap();
+    let base = base_field(&plan.population(), 0).unwrap();
     let rot = rotated(&base);
     let g = Complex64::new(0.1, 0.0);
     let (sa, sb) = (sheared(&base, 0.1, 0.0), sheared(&rot, 0.1, 0.0));
@@ -346,10 +346,10 @@ fn whole_galaxy_moments_are_flux_weighted_sums() {
 fn skymaker_round_trip_through_the_config_source() {
     let dir = tempfile::tempdir().unwrap();
     let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
-    let t_types = crate::population::t_types(&plan);
+    let t_types = crate::population::t_types(&plan.population());
     let mut fields = Vec::new();
     for f in 0..2 {
-        let rows = base_field(&plan, f).unwrap();
+        let rows = base_field(&plan.population(), f).unwrap();
         crate::io::skymaker::write_list(&dir.path().join(format!("f{f}.list")), &rows, &t_types)
             .unwrap();
         fields.push(rows);
@@ -366,7 +366,7 @@ fn skymaker_round_trip_through_the_config_source() {
         &src,
     ]);
     for (f, want) in fields.iter().enumerate() {
-        let got = base_field(&list_plan, f as u32).unwrap();
+        let got = base_field(&list_plan.population(), f as u32).unwrap();
         assert_eq!(got.len(), want.len());
         for (a, b) in got.iter().zip(want) {
             assert_eq!((a.id, a.kind, a.hubble_type), (b.id, b.kind, b.hubble_type));
@@ -395,7 +395,9 @@ fn skymaker_round_trip_through_the_config_source() {
         }
     }
     // A field beyond the plan's has no list.
-    let err = base_field(&list_plan, 5).unwrap_err().to_string();
+    let err = base_field(&list_plan.population(), 5)
+        .unwrap_err()
+        .to_string();
     assert_eq!(
         err,
         "no SkyMaker list for base field 5: the plan has 2 base fields"
@@ -406,7 +408,7 @@ fn skymaker_round_trip_through_the_config_source() {
 fn absurd_depth_is_refused_not_attempted() {
     // 65536² pixels: ≈ 9e6 galaxies expected, over the 2e6 limit.
     let plan = plan_with(&["image.width_px=65536", "image.height_px=65536"]);
-    let err = base_field(&plan, 0).unwrap_err().to_string();
+    let err = base_field(&plan.population(), 0).unwrap_err().to_string();
     assert!(err.contains("population.galaxies.mag_faint"), "{err}");
 }
 
@@ -424,14 +426,14 @@ fn inclinations_follow_the_law_unless_extinction_selects_face_on_disks() {
         .map(|t| format!("population.galaxies.types.{t}.disk_extinction=0"))
         .collect();
     o.extend(keys.iter().map(String::as_str));
-    let gals = galaxies_of(&base_field(&plan_with(&o), 0).unwrap());
+    let gals = galaxies_of(&base_field(&plan_with(&o).population(), 0).unwrap());
     let i: Vec<f64> = gals.iter().map(|r| r.incl_deg).collect();
     let d = ks_statistic(&i, flat);
     assert!(ks_p_value(d, i.len()) > 1e-3, "D = {d} (n = {})", i.len());
     // With it (the default), inclined disks are dimmer and fewer of them
     // pass the window: the selected disks lean face-on (mean ≈ 37° instead
     // of 42.5°), as in any magnitude-limited sample of dusty disks.
-    let gals = galaxies_of(&base_field(&plan_with(&o[..3]), 0).unwrap());
+    let gals = galaxies_of(&base_field(&plan_with(&o[..3]).population(), 0).unwrap());
     let i: Vec<f64> = gals
         .iter()
         .filter(|r| r.hubble_type >= 2)
@@ -453,23 +455,26 @@ fn lensed_positions_follow_the_shear_and_keep_the_density() {
     ];
     let lens = plan_with(&[flags.as_slice(), &["population.lens_positions=true"]].concat());
     let flat = plan_with(&flags);
-    assert!(!flat.population().lens_positions);
+    assert!(!flat.lens_positions());
     let whole = lens.placement_area();
     let (a0, xr0, yr0) = (whole.area_arcmin2, whole.x_px, whole.y_px);
-    let wide = galaxy_placement_area(&lens);
+    let wide = galaxy_placement_area(&lens.population());
     let (a1, xr1, yr1) = (wide.area_arcmin2, wide.x_px, wide.y_px);
-    assert_eq!(galaxy_placement_area(&flat), flat.placement_area());
+    assert_eq!(
+        galaxy_placement_area(&flat.population()),
+        flat.placement_area()
+    );
     assert!(
         a1 > 1.09 * a0 && (xr1.0 - xr0.0).abs() < 1e-9 && yr1.0 < yr0.0,
         "{a1} {a0}"
     );
     let (cx, cy) = lens.lensing_centre();
     assert_eq!((cx, cy), (1024.5, 1024.5));
-    let base = base_field(&lens, 0).unwrap();
+    let base = base_field(&lens.population(), 0).unwrap();
     let (g1, g2) = (0.1, 0.0);
     let twin = rotated(&base);
-    let view = lensed(&lens, 0, &sheared(&base, g1, g2), g1, g2);
-    let view_twin = lensed(&lens, 0, &sheared(&twin, g1, g2), g1, g2);
+    let view = lensed(&lens.population(), 0, &sheared(&base, g1, g2), g1, g2);
+    let view_twin = lensed(&lens.population(), 0, &sheared(&twin, g1, g2), g1, g2);
     assert_eq!(view.len(), view_twin.len());
     let by_id: std::collections::HashMap<i64, &TruthRow> = base.iter().map(|r| (r.id, r)).collect();
     for (v, t) in view.iter().zip(&view_twin) {
@@ -509,7 +514,7 @@ fn lensed_positions_follow_the_shear_and_keep_the_density() {
         view.iter().filter(|r| r.is_star()).count(),
         base.iter().filter(|r| r.is_star()).count()
     );
-    let unlensed = on(&base_field(&flat, 0).unwrap());
+    let unlensed = on(&base_field(&flat.population(), 0).unwrap());
     let got = on(&view);
     eprintln!("galaxies on the image: lensed {got}, unlensed {unlensed}");
     assert!(
@@ -517,7 +522,7 @@ fn lensed_positions_follow_the_shear_and_keep_the_density() {
         "{got} vs {unlensed}"
     );
     // With g = 0 nothing moves.
-    let still = lensed(&lens, 0, &sheared(&base, 0.0, 0.0), 0.0, 0.0);
+    let still = lensed(&lens.population(), 0, &sheared(&base, 0.0, 0.0), 0.0, 0.0);
     let inside = base.iter().filter(|r| {
         r.is_star() || ((xr0.0..=xr0.1).contains(&r.x) && (yr0.0..=yr0.1).contains(&r.y))
     });
@@ -544,21 +549,12 @@ fn skymaker_lists_are_found_beside_the_config_and_read_once() {
         "image.height_px=256",
         "image.n_images=2",
     ];
-    let drawn = Plan::new(
-        RawConfig::parse(
-            "{\"run\": {\"seed\": 5}}",
-            Path::new("t.json"),
-            &small.map(String::from),
-        )
-        .unwrap(),
-        Path::new("t.json"),
-    )
-    .unwrap();
+    let drawn = Plan::from_json("{\"run\": {\"seed\": 5}}", Path::new("t.json"), &small).unwrap();
     std::fs::create_dir(dir.path().join("lists")).unwrap();
-    let t_types = crate::population::t_types(&drawn);
+    let t_types = crate::population::t_types(&drawn.population());
     let mut counts = Vec::new();
     for field in 0..2 {
-        let rows = base_field(&drawn, field).unwrap();
+        let rows = base_field(&drawn.population(), field).unwrap();
         let list = dir.path().join(format!("lists/f{field}.list"));
         crate::io::skymaker::write_list(&list, &rows, &t_types).unwrap();
         counts.push(rows.len());
@@ -576,7 +572,7 @@ fn skymaker_lists_are_found_beside_the_config_and_read_once() {
     assert!(plan.skymaker_list(2).is_none());
     // Read once, at plan time: the files are no longer needed.
     std::fs::remove_dir_all(dir.path().join("lists")).unwrap();
-    let rows = base_field(&plan, 1).unwrap();
+    let rows = base_field(&plan.population(), 1).unwrap();
     assert_eq!(rows.len(), counts[1]);
     // A missing list is refused when the plan is made, naming the key
     // and the resolved file.
@@ -594,12 +590,13 @@ fn the_galaxies_kept_per_field_are_the_expected_count_less_those_out_of_range() 
     // (Poisson, density × area) times the fraction kept in the magnitude
     // range: within 4σ of the mean of 4 fields.
     let plan = plan_with(&["image.width_px=2048", "image.height_px=2048"]);
-    let drawn = model(&plan).density_per_arcmin2() * plan.placement_area().area_arcmin2;
-    let kept = kept_fraction(&plan);
+    let drawn =
+        model(&plan.population()).density_per_arcmin2() * plan.placement_area().area_arcmin2;
+    let kept = kept_fraction(&plan.population());
     assert!((0.5..0.95).contains(&kept), "{kept}");
     let fields = 4;
     let mean = (0..fields)
-        .map(|f| galaxies_of(&base_field(&plan, f).unwrap()).len() as f64)
+        .map(|f| galaxies_of(&base_field(&plan.population(), f).unwrap()).len() as f64)
         .sum::<f64>()
         / f64::from(fields);
     let want = drawn * kept;

@@ -16,13 +16,13 @@
 //!   one second moment), so a ← a sqrt(target/|χ(a)|) converges in a few
 //!   steps; stops at ||χ| − target| < `chi_tol`.
 
+use super::Aberration;
 use super::atmosphere::Kolmogorov;
 use super::jitter::Jitter;
 use super::measure::fwhm_from_area;
 use super::optical::{BandTransfer, Otf, SampledPupil, Wavefront};
 use super::sampled::SampledPsf;
 use super::{Calibration, Psf, PsfAccuracy, PsfError, StampGrid};
-use crate::config::Aberration;
 use crate::moments;
 use num_complex::Complex32;
 use std::sync::Arc;

@@ -12,7 +12,7 @@
 //! (the wavefront error), [`optical`] (Fourier optics to the OTF),
 //! [`atmosphere`] (Kolmogorov long-exposure MTF), [`jitter`] (tracking
 //! error), [`calibrate`] (seeing and amplitude solved for the targets).
-//! [`build`] turns a config entry into a ready [`Psf`]; [`measure`] makes
+//! [`build`] turns a [`PsfSpec`] into a ready [`Psf`]; [`measure`] makes
 //! PSF images and the `psf_report.json` numbers. See `docs/psf.md`.
 
 pub mod atmosphere;
@@ -27,6 +27,7 @@ pub mod optical;
 pub mod panel;
 pub mod pupil;
 pub mod sampled;
+mod spec;
 pub mod zernike;
 
 #[cfg(test)]
@@ -36,8 +37,8 @@ pub use calibrate::OpticalPsf;
 pub use gaussian::GaussianPsf;
 pub use measure::{DrawnPsf, PsfReport, draw_for_file, image, report};
 pub use sampled::SampledPsf;
+pub use spec::{Aberration, PsfModel, PsfSpec, STEP1_PSFS, Telescope};
 
-use crate::config::{Aberration, RawPsf, RawPsfModel, RawTelescope};
 use num_complex::Complex32;
 use std::sync::Arc;
 
@@ -237,33 +238,6 @@ impl std::fmt::Debug for PsfFileImage {
     }
 }
 
-/// Everything one PSF is built from: its config entry, the telescope, the
-/// image pixel scale and, for a `fits` model, the image the plan read
-/// (`crate::plan::Plan::psf_spec` hands these out).
-#[derive(Debug, Clone, PartialEq)]
-pub struct PsfSpec {
-    /// The config entry.
-    pub entry: RawPsf,
-    /// The telescope (optical PSFs).
-    pub telescope: RawTelescope,
-    /// Pixel scale the PSF is calibrated for (arcsec).
-    pub pixel_scale_arcsec: f64,
-    /// The file's image for a `fits` model (`None` for the others).
-    pub image: Option<Arc<PsfFileImage>>,
-}
-
-impl PsfSpec {
-    /// The spec of a model that needs no file (every model but `fits`).
-    pub fn new(entry: RawPsf, telescope: RawTelescope, pixel_scale_arcsec: f64) -> Self {
-        Self {
-            entry,
-            telescope,
-            pixel_scale_arcsec,
-            image: None,
-        }
-    }
-}
-
 /// Builds the PSF of `spec` (default accuracy). Nothing is cached here: a
 /// run's PSFs are owned, built once, by its plan (`Plan::psf`).
 pub fn build(spec: &PsfSpec) -> Result<Arc<dyn Psf>, PsfError> {
@@ -272,19 +246,18 @@ pub fn build(spec: &PsfSpec) -> Result<Arc<dyn Psf>, PsfError> {
 
 /// [`build`] with explicit accuracy settings.
 pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>, PsfError> {
-    let (psf, telescope, pixel_scale_arcsec) =
-        (&spec.entry, &spec.telescope, spec.pixel_scale_arcsec);
+    let (psf, telescope, pixel_scale_arcsec) = (spec, &spec.telescope, spec.pixel_scale_arcsec);
     match &psf.model {
-        RawPsfModel::Gaussian { e1, e2 } => {
+        PsfModel::Gaussian { e1, e2 } => {
             Ok(Arc::new(GaussianPsf::elliptical(psf.fwhm_arcsec, *e1, *e2)))
         }
-        RawPsfModel::Moffat { beta, trunc_fwhm } => Ok(Arc::new(moffat::moffat(
+        PsfModel::Moffat { beta, trunc_fwhm } => Ok(Arc::new(moffat::moffat(
             psf.fwhm_arcsec,
             *beta,
             *trunc_fwhm,
             pixel_scale_arcsec,
         ))),
-        RawPsfModel::Fits {
+        PsfModel::Fits {
             path,
             pixel_scale_arcsec: scale,
         } => {
@@ -300,7 +273,7 @@ pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>
             fits_psf::from_image(&psf.name, &shown, &image.values, image.nx, image.ny, *scale)
                 .map(|p| Arc::new(p) as _)
         }
-        RawPsfModel::Optical {
+        PsfModel::Optical {
             aberration,
             amplitude,
             target_chi,
@@ -321,7 +294,7 @@ pub fn build_with(spec: &PsfSpec, accuracy: &PsfAccuracy) -> Result<Arc<dyn Psf>
     }
 }
 
-/// What an optical PSF is built from: the config entry's model and
+/// What an optical PSF is built from: the spec's model and
 /// targets, the telescope and the pixel scale.
 #[derive(Debug, Clone, Copy)]
 pub struct OpticalRequest<'a> {
@@ -338,7 +311,7 @@ pub struct OpticalRequest<'a> {
     /// Orientation of the aberration.
     pub angle_rad: f64,
     /// Pupil and wavelength.
-    pub telescope: &'a RawTelescope,
+    pub telescope: &'a Telescope,
     /// Pixel scale of the images.
     pub pixel_scale_arcsec: f64,
 }
@@ -346,18 +319,18 @@ pub struct OpticalRequest<'a> {
 impl<'a> OpticalRequest<'a> {
     /// The request of an optical `spec` (`None` for other models).
     pub fn of(spec: &'a PsfSpec) -> Option<Self> {
-        let RawPsfModel::Optical {
+        let PsfModel::Optical {
             aberration,
             amplitude,
             target_chi,
             angle_deg,
-        } = &spec.entry.model
+        } = &spec.model
         else {
             return None;
         };
         Some(Self {
-            name: &spec.entry.name,
-            fwhm_arcsec: spec.entry.fwhm_arcsec,
+            name: &spec.name,
+            fwhm_arcsec: spec.fwhm_arcsec,
             aberration: *aberration,
             amplitude: *amplitude,
             target_chi: *target_chi,

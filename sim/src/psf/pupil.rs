@@ -10,7 +10,7 @@
 //! sub-points on cells that an edge crosses (cells far from every edge are 0
 //! or 1 exactly).
 
-use crate::config::RawTelescope;
+use super::Telescope;
 
 /// A pupil geometry.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -28,8 +28,8 @@ pub struct Pupil {
 }
 
 impl Pupil {
-    /// The pupil described by the `telescope` config section.
-    pub fn from_telescope(t: &RawTelescope) -> Self {
+    /// The pupil of telescope `t`.
+    pub fn from_telescope(t: &Telescope) -> Self {
         Self {
             diameter_m: t.diameter_m,
             obstruction_m: t.obstruction_m,
@@ -118,7 +118,7 @@ mod tests {
 
     #[test]
     fn sampled_area_matches_geometry() {
-        let p = Pupil::from_telescope(&RawTelescope::default());
+        let p = Pupil::from_telescope(&Telescope::default());
         let dx = 3.6 / 500.0;
         let t = p.sample(512, dx, 8);
         let area: f64 = t.iter().sum::<f64>() * dx * dx;
@@ -135,7 +135,7 @@ mod tests {
     fn three_arms_are_rays_not_bars() {
         let p = Pupil {
             arms: 3,
-            ..Pupil::from_telescope(&RawTelescope::default())
+            ..Pupil::from_telescope(&Telescope::default())
         };
         assert!(!p.is_open(1.2, 0.0));
         assert!(p.is_open(-1.2, 0.0));

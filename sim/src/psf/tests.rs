@@ -8,7 +8,6 @@ use super::measure::{contour_radius, fwhm_from_area};
 use super::optical::{BandTransfer, Otf, SampledPupil, Wavefront};
 use super::pupil::Pupil;
 use super::*;
-use crate::config::RawTelescope;
 use num_complex::Complex64;
 use std::f64::consts::PI;
 
@@ -34,9 +33,9 @@ fn bessel_reference_values() {
 }
 
 fn airy_pupil() -> SampledPupil {
-    let t = RawTelescope {
+    let t = Telescope {
         spider_arms: 0,
-        ..RawTelescope::default()
+        ..Telescope::default()
     };
     SampledPupil::new(Pupil::from_telescope(&t), 0.8e-6, 1024, 8)
 }
@@ -145,12 +144,7 @@ fn otf_vanishes_beyond_the_diffraction_cutoff_so_nothing_aliases() {
     // the sampled pupil) is zero beyond D/λ + one cell diagonal, so the
     // circular autocorrelation computed by the FFT equals the linear one;
     // and the cut-off lies inside the grid.
-    let pupil = SampledPupil::new(
-        Pupil::from_telescope(&RawTelescope::default()),
-        0.8e-6,
-        512,
-        4,
-    );
+    let pupil = SampledPupil::new(Pupil::from_telescope(&Telescope::default()), 0.8e-6, 512, 4);
     let otf = pupil.otf(&Wavefront {
         noll: 8,
         amplitude_waves: 0.3,
@@ -210,11 +204,8 @@ fn kolmogorov_fwhm_is_0976_lambda_over_r0_within_1_percent() {
 }
 
 fn step1(name: &str) -> Arc<dyn Psf> {
-    let raw = RawPsf::step1_set()
-        .into_iter()
-        .find(|p| p.name == name)
-        .unwrap();
-    build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap()
+    let index = STEP1_PSFS.iter().position(|p| p.0 == name).unwrap();
+    build(&PsfSpec::step1(index, 0.206)).unwrap()
 }
 
 /// Checks normalisation and returns the report.
@@ -366,8 +357,8 @@ fn transfer_times_pixel_agrees_with_the_psf_pixel_image() {
     let p = 0.206;
     let n = 128;
     let img = image(psf.as_ref(), n, p, 1);
-    let raw = RawPsf::step1_set().remove(1);
-    let RawPsfModel::Optical {
+    let raw = PsfSpec::step1(1, p);
+    let PsfModel::Optical {
         aberration,
         target_chi,
         ..
@@ -377,7 +368,7 @@ fn transfer_times_pixel_agrees_with_the_psf_pixel_image() {
     };
     // Same calibration (amplitude from the cached PSF), its band transfer.
     let cal = psf.calibration().unwrap();
-    let telescope = RawTelescope::default();
+    let telescope = Telescope::default();
     let request = OpticalRequest {
         name: "coma",
         fwhm_arcsec: 0.9,
@@ -420,17 +411,13 @@ fn transfer_times_pixel_agrees_with_the_psf_pixel_image() {
 
 #[test]
 fn other_targets_can_be_asked_for() {
-    let raw = RawPsf {
-        name: "c".into(),
-        fwhm_arcsec: 1.1,
-        model: RawPsfModel::Optical {
-            aberration: Aberration::Coma,
-            amplitude: None,
-            target_chi: Some(0.03),
-            angle_deg: 30.0,
-        },
+    let model = PsfModel::Optical {
+        aberration: Aberration::Coma,
+        amplitude: None,
+        target_chi: Some(0.03),
+        angle_deg: 30.0,
     };
-    let psf = build(&PsfSpec::new(raw, RawTelescope::default(), 0.206)).unwrap();
+    let psf = build(&PsfSpec::new("c", 1.1, model, Telescope::default(), 0.206)).unwrap();
     let r = report("c", psf.as_ref(), 0.206).unwrap();
     assert!((r.fwhm_arcsec - 1.1).abs() < 0.02, "{}", r.fwhm_arcsec);
     assert!((r.chi_abs - 0.03).abs() < 0.004, "{}", r.chi_abs);
@@ -441,7 +428,7 @@ fn other_targets_can_be_asked_for() {
 
 #[test]
 fn unreachable_targets_are_errors_not_panics() {
-    let t = RawTelescope::default();
+    let t = Telescope::default();
     let acc = PsfAccuracy {
         pupil_grid: 512,
         calibration_grid: 512,
@@ -483,7 +470,7 @@ fn builds_are_bit_reproducible() {
         calibration_grid: 512,
         ..PsfAccuracy::default()
     };
-    let t = RawTelescope::default();
+    let t = Telescope::default();
     let make = || {
         let request = OpticalRequest {
             name: "c",

@@ -28,16 +28,15 @@ pub mod reference;
 pub mod split;
 pub mod stamp;
 
-pub use crate::config::RenderMethod as Method;
 pub use image::{Canvas, draw_image, try_draw_image};
 pub use reference::ReferenceRenderer;
 
-use crate::config::RawRender;
 pub use crate::profile::galaxy::check_row;
 use crate::profile::galaxy::{Galaxy, RowError};
 use crate::profile::{ProfileKind, RadialProfile};
 use crate::psf::{Psf, StampGrid};
 use crate::truth::TruthRow;
+use serde::{Deserialize, Serialize};
 use stamp::{FftCache, Fill, StampEngine};
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
@@ -45,8 +44,20 @@ use std::time::Instant;
 /// A truth row the renderer refuses.
 pub type RenderError = RowError;
 
-/// The renderer's tolerances, in one place (GalSim `GSParams`-like). The
-/// defaults are those of the `render` config section.
+/// How whole images apply the PSF (the config's `render.method`).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Method {
+    /// Object ⊗ a narrow Gaussian per stamp, then one convolution of the
+    /// image with the rest of the PSF.
+    #[default]
+    Split,
+    /// Object ⊗ the whole PSF per stamp.
+    Stamp,
+}
+
+/// The renderer's tolerances, in one place (GalSim `GSParams`-like): the
+/// defaults of the `render` config section, from which the plan makes them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Accuracy {
     /// Largest fraction of an object's flux allowed outside its stamp
@@ -75,20 +86,13 @@ pub struct Accuracy {
 
 impl Default for Accuracy {
     fn default() -> Self {
-        Self::from_config(&RawRender::default())
-    }
-}
-
-impl Accuracy {
-    /// The tolerances of a `render` config section.
-    pub fn from_config(raw: &RawRender) -> Self {
         Self {
-            folding_threshold: raw.folding_threshold,
-            kvalue_threshold: raw.maxk_threshold,
-            edge_sky_sigma: raw.edge_sky_sigma,
-            max_stamp_px: raw.max_stamp_px as usize,
+            folding_threshold: 5e-3,
+            kvalue_threshold: 1e-4,
+            edge_sky_sigma: 0.1,
+            max_stamp_px: 1024,
             min_stamp_px: 16,
-            method: raw.method,
+            method: Method::Split,
         }
     }
 }

@@ -556,21 +556,18 @@ fn an_elliptical_psf_gives_a_star_its_moments() {
 }
 
 #[test]
-fn accuracy_comes_from_the_render_section_and_timing_does_not_change_pixels() {
-    let raw = RawRender {
+fn accuracy_sets_the_stamps_and_timing_does_not_change_pixels() {
+    // (The plan makes an Accuracy from the `render` section: plan.rs's
+    // tests check the mapping.)
+    let acc = Accuracy {
         folding_threshold: 1e-3,
-        maxk_threshold: 2e-3,
+        kvalue_threshold: 2e-3,
         edge_sky_sigma: 0.5,
         max_stamp_px: 256,
+        min_stamp_px: 16,
         method: Method::Stamp,
     };
-    let acc = Accuracy::from_config(&raw);
-    assert_eq!(acc.method, Method::Stamp);
     assert_eq!(Accuracy::default().method, Method::Split);
-    assert_eq!(acc.folding_threshold, 1e-3);
-    assert_eq!(acc.kvalue_threshold, 2e-3);
-    assert_eq!(acc.edge_sky_sigma, 0.5);
-    assert_eq!(acc.max_stamp_px, 256);
     assert_eq!(Accuracy::default().kvalue_threshold, 1e-4);
     // A tighter folding threshold gives a larger stamp; the cap holds.
     let loose = renderer(Accuracy::default());
@@ -595,16 +592,11 @@ fn with_method(psf: Arc<dyn Psf>, method: Method) -> Renderer {
 }
 
 fn step1_psf(name: &str) -> Arc<dyn Psf> {
-    let raw = crate::config::RawPsf::step1_set()
-        .into_iter()
-        .find(|p| p.name == name)
+    let index = crate::psf::STEP1_PSFS
+        .iter()
+        .position(|p| p.0 == name)
         .unwrap();
-    crate::psf::build(&crate::psf::PsfSpec::new(
-        raw,
-        crate::config::RawTelescope::default(),
-        P,
-    ))
-    .unwrap()
+    crate::psf::build(&crate::psf::PsfSpec::step1(index, P)).unwrap()
 }
 
 /// Max |a − b| over the image, divided by the peak of `b`.
