@@ -1,4 +1,5 @@
-//! ARCHITECTURE.md matches the tree: every path its code map names exists.
+//! ARCHITECTURE.md matches the tree: every path its code map names exists;
+//! and the paths of a run have one home, `contract/src/run_dir.rs`.
 //!
 //! The code map is the first fenced block after `## Code map`. A line that
 //! starts at column 0 names a path from the repository's root (`src/main.rs`,
@@ -92,5 +93,157 @@ fn every_path_the_code_map_names_exists() {
     assert!(
         missing.is_empty(),
         "ARCHITECTURE.md names paths that do not exist: {missing:?}"
+    );
+}
+
+/// The library sources whose non-test code may not spell a run's paths:
+/// every `.rs` file under the crates' `src/` and the binary's `src/`, but
+/// `contract/src/run_dir.rs` (their one home) and test code (from the first
+/// `#[cfg(test)]` of a file on, and files named `tests.rs`).
+const LIBRARY_SOURCES: &[&str] = &[
+    "contract/src",
+    "numerics/src",
+    "figure/src",
+    "sim/src",
+    "harness/src",
+    "ksb/src",
+    "server/src",
+    "src",
+];
+
+/// The file that owns every path of a run (SPEC §5).
+const RUN_PATHS_HOME: &str = "contract/src/run_dir.rs";
+
+/// Literals naming what is not a run's but looks like it: (file, the line's
+/// text it holds, why).
+const NOT_A_RUN: &[(&str, &str, &str)] = &[
+    (
+        "sim/src/products.rs",
+        r#"out.join("config.json")"#,
+        "the output directory of `stepsim psf` and `stepsim catalog`",
+    ),
+    (
+        "src/cmd/catalog.rs",
+        r#"args.out.join("config.json")"#,
+        "the output directory of `stepsim catalog`",
+    ),
+    (
+        "sim/src/io/psf_store.rs",
+        r#"c.join("stepsim").join("psf")"#,
+        "the user's PSF store under ~/.cache, not a run's",
+    ),
+];
+
+/// The names of a run's files and directories (SPEC §5, docs/run-layout.md).
+const RUN_NAMES: &[&str] = &[
+    "public",
+    "private",
+    "manifest.json",
+    "README.md",
+    "config.json",
+    "datasets.json",
+    "blinding.key",
+    "inputs",
+    "truth",
+    "model",
+    "done",
+    "shards",
+    "psf",
+    "cache",
+];
+
+/// The lines of `code` (one file's text) that spell a path of a run by hand:
+/// a `join` of a literal starting with one of [`RUN_NAMES`], or a literal
+/// starting with `public/` or `private/`, or naming `manifest.json`,
+/// `datasets.json` or `blinding.key` whole. Comments and test code are
+/// skipped. Returns (line number, line).
+fn hand_made_run_paths(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    for (i, line) in code.lines().enumerate() {
+        if line.contains("#[cfg(test)]") {
+            break;
+        }
+        let text = line.trim_start();
+        if text.starts_with("//") {
+            continue;
+        }
+        let joined = RUN_NAMES.iter().any(|name| {
+            text.contains(&format!("join(\"{name}\"")) || text.contains(&format!("join(\"{name}/"))
+        });
+        let literal = ["\"public/", "\"private/"]
+            .iter()
+            .chain(&["\"manifest.json\"", "\"datasets.json\"", "\"blinding.key\""])
+            .any(|l| text.contains(l));
+        if joined || literal {
+            out.push((i + 1, line.to_owned()));
+        }
+    }
+    out
+}
+
+#[test]
+fn the_run_path_reader_finds_hand_made_paths_outside_comments_and_tests() {
+    let code = r#"//! Writes `public/manifest.json`.
+fn f(run: &Path) {
+    let m = run.join("public").join("manifest.json");
+    let c = run.join("private/config.json");
+    let t = format!("private/truth/{id}.fits");
+    let d = std::fs::read("datasets.json");
+    let fine = run.join("other.json"); // not public/...
+    let readme = dir.join(README);
+}
+#[cfg(test)]
+mod tests { fn g() { std::fs::read(dir.join("public/manifest.json")); } }
+"#;
+    let lines: Vec<usize> = hand_made_run_paths(code).iter().map(|l| l.0).collect();
+    assert_eq!(lines, [3, 4, 5, 6]);
+}
+
+/// The `.rs` files under `dir`, recursively.
+fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+#[test]
+fn only_the_contract_spells_the_paths_of_a_run() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for dir in LIBRARY_SOURCES {
+        rust_files(&root.join(dir), &mut files);
+    }
+    files.sort();
+    assert!(files.len() > 100, "only {} files read", files.len());
+    let mut found = Vec::new();
+    for file in &files {
+        let rel = file
+            .strip_prefix(root)
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        if rel == RUN_PATHS_HOME || file.file_name().is_some_and(|n| n == "tests.rs") {
+            continue;
+        }
+        let code = std::fs::read_to_string(file).unwrap();
+        for (n, line) in hand_made_run_paths(&code) {
+            let allowed = NOT_A_RUN
+                .iter()
+                .any(|(f, text, _)| rel == *f && line.contains(text));
+            if !allowed {
+                found.push(format!("{rel}:{n}: {}", line.trim()));
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "paths of a run spelled outside {RUN_PATHS_HOME} (use stepsim_contract::run_dir::RunDir, \
+         PublicDir or PrivateDir):\n{}",
+        found.join("\n")
     );
 }

@@ -6,6 +6,7 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use stepsim_contract::run_dir::RunDir;
 use stepsim_contract::run_layout::Part;
 use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
@@ -115,7 +116,8 @@ fn write_challenge_run(dir: &Path) -> SynthRun {
         all.datasets.datasets.push(d);
     }
     all.truth.extend(held.truth.clone());
-    all.write(&dir.join("run").join("private")).unwrap();
+    all.write(RunDir::new(dir.join("run")).private().path())
+        .unwrap();
     all
 }
 
@@ -224,7 +226,7 @@ fn a_killed_server_scores_every_accepted_upload_once_after_a_restart() {
     assert!(started <= ids.len(), "{log:?}");
     assert_eq!(count("scoring ended: scored"), started, "{log:?}");
     let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
-    let truth = run.join("private");
+    let truth = RunDir::new(&run).private().path().to_path_buf();
     for (id, file) in ids.iter().zip(&files) {
         let sub = bo(ch.store.submission(*id)).unwrap().unwrap();
         assert_eq!(
@@ -330,7 +332,7 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
     spec.shears = vec![(0.0, 0.0)];
     let (_, _, all) = stepsim_testkit::synthetic::challenge_run(&spec, &[(0.03, -0.04)], 5);
     let run = tmp.path().join("run");
-    all.write(&run.join("private")).unwrap();
+    all.write(RunDir::new(&run).private().path()).unwrap();
     let state = tmp.path().join("state");
     let (r, s) = (run.to_str().unwrap(), state.to_str().unwrap());
     // Bad times and roles are usage errors (exit 2) and change nothing.

@@ -5,6 +5,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
+use stepsim_contract::run_dir::RunDir;
 use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
@@ -29,7 +30,7 @@ impl Fixture {
         spec.psfs.truncate(2);
         spec.shears.truncate(4);
         let run = make_run(&spec);
-        run.write(&dir.path().join("private")).unwrap();
+        run.write(RunDir::new(dir.path()).private().path()).unwrap();
         Self { dir, run }
     }
     fn path(&self, p: &str) -> PathBuf {
@@ -623,14 +624,15 @@ fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
     spec.psfs.truncate(2);
     spec.shears.truncate(3);
     let run2 = make_run(&spec);
-    run2.write(&other.path().join("private")).unwrap();
+    let other_run = RunDir::new(other.path());
+    run2.write(other_run.private().path()).unwrap();
     let rows2 = run2.submission(&|t: &TruthRow, _| Some((t.e1, t.e2, 1.0)));
     let sub2 = other.path().join("s2.txt");
     std::fs::write(&sub2, submission_text(&run2.index(), &rows2)).unwrap();
     let o = stepsim(&[
         &"score",
         &"--truth",
-        &other.path().join("private"),
+        &other_run.private().path(),
         &"--submission",
         &sub2,
         &"--out",

@@ -3,6 +3,7 @@
 
 use std::path::Path;
 use std::process::Output;
+use stepsim_contract::run_dir::RunDir;
 use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthSpec, make_run, submission_text};
 
@@ -35,7 +36,7 @@ fn a_report_md_alone_is_not_overwritten_without_force() {
     spec.psfs.truncate(2);
     spec.shears.truncate(4);
     let run = make_run(&spec);
-    run.write(&d.join("private")).unwrap();
+    run.write(RunDir::new(d).private().path()).unwrap();
     let rows = run.submission(&|t: &TruthRow, _| {
         Some(if t.is_star() {
             (0.0, 0.0, 1.0)

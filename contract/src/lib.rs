@@ -5,6 +5,8 @@
 //! reference pipeline and the server read, in one small crate that links no
 //! renderer, FFT or population model.
 //!
+//! * [`run_dir`]: the paths of a run directory ([`run_dir::RunDir`], and
+//!   its halves [`run_dir::PublicDir`] and [`run_dir::PrivateDir`]).
 //! * [`run_layout`]: `public/manifest.json` and `private/datasets.json`.
 //! * [`truth`]: the truth table's row and column list (SPEC §5);
 //!   [`io::truth`] reads and writes it (FITS, and the CSV twin).
@@ -22,6 +24,7 @@
 
 pub mod digest;
 pub mod io;
+pub mod run_dir;
 pub mod run_layout;
 pub mod seed;
 pub mod shear;

@@ -6,6 +6,8 @@
 //! RUN/private/config.json       the resolved RawConfig
 //! RUN/private/truth/<image>.fits
 //! ```
+//!
+//! Their paths, and every other path of a run: [`crate::run_dir`].
 
 use serde::{Deserialize, Serialize};
 

@@ -43,7 +43,7 @@ pub fn has_holdout(datasets: &Datasets) -> bool {
 /// with a whole run's.
 pub fn restrict(p: &Prepared, part: Part) -> Result<Prepared, HarnessError> {
     let datasets = part_datasets(&p.truth.datasets, part);
-    let path = p.truth.dir.join("datasets.json");
+    let path = stepsim_contract::run_dir::PrivateDir::new(&p.truth.dir).datasets();
     if datasets.datasets.is_empty() {
         return Err(HarnessError::truth(
             &path,

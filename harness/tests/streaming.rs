@@ -9,6 +9,7 @@ use common::{doubles, fits_table, text};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use stepsim_contract::run_dir::RunDir;
 use stepsim_harness::{
     ImageIndex, SUBMISSION_BYTES_PER_IMAGE, SUBMISSION_BYTES_PER_TRUTH_ROW, ScoreOptions, SubRow,
     load_truth_set, prepare, read_submission_limited, read_submission_spilled,
@@ -40,7 +41,7 @@ impl Fixture {
         spec.shape_noise = true;
         let run = make_run(&spec);
         let dir = tempfile::tempdir().unwrap();
-        run.write(&dir.path().join("private")).unwrap();
+        run.write(RunDir::new(dir.path()).private().path()).unwrap();
         let mut rows = run.submission(&|t, d| {
             Some((
                 t.e1 * 1.03 + 0.0007 * d as f64,
@@ -66,7 +67,7 @@ impl Fixture {
     }
 
     fn private(&self) -> PathBuf {
-        self.dir.path().join("private")
+        RunDir::new(self.dir.path()).private().path().to_path_buf()
     }
 
     fn path(&self, name: &str) -> PathBuf {

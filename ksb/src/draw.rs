@@ -339,13 +339,15 @@ pub fn write_public_run(
     dir: &std::path::Path,
     images: &[(&str, &str, &Image)],
 ) -> Result<(), crate::KsbError> {
+    use stepsim_contract::run_dir::PublicDir;
     use stepsim_contract::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
     let gain: f64 = 4.0;
+    let public = PublicDir::new(dir);
     let mut entries = Vec::new();
     for (dataset, id, img) in images {
-        let file = format!("{dataset}/{id}.fits");
+        let file = PublicDir::image_file(dataset, id);
         crate::io::write_fits_image(
-            &dir.join(&file),
+            &public.file(&file),
             &(*img).clone().scaled((1.0 / gain) as f32),
         )?;
         entries.push(ManifestImage {
@@ -373,6 +375,6 @@ pub fn write_public_run(
         images: entries,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
-    stepsim_contract::io::write_bytes_atomically(&dir.join("manifest.json"), text.as_bytes())?;
+    stepsim_contract::io::write_bytes_atomically(&public.manifest(), text.as_bytes())?;
     Ok(())
 }

@@ -29,6 +29,7 @@ use std::collections::BTreeMap;
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use stepsim_contract::io::{IoError, write_atomically};
+use stepsim_contract::run_dir::PublicDir;
 
 /// Summary of one measured image.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,7 +102,7 @@ pub fn measure_shard(
     params: &KsbParams,
     progress: Progress,
 ) -> Result<Vec<ImageSummary>, KsbError> {
-    let manifest_path = public_dir.join("manifest.json");
+    let manifest_path = PublicDir::new(public_dir).manifest();
     let manifest = read_manifest(&manifest_path)?;
     let all: Vec<&str> = manifest.images.iter().map(|i| i.dataset.as_str()).collect();
     let mine = shard_datasets(&all, k, n);
@@ -131,7 +132,7 @@ fn manifest_sha256(path: &Path) -> Result<String, KsbError> {
 /// is byte-identical to [`measure_run`]'s. Returns (parts, images) or an
 /// error naming the missing or foreign part. Nothing is written on refusal.
 pub fn join_parts(public_dir: &Path, out: &Path, n: u32) -> Result<(u32, usize), KsbError> {
-    let manifest_path = public_dir.join("manifest.json");
+    let manifest_path = PublicDir::new(public_dir).manifest();
     let manifest = read_manifest(&manifest_path)?;
     let sha = manifest_sha256(&manifest_path)?;
     let mut blocks: BTreeMap<String, String> = BTreeMap::new();
@@ -328,7 +329,7 @@ fn measure_datasets(
     progress: Progress,
 ) -> Result<Measured, KsbError> {
     params.validate()?;
-    let manifest_path = public_dir.join("manifest.json");
+    let manifest_path = PublicDir::new(public_dir).manifest();
     let manifest = read_manifest(&manifest_path)?;
     let inst = &manifest.instrument;
     let gain = inst.gain_e_per_adu;
@@ -352,7 +353,7 @@ fn measure_datasets(
     images.sort_by(|a, b| a.image.cmp(&b.image));
     let read =
         |im: &stepsim_contract::run_layout::ManifestImage| -> Result<crate::image::Image, KsbError> {
-            let path = public_dir.join(&im.file);
+            let path = PublicDir::new(public_dir).file(&im.file);
             let img = read_fits_image(&path)?;
             if img.width != inst.width_px as usize || img.height != inst.height_px as usize {
                 return Err(KsbError::Image {
@@ -560,7 +561,7 @@ mod tests {
         let text = std::fs::read_to_string(&one).unwrap();
         assert_eq!(text, std::fs::read_to_string(&two).unwrap());
 
-        let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
+        let manifest = read_manifest(&PublicDir::new(dir.path()).manifest()).unwrap();
         let gain = manifest.instrument.gain_e_per_adu as f32;
         let info = ImageInfo {
             zeropoint_eff_mag: 26.0 + 2.5 * 3600f64.log10(),
@@ -579,7 +580,7 @@ mod tests {
             let dets: Vec<_> = ims
                 .iter()
                 .map(|im| {
-                    let img = read_fits_image(&dir.path().join(&im.file))
+                    let img = read_fits_image(&PublicDir::new(dir.path()).file(&im.file))
                         .unwrap()
                         .scaled(gain);
                     let (d, sub) = detect_image(&img, &info, &params).unwrap();
@@ -654,8 +655,8 @@ mod tests {
 
         // A damaged image: refused, and neither the submission nor the
         // kept rows are left.
-        let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
-        let damaged = dir.path().join(&manifest.images[3].file);
+        let manifest = read_manifest(&PublicDir::new(dir.path()).manifest()).unwrap();
+        let damaged = PublicDir::new(dir.path()).file(&manifest.images[3].file);
         let bytes = std::fs::read(&damaged).unwrap();
         std::fs::write(&damaged, &bytes[..bytes.len() / 2]).unwrap();
         let bad = dir.path().join("bad.txt");
@@ -664,14 +665,14 @@ mod tests {
         std::fs::write(&damaged, &bytes).unwrap();
 
         // The electrons measure_run sees: the written file, read back.
-        let manifest = read_manifest(&dir.path().join("manifest.json")).unwrap();
+        let manifest = read_manifest(&PublicDir::new(dir.path()).manifest()).unwrap();
         let gain = manifest.instrument.gain_e_per_adu as f32;
         let mut images = manifest.images.clone();
         images.sort_by(|a, b| a.image.cmp(&b.image));
         let pixels: Vec<Image> = images
             .iter()
             .map(|im| {
-                read_fits_image(&dir.path().join(&im.file))
+                read_fits_image(&PublicDir::new(dir.path()).file(&im.file))
                     .unwrap()
                     .scaled(gain)
             })

@@ -38,6 +38,7 @@ use crate::seed::{SeedKey, Stream};
 use crate::wcs::{Geometry, TanWcs};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
+use stepsim_contract::run_dir::PrivateDir;
 
 /// Why a config could not become a plan.
 #[derive(Debug, thiserror::Error)]
@@ -105,7 +106,8 @@ pub struct Dataset {
 /// ([`Plan::run_inputs`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RunInput {
-    /// Path of the copy relative to `RUN/private/` (see [`RUN_INPUTS_DIR`]).
+    /// Path of the copy relative to `RUN/private/` (see
+    /// [`PrivateDir::input`]).
     pub name: String,
     /// The file read (resolved against the config's directory).
     pub source: PathBuf,
@@ -113,22 +115,16 @@ pub struct RunInput {
     pub bytes: Arc<Vec<u8>>,
 }
 
-/// Directory of `RUN/private/` that holds the copies of a run's inputs:
-/// `inputs/list_<field>.list` (the SkyMaker list of base field `field`) and
-/// `inputs/psf_<index>.fits` (the image of `fits` PSF `index`, in config
-/// order).
-pub const RUN_INPUTS_DIR: &str = "inputs";
-
 /// The path pattern, relative to `RUN/private/`, of the copies of a run's
 /// SkyMaker lists.
 fn run_list_pattern() -> String {
-    format!("{RUN_INPUTS_DIR}/list_{{field}}.list")
+    PrivateDir::skymaker_list_copy_pattern()
 }
 
 /// The path, relative to `RUN/private/`, of the copy of the image of `fits`
 /// PSF `index`.
 fn run_psf_path(index: usize) -> String {
-    format!("{RUN_INPUTS_DIR}/psf_{index}.fits")
+    PrivateDir::fits_psf_copy(index)
 }
 
 /// A validated, resolved run (see the module docs). Cheap to clone: the

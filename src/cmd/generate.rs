@@ -3,6 +3,7 @@
 use super::ConfigArgs;
 use anyhow::Context as _;
 use std::path::PathBuf;
+use stepsim_contract::run_dir::RunDir;
 use stepsim_sim::generate::{self, Event, Options, SeedUse, Shard};
 use stepsim_sim::memory;
 use stepsim_sim::plan::SeedOrigin;
@@ -64,7 +65,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         .install(|| generate::generate(&plan, &args.out, &options, &on_event))
         .with_context(|| format!("generating {}", args.out.display()))?;
     progress.finish();
-    let config_path = args.out.join("private/config.json");
+    let config_path = RunDir::new(&args.out).private().config();
     match summary.seed {
         SeedUse::Given => {}
         SeedUse::Drawn => eprintln!(
@@ -115,7 +116,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         eprintln!(
             "stepsim: all {} images finished; wrote {}",
             summary.total,
-            args.out.join("public/manifest.json").display()
+            RunDir::new(&args.out).public().manifest().display()
         );
     } else {
         eprintln!(
@@ -146,7 +147,7 @@ fn finish(args: &Args, plan: &stepsim_sim::plan::Plan, threads: usize) -> anyhow
                 args.out.display(),
                 f.markers.len(),
                 f.markers.join(" "),
-                args.out.join("public/manifest.json").display()
+                RunDir::new(&args.out).public().manifest().display()
             );
             Ok(())
         }

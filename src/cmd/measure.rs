@@ -1,6 +1,7 @@
 //! `stepsim measure`: the KSB+ reference shear pipeline on a public run.
 
 use std::path::PathBuf;
+use stepsim_contract::run_dir::PublicDir;
 use stepsim_ksb::params::{KsbParams, Method, PgammaMode};
 
 /// How P^γ is applied.
@@ -84,7 +85,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         return Ok(());
     }
     // An unreadable manifest is reported by the pipeline itself.
-    if let Ok(m) = stepsim_ksb::io::read_manifest(&args.run.join("manifest.json")) {
+    if let Ok(m) = stepsim_ksb::io::read_manifest(&PublicDir::new(&args.run).manifest()) {
         super::check_memory(
             "measure",
             stepsim_sim::memory::measure_estimate(

@@ -168,8 +168,8 @@ impl Script {
         if let Some(m) = &self.mem {
             resources.push(format!("--mem={}", shell_quote(m)));
         }
-        let public = self.run.join("public");
-        let private = self.run.join("private");
+        let run_dir = stepsim_contract::run_dir::RunDir::new(&self.run);
+        let (public, private) = (run_dir.public().path(), run_dir.private().path());
         let (stepsim, config, run) = (q(&self.stepsim), q(&self.config), q(&self.run));
         let gen_shard =
             format!("{stepsim} generate --config {config} --out {run} --shard auto{threads}");
@@ -178,13 +178,13 @@ impl Script {
         let measure = |tail: &str| {
             format!(
                 "{stepsim} measure --run {} --out {} {tail}{threads}",
-                q(&public),
+                q(public),
                 q(&submission)
             )
         };
         let score = format!(
             "{stepsim} score --truth {} --submission {} --out {} --force",
-            q(&private),
+            q(private),
             q(&submission),
             q(&report)
         );

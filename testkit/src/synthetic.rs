@@ -10,6 +10,7 @@
 
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
+use stepsim_contract::run_dir::PrivateDir;
 use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, Part};
 use stepsim_contract::seed::{SimRng, splitmix64};
 use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
@@ -292,17 +293,19 @@ pub fn challenge_run(
 impl SynthRun {
     /// The image index of the run.
     pub fn index(&self) -> ImageIndex {
-        ImageIndex::new(&self.datasets, Path::new("datasets.json")).expect("unique synthetic ids")
+        ImageIndex::new(&self.datasets, Path::new(PrivateDir::DATASETS))
+            .expect("unique synthetic ids")
     }
 
     /// Writes `dir/datasets.json` and `dir/truth/<image>.fits` (dir =
     /// `RUN/private`).
     pub fn write(&self, dir: &Path) -> Result<(), HarnessError> {
         let json = serde_json::to_string_pretty(&self.datasets).unwrap_or_default();
-        stepsim_contract::io::write_bytes_atomically(&dir.join("datasets.json"), json.as_bytes())?;
+        let private = PrivateDir::new(dir);
+        stepsim_contract::io::write_bytes_atomically(&private.datasets(), json.as_bytes())?;
         let index = self.index();
         for (info, rows) in index.images.iter().zip(&self.truth) {
-            let path = dir.join("truth").join(format!("{}.fits", info.image));
+            let path = private.truth(&info.image);
             stepsim_contract::io::truth::write_truth_fits(&path, rows, &[])?;
         }
         Ok(())

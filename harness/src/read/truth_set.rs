@@ -5,6 +5,7 @@ use crate::error::HarnessError;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use stepsim_contract::run_dir::PrivateDir;
 use stepsim_contract::run_layout::{DATASETS_FORMAT, Datasets};
 use stepsim_contract::truth::TruthRow;
 
@@ -105,7 +106,7 @@ pub fn run_identity(datasets_json: &[u8]) -> String {
 
 /// Reads `DIR/datasets.json` (DIR = `RUN/private`).
 pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
-    let path = dir.join("datasets.json");
+    let path = PrivateDir::new(dir).datasets();
     let bytes =
         crate::read::input::read_regular_file(&path, crate::read::input::MAX_DATASETS_JSON_BYTES)
             .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
@@ -262,7 +263,7 @@ pub fn run_submission_limit(truth: &TruthSet) -> Result<u64, HarnessError> {
 impl TruthSet {
     /// Path of the truth table of an image.
     pub fn truth_path(&self, image: &str) -> PathBuf {
-        self.dir.join("truth").join(format!("{image}.fits"))
+        PrivateDir::new(&self.dir).truth(image)
     }
 
     /// Reads the truth tables (scoring columns only) of the images `which`
@@ -342,7 +343,7 @@ mod tests {
             e.contains("datasets.json") && e.contains("cannot read"),
             "{e}"
         );
-        let p = dir.path().join("datasets.json");
+        let p = PrivateDir::new(dir.path()).datasets();
         let entry = |id: &str| {
             format!(
                 "{{\"dataset\": \"d{id}\", \"psf_id\": 0, \"psf\": \"none\", \"g1\": 0.0, \"g2\": 0.0, \

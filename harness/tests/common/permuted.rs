@@ -12,6 +12,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use stepsim_contract::run_dir::RunDir;
 use stepsim_sim::run_layout::Datasets;
 use stepsim_testkit::synthetic::{self, SynthRun, SynthSpec};
 
@@ -113,13 +114,16 @@ fn write_dir(dir: &Path, rows: &[Row]) {
 pub fn pair(fits: &dyn Fn(&[Row]) -> Vec<u8>) -> Pair {
     let dir = tempfile::tempdir().unwrap();
     let run = the_run();
-    let a = dir.path().join("a").join("private");
-    let b = dir.path().join("b").join("private");
-    run.write(&a).unwrap();
-    std::fs::create_dir_all(b.join("truth")).unwrap();
-    for e in std::fs::read_dir(a.join("truth")).unwrap() {
+    let (run_a, run_b) = (
+        RunDir::new(dir.path().join("a")),
+        RunDir::new(dir.path().join("b")),
+    );
+    let (a, b) = (run_a.private(), run_b.private());
+    run.write(a.path()).unwrap();
+    std::fs::create_dir_all(b.truth_dir()).unwrap();
+    for e in std::fs::read_dir(a.truth_dir()).unwrap() {
         let e = e.unwrap();
-        std::fs::copy(e.path(), b.join("truth").join(e.file_name())).unwrap();
+        std::fs::copy(e.path(), b.truth_dir().join(e.file_name())).unwrap();
     }
     let permuted = permute(&run.datasets);
     assert_ne!(
@@ -127,7 +131,7 @@ pub fn pair(fits: &dyn Fn(&[Row]) -> Vec<u8>) -> Pair {
         serde_json::to_string(&run.datasets).unwrap()
     );
     std::fs::write(
-        b.join("datasets.json"),
+        b.datasets(),
         serde_json::to_string_pretty(&permuted).unwrap(),
     )
     .unwrap();
@@ -263,10 +267,10 @@ pub fn pair(fits: &dyn Fn(&[Row]) -> Vec<u8>) -> Pair {
         ],
     );
     Pair {
+        a: a.path().to_path_buf(),
+        b: b.path().to_path_buf(),
         dir,
         run,
-        a,
-        b,
         subs,
     }
 }

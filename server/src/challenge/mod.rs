@@ -25,6 +25,7 @@ use crate::store::{Role, Store, StoreError, StoreUrl};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use stepsim_contract::run_dir::RunDir;
 use stepsim_harness::{has_holdout, load_truth_set};
 
 /// The scorer of this binary: a score records the version that made it.
@@ -138,7 +139,8 @@ impl Challenge {
         no_holdout: bool,
         store: Option<&StoreUrl>,
     ) -> Result<Self, ChallengeError> {
-        let truth_dir = run.join("private");
+        let run_dir = RunDir::new(run);
+        let truth_dir = run_dir.private().path().to_path_buf();
         let truth = load_truth_set(&truth_dir).map_err(|e| ChallengeError::Run(e.to_string()))?;
         let holdout = has_holdout(&truth.datasets);
         if !holdout && !no_holdout {
@@ -146,7 +148,7 @@ impl Challenge {
                 "{}: the run has no held-out datasets (config section `challenge.holdout_fields`); \
                  its public feedback would be its final score. Generate a run with held-out \
                  fields, or pass --no-holdout to serve it anyway",
-                truth_dir.join("datasets.json").display()
+                run_dir.private().datasets().display()
             )));
         }
         if quota == 0 {

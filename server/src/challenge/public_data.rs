@@ -7,6 +7,7 @@
 
 use sha2::{Digest, Sha256};
 use std::path::PathBuf;
+use stepsim_contract::run_dir::{PublicDir, RunDir};
 use stepsim_contract::run_layout::Manifest;
 
 /// One file participants may download.
@@ -23,10 +24,8 @@ pub struct PublicFile {
 /// The public directory of the served run (`RUN/public`, beside the
 /// `RUN/private` the challenge was made from).
 pub fn public_dir(truth_dir: &std::path::Path) -> PathBuf {
-    truth_dir
-        .parent()
-        .map(|p| p.join("public"))
-        .unwrap_or_else(|| PathBuf::from("public"))
+    let run = truth_dir.parent().unwrap_or(std::path::Path::new(""));
+    RunDir::new(run).public().path().to_path_buf()
 }
 
 fn sha256_of(path: &std::path::Path) -> std::io::Result<String> {
@@ -40,22 +39,23 @@ fn sha256_of(path: &std::path::Path) -> std::io::Result<String> {
 /// `manifest.json`, `README.md` (when there is one), then every image.
 /// Refuses (message naming the file) a run without a readable manifest.
 pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String> {
-    let mpath = public.join("manifest.json");
+    let public = PublicDir::new(public);
+    let mpath = public.manifest();
     let text = std::fs::read_to_string(&mpath)
         .map_err(|e| format!("{}: cannot read: {e}", mpath.display()))?;
     let manifest: Manifest = serde_json::from_str(&text)
         .map_err(|e| format!("{}: not a manifest: {e}", mpath.display()))?;
-    let size = |p: &str| std::fs::metadata(public.join(p)).map(|m| m.len());
+    let size = |p: &str| std::fs::metadata(public.file(p)).map(|m| m.len());
     let mut files = vec![PublicFile {
-        path: "manifest.json".into(),
+        path: PublicDir::MANIFEST.into(),
         sha256: crate::hex(&Sha256::digest(text.as_bytes())),
         bytes: text.len() as u64,
     }];
-    if let Ok(bytes) = size("README.md") {
-        let sha = sha256_of(&public.join("README.md"))
-            .map_err(|e| format!("{}: {e}", public.join("README.md").display()))?;
+    if let Ok(bytes) = size(PublicDir::README) {
+        let sha = sha256_of(&public.readme())
+            .map_err(|e| format!("{}: {e}", public.readme().display()))?;
         files.push(PublicFile {
-            path: "README.md".into(),
+            path: PublicDir::README.into(),
             sha256: sha,
             bytes,
         });
@@ -75,7 +75,7 @@ pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String>
             ));
         }
         let bytes =
-            size(&im.file).map_err(|e| format!("{}: {e}", public.join(&im.file).display()))?;
+            size(&im.file).map_err(|e| format!("{}: {e}", public.file(&im.file).display()))?;
         files.push(PublicFile {
             path: im.file,
             sha256: im.sha256,

@@ -9,7 +9,7 @@
 //! ticks, 10 ms) around each stage.
 
 use super::pipeline::{Context, Lap, make_image};
-use super::{GenerateError, Made, RunPaths};
+use super::{GenerateError, Made, RunDir};
 use crate::plan::Plan;
 use std::path::Path;
 
@@ -41,9 +41,7 @@ pub fn run_once(
         .into_iter()
         .find(|j| j.field == field && !j.rotated && j.dataset == dataset.index)
         .expect("the field is in range");
-    let paths = RunPaths {
-        root: scratch.into(),
-    };
+    let paths = RunDir::new(scratch);
     super::make_dataset_dirs(&paths, std::slice::from_ref(&job))?;
     let mut t = StageTimes::default();
     let cpu_start = process_cpu_s();
@@ -133,24 +131,26 @@ mod tests {
             .into_iter()
             .find(|j| j.field == 0 && !j.rotated && j.dataset == d.index)
             .unwrap();
-        let (a, b) = (
-            RunPaths {
-                root: dir.path().into(),
-            },
-            RunPaths {
-                root: run.path().into(),
-            },
-        );
+        let (a, b) = (RunDir::new(dir.path()), RunDir::new(run.path()));
         for (x, y) in [
-            (a.image(&job), b.image(&job)),
-            (a.truth(&job), b.truth(&job)),
+            (
+                a.public().image(&job.dataset_id, &job.image_id),
+                b.public().image(&job.dataset_id, &job.image_id),
+            ),
+            (
+                a.private().truth(&job.image_id),
+                b.private().truth(&job.image_id),
+            ),
         ] {
             assert!(
                 std::fs::read(&x).unwrap() == std::fs::read(&y).unwrap(),
                 "{x:?}"
             );
         }
-        let side = std::fs::read_to_string(a.sidecar(&job)).unwrap();
-        assert_eq!(side, std::fs::read_to_string(b.sidecar(&job)).unwrap());
+        let side = std::fs::read_to_string(a.private().sidecar(&job.image_id)).unwrap();
+        assert_eq!(
+            side,
+            std::fs::read_to_string(b.private().sidecar(&job.image_id)).unwrap()
+        );
     }
 }

@@ -16,6 +16,7 @@ use super::GenerateError;
 use crate::io::IoError;
 use crate::plan::{Plan, SeedOrigin};
 use std::path::{Path, PathBuf};
+use stepsim_contract::run_dir::RunDir;
 
 /// How the run's seed was chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,7 +51,7 @@ pub fn config_json(plan: &Plan) -> String {
 /// Claims `out` for `plan`, or joins the run already there if it has the
 /// same config (adopting its seed when `plan`'s was drawn).
 pub fn claim(plan: &Plan, out: &Path) -> Result<Claim, GenerateError> {
-    let path = out.join("private").join("config.json");
+    let path = RunDir::new(out).private().config();
     let mine = config_json(plan);
     let created = create_new(&path, mine.as_bytes())?;
     let given = match plan.seed_origin() {
@@ -167,9 +168,10 @@ mod tests {
                 }
             }
             // The file is the winner's, whole; no temporary is left.
-            let text = std::fs::read_to_string(dir.path().join("private/config.json")).unwrap();
+            let run = RunDir::new(dir.path());
+            let text = std::fs::read_to_string(run.private().config()).unwrap();
             assert_eq!(text, winners[0].config_json);
-            let left: Vec<_> = std::fs::read_dir(dir.path().join("private"))
+            let left: Vec<_> = std::fs::read_dir(run.private().path())
                 .unwrap()
                 .map(|e| e.unwrap().file_name())
                 .collect();

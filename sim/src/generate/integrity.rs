@@ -10,11 +10,11 @@
 //! other content than this run's. Temporary files (`.<name>.<pid>.tmp`) are left to
 //! [`crate::io::remove_stale_temporaries`].
 
-use super::{GenerateError, Job, RunPaths, Sidecar};
+use super::{GenerateError, Job, RunDir, Sidecar};
 use crate::io::IoError;
 use crate::plan::Plan;
 use std::collections::HashSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Version of what `generate` writes: bumped whenever the bytes of a run's
 /// files change on purpose, so that a rerun refuses the files of an older
@@ -23,63 +23,56 @@ pub const OUTPUT_VERSION: u32 = 3;
 
 /// Refuses, naming it, the first file or directory (in sorted order) that
 /// does not belong to the run of `all`.
-pub fn refuse_foreign_files(
-    plan: &Plan,
-    paths: &RunPaths,
-    all: &[Job],
-) -> Result<(), GenerateError> {
-    let mut datasets: HashSet<&str> = HashSet::new();
-    let mut public_files: HashSet<String> = HashSet::new();
-    let mut images: HashSet<String> = HashSet::new();
+pub fn refuse_foreign_files(plan: &Plan, paths: &RunDir, all: &[Job]) -> Result<(), GenerateError> {
+    let (public, private) = (paths.public(), paths.private());
+    let mut datasets: HashSet<PathBuf> = HashSet::new();
+    let mut public_files: HashSet<PathBuf> = HashSet::new();
+    let mut private_files: HashSet<PathBuf> = HashSet::new();
     for j in all {
-        datasets.insert(&j.dataset_id);
-        public_files.insert(j.public_file());
-        images.insert(j.image_id.clone());
+        datasets.insert(public.dataset(&j.dataset_id));
+        public_files.insert(public.image(&j.dataset_id, &j.image_id));
+        private_files.insert(private.truth(&j.image_id));
+        private_files.insert(private.model(&j.image_id));
+        private_files.insert(private.sidecar(&j.image_id));
     }
-    let public = paths.public();
-    for entry in listing(&public)? {
-        let name = file_name(&entry);
-        if entry.is_dir() && datasets.contains(name.as_str()) {
+    for entry in listing(public.path())? {
+        if entry.is_dir() && datasets.contains(&entry) {
             for file in listing(&entry)? {
-                let rel = format!("{name}/{}", file_name(&file));
-                if file.is_dir() || !public_files.contains(&rel) {
+                if file.is_dir() || !public_files.contains(&file) {
                     return Err(foreign(&file));
                 }
             }
-        } else if entry.is_dir() || !(name == "README.md" || name == "manifest.json") {
+        } else if entry.is_dir() || !(entry == public.readme() || entry == public.manifest()) {
             return Err(foreign(&entry));
         }
     }
-    let private = paths.private();
-    for (dir, ext) in [("truth", "fits"), ("model", "fits"), ("done", "json")] {
-        for file in listing(&private.join(dir))? {
-            let name = file_name(&file);
-            let ours = name
-                .strip_suffix(&format!(".{ext}"))
-                .is_some_and(|id| images.contains(id));
-            if file.is_dir() || !ours {
+    for dir in [private.truth_dir(), private.model_dir(), private.done_dir()] {
+        for file in listing(&dir)? {
+            if file.is_dir() || !private_files.contains(&file) {
                 return Err(foreign(&file));
             }
         }
     }
-    let psfs: HashSet<String> = plan
+    let psfs: HashSet<PathBuf> = plan
         .psf_names()
         .iter()
-        .map(|name| format!("{name}.fits"))
+        .map(|name| private.psf(name))
         .collect();
-    for file in listing(&private.join("psf"))? {
-        let name = file_name(&file);
+    for file in listing(&private.psf_dir())? {
         // `cache/` is the run's PSF store: its files are checked when read
         // (crate::io::psf_store) and rebuilt when they do not check.
-        let store = name == "cache" && file.is_dir();
-        if !store && (file.is_dir() || !psfs.contains(&name)) {
+        let store = file == private.psf_cache() && file.is_dir();
+        if !store && (file.is_dir() || !psfs.contains(&file)) {
             return Err(foreign(&file));
         }
     }
-    let inputs: HashSet<&str> = plan.run_inputs().iter().map(|i| i.name.as_str()).collect();
-    for file in listing(&private.join(crate::plan::RUN_INPUTS_DIR))? {
-        let name = format!("{}/{}", crate::plan::RUN_INPUTS_DIR, file_name(&file));
-        if file.is_dir() || !inputs.contains(name.as_str()) {
+    let inputs: HashSet<PathBuf> = plan
+        .run_inputs()
+        .iter()
+        .map(|i| private.input(&i.name))
+        .collect();
+    for file in listing(&private.inputs())? {
+        if file.is_dir() || !inputs.contains(&file) {
             return Err(foreign(&file));
         }
     }
@@ -91,10 +84,9 @@ pub fn refuse_foreign_files(
 /// ([`GenerateError::InputChanged`]) a copy whose bytes differ from the
 /// file the plan read, so that a run is never continued with other inputs
 /// than it was made with.
-pub fn keep_inputs(plan: &Plan, paths: &RunPaths) -> Result<(), GenerateError> {
-    let private = paths.private();
+pub fn keep_inputs(plan: &Plan, paths: &RunDir) -> Result<(), GenerateError> {
     for input in plan.run_inputs() {
-        let copy = private.join(&input.name);
+        let copy = paths.private().input(&input.name);
         match std::fs::read(&copy) {
             Ok(bytes) if bytes == *input.bytes => {}
             Ok(_) => {
@@ -112,17 +104,16 @@ pub fn keep_inputs(plan: &Plan, paths: &RunPaths) -> Result<(), GenerateError> {
     Ok(())
 }
 
-/// Refuses, naming it, a file `dir/<name>` that exists with other content
-/// than this run's (e.g. the `blinding.key` of another run whose
-/// `private/config.json` was deleted).
-pub fn refuse_other_contents(dir: &Path, files: &[(&str, String)]) -> Result<(), GenerateError> {
-    for (name, want) in files {
-        let path = dir.join(name);
-        match std::fs::read(&path) {
-            Ok(bytes) if bytes != want.as_bytes() => return Err(foreign(&path)),
+/// Refuses, naming it, a file of `files` (path, content) that exists with
+/// other content than this run's (e.g. the `blinding.key` of another run
+/// whose `private/config.json` was deleted).
+pub fn refuse_other_contents(files: &[(PathBuf, String)]) -> Result<(), GenerateError> {
+    for (path, want) in files {
+        match std::fs::read(path) {
+            Ok(bytes) if bytes != want.as_bytes() => return Err(foreign(path)),
             Ok(_) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(IoError::os(&path, e).into()),
+            Err(e) => return Err(IoError::os(path, e).into()),
         }
     }
     Ok(())
@@ -130,12 +121,6 @@ pub fn refuse_other_contents(dir: &Path, files: &[(&str, String)]) -> Result<(),
 
 fn foreign(path: &Path) -> GenerateError {
     GenerateError::ForeignFile { path: path.into() }
-}
-
-fn file_name(path: &Path) -> String {
-    path.file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default()
 }
 
 /// The entries of `dir`, sorted, without temporaries; empty when `dir` does
@@ -161,11 +146,11 @@ fn listing(dir: &Path) -> Result<Vec<std::path::PathBuf>, IoError> {
 /// file) when it cannot be read as a sidecar of this stepsim, or was made by
 /// another config or output version.
 pub fn read_sidecar(
-    paths: &RunPaths,
+    paths: &RunDir,
     job: &Job,
     config_sha256: &str,
 ) -> Result<Option<Sidecar>, GenerateError> {
-    let path = paths.sidecar(job);
+    let path = paths.private().sidecar(&job.image_id);
     let text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),

@@ -61,6 +61,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
+use stepsim_contract::run_dir::{PublicDir, RunDir};
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -240,7 +241,7 @@ pub struct Job {
 impl Job {
     /// Image path relative to `public/`.
     pub fn public_file(&self) -> String {
-        format!("{}/{}.fits", self.dataset_id, self.image_id)
+        PublicDir::image_file(&self.dataset_id, &self.image_id)
     }
     /// Key of the image's noise.
     pub fn noise_key(&self, run_seed: u64) -> SeedKey {
@@ -318,64 +319,6 @@ pub struct Sidecar {
     pub config_sha256: String,
     /// [`OUTPUT_VERSION`] of the stepsim that made the files.
     pub output_version: u32,
-}
-
-/// Paths of a run directory.
-#[derive(Debug, Clone)]
-pub struct RunPaths {
-    /// `RUN`.
-    pub root: PathBuf,
-}
-
-impl RunPaths {
-    /// `RUN/public`.
-    pub fn public(&self) -> PathBuf {
-        self.root.join("public")
-    }
-    /// `RUN/private`.
-    pub fn private(&self) -> PathBuf {
-        self.root.join("private")
-    }
-    /// `RUN/private/config.json`, the resolved config (claims the run).
-    pub fn config(&self) -> PathBuf {
-        self.private().join("config.json")
-    }
-    /// The public image of a job.
-    pub fn image(&self, job: &Job) -> PathBuf {
-        self.public().join(job.public_file())
-    }
-    /// The truth table of a job.
-    pub fn truth(&self, job: &Job) -> PathBuf {
-        self.private()
-            .join("truth")
-            .join(format!("{}.fits", job.image_id))
-    }
-    /// The noise-free model of a job.
-    pub fn model(&self, job: &Job) -> PathBuf {
-        self.private()
-            .join("model")
-            .join(format!("{}.fits", job.image_id))
-    }
-    /// The sidecar of a job.
-    pub fn sidecar(&self, job: &Job) -> PathBuf {
-        self.private()
-            .join("done")
-            .join(format!("{}.json", job.image_id))
-    }
-    /// `RUN/private/shards`, the done-markers of shards.
-    pub fn shards(&self) -> PathBuf {
-        self.private().join("shards")
-    }
-    /// The PSF file of PSF `name`.
-    pub fn psf(&self, name: &str) -> PathBuf {
-        self.private().join("psf").join(format!("{name}.fits"))
-    }
-
-    /// `private/psf/cache/`: the PSFs every process of the run reuses
-    /// ([`crate::io::psf_store`]).
-    pub fn psf_store(&self) -> PathBuf {
-        self.private().join("psf").join("cache")
-    }
 }
 
 /// Options of a run besides the config.
@@ -476,7 +419,7 @@ pub fn generate(
     options: &Options,
     progress: &(dyn Fn(Event) + Sync),
 ) -> Result<Summary, GenerateError> {
-    let paths = RunPaths { root: out.into() };
+    let paths = RunDir::new(out);
     // Everything that could fail before drawing is checked before writing.
     crate::population::preflight(&plan.population()).map_err(GenerateError::Preflight)?;
     let claim = claim::claim(plan, out)?;
@@ -549,7 +492,7 @@ pub fn generate(
 
 /// What the solved PSFs write: the side of each one's file (those this
 /// process built) and the bytes of the run's store files.
-fn solved_psfs(plan: &Plan, paths: &RunPaths, psfs: &Psfs) -> crate::disk::SolvedPsfs {
+fn solved_psfs(plan: &Plan, paths: &RunDir, psfs: &Psfs) -> crate::disk::SolvedPsfs {
     use crate::io::psf_store::{file_for, is_stored};
     let scale = plan.pixel_scale_arcsec();
     let max_stamp = plan.accuracy().max_stamp_px;
@@ -566,7 +509,7 @@ fn solved_psfs(plan: &Plan, paths: &RunPaths, psfs: &Psfs) -> crate::disk::Solve
         .psf_specs()
         .iter()
         .filter(|spec| is_stored(spec))
-        .map(|spec| file_for(&paths.psf_store(), spec, &accuracy))
+        .map(|spec| file_for(&paths.private().psf_cache(), spec, &accuracy))
         .collect();
     let store_bytes = files
         .iter()
@@ -584,18 +527,16 @@ fn solved_psfs(plan: &Plan, paths: &RunPaths, psfs: &Psfs) -> crate::disk::Solve
 /// claim made just now is undone on failure.
 fn refuse_foreign_or_undo_claim(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     key: &BlindingKey,
     all: &[Job],
     claimed_now: bool,
 ) -> Result<(), GenerateError> {
     let checked = integrity::refuse_foreign_files(plan, paths, all)
-        .and_then(|()| {
-            integrity::refuse_other_contents(&paths.private(), &private_shared(plan, key, all))
-        })
+        .and_then(|()| integrity::refuse_other_contents(&private_shared(plan, paths, key, all)))
         .and_then(|()| integrity::keep_inputs(plan, paths));
     if checked.is_err() && claimed_now {
-        let _ = std::fs::remove_file(paths.config());
+        let _ = std::fs::remove_file(paths.private().config());
     }
     checked
 }
@@ -616,7 +557,7 @@ struct Work<'a> {
 /// finished when their sidecar and file exist).
 fn find_pending<'a>(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     all: &'a [Job],
     shard: Shard,
     config_sha256: &str,
@@ -642,10 +583,10 @@ fn find_pending<'a>(
         .map(|(j, _)| *j)
         .collect();
     let unfinished = !pending.is_empty()
-        || all
-            .iter()
-            .any(|j| sides[j.order].is_none() || !paths.image(j).is_file());
-    let manifest_path = paths.public().join("manifest.json");
+        || all.iter().any(|j| {
+            sides[j.order].is_none() || !paths.public().image(&j.dataset_id, &j.image_id).is_file()
+        });
+    let manifest_path = paths.public().manifest();
     let removed_manifest = unfinished && manifest_path.exists();
     if removed_manifest {
         std::fs::remove_file(&manifest_path).map_err(|e| IoError::os(&manifest_path, e))?;
@@ -671,7 +612,7 @@ struct Psfs {
 /// those whose `private/psf/` file is missing (`output.write_psf`).
 fn build_psfs(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     work: &Work,
     progress: &(dyn Fn(Event) + Sync),
 ) -> Result<Psfs, GenerateError> {
@@ -684,7 +625,7 @@ fn build_psfs(
     if plan.output().write_psf {
         for j in &work.mine {
             let p = ds[j.dataset as usize].psf;
-            if !paths.psf(plan.psf_name(p)).exists() {
+            if !paths.private().psf(plan.psf_name(p)).exists() {
                 needed.push(p);
             }
         }
@@ -706,12 +647,12 @@ fn build_psfs(
             name: plan.psf_name(p).to_string(),
             source,
         };
-        let (_, origin) = plan
-            .psf_in_store(p, &paths.psf_store())
-            .map_err(|e| match e {
-                crate::io::psf_store::StoreError::Psf(source) => psf_err(source),
-                crate::io::psf_store::StoreError::Io(e) => GenerateError::Io(e),
-            })?;
+        let (_, origin) =
+            plan.psf_in_store(p, &paths.private().psf_cache())
+                .map_err(|e| match e {
+                    crate::io::psf_store::StoreError::Psf(source) => psf_err(source),
+                    crate::io::psf_store::StoreError::Io(e) => GenerateError::Io(e),
+                })?;
         let origin = origin.unwrap_or(crate::io::psf_store::Origin::Built);
         out.reused += usize::from(matches!(
             origin,
@@ -738,7 +679,7 @@ fn build_psfs(
 /// (or at the end when nothing is pending).
 fn make_images(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     pending: &[&Job],
     psfs: &Psfs,
     config_sha256: &str,
@@ -754,7 +695,7 @@ fn make_images(
         fields.get(first.field).map_err(|e| {
             e.unwrap_or_else(|| {
                 IoError::format(
-                    &paths.private(),
+                    paths.private().path(),
                     "the population of the first field could not be drawn",
                 )
                 .into()
@@ -820,7 +761,7 @@ fn make_images(
         // Every lane stopped without an error: every image must be made.
         None if made.into_inner() == jobs.len() => Ok(()),
         None => Err(IoError::format(
-            &paths.public(),
+            paths.public().path(),
             "an image worker stopped before its images were written; run generate again to finish them",
         )
         .into()),
@@ -955,7 +896,7 @@ struct Concluded {
 /// stamp.
 fn conclude(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     all: &[Job],
     mine: &[&Job],
     shard: Shard,
@@ -971,13 +912,16 @@ fn conclude(
     } else {
         write_manifest_if_complete(plan, paths, all, config_sha256)?
     };
-    times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
+    times::normalise(
+        paths.public().path(),
+        times::run_instant(&paths.private().config())?,
+    )?;
     Ok(out)
 }
 
 /// Writes the done-marker of `shard` (atomically) and returns its path.
 fn write_marker(
-    paths: &RunPaths,
+    paths: &RunDir,
     shard: Shard,
     mine: &[&Job],
     config_sha256: &str,
@@ -991,7 +935,7 @@ fn write_marker(
         output_version: OUTPUT_VERSION,
         images,
     };
-    let path = paths.shards().join(shard.marker_name());
+    let path = paths.private().shard_marker(shard.k, shard.n);
     let text = serde_json::to_string_pretty(&marker).expect("marker serialises") + "\n";
     write_bytes_atomically(&path, text.as_bytes())?;
     Ok(path)
@@ -999,13 +943,15 @@ fn write_marker(
 
 /// Images of the run whose sidecar and public file are present.
 fn count_finished(
-    paths: &RunPaths,
+    paths: &RunDir,
     all: &[Job],
     config_sha256: &str,
 ) -> Result<usize, GenerateError> {
     let mut n = 0;
     for j in all {
-        if integrity::read_sidecar(paths, j, config_sha256)?.is_some() && paths.image(j).is_file() {
+        if integrity::read_sidecar(paths, j, config_sha256)?.is_some()
+            && paths.public().image(&j.dataset_id, &j.image_id).is_file()
+        {
             n += 1;
         }
     }
@@ -1036,17 +982,17 @@ pub struct Finished {
 /// claim a run that is no longer what it says. A config that is not the
 /// run's is refused before, and touches nothing.
 pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
-    let paths = RunPaths { root: out.into() };
-    if !paths.config().is_file() {
+    let paths = RunDir::new(out);
+    if !paths.private().config().is_file() {
         return Err(GenerateError::NoRun {
-            path: paths.config(),
+            path: paths.private().config(),
         });
     }
     let claim = claim::claim(plan, out)?;
     match finish_claimed(&claim, &paths, out) {
         Ok(f) => Ok(f),
         Err(e) => {
-            let manifest = paths.public().join("manifest.json");
+            let manifest = paths.public().manifest();
             let removed = match std::fs::remove_file(&manifest) {
                 Ok(()) => true,
                 Err(r) if r.kind() == std::io::ErrorKind::NotFound => false,
@@ -1075,7 +1021,7 @@ pub fn finish(plan: &Plan, out: &Path) -> Result<Finished, GenerateError> {
 /// [`finish`] once the run is joined.
 fn finish_claimed(
     claim: &claim::Claim,
-    paths: &RunPaths,
+    paths: &RunDir,
     out: &Path,
 ) -> Result<Finished, GenerateError> {
     let plan = &claim.plan;
@@ -1083,7 +1029,7 @@ fn finish_claimed(
     let key = blinding_key(plan);
     let all = jobs(plan, &key)?;
     integrity::refuse_foreign_files(plan, paths, &all)?;
-    integrity::refuse_other_contents(&paths.private(), &private_shared(plan, &key, &all))?;
+    integrity::refuse_other_contents(&private_shared(plan, paths, &key, &all))?;
     integrity::keep_inputs(plan, paths)?;
     let want_model = plan.output().write_model;
     let ok: Vec<bool> = all
@@ -1092,7 +1038,7 @@ fn finish_claimed(
         .collect::<Result<_, _>>()?;
     let markers = marker_names(paths)?;
     let missing: Vec<&Job> = all.iter().filter(|j| !ok[j.order]).collect();
-    let readme = paths.public().join("README.md");
+    let readme = paths.public().readme();
     if missing.is_empty() && !readme.is_file() {
         return Err(IoError::format(
             &readme,
@@ -1127,7 +1073,10 @@ fn finish_claimed(
     }
     let done = write_manifest_if_complete(plan, paths, &all, &config_sha256)?;
     debug_assert!(done.manifest_written);
-    times::normalise(&paths.public(), times::run_instant(&paths.config())?)?;
+    times::normalise(
+        paths.public().path(),
+        times::run_instant(&paths.private().config())?,
+    )?;
     Ok(Finished {
         seed: claim.seed,
         total: all.len(),
@@ -1136,8 +1085,8 @@ fn finish_claimed(
 }
 
 /// The done-markers' file names under `private/shards`, sorted.
-fn marker_names(paths: &RunPaths) -> Result<Vec<String>, IoError> {
-    let dir = paths.shards();
+fn marker_names(paths: &RunDir) -> Result<Vec<String>, IoError> {
+    let dir = paths.private().shards_dir();
     let entries = match std::fs::read_dir(&dir) {
         Ok(e) => e,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
@@ -1162,12 +1111,12 @@ pub(crate) struct Made<'a> {
 
 /// Creates `public/<dataset-id>/` for every dataset, in the order of the ids
 /// (so that neither inode numbers nor creation order follow the datasets).
-fn make_dataset_dirs(paths: &RunPaths, all: &[Job]) -> Result<(), IoError> {
+fn make_dataset_dirs(paths: &RunDir, all: &[Job]) -> Result<(), IoError> {
     let mut ids: Vec<&str> = all.iter().map(|j| j.dataset_id.as_str()).collect();
     ids.sort_unstable();
     ids.dedup();
     for id in ids {
-        let dir = paths.public().join(id);
+        let dir = paths.public().dataset(id);
         std::fs::create_dir_all(&dir).map_err(|e| IoError::os(&dir, e))?;
     }
     Ok(())
@@ -1177,7 +1126,7 @@ fn make_dataset_dirs(paths: &RunPaths, all: &[Job]) -> Result<(), IoError> {
 /// disk with the recorded SHA-256 (a foreign sidecar is an error: see
 /// [`integrity::read_sidecar`]).
 pub fn verify(
-    paths: &RunPaths,
+    paths: &RunDir,
     job: &Job,
     want_model: bool,
     config_sha256: &str,
@@ -1187,14 +1136,17 @@ pub fn verify(
 }
 
 /// True when every file `side` lists is on disk with the recorded SHA-256.
-fn verify_files(paths: &RunPaths, job: &Job, side: &Sidecar, want_model: bool) -> bool {
+fn verify_files(paths: &RunDir, job: &Job, side: &Sidecar, want_model: bool) -> bool {
     let same = |path: &Path, want: &str| std::fs::read(path).is_ok_and(|b| sha256_hex(&b) == want);
     side.image == job.image_id
         && side.file == job.public_file()
-        && same(&paths.image(job), &side.sha256)
-        && same(&paths.truth(job), &side.truth_sha256)
+        && same(
+            &paths.public().image(&job.dataset_id, &job.image_id),
+            &side.sha256,
+        )
+        && same(&paths.private().truth(&job.image_id), &side.truth_sha256)
         && match (&side.model_sha256, want_model) {
-            (Some(m), true) => same(&paths.model(job), m),
+            (Some(m), true) => same(&paths.private().model(&job.image_id), m),
             (None, false) => true,
             _ => false,
         }
@@ -1205,29 +1157,28 @@ fn verify_files(paths: &RunPaths, job: &Job, side: &Sidecar, want_model: bool) -
 /// was written first, by [`claim::claim`]).
 fn write_shared(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     key: &BlindingKey,
     all: &[Job],
     options: &Options,
     renderers: &BTreeMap<usize, Renderer>,
 ) -> Result<(), GenerateError> {
-    let private = paths.private();
-    for (name, bytes) in private_shared(plan, key, all) {
-        write_bytes_atomically(&private.join(name), bytes.as_bytes())?;
+    for (path, bytes) in private_shared(plan, paths, key, all) {
+        write_bytes_atomically(&path, bytes.as_bytes())?;
     }
     let para = options
         .submission_format
         .as_deref()
         .unwrap_or(SUBMISSION_FORMAT);
     write_bytes_atomically(
-        &paths.public().join("README.md"),
+        &paths.public().readme(),
         participants_readme(plan, para).as_bytes(),
     )?;
     if plan.output().write_psf {
         for (p, renderer) in renderers {
             let name = plan.psf_name(*p);
             write_psf_file(
-                &paths.psf(name),
+                &paths.private().psf(name),
                 renderer.psf(),
                 name,
                 plan.pixel_scale_arcsec(),
@@ -1264,13 +1215,21 @@ fn write_psf_file(
 }
 
 /// The private files every process of a run writes identically:
-/// `blinding.key` and `datasets.json` (name, content).
-fn private_shared(plan: &Plan, key: &BlindingKey, all: &[Job]) -> [(&'static str, String); 2] {
+/// `blinding.key` and `datasets.json` (path, content).
+fn private_shared(
+    plan: &Plan,
+    paths: &RunDir,
+    key: &BlindingKey,
+    all: &[Job],
+) -> [(PathBuf, String); 2] {
     let datasets = datasets_json(plan, all);
     [
-        ("blinding.key", format!("{}\n", key.to_hex())),
         (
-            "datasets.json",
+            paths.private().blinding_key(),
+            format!("{}\n", key.to_hex()),
+        ),
+        (
+            paths.private().datasets(),
             serde_json::to_string_pretty(&datasets).expect("datasets serialise") + "\n",
         ),
     ]
@@ -1332,14 +1291,14 @@ pub fn instrument_facts(plan: &Plan) -> InstrumentFacts {
 /// run has one. Returns (images finished, manifest written).
 fn write_manifest_if_complete(
     plan: &Plan,
-    paths: &RunPaths,
+    paths: &RunDir,
     all: &[Job],
     config_sha256: &str,
 ) -> Result<Concluded, GenerateError> {
     let mut sides: Vec<Option<Sidecar>> = Vec::with_capacity(all.len());
     for j in all {
         let side = integrity::read_sidecar(paths, j, config_sha256)?;
-        sides.push(side.filter(|_| paths.image(j).is_file()));
+        sides.push(side.filter(|_| paths.public().image(&j.dataset_id, &j.image_id).is_file()));
     }
     let finished = sides.iter().filter(|s| s.is_some()).count();
     let mut out = Concluded {
@@ -1367,7 +1326,7 @@ fn write_manifest_if_complete(
         images,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises") + "\n";
-    write_bytes_atomically(&paths.public().join("manifest.json"), text.as_bytes())?;
+    write_bytes_atomically(&paths.public().manifest(), text.as_bytes())?;
     out.manifest_written = true;
     Ok(out)
 }
@@ -1435,27 +1394,23 @@ mod tests {
         let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
         assert_eq!((s.total, s.written, s.skipped), (8, 8, 0));
         assert!(s.manifest_written && s.stray_tmp.is_empty());
-        let m: Manifest = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("public/manifest.json")).unwrap(),
-        )
-        .unwrap();
+        let run = RunDir::new(dir.path());
+        let m: Manifest =
+            serde_json::from_str(&std::fs::read_to_string(run.public().manifest()).unwrap())
+                .unwrap();
         assert_eq!(m.images.len(), 8);
         for im in &m.images {
-            let bytes = std::fs::read(dir.path().join("public").join(&im.file)).unwrap();
+            let bytes = std::fs::read(run.public().file(&im.file)).unwrap();
             assert_eq!(sha256_hex(&bytes), im.sha256);
         }
-        let d: Datasets = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("private/datasets.json")).unwrap(),
-        )
-        .unwrap();
+        let d: Datasets =
+            serde_json::from_str(&std::fs::read_to_string(run.private().datasets()).unwrap())
+                .unwrap();
         assert_eq!(d.datasets[3].psf, "b");
         assert_eq!((d.datasets[3].g1, d.datasets[3].g2), (0.04, -0.02));
         // Truth rows carry the dataset's shear.
         let im = &d.datasets[3].images[1];
-        let rows = crate::io::truth::read_truth_fits(
-            &dir.path().join(format!("private/truth/{}.fits", im.image)),
-        )
-        .unwrap();
+        let rows = crate::io::truth::read_truth_fits(&run.private().truth(&im.image)).unwrap();
         assert!(!rows.is_empty() && rows.iter().all(|r| r.g1 == 0.04 && r.g2 == -0.02));
         // Second run: everything verified, nothing written.
         let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
@@ -1500,15 +1455,15 @@ mod tests {
                 .map_or(0, |x| x.bytes)
         };
         let root = dir.path();
-        let under = |sub: &str, ext: &str| {
-            bytes_where(&root.join(sub), &|f| {
-                f.extension().is_some_and(|x| x == ext)
-                    && !f.starts_with(root.join("private/psf/cache"))
+        let run = RunDir::new(root);
+        let under = |sub: &Path, ext: &str| {
+            bytes_where(sub, &|f| {
+                f.extension().is_some_and(|x| x == ext) && !f.starts_with(run.private().psf_cache())
             })
         };
         let block = crate::disk::FITS_BLOCK_BYTES;
         // Images: at most three header blocks more than written, each.
-        let images = under("public", "fits");
+        let images = under(run.public().path(), "fits");
         let est = part(after, "images of");
         assert!(
             est >= images && est - images <= 3 * block * 8,
@@ -1516,7 +1471,7 @@ mod tests {
         );
         // PSF files: the solved side, at most one block more per file; the
         // optical one's side (> 128) was counted at 128 before solving.
-        let psf_files = under("private/psf", "fits");
+        let psf_files = under(&run.private().psf_dir(), "fits");
         let est = part(after, "PSF file");
         assert!(
             est >= psf_files && est - psf_files <= 2 * block,
@@ -1530,13 +1485,13 @@ mod tests {
                 .any(|x| x.what.starts_with("2 PSF files (128–"))
         );
         // The store: its files, exactly; unknown before solving.
-        let store = bytes_where(&root.join("private/psf/cache"), &|_| true);
+        let store = bytes_where(&run.private().psf_cache(), &|_| true);
         assert!(store > 0);
         assert_eq!(part(after, "private/psf/cache"), store);
         assert_eq!(part(&before, "private/psf/cache"), 0);
         // Truth: the expected rows of a field; what was written has the
         // rows drawn (Poisson), so it lies within 5σ of the estimate.
-        let truth = under("private/truth", "fits");
+        let truth = under(&run.private().truth_dir(), "fits");
         let est = part(after, "truth tables") as f64;
         let expected = crate::memory::objects_per_field(&p);
         let rel = 5.0 / expected.sqrt();
@@ -1562,16 +1517,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = plan(&["population.lens_positions=true", "image.n_images=1"]);
         generate(&p, dir.path(), &Options::default(), &|_: Event| {}).unwrap();
-        let d: Datasets = serde_json::from_str(
-            &std::fs::read_to_string(dir.path().join("private/datasets.json")).unwrap(),
-        )
-        .unwrap();
+        let run = RunDir::new(dir.path());
+        let d: Datasets =
+            serde_json::from_str(&std::fs::read_to_string(run.private().datasets()).unwrap())
+                .unwrap();
         let truth = |k: usize| {
-            crate::io::truth::read_truth_fits(&dir.path().join(format!(
-                "private/truth/{}.fits",
-                d.datasets[k].images[0].image
-            )))
-            .unwrap()
+            crate::io::truth::read_truth_fits(&run.private().truth(&d.datasets[k].images[0].image))
+                .unwrap()
         };
         let (flat, lensed) = (truth(0), truth(1));
         let (cx, cy) = p.lensing_centre();
@@ -1603,14 +1555,16 @@ mod tests {
         generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
         let key = blinding_key(&p);
         let js = jobs(&p, &key).unwrap();
-        let paths = RunPaths {
-            root: dir.path().into(),
-        };
+        let paths = RunDir::new(dir.path());
         let det = p.detector();
         let sky_adu = det.sky_e_per_px / det.gain_e_per_adu;
         for j in &js {
-            let img = crate::io::image_fits::read_image_fits(&paths.image(j)).unwrap();
-            let model = crate::io::image_fits::read_image_fits(&paths.model(j)).unwrap();
+            let img = crate::io::image_fits::read_image_fits(
+                &paths.public().image(&j.dataset_id, &j.image_id),
+            )
+            .unwrap();
+            let model = crate::io::image_fits::read_image_fits(&paths.private().model(&j.image_id))
+                .unwrap();
             assert!(model.pixels.iter().any(|&m| m > 1.0), "model has objects");
             for (a, m) in img.pixels.iter().zip(&model.pixels) {
                 // float32 rounding at 2e4 ADU: ulp 0.002
@@ -1624,7 +1578,7 @@ mod tests {
             assert!(verify(&paths, j, true, &config_sha256(&p)).unwrap());
         }
         // A damaged model makes its image pending again.
-        std::fs::write(paths.model(&js[3]), b"junk").unwrap();
+        std::fs::write(paths.private().model(&js[3].image_id), b"junk").unwrap();
         assert!(!verify(&paths, &js[3], true, &config_sha256(&p)).unwrap());
         let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
         assert_eq!((s.written, s.skipped), (1, 7));
@@ -1671,11 +1625,13 @@ mod tests {
             crate::io::image_fits::Compression::None,
         )
         .unwrap();
-        let paths = RunPaths {
-            root: dir.path().into(),
-        };
-        assert!(std::fs::read(&by_hand).unwrap() == std::fs::read(paths.image(&job)).unwrap());
-        let truth = crate::io::truth::read_truth_fits(&paths.truth(&job)).unwrap();
+        let paths = RunDir::new(dir.path());
+        assert!(
+            std::fs::read(&by_hand).unwrap()
+                == std::fs::read(paths.public().image(&job.dataset_id, &job.image_id)).unwrap()
+        );
+        let truth =
+            crate::io::truth::read_truth_fits(&paths.private().truth(&job.image_id)).unwrap();
         assert_eq!(truth, rows);
     }
 }

@@ -14,7 +14,7 @@
 //! Every stage's wall time goes to a [`StageTimes`] (and process CPU time
 //! when asked for); generate discards them, bench prints them.
 
-use super::{GenerateError, Job, Made, RunPaths, Sidecar};
+use super::{GenerateError, Job, Made, RunDir, Sidecar};
 use crate::io::image_fits::{ImageHeader, SampleFormat, write_image_fits};
 use crate::io::truth::write_truth_fits;
 use crate::io::truth_header::truth_keywords;
@@ -154,7 +154,7 @@ pub fn draw_model(
 /// What every image of a run shares.
 pub(crate) struct Context<'a> {
     pub plan: &'a Plan,
-    pub paths: &'a RunPaths,
+    pub paths: &'a RunDir,
     pub det: &'a Detector,
     pub made: &'a Made<'a>,
 }
@@ -197,13 +197,13 @@ pub(crate) fn make_image(
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
     let header = ImageHeader::new(&plan.geometry(), plan.instrument());
-    let image_path = paths.image(job);
+    let image_path = paths.public().image(&job.dataset_id, &job.image_id);
     let format = (output.format, output.compression);
     let image_sha256 = write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
     drop(pixels);
     t.write_s = lap.lap().0;
 
-    let truth_path = paths.truth(job);
+    let truth_path = paths.private().truth(&job.image_id);
     let keywords = truth_keywords(job.field, job.rotated, d.psf, d.g1, d.g2);
     let truth_sha256 = write_truth_fits(&truth_path, &rows, &keywords)?;
     t.truth_s = lap.lap().0;
@@ -213,7 +213,7 @@ pub(crate) fn make_image(
             .iter()
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
             .collect();
-        let path = paths.model(job);
+        let path = paths.private().model(&job.image_id);
         let none = crate::io::image_fits::Compression::None;
         let sha = write_image_fits(&path, &adu, w, h, &header, SampleFormat::Float32, none)?;
         t.model_s = lap.lap().0;
@@ -234,7 +234,7 @@ pub(crate) fn make_image(
         output_version: super::OUTPUT_VERSION,
     };
     let text = serde_json::to_string_pretty(&side).expect("sidecar serialises") + "\n";
-    write_bytes_atomically(&paths.sidecar(job), text.as_bytes())?;
+    write_bytes_atomically(&paths.private().sidecar(&job.image_id), text.as_bytes())?;
     t.checksum_s = lap.lap().0;
     Ok(())
 }

@@ -131,7 +131,7 @@ impl Shard {
 
     /// The file name of this shard's done-marker, `K-of-N.json`.
     pub fn marker_name(&self) -> String {
-        format!("{}-of-{}.json", self.k, self.n)
+        stepsim_contract::run_dir::PrivateDir::shard_marker_name(self.k, self.n)
     }
 }
 

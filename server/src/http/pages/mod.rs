@@ -150,7 +150,11 @@ pub(crate) fn pages(state: &AppState) -> (Router<AppState>, Arc<Web>) {
         .settings()
         .truth_dir
         .parent()
-        .map(|run| run.join("public").join("README.md"))
+        .map(|run| {
+            stepsim_contract::run_dir::RunDir::new(run)
+                .public()
+                .readme()
+        })
         .and_then(|p| std::fs::read_to_string(p).ok())
         .map(|t| markdown_html(&t));
     let web = Arc::new(Web {
