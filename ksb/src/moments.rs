@@ -161,33 +161,65 @@ fn window_range(c: f64, radius: f64, n: usize) -> (usize, usize, bool) {
 /// `first`, `trace`), and whether the window was clipped: what the
 /// centroid iteration needs ([`crate::centroid::windowed`]), without the
 /// other seven sums. The same pixels, weights and sums in the same order,
-/// so the values are those of [`ksb_integrals`] bit for bit (its twin).
+/// so the values are those of [`ksb_integrals`] bit for bit (its twin
+/// [`window_moments_reference`]); each row runs over the disc's span only.
 pub fn window_moments(img: &Image, xc: f64, yc: f64, sigma_w: f64, radius: f64) -> WindowMoments {
-    let Window {
-        x0,
-        x1,
-        rows,
-        clipped,
-        inv2s2,
-        r2max,
-        wx,
-    } = Window::new(img, xc, yc, sigma_w, radius);
+    let win = Window::new(img, xc, yc, sigma_w, radius);
     let (mut s0, mut sx, mut sy, mut sr2) = (0.0, 0.0, 0.0, 0.0);
-    for iy in rows {
+    for iy in win.rows.clone() {
         let dy = iy as f64 - yc;
         let dy2 = dy * dy;
-        if dy2 > r2max {
+        if dy2 > win.r2max {
             continue;
         }
-        let wy = (-dy2 * inv2s2).exp();
+        let wy = (-dy2 * win.inv2s2).exp();
+        let span = win.span(dy2);
+        let row = &img.data[iy * img.width + win.x0..][span.clone()];
+        for (c, &v) in win.cols[span].iter().zip(row) {
+            let r2 = c.dx2 + dy2;
+            let wi = c.wx * wy * f64::from(v);
+            s0 += wi;
+            sx += wi * c.dx;
+            sy += wi * dy;
+            sr2 += wi * r2;
+        }
+    }
+    WindowMoments {
+        s0,
+        first: [sx, sy],
+        trace: sr2,
+        clipped: win.clipped,
+    }
+}
+
+/// The slow, obvious twin of [`window_moments`]: every pixel of the
+/// window's bounding box tested against the disc, and its weight
+/// wx(dx) wy(dy) times its value added to each of the four sums, pixel by
+/// pixel: the sums of [`ksb_integrals`] bit for bit (tested). For the tests.
+pub fn window_moments_reference(
+    img: &Image,
+    xc: f64,
+    yc: f64,
+    sigma_w: f64,
+    radius: f64,
+) -> WindowMoments {
+    let win = Window::new(img, xc, yc, sigma_w, radius);
+    let (mut s0, mut sx, mut sy, mut sr2) = (0.0, 0.0, 0.0, 0.0);
+    for iy in win.rows.clone() {
+        let dy = iy as f64 - yc;
+        let dy2 = dy * dy;
+        if dy2 > win.r2max {
+            continue;
+        }
+        let wy = (-dy2 * win.inv2s2).exp();
         let row = &img.data[iy * img.width..(iy + 1) * img.width];
-        for (k, ix) in (x0..=x1).enumerate() {
+        for (k, ix) in (win.x0..=win.x1).enumerate() {
             let dx = ix as f64 - xc;
             let r2 = dx * dx + dy2;
-            if r2 > r2max {
+            if r2 > win.r2max {
                 continue;
             }
-            let wi = wx[k] * wy * f64::from(row[ix]);
+            let wi = win.cols[k].wx * wy * f64::from(row[ix]);
             s0 += wi;
             sx += wi * dx;
             sy += wi * dy;
@@ -198,13 +230,22 @@ pub fn window_moments(img: &Image, xc: f64, yc: f64, sigma_w: f64, radius: f64) 
         s0,
         first: [sx, sy],
         trace: sr2,
-        clipped,
+        clipped: win.clipped,
     }
 }
 
+/// One column of a window: its offset from the centre, the offset squared,
+/// and the x factor of the Gaussian weight.
+#[derive(Debug, Clone, Copy)]
+struct Column {
+    dx: f64,
+    dx2: f64,
+    wx: f64,
+}
+
 /// The pixels of a window (columns `x0..=x1`, rows `rows`), whether it
-/// reaches past the image, and the x factor of the Gaussian weight of each
-/// column: what [`window_moments`] and [`ksb_integrals`] share.
+/// reaches past the image, and each column's offset and x factor of the
+/// Gaussian weight: what [`window_moments`] and [`ksb_integrals`] share.
 struct Window {
     x0: usize,
     x1: usize,
@@ -212,7 +253,7 @@ struct Window {
     clipped: bool,
     inv2s2: f64,
     r2max: f64,
-    wx: Vec<f64>,
+    cols: Vec<Column>,
 }
 
 impl Window {
@@ -220,10 +261,14 @@ impl Window {
         let (x0, x1, cx) = window_range(xc, radius, img.width);
         let (y0, y1, cy) = window_range(yc, radius, img.height);
         let inv2s2 = 1.0 / (2.0 * sigma_w * sigma_w);
-        let wx: Vec<f64> = (x0..=x1)
+        let cols: Vec<Column> = (x0..=x1)
             .map(|i| {
                 let d = i as f64 - xc;
-                (-d * d * inv2s2).exp()
+                Column {
+                    dx: d,
+                    dx2: d * d,
+                    wx: (-d * d * inv2s2).exp(),
+                }
             })
             .collect();
         // An empty window (y0 > y1) has no rows.
@@ -239,8 +284,26 @@ impl Window {
             clipped: cx || cy,
             inv2s2,
             r2max: radius * radius,
-            wx,
+            cols,
         }
+    }
+
+    /// The columns (indices into `cols`) of the row at `dy2` from the
+    /// centre whose pixels are not outside the disc, `!(dx² + dy² >
+    /// radius²)` with the very sums the per-pixel test makes (a NaN keeps
+    /// the pixel, as it did). They are one run: `dx` rounds monotonically
+    /// in the column, so `dx²`, and `dx² + dy²`, fall then rise along the
+    /// row.
+    fn span(&self, dy2: f64) -> std::ops::Range<usize> {
+        let inside = |c: &Column| {
+            let r2 = c.dx2 + dy2;
+            r2 <= self.r2max || r2.is_nan() || self.r2max.is_nan()
+        };
+        let Some(a) = self.cols.iter().position(inside) else {
+            return 0..0;
+        };
+        let b = self.cols.iter().rposition(inside).map_or(a, |b| b + 1);
+        a..b
     }
 }
 
@@ -268,15 +331,8 @@ pub fn ksb_integrals(
     radius: f64,
     noise: Option<PixelNoise>,
 ) -> KsbIntegrals {
-    let Window {
-        x0,
-        x1,
-        rows,
-        clipped,
-        inv2s2,
-        r2max,
-        wx,
-    } = Window::new(img, xc, yc, sigma_w, radius);
+    let win = Window::new(img, xc, yc, sigma_w, radius);
+    let clipped = win.clipped;
     // Raw sums: S0, Sx, Sy, Sr2, Seta[2], See[3] (11, 12, 22), Ser2[2].
     let (mut s0, mut sx, mut sy, mut sr2) = (0.0, 0.0, 0.0, 0.0);
     let (mut se1, mut se2) = (0.0, 0.0);
@@ -284,24 +340,22 @@ pub fn ksb_integrals(
     let (mut ser1, mut ser2) = (0.0, 0.0);
     // Noise sums: Σ v W², Σ v W² η⊗η (diagonal), Σ v W² η θ², Σ v W² θ⁴.
     let (mut nw2, mut nee1, mut nee2, mut ner1, mut ner2, mut nr4) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for iy in rows {
+    for iy in win.rows.clone() {
         let dy = iy as f64 - yc;
         let dy2 = dy * dy;
-        if dy2 > r2max {
+        if dy2 > win.r2max {
             continue;
         }
-        let wy = (-dy2 * inv2s2).exp();
-        let row = &img.data[iy * img.width..(iy + 1) * img.width];
-        for (k, ix) in (x0..=x1).enumerate() {
-            let dx = ix as f64 - xc;
-            let r2 = dx * dx + dy2;
-            if r2 > r2max {
-                continue;
-            }
-            let v = f64::from(row[ix]);
-            let w = wx[k] * wy;
+        let wy = (-dy2 * win.inv2s2).exp();
+        let span = win.span(dy2);
+        let row = &img.data[iy * img.width + win.x0..][span.clone()];
+        for (c, &v) in win.cols[span].iter().zip(row) {
+            let dx = c.dx;
+            let r2 = c.dx2 + dy2;
+            let v = f64::from(v);
+            let w = c.wx * wy;
             let wi = w * v;
-            let e1 = dx * dx - dy2;
+            let e1 = c.dx2 - dy2;
             let e2 = 2.0 * dx * dy;
             s0 += wi;
             sx += wi * dx;
@@ -505,9 +559,9 @@ mod tests {
     use crate::draw::{covariance, draw_gaussian_sampled, shear_covariance};
 
     #[test]
-    fn window_moments_are_the_integrals_sums_bit_for_bit() {
+    fn the_window_moments_twin_is_the_integrals_sums_bit_for_bit() {
         // Random centres (edges included), scales and radii on a noisy
-        // image: the four sums equal ksb_integrals' exactly.
+        // image: the twin's four sums equal ksb_integrals' exactly.
         let mut rng = SeedKey::base(7, 0, Stream::Noise).rng();
         let (w, h) = (61, 47);
         let mut img = Image::zeros(w, h);
@@ -519,7 +573,7 @@ mod tests {
             let yc = rng.random::<f64>() * (h as f64 + 10.0) - 5.0;
             let s = 0.5 + rng.random::<f64>() * 6.0;
             let radius = s * (1.0 + rng.random::<f64>() * 4.0);
-            let fast = window_moments(&img, xc, yc, s, radius);
+            let fast = window_moments_reference(&img, xc, yc, s, radius);
             let full = ksb_integrals(&img, xc, yc, s, radius, None);
             assert_eq!(fast.s0.to_bits(), full.s0.to_bits());
             assert_eq!(fast.first[0].to_bits(), full.first[0].to_bits());
@@ -528,6 +582,51 @@ mod tests {
             assert_eq!(fast.clipped, full.clipped);
         }
     }
+
+    #[test]
+    fn window_moments_equal_their_per_pixel_twin_bit_for_bit() {
+        // Rows cut to the disc's span against every pixel of the box tested
+        // one by one: random centres (off the image too), scales and radii,
+        // a few NaN pixels; and a NaN centre or radius (every pixel kept by
+        // both, so NaN sums).
+        let mut rng = SeedKey::base(8, 0, Stream::Test).rng();
+        let (w, h) = (53, 44);
+        let mut img = Image::zeros(w, h);
+        for v in &mut img.data {
+            *v = rng.random::<f32>() * 100.0 - 20.0;
+        }
+        img.data[17 * w + 30] = f32::NAN;
+        img.data[5 * w + 8] = f32::NAN;
+        let same = |a: WindowMoments, b: WindowMoments| {
+            assert_eq!(a.s0.to_bits(), b.s0.to_bits(), "{a:?} {b:?}");
+            assert_eq!(a.first[0].to_bits(), b.first[0].to_bits());
+            assert_eq!(a.first[1].to_bits(), b.first[1].to_bits());
+            assert_eq!(a.trace.to_bits(), b.trace.to_bits());
+            assert_eq!(a.clipped, b.clipped);
+        };
+        let (mut finite, mut nan) = (0, 0);
+        for _ in 0..2000 {
+            let xc = rng.random::<f64>() * (w as f64 + 20.0) - 10.0;
+            let yc = rng.random::<f64>() * (h as f64 + 20.0) - 10.0;
+            let s = 0.5 + rng.random::<f64>() * 6.0;
+            let radius = s * (1.0 + rng.random::<f64>() * 4.0);
+            let fast = window_moments(&img, xc, yc, s, radius);
+            if fast.s0.is_nan() {
+                nan += 1;
+            } else if fast.s0 != 0.0 {
+                finite += 1;
+            }
+            same(fast, window_moments_reference(&img, xc, yc, s, radius));
+        }
+        // Both kinds of window were met.
+        assert!(finite > 1000 && nan > 20, "{finite} {nan}");
+        for (xc, yc, r) in [(f64::NAN, 20.0, 6.0), (20.0, 20.0, f64::NAN)] {
+            let fast = window_moments(&img, xc, yc, 2.0, r);
+            assert!(fast.s0.is_nan());
+            same(fast, window_moments_reference(&img, xc, yc, 2.0, r));
+        }
+    }
+
     use rand::RngExt;
     use stepsim_contract::seed::{SeedKey, Stream};
 
