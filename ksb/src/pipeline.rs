@@ -255,9 +255,9 @@ impl Detections {
     }
 
     /// Subtracts this image's background from `img` (the same image the
-    /// detections were made on, read again).
-    pub fn subtract_background(&self, img: &Image) -> Image {
-        self.bg.subtract(img)
+    /// detections were made on, read again), in its own pixels.
+    pub fn subtract_background(&self, img: Image) -> Image {
+        self.bg.subtract_owned(img)
     }
 
     /// The second half: star selection (`stars`, or the image's own),

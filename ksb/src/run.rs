@@ -464,7 +464,7 @@ fn measure_group(
         .par_iter()
         .zip(kept)
         .map(|(&i, d)| {
-            let sub = d.subtract_background(&read(&images[i])?);
+            let sub = d.subtract_background(read(&images[i])?);
             Ok(d.finish(&sub, info, params, selection[images[i].dataset.as_str()]))
         })
         .collect();
