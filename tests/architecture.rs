@@ -247,3 +247,85 @@ fn only_the_contract_spells_the_paths_of_a_run() {
         found.join("\n")
     );
 }
+
+/// Suffixes the slow twins had before they took one name, `f_slow`
+/// (ARCHITECTURE.md, "Every fast routine has a slow twin").
+const OLD_TWIN_SUFFIXES: &[&str] = &[
+    "_reference",
+    "_direct",
+    "_brute",
+    "_brute_force",
+    "_plainly",
+    "_whole",
+    "_naive",
+    "_by_counting",
+    "_by_scan",
+    "_by_series",
+    "_by_integration",
+    "_by_bisection",
+    "_by_trapezoids",
+    "_by_cramer",
+    "_by_column",
+    "_by_matching",
+];
+
+/// Functions of `code` (up to its first `#[cfg(test)]`: test names may
+/// say what they compare) whose name ends in one of
+/// [`OLD_TWIN_SUFFIXES`]: (line number, name).
+fn twins_named_otherwise(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    let library = code.split("#[cfg(test)]").next().unwrap_or("");
+    for (i, line) in library.lines().enumerate() {
+        let Some(at) = line.find("fn ") else { continue };
+        if line.trim_start().starts_with("//") {
+            continue;
+        }
+        let name: String = line[at + 3..]
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        if OLD_TWIN_SUFFIXES.iter().any(|s| name.ends_with(s)) {
+            out.push((i + 1, name));
+        }
+    }
+    out
+}
+
+#[test]
+fn the_twin_reader_finds_old_suffixes_only_in_function_names() {
+    let code = "pub fn convolve_direct(a: f64) {}\n// fn smooth_reference()\n\
+                fn convolve_slow() { let x_reference = 1; }\n    pub(crate) fn fill_by_column<T>() {}\n\
+                #[cfg(test)]\nmod tests { fn matches_the_reference() {} }\n";
+    let names: Vec<String> = twins_named_otherwise(code)
+        .into_iter()
+        .map(|(_, n)| n)
+        .collect();
+    assert_eq!(names, ["convolve_direct", "fill_by_column"]);
+}
+
+#[test]
+fn slow_twins_have_one_name() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for dir in LIBRARY_SOURCES {
+        rust_files(&root.join(dir), &mut files);
+    }
+    files.sort();
+    let mut found = Vec::new();
+    for file in files
+        .iter()
+        .filter(|f| f.file_name().is_none_or(|n| n != "tests.rs"))
+    {
+        let code = std::fs::read_to_string(file).unwrap();
+        for (n, name) in twins_named_otherwise(&code) {
+            let rel = file.strip_prefix(root).unwrap().display().to_string();
+            found.push(format!("{rel}:{n}: fn {name}"));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "a slow twin is named `<fast>_slow` (ARCHITECTURE.md); these functions end as the old \
+         names did:\n{}",
+        found.join("\n")
+    );
+}

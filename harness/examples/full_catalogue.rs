@@ -46,14 +46,14 @@ impl Rng {
 /// `score TRUTH SUBMISSION OUT [whole]`: what `stepsim score` does (the
 /// run's own limit, 200 bootstrap resamples, every output written).
 fn score(args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
-    use stepsim_harness::{ScoreOptions, score, score_whole, write_outputs};
+    use stepsim_harness::{ScoreOptions, score, score_slow, write_outputs};
     let [truth, sub, out, rest @ ..] = args else {
         return Err("usage: full_catalogue score TRUTH SUBMISSION OUT [whole]".into());
     };
     let opts = ScoreOptions::new(truth, sub);
     let t = std::time::Instant::now();
     let report = if rest.first().map(String::as_str) == Some("whole") {
-        score_whole(&opts)?
+        score_slow(&opts)?
     } else {
         score(&opts)?
     };

@@ -54,7 +54,7 @@ pub use read::input::{
 pub use read::spill::DEFAULT_BUFFER_ROWS;
 pub use read::submission::{
     FileRows, MAX_COLUMNS, MAX_LINE_BYTES, SubRow, Submission, parse_file, parse_file_limited,
-    read_submission, read_submission_limited, read_submission_spilled, read_submission_whole,
+    read_submission, read_submission_limited, read_submission_slow, read_submission_spilled,
 };
 pub use read::truth_set::{
     ImageIndex, ImageInfo, SCORING_COLUMNS, SUBMISSION_BYTES_PER_IMAGE,
@@ -67,14 +67,14 @@ pub use score::bootstrap::{
 };
 pub use score::fit::{PolyFit, fit_line_closed_form};
 pub use score::isolation::{
-    ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated, isolated_brute,
+    ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated, isolated_slow,
 };
-pub use score::matching::{Matches, match_nearest, match_nearest_brute};
+pub use score::matching::{Matches, match_nearest, match_nearest_slow};
 pub use score::metrics::{
     BinAcc, CHANCE_LATTICE, DISK_EDGES_ARCSEC, DatasetMeta, FitModel, ImageStats, MAG_EDGES,
     MIN_SHEARS_QUADRATIC, ModelWhy, Q_SIGNIFICANCE, Response, Scores, ValErr, binned_residuals,
-    chance_matches, chance_matches_by_matching, fit_response, image_stats, match_image,
-    score_tables, score_tables_with,
+    chance_matches, chance_matches_slow, fit_response, image_stats, match_image, score_tables,
+    score_tables_with,
 };
 pub use score::report::{
     BinReport, Binned, BootstrapCi, DatasetReport, FitChoice, FitKind, PsfReport, Report, Summary,
@@ -95,6 +95,6 @@ pub use part::{
 };
 pub use pipeline::{
     DEFAULT_MATCH_RADIUS_ARCSEC, Prepared, REPORT_FIGURES, REPORT_JSON, ScoreOptions, build_report,
-    check_outputs_free, match_images, output_paths, prepare, prepare_whole, score, score_whole,
+    check_outputs_free, match_images, output_paths, prepare, prepare_slow, score, score_slow,
     write_outputs,
 };

@@ -77,10 +77,10 @@ pub fn prepare(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
 }
 
 /// [`prepare`] reading the submission whole into memory
-/// ([`crate::read::submission::read_submission_whole`]): the slow twin of the
+/// ([`crate::read::submission::read_submission_slow`]): the slow twin of the
 /// streamed path, kept to test that both give the same report.
-pub fn prepare_whole(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
-    prepare_with(opts, crate::read::submission::read_submission_whole)
+pub fn prepare_slow(opts: &ScoreOptions) -> Result<Prepared, HarnessError> {
+    prepare_with(opts, crate::read::submission::read_submission_slow)
 }
 
 /// Reads a submission against an index within a byte limit.
@@ -212,10 +212,10 @@ pub fn score(opts: &ScoreOptions) -> Result<Report, HarnessError> {
     Ok(build_report(&p, &stats, opts))
 }
 
-/// [`score`] with the submission read whole ([`prepare_whole`]): the slow
+/// [`score`] with the submission read whole ([`prepare_slow`]): the slow
 /// twin, whose report the streamed one must equal.
-pub fn score_whole(opts: &ScoreOptions) -> Result<Report, HarnessError> {
-    let p = prepare_whole(opts)?;
+pub fn score_slow(opts: &ScoreOptions) -> Result<Report, HarnessError> {
+    let p = prepare_slow(opts)?;
     let stats = match_images(&p, opts.match_radius_arcsec)?;
     Ok(build_report(&p, &stats, opts))
 }

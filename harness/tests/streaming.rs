@@ -12,8 +12,8 @@ use std::time::Instant;
 use stepsim_contract::run_dir::RunDir;
 use stepsim_harness::{
     ImageIndex, SUBMISSION_BYTES_PER_IMAGE, SUBMISSION_BYTES_PER_TRUTH_ROW, ScoreOptions, SubRow,
-    load_truth_set, prepare, read_submission_limited, read_submission_spilled,
-    read_submission_whole, run_submission_limit, score, score_whole,
+    load_truth_set, prepare, read_submission_limited, read_submission_slow,
+    read_submission_spilled, run_submission_limit, score, score_slow,
 };
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
@@ -127,7 +127,7 @@ impl Fixture {
     /// Scores `sub` streamed and whole; asserts identical JSON; returns it.
     fn same_report(&self, sub: &Path) -> String {
         let a = score(&self.opts(sub)).unwrap_or_else(|e| panic!("{}: {e}", sub.display()));
-        let b = score_whole(&self.opts(sub)).unwrap();
+        let b = score_slow(&self.opts(sub)).unwrap();
         let (ja, jb) = (
             serde_json::to_string_pretty(&a).unwrap(),
             serde_json::to_string_pretty(&b).unwrap(),
@@ -267,7 +267,7 @@ fn streamed_and_whole_readers_refuse_alike() {
         let a = read_submission_limited(&p, &idx, 64 << 20)
             .unwrap_err()
             .to_string();
-        let b = read_submission_whole(&p, &idx, 64 << 20)
+        let b = read_submission_slow(&p, &idx, 64 << 20)
             .unwrap_err()
             .to_string();
         if name == "long.txt" {
@@ -317,7 +317,7 @@ fn the_reader_holds_one_buffer_of_rows_not_the_catalogue() {
     std::fs::write(&p, &s).unwrap();
     let buffer = 1000;
     let sub = read_submission_spilled(&p, &idx, 64 << 20, buffer).unwrap();
-    let whole = read_submission_whole(&p, &idx, 64 << 20).unwrap();
+    let whole = read_submission_slow(&p, &idx, 64 << 20).unwrap();
     assert_eq!(sub.n_rows(), per_image * idx.images.len());
     let held = sub.max_rows_held().unwrap();
     assert_eq!(held, buffer);
@@ -440,7 +440,7 @@ fn gzip_members_are_checked_and_bounded() {
     std::fs::write(&p, &g).unwrap();
     for e in [
         read_submission_limited(&p, &idx, 64 << 20).unwrap_err(),
-        read_submission_whole(&p, &idx, 64 << 20).unwrap_err(),
+        read_submission_slow(&p, &idx, 64 << 20).unwrap_err(),
     ] {
         assert_eq!(
             e.to_string(),

@@ -142,7 +142,7 @@ impl Background {
 
     /// `img` minus the background: [`Background::level_at`] at every pixel,
     /// with each column's and each row's bracket computed once (the same
-    /// arithmetic, so the same bits as [`Background::subtract_reference`]).
+    /// arithmetic, so the same bits as [`Background::subtract_slow`]).
     pub fn subtract(&self, img: &Image) -> Image {
         self.subtract_owned(img.clone())
     }
@@ -167,7 +167,7 @@ impl Background {
 
     /// The slow, obvious twin of [`Background::subtract`]: `level_at` for
     /// every pixel.
-    pub fn subtract_reference(&self, img: &Image) -> Image {
+    pub fn subtract_slow(&self, img: &Image) -> Image {
         let mut out = img.clone();
         for iy in 0..img.height {
             for ix in 0..img.width {
@@ -246,7 +246,7 @@ mod tests {
         add_sky_and_noise(&mut img, 100.0, 5.0, SeedKey::base(2, 0, Stream::Test));
         let bg = Background::estimate(&img, 48, 3.0);
         assert!(bg.nx == 5 && bg.ny == 4);
-        let (fast, slow) = (bg.subtract(&img), bg.subtract_reference(&img));
+        let (fast, slow) = (bg.subtract(&img), bg.subtract_slow(&img));
         let owned = bg.subtract_owned(img.clone());
         assert!(
             fast.data

@@ -32,8 +32,8 @@
 //! ([`metacal`]) instead of [`shear`]; detection, stars and cuts on the
 //! detection are shared.
 //!
-//! Every fast routine has a slow, obvious twin in the same module (marked
-//! "reference"), used by the tests.
+//! Every fast routine `f` has a slow, obvious twin `f_slow` in the same
+//! module, used by the tests.
 #![deny(missing_docs)]
 
 pub mod background;

@@ -168,7 +168,7 @@ fn window_range(c: f64, radius: f64, n: usize) -> (usize, usize, bool) {
 /// instructions) and the row's three sums are weighted by wy, wy dy and
 /// dy²: Σ W I = Σ_rows wy t₀, Σ W I dx = Σ wy t₁, Σ W I dy = Σ wy dy t₀,
 /// Σ W I |θ|² = Σ wy (t₂ + dy² t₀). The same pixels as its twin
-/// [`window_moments_reference`] (the per-pixel sums of [`ksb_integrals`]),
+/// [`window_moments_slow`] (the per-pixel sums of [`ksb_integrals`]),
 /// in another order: the sums agree to rounding, within 1e-13 of Σ W |I|
 /// (times radius and radius² for the first moments and trace; tested), not
 /// bit for bit.
@@ -243,7 +243,7 @@ fn row_sums(v: &[f32], a: &[f64], b: &[f64], c: &[f64]) -> [f64; 3] {
 /// window's bounding box tested against the disc, and its weight
 /// wx(dx) wy(dy) times its value added to each of the four sums, pixel by
 /// pixel: the sums of [`ksb_integrals`] bit for bit (tested). For the tests.
-pub fn window_moments_reference(
+pub fn window_moments_slow(
     img: &Image,
     xc: f64,
     yc: f64,
@@ -472,7 +472,7 @@ pub fn ksb_integrals(
 /// accumulates each KSB integrand exactly as written in the module docs, and
 /// the noise of e from its per-pixel derivative in a second pass. Slow and
 /// obvious; used by the tests.
-pub fn ksb_integrals_reference(
+pub fn ksb_integrals_slow(
     img: &Image,
     xc: f64,
     yc: f64,
@@ -620,7 +620,7 @@ mod tests {
             let yc = rng.random::<f64>() * (h as f64 + 10.0) - 5.0;
             let s = 0.5 + rng.random::<f64>() * 6.0;
             let radius = s * (1.0 + rng.random::<f64>() * 4.0);
-            let fast = window_moments_reference(&img, xc, yc, s, radius);
+            let fast = window_moments_slow(&img, xc, yc, s, radius);
             let full = ksb_integrals(&img, xc, yc, s, radius, None);
             assert_eq!(fast.s0.to_bits(), full.s0.to_bits());
             assert_eq!(fast.first[0].to_bits(), full.first[0].to_bits());
@@ -658,14 +658,14 @@ mod tests {
             let s = 0.5 + rng.random::<f64>() * 6.0;
             let radius = s * (1.0 + rng.random::<f64>() * 4.0);
             let fast = window_moments(&img, xc, yc, s, radius);
-            let slow = window_moments_reference(&img, xc, yc, s, radius);
+            let slow = window_moments_slow(&img, xc, yc, s, radius);
             assert_eq!(fast.clipped, slow.clipped);
             if slow.s0.is_nan() {
                 assert!(fast.s0.is_nan() && fast.first[0].is_nan() && fast.trace.is_nan());
                 nan += 1;
                 continue;
             }
-            let scale = window_moments_reference(&abs, xc, yc, s, radius).s0;
+            let scale = window_moments_slow(&abs, xc, yc, s, radius).s0;
             if scale > 0.0 {
                 finite += 1;
             }
@@ -686,7 +686,7 @@ mod tests {
         for (xc, yc, r) in [(f64::NAN, 20.0, 6.0), (20.0, 20.0, f64::NAN)] {
             let (fast, slow) = (
                 window_moments(&img, xc, yc, 2.0, r),
-                window_moments_reference(&img, xc, yc, 2.0, r),
+                window_moments_slow(&img, xc, yc, 2.0, r),
             );
             assert!(fast.s0.is_nan() && slow.s0.is_nan());
             assert_eq!(fast.clipped, slow.clipped);
@@ -734,7 +734,7 @@ mod tests {
         // Inside and clipped by the edge.
         for (xc, yc, s) in [(20.3, 18.7, 3.1), (2.2, 30.5, 2.0)] {
             let a = ksb_integrals(&img, xc, yc, s, 4.0 * s, noise);
-            let b = ksb_integrals_reference(&img, xc, yc, s, 4.0 * s, noise);
+            let b = ksb_integrals_slow(&img, xc, yc, s, 4.0 * s, noise);
             let rel = |x: f64, y: f64| (x - y).abs() / (1e-300 + x.abs().max(y.abs()));
             assert_eq!(a.clipped, b.clipped);
             assert!(rel(a.s0, b.s0) < 1e-11);

@@ -20,7 +20,7 @@
 //! (after `max_passes` it may have dropped points the last fit still used).
 
 use crate::linalg::solve_spd;
-use crate::robust::{mad_sigma, mad_sigma_by_counting};
+use crate::robust::{mad_sigma, mad_sigma_slow};
 
 /// The clipping parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -123,9 +123,9 @@ fn least_squares(
 
 /// Slow reference for [`fit_clipped`]: the same rule written plainly, one
 /// quantity at a time for the σs, with the design matrix built in full,
-/// Cramer's rule ([`crate::linalg::solve_by_cramer`]) and the counting
+/// Cramer's rule ([`crate::linalg::solve_spd_slow`]) and the counting
 /// MAD-σ.
-pub fn fit_clipped_plainly(
+pub fn fit_clipped_slow(
     values: &[&[f64]],
     basis: impl Fn(usize, usize, &mut Vec<f64>),
     terms_for: impl Fn(usize) -> usize,
@@ -159,14 +159,14 @@ pub fn fit_clipped_plainly(
             let atb: Vec<f64> = (0..m)
                 .map(|j| kept.iter().map(|&p| design[p][j] * vals[p]).sum())
                 .collect();
-            coef.push(crate::linalg::solve_by_cramer(&ata, &atb)?);
+            coef.push(crate::linalg::solve_spd_slow(&ata, &atb)?);
         }
         let mut drop = vec![false; n];
         for (c, vals) in coef.iter().zip(values) {
             let res = |p: usize| vals[p] - (0..m).map(|j| design[p][j] * c[j]).sum::<f64>();
             let kept_res: Vec<f64> = kept.iter().map(|&p| res(p)).collect();
             let floor = 1e-12 * (1.0 + vals.iter().map(|v| v.abs()).fold(0.0, f64::max));
-            let sigma = mad_sigma_by_counting(&kept_res).unwrap_or(0.0).max(floor);
+            let sigma = mad_sigma_slow(&kept_res).unwrap_or(0.0).max(floor);
             for &p in &kept {
                 drop[p] |= res(p).abs() > clip.kappa * sigma;
             }
@@ -217,7 +217,7 @@ mod tests {
             let z: Vec<f64> = y.iter().map(|v| 2.0 - v).collect();
             let terms = |kept: usize| if kept >= 20 { 3 } else { 2 };
             let fast = fit_clipped(&[&y, &z], powers(&x), terms, CLIP);
-            let slow = fit_clipped_plainly(&[&y, &z], powers(&x), terms, CLIP);
+            let slow = fit_clipped_slow(&[&y, &z], powers(&x), terms, CLIP);
             let (fast, slow) = (fast.unwrap(), slow.unwrap());
             assert_eq!(fast.keep, slow.keep, "case {case}");
             assert_eq!(fast.terms, slow.terms, "case {case}");
@@ -244,7 +244,7 @@ mod tests {
         // κ = 1 clips some of the good points too (the same ones as the twin).
         let tight = Clip { kappa: 1.0, ..CLIP };
         let f = fit_clipped(&[&y], powers(&x), |_| 2, tight).unwrap();
-        let slow = fit_clipped_plainly(&[&y], powers(&x), |_| 2, tight).unwrap();
+        let slow = fit_clipped_slow(&[&y], powers(&x), |_| 2, tight).unwrap();
         assert_eq!(f.keep, slow.keep);
         let kept = f.keep.iter().filter(|k| **k).count();
         assert_eq!(kept, 22);

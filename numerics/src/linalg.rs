@@ -102,7 +102,7 @@ pub fn determinant_by_cofactors(a: &[f64], n: usize) -> f64 {
 
 /// Slow reference for [`solve_spd`]: Cramer's rule, x_k = det(a with
 /// column k replaced by b) / det(a); `None` when det(a) is zero.
-pub fn solve_by_cramer(a: &[f64], b: &[f64]) -> Option<Vec<f64>> {
+pub fn solve_spd_slow(a: &[f64], b: &[f64]) -> Option<Vec<f64>> {
     let n = b.len();
     let det = determinant_by_cofactors(a, n);
     if det == 0.0 || !det.is_finite() {
@@ -148,7 +148,7 @@ mod tests {
                 let a = spd(&mut rng, n);
                 let b: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * 10.0 - 5.0).collect();
                 let fast = solve_spd(&a, &b).unwrap();
-                let slow = solve_by_cramer(&a, &b).unwrap();
+                let slow = solve_spd_slow(&a, &b).unwrap();
                 for (f, s) in fast.iter().zip(&slow) {
                     assert!((f - s).abs() < 1e-9 * (1.0 + s.abs()), "n {n}: {f} {s}");
                 }
@@ -182,6 +182,6 @@ mod tests {
         assert!(solve_spd(&[f64::NAN], &[1.0]).is_none());
         assert!(solve_spd(&[1.0, 0.0, 0.0], &[1.0, 1.0]).is_none());
         assert_eq!(determinant_by_cofactors(&[2.0, 1.0, 1.0, 3.0], 2), 5.0);
-        assert!(solve_by_cramer(&[1.0, 1.0, 1.0, 1.0], &[1.0, 1.0]).is_none());
+        assert!(solve_spd_slow(&[1.0, 1.0, 1.0, 1.0], &[1.0, 1.0]).is_none());
     }
 }

@@ -1,7 +1,7 @@
 //! Robust width: MAD-σ, the median absolute deviation scaled to the σ of a
 //! normal distribution.
 
-use crate::stats::{median, median_by_counting};
+use crate::stats::{median, median_slow};
 
 /// σ of a normal distribution per median absolute deviation:
 /// 1 / Φ⁻¹(3/4) = 1.4826 (to the four decimals the workspace has always used).
@@ -16,9 +16,9 @@ pub fn mad_sigma(deviations: impl IntoIterator<Item = f64>) -> Option<f64> {
 }
 
 /// Slow reference for [`mad_sigma`]: the same with the counting median.
-pub fn mad_sigma_by_counting(deviations: &[f64]) -> Option<f64> {
+pub fn mad_sigma_slow(deviations: &[f64]) -> Option<f64> {
     let abs: Vec<f64> = deviations.iter().map(|d| d.abs()).collect();
-    Some(MAD_TO_SIGMA * median_by_counting(&abs)?)
+    Some(MAD_TO_SIGMA * median_slow(&abs)?)
 }
 
 #[cfg(test)]
@@ -32,7 +32,7 @@ mod tests {
         let mut rng = test_rng(9);
         for n in 0..30 {
             let d: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * 4.0 - 2.0).collect();
-            assert_eq!(mad_sigma(d.iter().copied()), mad_sigma_by_counting(&d));
+            assert_eq!(mad_sigma(d.iter().copied()), mad_sigma_slow(&d));
         }
         assert_eq!(mad_sigma([]), None);
         // MAD of {−3, 1, 2} is 2.

@@ -51,7 +51,7 @@ impl Bisection {
 
 /// Slow reference for [`Bisection::run`]: the first of `steps` + 1 equally
 /// spaced points of [`lo`, `hi`] at which `pred` holds (`hi` if none).
-pub fn first_true_by_scan(lo: f64, hi: f64, steps: usize, pred: impl Fn(f64) -> bool) -> f64 {
+pub fn first_true_slow(lo: f64, hi: f64, steps: usize, pred: impl Fn(f64) -> bool) -> f64 {
     (0..=steps)
         .map(|i| lo + (hi - lo) * i as f64 / steps as f64)
         .find(|&x| pred(x))
@@ -68,7 +68,7 @@ mod tests {
         for (lo, hi, root) in [(0.0, 1.0, 0.3), (-5.0, 7.0, 6.99), (1.0, 2.0, 1.000_001)] {
             let pred = |x: f64| x * x * x >= root * root * root;
             let (a, b) = Bisection::halvings(200).run(lo, hi, pred);
-            let slow = first_true_by_scan(lo, hi, steps, pred);
+            let slow = first_true_slow(lo, hi, steps, pred);
             let grid = (hi - lo) / steps as f64;
             assert!(a <= b && !pred(a) && pred(b), "{a} {b}");
             assert!((b - slow).abs() <= grid, "{b} vs {slow}");

@@ -28,7 +28,7 @@ pub fn erfc(x: f64) -> f64 {
 /// series 2/√π Σ (−1)ⁿ x²ⁿ⁺¹ / (n! (2n + 1)), summed until the terms stop
 /// mattering (|x| ≤ 3; the terms grow to about 10³ there, so the result
 /// loses about three digits: good to 1e-12 absolute).
-pub fn erfc_by_series(x: f64) -> f64 {
+pub fn erfc_slow(x: f64) -> f64 {
     let mut term = x; // (−1)ⁿ x²ⁿ⁺¹ / n!
     let mut sum = x;
     let mut n = 0.0;
@@ -74,7 +74,7 @@ pub fn normal_quantile(p: f64) -> f64 {
 /// Slow reference for [`normal_cdf`]: composite Simpson integration
 /// ([`crate::quad::simpson`]) of the density from −10 to `x` with 20 000
 /// intervals.
-pub fn normal_cdf_by_integration(x: f64) -> f64 {
+pub fn normal_cdf_slow(x: f64) -> f64 {
     let lo = -10.0f64;
     if x <= lo {
         return 0.0;
@@ -86,7 +86,7 @@ pub fn normal_cdf_by_integration(x: f64) -> f64 {
 /// Slow reference for [`median`]: the value (or the mean of the two values)
 /// with as many samples below as above, found by counting for every sample
 /// (O(n²), no sorting).
-pub fn median_by_counting(v: &[f64]) -> Option<f64> {
+pub fn median_slow(v: &[f64]) -> Option<f64> {
     let n = v.len();
     // The k-th smallest (0-based): a value with fewer than k + 1 samples
     // below it and at least k + 1 at or below it.
@@ -120,7 +120,7 @@ pub fn ks_statistic(samples: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
 
 /// Slow reference for [`ks_statistic`]: at every sample point counts the
 /// samples ≤ x and < x directly (O(n²)).
-pub fn ks_statistic_brute_force(samples: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
+pub fn ks_statistic_slow(samples: &[f64], cdf: impl Fn(f64) -> f64) -> f64 {
     let n = samples.len() as f64;
     samples
         .iter()
@@ -169,7 +169,7 @@ mod tests {
     fn erfc_matches_its_series_and_known_values() {
         let mut x = -3.0;
         while x <= 3.0 {
-            let (fast, slow) = (erfc(x), erfc_by_series(x));
+            let (fast, slow) = (erfc(x), erfc_slow(x));
             assert!((fast - slow).abs() < 1e-12, "x {x}: {fast} vs {slow}");
             x += 0.0625;
         }
@@ -199,9 +199,9 @@ mod tests {
             let v: Vec<f64> = (0..n)
                 .map(|_| f64::from(rng.random_range(0..7u8)))
                 .collect();
-            assert_eq!(median(&mut v.clone()), median_by_counting(&v), "{v:?}");
+            assert_eq!(median(&mut v.clone()), median_slow(&v), "{v:?}");
             let v: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
-            assert_eq!(median(&mut v.clone()), median_by_counting(&v), "{v:?}");
+            assert_eq!(median(&mut v.clone()), median_slow(&v), "{v:?}");
         }
     }
 
@@ -209,7 +209,7 @@ mod tests {
     fn normal_cdf_matches_integration_and_known_values() {
         for i in -60..=60 {
             let x = i as f64 * 0.1;
-            let (fast, slow) = (normal_cdf(x), normal_cdf_by_integration(x));
+            let (fast, slow) = (normal_cdf(x), normal_cdf_slow(x));
             assert!((fast - slow).abs() < 2e-7, "x={x}: {fast} vs {slow}");
         }
         assert!((normal_cdf(1.959_963_985) - 0.975).abs() < 1e-7);
@@ -231,7 +231,7 @@ mod tests {
         let mut rng = test_rng(3);
         let xs: Vec<f64> = (0..500).map(|_| rng.random::<f64>().powi(2)).collect();
         let cdf = |x: f64| x.clamp(0.0, 1.0);
-        let (a, b) = (ks_statistic(&xs, cdf), ks_statistic_brute_force(&xs, cdf));
+        let (a, b) = (ks_statistic(&xs, cdf), ks_statistic_slow(&xs, cdf));
         assert!((a - b).abs() < 1e-15, "{a} {b}");
         // x² of a uniform is far from uniform: D is large.
         assert!(a > 0.2);

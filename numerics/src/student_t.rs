@@ -12,7 +12,7 @@
 //! and F(t) = ½ + ½ sign(t) A(|t| | ν): ν/2 terms, exact up to rounding.
 //! The quantile is Newton's iteration on that CDF, kept inside a bracket
 //! (bisection when a step would leave it), from the Cornish–Fisher start;
-//! ν = 1 and ν = 2 have closed forms. [`t_quantile_by_bisection`] is the
+//! ν = 1 and ν = 2 have closed forms. [`t_quantile_slow`] is the
 //! slow, obvious twin: bisection on the CDF found by integrating the
 //! density numerically.
 
@@ -143,9 +143,9 @@ pub fn t_quantile(p: f64, nu: u32) -> f64 {
 /// composite Simpson ([`simpson`], 20 000 intervals) of the density; the
 /// upper end of the bracket is doubled from 1 until the integral exceeds
 /// p. Good to about 1e-8 relative for p ≤ 0.999.
-pub fn t_quantile_by_bisection(p: f64, nu: u32) -> f64 {
+pub fn t_quantile_slow(p: f64, nu: u32) -> f64 {
     if p < 0.5 {
-        return -t_quantile_by_bisection(1.0 - p, nu);
+        return -t_quantile_slow(1.0 - p, nu);
     }
     let cdf = |t: f64| 0.5 + simpson(|x| t_pdf(x, nu), 0.0, t, 20_000);
     let mut hi = 1.0;
@@ -166,7 +166,7 @@ mod tests {
             for p in [
                 0.05, 0.16, 0.5, 0.6, 0.75, 0.84, 0.9, 0.95, 0.975, 0.99, 0.995,
             ] {
-                let (fast, slow) = (t_quantile(p, nu), t_quantile_by_bisection(p, nu));
+                let (fast, slow) = (t_quantile(p, nu), t_quantile_slow(p, nu));
                 assert!(
                     (fast - slow).abs() <= 2e-8 * slow.abs().max(1.0),
                     "ν {nu}, p {p}: {fast} vs {slow}"

@@ -17,7 +17,7 @@
 //!
 //! Reproducibility: the image is cut into blocks of [`BLOCK_ROWS`] rows; block
 //! `b` draws from its own generator keyed by [`block_key`]`(key, b)`, so the
-//! bytes never depend on the number of threads. [`realise_reference`] is the
+//! bytes never depend on the number of threads. [`realise_slow`] is the
 //! slow, obvious sequential twin (one pixel at a time, a fresh distribution
 //! per pixel) that the fast [`realise`] is tested against, bit for bit.
 //!
@@ -175,7 +175,7 @@ pub fn realise_in_place(pixels: &mut [f32], width: usize, det: &Detector, noise:
         });
 }
 
-/// Fast path of one block: the same draws as [`realise_reference`] (a
+/// Fast path of one block: the same draws as [`realise_slow`] (a
 /// Poisson of the pixel's mean, then read noise as σ × a standard normal)
 /// without its fresh `Normal` per pixel. No Poisson distribution is kept
 /// from pixel to pixel: galaxy light covers a STEP1 image, so the mean
@@ -236,7 +236,7 @@ fn poisson(lambda: f64) -> Poisson<f64> {
 /// only √λ, ⌊λ − 1.1484⌋ and 6λ². Here those are all that is computed before
 /// the first two steps; the rest ([`pd_tail`]) is set up only when reached.
 /// Every operation is the one rand_distr does, in its order, so the results
-/// are bit for bit its results (tested, [`realise_reference`] keeps using
+/// are bit for bit its results (tested, [`realise_slow`] keeps using
 /// rand_distr itself). Below λ = 12 rand_distr's own sampler is used.
 #[inline(always)]
 fn poisson_count(lambda: f64, rng: &mut SimRng) -> f64 {
@@ -373,7 +373,7 @@ impl PdTail {
 /// The slow, obvious twin of [`realise`]: one thread, blocks in order, pixels
 /// in order, a fresh Poisson and Normal distribution for every pixel. Kept as
 /// the reference that [`realise`] must match bit for bit.
-pub fn realise_reference(
+pub fn realise_slow(
     model_e: &[f32],
     width: usize,
     det: &Detector,
@@ -583,7 +583,7 @@ mod tests {
             .collect();
         let d = det(60.0, 3.0, 4.0);
         for noise in [None, Some(key())] {
-            let want = realise_reference(&model, w, &d, noise);
+            let want = realise_slow(&model, w, &d, noise);
             for threads in [1, 3] {
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
@@ -611,7 +611,7 @@ mod tests {
         // build where the CPU has it).
         let mut plain = model[..BLOCK_ROWS * w].to_vec();
         noisy_block_body(&mut plain, &d, &mut block_key(key(), 0).rng());
-        let want = realise_reference(&model, w, &d, Some(key()));
+        let want = realise_slow(&model, w, &d, Some(key()));
         assert!(
             plain
                 .iter()

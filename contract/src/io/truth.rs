@@ -21,7 +21,7 @@ pub type Keyword = (String, f64, String);
 /// ([`row_bytes`], one `fits_write_tblbytes` call) and the file is built in
 /// memory and hashed as written ([`super::fits::write_fits_hashed`]); the
 /// bytes are those of the column-by-column writer
-/// [`write_truth_fits_by_column`] (test
+/// [`write_truth_fits_slow`] (test
 /// `block_writer_equals_the_column_writer_byte_for_byte`).
 pub fn write_truth_fits(
     path: &Path,
@@ -120,7 +120,7 @@ pub fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
 
 /// The slow obvious twin of [`write_truth_fits`]: a file on disk, one
 /// cfitsio column write per column (how tables were written before).
-pub fn write_truth_fits_by_column(
+pub fn write_truth_fits_slow(
     path: &Path,
     rows: &[TruthRow],
     keywords: &[Keyword],
@@ -258,7 +258,7 @@ mod tests {
             let rows = sample(n);
             let (a, b) = (dir.path().join("a.fits"), dir.path().join("b.fits"));
             let sha = write_truth_fits(&a, &rows, &kw).unwrap();
-            write_truth_fits_by_column(&b, &rows, &kw).unwrap();
+            write_truth_fits_slow(&b, &rows, &kw).unwrap();
             let (ba, bb) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
             assert_eq!(ba.len() % 2880, 0, "{n} rows");
             assert!(ba == bb, "{n} rows: the block writer's bytes differ");

@@ -72,7 +72,7 @@ pub struct SubRow {
 
 /// A whole submission, rows grouped by image: spilled to disk by the
 /// streaming reader ([`read_submission_limited`], one image read back at a
-/// time), or held in memory by its slow twin ([`read_submission_whole`]).
+/// time), or held in memory by its slow twin ([`read_submission_slow`]).
 #[derive(Debug, Clone)]
 pub struct Submission {
     /// The file or directory given.
@@ -199,7 +199,7 @@ pub fn read_submission(path: &Path, index: &ImageIndex) -> Result<Submission, Ha
 /// a temporary file (`read/spill.rs`), so that memory holds at most
 /// [`DEFAULT_BUFFER_ROWS`] rows of a single table (and, for a directory,
 /// the rows of the files being read, one image each), never the catalogue.
-/// The checks and messages are those of [`read_submission_whole`], its
+/// The checks and messages are those of [`read_submission_slow`], its
 /// slow twin; a text line longer than [`MAX_LINE_BYTES`] is refused.
 ///
 /// The top-level `path` may be a symbolic link (it is followed: the organiser
@@ -332,7 +332,7 @@ pub fn read_submission_spilled(
 /// Reads a submission whole, every row held in memory: the slow, obvious
 /// twin of [`read_submission_limited`] (same checks, same messages, same
 /// rows), kept to test it.
-pub fn read_submission_whole(
+pub fn read_submission_slow(
     path: &Path,
     index: &ImageIndex,
     max_bytes: u64,
@@ -655,7 +655,7 @@ fn stream_table(
 
 /// The per-image files of a directory, read in parallel (each file's rows,
 /// one image's, held while it is checked) and spilled one image each;
-/// errors and sizes in file order as [`read_submission_whole`] reports
+/// errors and sizes in file order as [`read_submission_slow`] reports
 /// them. Returns the ignored columns.
 fn stream_directory(
     files: &[(PathBuf, Option<usize>)],

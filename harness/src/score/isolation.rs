@@ -6,7 +6,7 @@
 //! figures use only rows matched to isolated galaxies, so a method's bias
 //! can be told from the scene's blending bias (docs/scoring.md, "Blends").
 //!
-//! [`isolated`] sweeps the objects sorted by x; [`isolated_brute`] is its
+//! [`isolated`] sweeps the objects sorted by x; [`isolated_slow`] is its
 //! slow, obvious reference.
 
 use stepsim_contract::truth::TruthRow;
@@ -27,7 +27,7 @@ fn blends(g: &TruthRow, n: &TruthRow, r2: f64, fraction: f64) -> bool {
 
 /// Reference: for each row, true when it is a galaxy with no other row
 /// within `radius_px` whose flux is at least `fraction` of its own. O(n²).
-pub fn isolated_brute(truth: &[TruthRow], radius_px: f64, fraction: f64) -> Vec<bool> {
+pub fn isolated_slow(truth: &[TruthRow], radius_px: f64, fraction: f64) -> Vec<bool> {
     let r2 = radius_px * radius_px;
     truth
         .iter()
@@ -42,7 +42,7 @@ pub fn isolated_brute(truth: &[TruthRow], radius_px: f64, fraction: f64) -> Vec<
         .collect()
 }
 
-/// The same as [`isolated_brute`], by a sweep over the rows sorted by x
+/// The same as [`isolated_slow`], by a sweep over the rows sorted by x
 /// (only rows with |Δx| ≤ radius are compared).
 pub fn isolated(truth: &[TruthRow], radius_px: f64, fraction: f64) -> Vec<bool> {
     let r2 = radius_px * radius_px;
@@ -93,7 +93,7 @@ mod tests {
         // With a 13-px radius the star is too far: the first is isolated;
         // the second never is (the first is 100× brighter).
         assert_eq!(isolated(&t, 13.0, 0.1), vec![true, false, false, true]);
-        assert_eq!(isolated(&t, 13.0, 0.1), isolated_brute(&t, 13.0, 0.1));
+        assert_eq!(isolated(&t, 13.0, 0.1), isolated_slow(&t, 13.0, 0.1));
     }
 
     #[test]
@@ -119,7 +119,7 @@ mod tests {
                 })
                 .collect();
             for r in [5.0, 14.6] {
-                assert_eq!(isolated(&t, r, 0.1), isolated_brute(&t, r, 0.1));
+                assert_eq!(isolated(&t, r, 0.1), isolated_slow(&t, r, 0.1));
             }
         }
     }

@@ -7,7 +7,7 @@
 //! [`match_nearest`] is the fast matcher (a uniform grid of cells no
 //! smaller than the radius, so only the 3 × 3 neighbouring cells are
 //! searched; about one truth object per cell);
-//! [`match_nearest_brute`] is its slow, obvious reference.
+//! [`match_nearest_slow`] is its slow, obvious reference.
 
 /// Index of the matched truth object for each query, or `None`.
 pub type Matches = Vec<Option<usize>>;
@@ -22,7 +22,7 @@ fn better(d2: f64, j: usize, best: Option<(f64, usize)>) -> bool {
 
 /// Reference matcher: compares every query with every truth object.
 /// O(n·m); kept as the reference that tests [`match_nearest`].
-pub fn match_nearest_brute(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) -> Matches {
+pub fn match_nearest_slow(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) -> Matches {
     let r2 = radius * radius;
     queries
         .iter()
@@ -41,10 +41,10 @@ pub fn match_nearest_brute(truth: &[(f64, f64)], queries: &[(f64, f64)], radius:
 
 /// Fast matcher: bins the truth objects into square cells of side `radius`
 /// and searches the 3 × 3 cells around each query. Same result as
-/// [`match_nearest_brute`] (same distance formula, same tie rule).
+/// [`match_nearest_slow`] (same distance formula, same tie rule).
 pub fn match_nearest(truth: &[(f64, f64)], queries: &[(f64, f64)], radius: f64) -> Matches {
     if truth.is_empty() || radius.is_nan() || radius <= 0.0 {
-        return match_nearest_brute(truth, queries, radius.max(0.0));
+        return match_nearest_slow(truth, queries, radius.max(0.0));
     }
     let r2 = radius * radius;
     let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
@@ -138,7 +138,7 @@ mod tests {
                 queries.push(truth[2]);
             }
             let fast = match_nearest(&truth, &queries, radius);
-            let slow = match_nearest_brute(&truth, &queries, radius);
+            let slow = match_nearest_slow(&truth, &queries, radius);
             assert_eq!(fast, slow, "case {case}");
             if n > 3 {
                 assert_eq!(fast[m], Some(0), "tie goes to the lower index");

@@ -134,7 +134,7 @@ pub const CHANCE_LATTICE: usize = 128;
 /// Each truth object marks the few lattice positions near it (the lattice
 /// is regular, so they are found by index), instead of matching all 128²
 /// positions against the truth: the same hits as
-/// [`chance_matches_by_matching`] (same positions, same distance formula),
+/// [`chance_matches_slow`] (same positions, same distance formula),
 /// about 10× less work on a STEP image.
 pub fn chance_matches(
     truth: &[TruthRow],
@@ -179,7 +179,7 @@ pub fn chance_matches(
 
 /// The slow twin of [`chance_matches`]: every lattice position goes
 /// through the matcher ([`match_nearest`]) as a submitted row would.
-pub fn chance_matches_by_matching(
+pub fn chance_matches_slow(
     truth: &[TruthRow],
     width_px: u32,
     height_px: u32,
@@ -1071,7 +1071,7 @@ mod tests {
                 ..TruthRow::default()
             });
             let fast = chance_matches(&truth, w, h, radius);
-            let slow = chance_matches_by_matching(&truth, w, h, radius);
+            let slow = chance_matches_slow(&truth, w, h, radius);
             assert_eq!(fast, slow, "case {case}: {w}x{h}, r {radius}, {n} objects");
         }
     }

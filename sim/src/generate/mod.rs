@@ -1613,7 +1613,7 @@ mod tests {
         let (w, h) = (p.geometry().width_px, p.geometry().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
-        let pixels = crate::noise::realise_reference(&model, w as usize, &det, Some(noise_key));
+        let pixels = crate::noise::realise_slow(&model, w as usize, &det, Some(noise_key));
         let by_hand = dir.path().join("by_hand.fits");
         write_image_fits(
             &by_hand,

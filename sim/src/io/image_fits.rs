@@ -95,7 +95,7 @@ pub fn adu_to_i32(v: f32) -> i32 {
 
 /// Writes an image atomically and returns the SHA-256 (hex) of the file's
 /// bytes, hashed as written: uncompressed float32 images streamed to disk,
-/// the others built by cfitsio in memory ([`write_image_fits_cfitsio`]).
+/// the others built by cfitsio in memory ([`write_image_fits_slow`]).
 /// `pixels_adu` has `width × height` values.
 pub fn write_image_fits(
     path: &Path,
@@ -125,13 +125,13 @@ pub fn write_image_fits(
     if format == SampleFormat::Float32 && compression == Compression::None {
         return write_float32_streamed(path, pixels_adu, width, height, header);
     }
-    write_image_fits_cfitsio(path, pixels_adu, width, height, header, format, compression)
+    write_image_fits_slow(path, pixels_adu, width, height, header, format, compression)
 }
 
 /// [`write_image_fits`] with the whole file built by cfitsio in memory: the
 /// way int32 and Rice-compressed images are written, and the slow twin of
 /// the streamed float32 writer (tested byte for byte).
-pub fn write_image_fits_cfitsio(
+pub fn write_image_fits_slow(
     path: &Path,
     pixels_adu: &[f32],
     width: u32,
@@ -218,7 +218,7 @@ fn write_keywords(
 const BLOCK: usize = 2880;
 
 /// An uncompressed float32 image written without building the file in
-/// memory: the same bytes as [`write_image_fits_cfitsio`] (tested), hashed
+/// memory: the same bytes as [`write_image_fits_slow`] (tested), hashed
 /// as they are written.
 ///
 /// cfitsio builds the header: the same keywords for a 1 × 1 image, whose
@@ -410,7 +410,7 @@ mod tests {
             let none = Compression::None;
             let sha_a = write_image_fits(&a, &px, w, ht, &h, SampleFormat::Float32, none).unwrap();
             let sha_b =
-                write_image_fits_cfitsio(&b, &px, w, ht, &h, SampleFormat::Float32, none).unwrap();
+                write_image_fits_slow(&b, &px, w, ht, &h, SampleFormat::Float32, none).unwrap();
             let (bytes_a, bytes_b) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
             assert_eq!(bytes_a.len(), bytes_b.len(), "{w} × {ht}");
             assert!(bytes_a == bytes_b, "{w} × {ht}: the bytes differ");

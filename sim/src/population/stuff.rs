@@ -321,7 +321,7 @@ impl StuffModel {
     /// double sum over z (`nz` cells) and M (`nm` cells across the
     /// absolute-magnitude bounds), with the distance integral evaluated
     /// directly at every z and the magnitude window tested per cell.
-    pub fn density_by_brute_force(&self, z_max: f64, nz: usize, nm: usize) -> f64 {
+    pub fn density_per_arcmin2_slow(&self, z_max: f64, nz: usize, nm: usize) -> f64 {
         let dz = z_max / nz as f64;
         let (a0, a1) = self.abs_limits;
         let dm = (a1 - a0) / nm as f64;
@@ -482,7 +482,7 @@ mod tests {
         let g = GalaxySpec::default();
         let m = StuffModel::new(&g, Lcdm::new(&Cosmology::default()), 20.0, 24.0);
         let fast = m.density_per_arcmin2();
-        let slow = m.density_by_brute_force(g.z_max, 1000, 2000);
+        let slow = m.density_per_arcmin2_slow(g.z_max, 1000, 2000);
         assert!((fast / slow - 1.0).abs() < 2e-3, "{fast} vs {slow}");
         let mut rng = crate::seed::SeedKey::base(6, 0, crate::seed::Stream::Test).rng();
         let zs: Vec<f64> = (0..20_000).map(|_| m.draw(&mut rng).z).collect();

@@ -19,7 +19,7 @@
 //! s = k^{1/4} (0 ≤ s ≤ 10, step 0.002) and read with a natural cubic
 //! spline. Table values come from
 //! * k < 0.3: the integral above by Gauss–Legendre panels that follow the
-//!   oscillation of J₀ ([`DeVaucouleurs::transform_direct`]);
+//!   oscillation of J₀ ([`DeVaucouleurs::transform_slow`]);
 //! * k ≥ 0.3: the expansion about the cusp at r = 0. Writing
 //!   e^{−b r^{1/4}} = Σ_j (−b)^j r^{j/4} / j! and using the Hankel transform
 //!   of a power, ∫ r^α J₀(2πkr) 2πr dr = 2π 2^{α+1} Γ(1 + α/2) /
@@ -71,7 +71,7 @@ impl Table {
                 let s = i as f64 * DS;
                 let k = s.powi(4);
                 if k < K_SWITCH {
-                    DeVaucouleurs::transform_direct(k)
+                    DeVaucouleurs::transform_slow(k)
                 } else {
                     sum_series(&series, k)
                 }
@@ -145,12 +145,12 @@ fn natural_spline_second_derivatives(y: &[f64], h: f64) -> Vec<f64> {
 
 impl DeVaucouleurs {
     /// b of the n = 4 law, the root of P(8, b) = ½ (checked against
-    /// [`Self::solve_b`] by a test).
+    /// [`Self::b_slow`] by a test).
     pub const B: f64 = 7.669_249_442_500_7;
 
     /// Solves P(8, b) = ½ by bisection (the slow twin of [`Self::B`]):
     /// [`super::sersic::sersic_b`] at n = 4.
-    pub fn solve_b() -> f64 {
+    pub fn b_slow() -> f64 {
         super::sersic::sersic_b(4)
     }
 
@@ -163,7 +163,7 @@ impl DeVaucouleurs {
     /// The transform by direct numerical integration (slow reference):
     /// (b⁸/7!) ∫ e^{−bt} t⁷ J₀(2πk t⁴) dt on t ∈ [0, 6.2] with 8-point
     /// Gauss–Legendre panels no wider than 3 radians of the Bessel phase.
-    pub fn transform_direct(k: f64) -> f64 {
+    pub fn transform_slow(k: f64) -> f64 {
         let b = Self::B;
         let t_max = 6.2;
         let mut t = 0.0;
@@ -202,7 +202,7 @@ pub(crate) const GL8: [(f64, f64); 8] = [
 
 /// Direct Hankel transform ∫₀^{r_max} f(r) J₀(2πkr) 2πr dr of a smooth
 /// profile by Gauss–Legendre panels (slow reference, for tests).
-pub fn hankel_direct(f: impl Fn(f64) -> f64, k: f64, r_max: f64) -> f64 {
+pub fn hankel_slow(f: impl Fn(f64) -> f64, k: f64, r_max: f64) -> f64 {
     let mut r = 0.0;
     let mut s = 0.0;
     while r < r_max {
@@ -266,7 +266,7 @@ mod tests {
 
     #[test]
     fn b_solves_the_half_light_condition() {
-        let b = DeVaucouleurs::solve_b();
+        let b = DeVaucouleurs::b_slow();
         assert!((b - DeVaucouleurs::B).abs() < 1e-12, "{b}");
         // Ciotti & Bertin (1999) asymptotic formula, good to ~1e-6 at n = 4.
         let n: f64 = 4.0;
@@ -323,7 +323,7 @@ mod tests {
     #[test]
     fn series_matches_direct_integral_above_the_switch() {
         for k in [0.3, 0.5, 1.0, 3.0, 10.0] {
-            let d = DeVaucouleurs::transform_direct(k);
+            let d = DeVaucouleurs::transform_slow(k);
             let s = DeVaucouleurs::transform_series(k);
             assert!((s - d).abs() < 1e-9 * d.max(1e-3), "k={k}: {s} vs {d}");
         }
@@ -345,7 +345,7 @@ mod tests {
             let s = (i as f64 + 0.37) * 0.031;
             let k = s.powi(4);
             let want = if k < 2.0 {
-                DeVaucouleurs::transform_direct(k)
+                DeVaucouleurs::transform_slow(k)
             } else {
                 DeVaucouleurs::transform_series(k)
             };

@@ -155,7 +155,7 @@ impl SampledPsf {
     /// Step 1, A[j][c] = Σ_i w_ij e^{−2πi u_c x_i}, and step 2,
     /// T[r][c] = Σ_j e^{−2πi v_r y_j} A[j][c], each summed over i (or j) in
     /// order, with the products of `Complex64`, exactly as
-    /// [`Self::compute_transfer_reference`] does cell by cell. Here the
+    /// [`Self::compute_transfer_slow`] does cell by cell. Here the
     /// loops are turned inside out: all columns c are summed together, one
     /// term at a time, over plain arrays of real and imaginary parts, so
     /// each sum is an independent lane the compiler vectorises instead of
@@ -234,7 +234,7 @@ impl SampledPsf {
     /// [`Self::compute_transfer`]'s slow, obvious twin: each cell's sums
     /// one after the other. The two agree bit for bit (tested).
     #[cfg_attr(not(test), allow(dead_code))]
-    fn compute_transfer_reference(&self, grid: StampGrid) -> Vec<Complex32> {
+    fn compute_transfer_slow(&self, grid: StampGrid) -> Vec<Complex32> {
         let (n, nc) = (grid.n, grid.n_cols());
         let (cols, rows) = self.band_cells(grid);
         let xs = self.sample_positions(self.offset.0);
@@ -371,7 +371,7 @@ mod tests {
             // plain build, and the twin.
             let fast = p.compute_transfer(grid);
             let plain = p.compute_transfer_body(grid);
-            let slow = p.compute_transfer_reference(grid);
+            let slow = p.compute_transfer_slow(grid);
             assert_eq!((fast.len(), plain.len()), (slow.len(), slow.len()));
             for (k, ((a, q), b)) in fast.iter().zip(&plain).zip(&slow).enumerate() {
                 let same = |x: &Complex32| {

@@ -16,7 +16,7 @@
 //! on the thread count. Precision: f32 transforms (error ~1e-6 of the
 //! brightest pixel of a tile, measured in the tests).
 //!
-//! The slow twin is [`convolve_direct`], the obvious double sum over pixels.
+//! The slow twin is [`convolve_slow`], the obvious double sum over pixels.
 
 use num_complex::Complex32;
 use rayon::prelude::*;
@@ -227,7 +227,7 @@ impl Scratch {
 /// `(2m + 1)²` pixels (row-major, centre at index (m, m)):
 /// out(x, y) = Σ_{|dx|,|dy| ≤ m} kernel(dx, dy) · canvas(x + m − dx, y + m − dy).
 /// O(width · height · m²); for tests.
-pub fn convolve_direct(
+pub fn convolve_slow(
     canvas: &[f32],
     width: usize,
     height: usize,
@@ -305,7 +305,7 @@ mod tests {
         let n = 24; // block 14: 4 × 3 blocks, the last ones partial
         let conv = Convolver::new(n, m, &transfer_of(&kernel, m, n));
         let fast = conv.apply(&canvas, w, h);
-        let slow = convolve_direct(&canvas, w, h, &kernel, m);
+        let slow = convolve_slow(&canvas, w, h, &kernel, m);
         let peak = slow.iter().copied().fold(0.0, f64::max);
         let worst = fast
             .iter()

@@ -350,7 +350,7 @@ fn cell<T: FftNum>((re, im): (f64, f64)) -> Complex<T> {
 /// transfer, then each galaxy component's transform (one loop per profile
 /// law, without branches, which the compiler turns into vector square roots
 /// and divisions), then the product with the shift phases. Each cell gets
-/// the same operations in the same order as in [`fill_kspace_reference`],
+/// the same operations in the same order as in [`fill_kspace_slow`],
 /// so the same bits; the transform is also evaluated where the cut then
 /// zeroes the cell (at the STEP1 settings only cells near the grid's
 /// corners are cut).
@@ -446,7 +446,7 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
 /// [`fill_kspace`]'s slow, obvious twin: every cell on its own, in order,
 /// with the same arithmetic; the two must agree bit for bit (tested).
 #[cfg_attr(not(test), allow(dead_code))]
-pub(crate) fn fill_kspace_reference<T: FftNum>(
+pub(crate) fn fill_kspace_slow<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
     sinc: &[f64],
