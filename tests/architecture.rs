@@ -11,6 +11,8 @@
 
 use std::path::Path;
 
+use crate::common::module_graph::rust_files;
+
 /// The paths the code map of `text` names, from the repository's root.
 fn code_map_paths(text: &str) -> Vec<String> {
     let after = text
@@ -197,18 +199,6 @@ mod tests { fn g() { std::fs::read(dir.join("public/manifest.json")); } }
 "#;
     let lines: Vec<usize> = hand_made_run_paths(code).iter().map(|l| l.0).collect();
     assert_eq!(lines, [3, 4, 5, 6]);
-}
-
-/// The `.rs` files under `dir`, recursively.
-fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|x| x == "rs") {
-            out.push(p);
-        }
-    }
 }
 
 #[test]

@@ -10,6 +10,7 @@
 #![allow(dead_code)]
 
 pub mod fits_table;
+pub mod module_graph;
 
 use std::collections::BTreeMap;
 use std::ffi::OsStr;

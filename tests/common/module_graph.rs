@@ -260,3 +260,23 @@ pub fn listing(g: &Graph) -> String {
         })
         .collect()
 }
+
+/// The edges of `g` that `allowed` (each module with the modules it may
+/// use) does not allow, as `from -> to`; a module `allowed` does not name
+/// at all is an offence too.
+pub fn offences(g: &Graph, allowed: &[(&str, &[&str])]) -> Vec<String> {
+    let allowed: BTreeMap<&str, &[&str]> = allowed.iter().copied().collect();
+    let mut out = Vec::new();
+    for (from, to) in g {
+        let Some(ok) = allowed.get(from.as_str()) else {
+            out.push(format!("{from}: a module the layers do not name"));
+            continue;
+        };
+        for t in to {
+            if !ok.contains(&t.as_str()) {
+                out.push(format!("{from} -> {t}"));
+            }
+        }
+    }
+    out
+}
