@@ -37,21 +37,12 @@ const ALLOWED: [(&str, &[&str]); 5] = [
 #[test]
 fn server_modules_stand_in_layers() {
     let g = module_graph(&server_src());
-    let names: Vec<&str> = g.keys().map(String::as_str).collect();
-    assert_eq!(names, ["challenge", "http", "observe", "store", "worker"]);
-    let bad = offences(&g, &ALLOWED);
-    assert!(
-        bad.is_empty(),
-        "edges against the layers:\n{}\n\nthe graph:\n{}",
-        bad.join("\n"),
-        listing(&g)
+    assert_layered(
+        &g,
+        &["challenge", "http", "observe", "store", "worker"],
+        &ALLOWED,
+        "the server",
     );
-    if let Some(cycle) = find_cycle(&g) {
-        panic!(
-            "the server's modules depend on each other in a cycle: {}",
-            cycle.join(" -> ")
-        );
-    }
 }
 
 #[test]

@@ -280,3 +280,24 @@ pub fn offences(g: &Graph, allowed: &[(&str, &[&str])]) -> Vec<String> {
     }
     out
 }
+
+/// Asserts that `g` has exactly the modules `names`, that every edge is
+/// one `allowed` allows, and that there is no cycle; `who` names the crate
+/// in the messages.
+pub fn assert_layered(g: &Graph, names: &[&str], allowed: &[(&str, &[&str])], who: &str) {
+    let have: Vec<&str> = g.keys().map(String::as_str).collect();
+    assert_eq!(have, names, "{who}'s top-level modules");
+    let bad = offences(g, allowed);
+    assert!(
+        bad.is_empty(),
+        "edges against the layers:\n{}\n\nthe graph:\n{}",
+        bad.join("\n"),
+        listing(g)
+    );
+    if let Some(cycle) = find_cycle(g) {
+        panic!(
+            "{who}'s modules depend on each other in a cycle: {}",
+            cycle.join(" -> ")
+        );
+    }
+}
