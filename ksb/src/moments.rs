@@ -605,28 +605,40 @@ mod tests {
     use super::*;
     use crate::draw::{covariance, draw_gaussian_sampled, shear_covariance};
 
+    /// A `w` × `h` image of uniform values in [−20, 80).
+    fn uniform_image(rng: &mut SimRng, w: usize, h: usize) -> Image {
+        let mut img = Image::zeros(w, h);
+        for v in &mut img.data {
+            *v = rng.random::<f32>() * 100.0 - 20.0;
+        }
+        img
+    }
+
+    /// A random window: centre up to `pad` pixels off the image, scale
+    /// 0.5 – 6.5, radius 1 – 5 scales: (xc, yc, σ, radius).
+    fn random_window(rng: &mut SimRng, img: &Image, pad: f64) -> (f64, f64, f64, f64) {
+        let xc = rng.random::<f64>() * (img.width as f64 + 2.0 * pad) - pad;
+        let yc = rng.random::<f64>() * (img.height as f64 + 2.0 * pad) - pad;
+        let s = 0.5 + rng.random::<f64>() * 6.0;
+        let radius = s * (1.0 + rng.random::<f64>() * 4.0);
+        (xc, yc, s, radius)
+    }
+
     #[test]
     fn the_window_moments_twin_is_the_integrals_sums_bit_for_bit() {
         // Random centres (edges included), scales and radii on a noisy
         // image: the twin's four sums equal ksb_integrals' exactly.
         let mut rng = SeedKey::base(7, 0, Stream::Noise).rng();
-        let (w, h) = (61, 47);
-        let mut img = Image::zeros(w, h);
-        for v in &mut img.data {
-            *v = rng.random::<f32>() * 100.0 - 20.0;
-        }
+        let img = uniform_image(&mut rng, 61, 47);
         for _ in 0..500 {
-            let xc = rng.random::<f64>() * (w as f64 + 10.0) - 5.0;
-            let yc = rng.random::<f64>() * (h as f64 + 10.0) - 5.0;
-            let s = 0.5 + rng.random::<f64>() * 6.0;
-            let radius = s * (1.0 + rng.random::<f64>() * 4.0);
-            let fast = window_moments_slow(&img, xc, yc, s, radius);
+            let (xc, yc, s, radius) = random_window(&mut rng, &img, 5.0);
+            let twin = window_moments_slow(&img, xc, yc, s, radius);
             let full = ksb_integrals(&img, xc, yc, s, radius, None);
-            assert_eq!(fast.s0.to_bits(), full.s0.to_bits());
-            assert_eq!(fast.first[0].to_bits(), full.first[0].to_bits());
-            assert_eq!(fast.first[1].to_bits(), full.first[1].to_bits());
-            assert_eq!(fast.trace.to_bits(), full.trace.to_bits());
-            assert_eq!(fast.clipped, full.clipped);
+            assert_eq!(twin.s0.to_bits(), full.s0.to_bits());
+            assert_eq!(twin.first[0].to_bits(), full.first[0].to_bits());
+            assert_eq!(twin.first[1].to_bits(), full.first[1].to_bits());
+            assert_eq!(twin.trace.to_bits(), full.trace.to_bits());
+            assert_eq!(twin.clipped, full.clipped);
         }
     }
 
@@ -639,11 +651,8 @@ mod tests {
         // trace); a window holding a NaN pixel, or with a NaN centre or
         // radius, is NaN in both; the same clipping.
         let mut rng = SeedKey::base(8, 0, Stream::Test).rng();
-        let (w, h) = (53, 44);
-        let mut img = Image::zeros(w, h);
-        for v in &mut img.data {
-            *v = rng.random::<f32>() * 100.0 - 20.0;
-        }
+        let w = 53;
+        let mut img = uniform_image(&mut rng, w, 44);
         draw_gaussian_sampled(&mut img, 20.3, 25.8, 3e5, &covariance(2.0, [0.2, 0.1]));
         let mut abs = img.clone();
         for v in &mut abs.data {
@@ -653,10 +662,7 @@ mod tests {
         img.data[5 * w + 8] = f32::NAN;
         let (mut finite, mut nan, mut worst) = (0, 0, 0.0f64);
         for _ in 0..2000 {
-            let xc = rng.random::<f64>() * (w as f64 + 20.0) - 10.0;
-            let yc = rng.random::<f64>() * (h as f64 + 20.0) - 10.0;
-            let s = 0.5 + rng.random::<f64>() * 6.0;
-            let radius = s * (1.0 + rng.random::<f64>() * 4.0);
+            let (xc, yc, s, radius) = random_window(&mut rng, &img, 10.0);
             let fast = window_moments(&img, xc, yc, s, radius);
             let slow = window_moments_slow(&img, xc, yc, s, radius);
             assert_eq!(fast.clipped, slow.clipped);
@@ -694,7 +700,7 @@ mod tests {
     }
 
     use rand::RngExt;
-    use stepsim_contract::seed::{SeedKey, Stream};
+    use stepsim_contract::seed::{SeedKey, SimRng, Stream};
 
     fn close(a: f64, b: f64, tol: f64) -> bool {
         (a - b).abs() <= tol
