@@ -329,7 +329,8 @@ fn measure_datasets(
     progress: Progress,
 ) -> Result<Measured, KsbError> {
     params.validate()?;
-    let manifest_path = PublicDir::new(public_dir).manifest();
+    let public = PublicDir::new(public_dir);
+    let manifest_path = public.manifest();
     let manifest = read_manifest(&manifest_path)?;
     let inst = &manifest.instrument;
     let gain = inst.gain_e_per_adu;
@@ -353,7 +354,7 @@ fn measure_datasets(
     images.sort_by(|a, b| a.image.cmp(&b.image));
     let read =
         |im: &stepsim_contract::run_layout::ManifestImage| -> Result<crate::image::Image, KsbError> {
-            let path = PublicDir::new(public_dir).file(&im.file);
+            let path = public.file(&im.file);
             let img = read_fits_image(&path)?;
             if img.width != inst.width_px as usize || img.height != inst.height_px as usize {
                 return Err(KsbError::Image {
