@@ -22,6 +22,7 @@ use num_complex::Complex32;
 use rayon::prelude::*;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustfft::{Fft, FftPlanner};
+use std::cell::RefCell;
 use std::sync::Arc;
 
 /// Overlap-save convolver for one kernel and one tile size.
@@ -107,49 +108,57 @@ impl Convolver {
             return Vec::new();
         }
         let b = self.block();
-        // One band of output rows per row of blocks; the blocks of a band are
-        // computed in parallel, then copied in (the output's pages are first
-        // touched here, in parallel). At most one band of block results per
-        // thread is held besides the output.
-        let per_row = width.div_ceil(b);
+        // One band of output rows per row of blocks; each band's rows are cut
+        // at the block edges and the blocks of a band are computed in
+        // parallel, each straight into its part of the output (the output's
+        // pages are first touched here, in parallel). The FFT buffers are
+        // each thread's own and kept from one call to the next, so a long run
+        // allocates them once per thread, not once per block.
         let mut out = super::image::zeroed(width * height);
         out.par_chunks_mut(b * width)
             .enumerate()
             .for_each(|(by, band)| {
                 let y0 = by * b;
-                let results: Vec<Vec<f32>> = (0..per_row)
-                    .into_par_iter()
-                    .map_init(
-                        || Scratch::new(self),
-                        |scratch, bx| self.block_at(canvas, width, height, bx * b, y0, scratch),
-                    )
-                    .collect();
-                for (bx, data) in results.iter().enumerate() {
-                    let x0 = bx * b;
-                    let bw = b.min(width - x0);
-                    for (j, src) in data.chunks_exact(bw).enumerate() {
-                        let start = j * width + x0;
-                        band[start..start + bw].copy_from_slice(src);
+                let mut blocks: Vec<Vec<&mut [f32]>> =
+                    (0..width.div_ceil(b)).map(|_| Vec::new()).collect();
+                for row in band.chunks_mut(width) {
+                    let mut rest = row;
+                    for block in &mut blocks {
+                        let (part, tail) = rest.split_at_mut(b.min(rest.len()));
+                        block.push(part);
+                        rest = tail;
                     }
                 }
+                blocks.into_par_iter().enumerate().for_each(|(bx, rows)| {
+                    SCRATCH.with(|cell| {
+                        let mut kept = cell.borrow_mut();
+                        let scratch = match &mut *kept {
+                            Some(s) if s.fits(self) => s,
+                            other => other.insert(Scratch::new(self)),
+                        };
+                        self.block_into(canvas, width, bx * b, y0, rows, scratch);
+                    });
+                });
             });
         out
     }
 
-    /// The output block whose first pixel is image pixel (x0, y0): its
-    /// `min(b, width − x0) × min(b, height − y0)` pixels, row-major.
-    fn block_at(
+    /// Writes the output block whose first pixel is image pixel (x0, y0)
+    /// into `rows`: its `min(b, height − y0)` rows, each of
+    /// `min(b, width − x0)` pixels.
+    fn block_into(
         &self,
         canvas: &[f32],
         width: usize,
-        height: usize,
         x0: usize,
         y0: usize,
+        rows: Vec<&mut [f32]>,
         s: &mut Scratch,
-    ) -> Vec<f32> {
+    ) {
         let (n, m) = (self.n, self.margin);
         let nc = n / 2 + 1;
-        let (cw, ch) = (width + 2 * m, height + 2 * m);
+        let cw = width + 2 * m;
+        let ch = canvas.len() / cw;
         // Forward: each row of the window (zero beyond the canvas), then the
         // columns.
         let zero = Complex32::new(0.0, 0.0);
@@ -177,10 +186,7 @@ impl Convolver {
         }
         self.col_inv.process_with_scratch(&mut s.uv, &mut s.scratch);
         // Inverse along rows, only for the rows kept.
-        let b = self.block();
-        let (bw, bh) = (b.min(width - x0), b.min(height - y0));
-        let mut out = vec![0.0f32; bw * bh];
-        for j in 0..bh {
+        for (j, dst) in rows.into_iter().enumerate() {
             let r = j + m;
             for u in 0..nc {
                 s.row[u] = s.uv[u * n + r];
@@ -190,14 +196,21 @@ impl Convolver {
             self.row_inv
                 .process_with_scratch(&mut s.row, &mut s.real, &mut s.scratch)
                 .expect("lengths match the plan");
-            out[j * bw..(j + 1) * bw].copy_from_slice(&s.real[m..m + bw]);
+            let bw = dst.len();
+            dst.copy_from_slice(&s.real[m..m + bw]);
         }
-        out
     }
 }
 
-/// Per-thread buffers of [`Convolver::block_at`].
+thread_local! {
+    /// Each thread's buffers for [`Convolver::block_into`], kept between
+    /// calls (rebuilt when a convolver of another tile side comes).
+    static SCRATCH: RefCell<Option<Scratch>> = const { RefCell::new(None) };
+}
+
+/// Per-thread buffers of [`Convolver::block_into`].
 struct Scratch {
+    n: usize,
     real: Vec<f32>,
     row: Vec<Complex32>,
     uv: Vec<Complex32>,
@@ -205,20 +218,28 @@ struct Scratch {
 }
 
 impl Scratch {
-    fn new(c: &Convolver) -> Self {
-        let n = c.n;
-        let len = c
-            .row_fwd
+    fn scratch_len(c: &Convolver) -> usize {
+        c.row_fwd
             .get_scratch_len()
             .max(c.row_inv.get_scratch_len())
             .max(c.col_fwd.get_inplace_scratch_len())
-            .max(c.col_inv.get_inplace_scratch_len());
+            .max(c.col_inv.get_inplace_scratch_len())
+    }
+
+    fn new(c: &Convolver) -> Self {
+        let n = c.n;
         Self {
+            n,
             real: vec![0.0; n],
             row: vec![Complex32::new(0.0, 0.0); n / 2 + 1],
             uv: vec![Complex32::new(0.0, 0.0); (n / 2 + 1) * n],
-            scratch: vec![Complex32::new(0.0, 0.0); len],
+            scratch: vec![Complex32::new(0.0, 0.0); Self::scratch_len(c)],
         }
+    }
+
+    /// Whether these buffers serve `c` (same tile side, scratch long enough).
+    fn fits(&self, c: &Convolver) -> bool {
+        self.n == c.n && self.scratch.len() >= Self::scratch_len(c)
     }
 }
 
