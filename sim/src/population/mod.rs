@@ -33,6 +33,7 @@ use cosmology::Lcdm;
 use rand::RngExt;
 use rand_distr::{Distribution, Poisson, StandardNormal};
 use shapes::ShapeLaw;
+use std::sync::{Arc, Mutex, OnceLock};
 use stuff::StuffModel;
 
 /// Most objects one base field may hold (a guard against configs that
@@ -127,10 +128,68 @@ pub fn lensed(
         .collect()
 }
 
-/// The Stuff model of `spec` for its galaxy magnitude range.
-pub fn model(spec: &PopulationSpec) -> StuffModel {
+/// The Stuff model of `spec` for its galaxy magnitude range. Tabulating it
+/// (a Simpson integral per type and redshift cell) takes a good part of a
+/// second, and a run asks for it several times (the memory and disk
+/// estimates, the checks, each base field), so the process keeps the last
+/// few models made, keyed by the galaxy model and the cosmology they were
+/// made from: the same spec gives the same model, made once.
+pub fn model(spec: &PopulationSpec) -> Arc<StuffModel> {
+    tabulated(spec).model.clone()
+}
+
+/// A tabulated model and the kept fraction measured on it.
+struct Tabulated {
+    galaxies: GalaxySpec,
+    cosmology: Cosmology,
+    model: Arc<StuffModel>,
+    kept: OnceLock<f64>,
+}
+
+/// How many tabulated models the process keeps (a run uses one; a server
+/// may hold a few challenges).
+const MODELS_KEPT: usize = 4;
+
+fn tabulated(spec: &PopulationSpec) -> Arc<Tabulated> {
+    static MODELS: Mutex<Vec<Arc<Tabulated>>> = Mutex::new(Vec::new());
+    tabulated_in(&MODELS, spec)
+}
+
+/// [`tabulated`] with the store given (a test's own).
+fn tabulated_in(store: &Mutex<Vec<Arc<Tabulated>>>, spec: &PopulationSpec) -> Arc<Tabulated> {
+    let same = |t: &Tabulated| t.galaxies == spec.galaxies && t.cosmology == spec.cosmology;
+    let found = |models: &mut Vec<Arc<Tabulated>>| {
+        let i = models.iter().position(|t| same(t))?;
+        let t = models.remove(i);
+        models.push(t.clone());
+        Some(t)
+    };
+    if let Some(t) = found(&mut store.lock().unwrap_or_else(|p| p.into_inner())) {
+        return t;
+    }
+    // Tabulated outside the lock: two threads asking at once both make it
+    // (the same values), and the first stored is kept.
     let g = &spec.galaxies;
-    StuffModel::new(g, Lcdm::new(&spec.cosmology), g.mag_bright, g.mag_faint)
+    let made = Arc::new(Tabulated {
+        galaxies: g.clone(),
+        cosmology: spec.cosmology.clone(),
+        model: Arc::new(StuffModel::new(
+            g,
+            Lcdm::new(&spec.cosmology),
+            g.mag_bright,
+            g.mag_faint,
+        )),
+        kept: OnceLock::new(),
+    });
+    let mut models = store.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some(t) = found(&mut models) {
+        return t;
+    }
+    if models.len() == MODELS_KEPT {
+        models.remove(0);
+    }
+    models.push(made.clone());
+    made
 }
 
 /// All stars and galaxies of base field `field`, unsheared (g1 = g2 = 0,
@@ -195,19 +254,22 @@ pub fn kept_fraction(spec: &PopulationSpec) -> f64 {
         return 1.0;
     }
     let g = &spec.galaxies;
-    let model = model(spec);
-    let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
-    let mut rng = SeedKey::base(0, 0, Stream::Galaxies).rng();
-    let kept = (0..KEPT_FRACTION_DRAWS)
-        .filter(|_| {
-            let lum = model.draw(&mut rng);
-            let shape = law.draw(&mut rng);
-            let t = &model.types[lum.code as usize];
-            let (mag, _) = t.observe(lum.mag, shape.incl, lum.z);
-            (g.mag_bright..=g.mag_faint).contains(&mag)
-        })
-        .count();
-    kept as f64 / KEPT_FRACTION_DRAWS as f64
+    let tabulated = tabulated(spec);
+    let model = &tabulated.model;
+    *tabulated.kept.get_or_init(|| {
+        let law = ShapeLaw::new(&g.flattening, g.inclination, g.max_inclination_deg);
+        let mut rng = SeedKey::base(0, 0, Stream::Galaxies).rng();
+        let kept = (0..KEPT_FRACTION_DRAWS)
+            .filter(|_| {
+                let lum = model.draw(&mut rng);
+                let shape = law.draw(&mut rng);
+                let t = &model.types[lum.code as usize];
+                let (mag, _) = t.observe(lum.mag, shape.incl, lum.z);
+                (g.mag_bright..=g.mag_faint).contains(&mag)
+            })
+            .count();
+        kept as f64 / KEPT_FRACTION_DRAWS as f64
+    })
 }
 
 /// de Vaucouleurs T of each Hubble type code (for SkyMaker lists).

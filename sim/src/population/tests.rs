@@ -5,6 +5,7 @@ use crate::plan::Plan;
 use crate::population::stars::mag_cdf;
 use crate::stats::{ks_p_value, ks_statistic, median};
 use std::path::Path;
+use std::sync::Mutex;
 
 /// The defaults with a fixed seed (so that the tests are reproducible), then
 /// `overrides`.
@@ -605,4 +606,51 @@ fn the_galaxies_kept_per_field_are_the_expected_count_less_those_out_of_range() 
         (mean - want).abs() < 4.0 * sigma,
         "{mean} kept per field, {want} expected ({drawn} drawn × {kept})"
     );
+}
+
+#[test]
+fn the_model_is_made_once_per_spec_and_is_the_model_of_that_spec() {
+    // A store of the test's own: the process's is shared with other tests.
+    let store = Mutex::new(Vec::new());
+    let made = |spec: &PopulationSpec| tabulated_in(&store, spec).model.clone();
+    let spec = plan_with(&[]).population();
+    let first = made(&spec);
+    assert!(Arc::ptr_eq(&first, &made(&spec)), "made twice");
+    let g = &spec.galaxies;
+    let fresh = StuffModel::new(g, Lcdm::new(&spec.cosmology), g.mag_bright, g.mag_faint);
+    assert_eq!(
+        first.density_per_arcmin2().to_bits(),
+        fresh.density_per_arcmin2().to_bits()
+    );
+    assert_eq!(
+        model(&spec).density_per_arcmin2().to_bits(),
+        fresh.density_per_arcmin2().to_bits()
+    );
+    // Another faint limit is another model, with more galaxies, and the
+    // first is still the first spec's.
+    let fainter = plan_with(&["population.galaxies.mag_faint=26.5"]).population();
+    let other = made(&fainter);
+    assert!(!Arc::ptr_eq(&first, &other));
+    assert!(other.density_per_arcmin2() > first.density_per_arcmin2());
+    assert!(Arc::ptr_eq(&first, &made(&spec)));
+    // The store keeps the last MODELS_KEPT specs: one more than that evicts
+    // the least recently asked for.
+    for k in 0..MODELS_KEPT {
+        made(
+            &plan_with(&[&format!(
+                "population.galaxies.mag_faint={}",
+                24.1 + 0.1 * k as f64
+            )])
+            .population(),
+        );
+    }
+    assert_eq!(store.lock().unwrap().len(), MODELS_KEPT);
+    assert!(
+        !Arc::ptr_eq(&first, &made(&spec)),
+        "kept more than {MODELS_KEPT}"
+    );
+    // The kept fraction is measured once per model too, and is the
+    // fraction of the spec asked about.
+    assert_eq!(kept_fraction(&spec), kept_fraction(&spec));
+    assert_ne!(kept_fraction(&spec), kept_fraction(&fainter));
 }
