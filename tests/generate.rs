@@ -746,11 +746,12 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
         err.contains("stepsim: built PSF 1/1 (coma), stored in "),
         "{err}"
     );
-    let shared: Vec<PathBuf> = std::fs::read_dir(&user)
+    // It keeps the solved PSF and the drawn PSF file (`.fits.bin`).
+    let (drawn, shared): (Vec<PathBuf>, Vec<PathBuf>) = std::fs::read_dir(&user)
         .unwrap()
         .map(|e| e.unwrap().path())
-        .collect();
-    assert_eq!(shared.len(), 1, "{shared:?}");
+        .partition(|p| p.to_string_lossy().ends_with(".fits.bin"));
+    assert_eq!((shared.len(), drawn.len()), (1, 1), "{shared:?} {drawn:?}");
     let run_copy = d
         .join("first/private/psf/cache")
         .join(shared[0].file_name().unwrap());
@@ -774,6 +775,12 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
         std::fs::read(&shared[0]).unwrap()
     );
     assert!(release(&d.join("first")) == release(&d.join("second")));
+    // Its PSF file was copied from the user's store, not drawn: the first
+    // run's byte for byte.
+    let psf_file = |run: &str| std::fs::read(d.join(run).join("private/psf/coma.fits")).unwrap();
+    assert_eq!(psf_file("first"), psf_file("second"));
+    let stored = std::fs::read(&drawn[0]).unwrap();
+    assert!(stored.ends_with(&psf_file("first")));
     // A damaged file in the user's store is not trusted: the PSF is built
     // again, the file rewritten, the release the same.
     let good = std::fs::read(&shared[0]).unwrap();
@@ -799,11 +806,13 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
         stderr(&o)
     );
     assert!(!stderr(&o).contains("user's store"), "{}", stderr(&o));
-    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 1);
+    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 2);
     assert_eq!(
         std::fs::metadata(&shared[0]).unwrap().modified().unwrap(),
         before
     );
+    // And its PSF file was drawn, the same as the copies.
+    assert_eq!(psf_file("first"), psf_file("fourth"));
 }
 
 #[test]

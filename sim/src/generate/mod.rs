@@ -1175,14 +1175,24 @@ fn write_shared(
         participants_readme(plan, para).as_bytes(),
     )?;
     if plan.output().write_psf {
+        let user = crate::io::psf_store::user_store_dir();
         for (p, renderer) in renderers {
             let name = plan.psf_name(*p);
+            let spec = plan.psf_spec(*p);
             write_psf_file(
                 &paths.private().psf(name),
                 renderer.psf(),
                 name,
                 plan.pixel_scale_arcsec(),
                 plan.accuracy().max_stamp_px,
+                // Only the stored (optical) PSFs: the others draw in
+                // milliseconds.
+                user.as_deref()
+                    .filter(|_| crate::io::psf_store::is_stored(&spec))
+                    .map(|u| {
+                        let accuracy = crate::psf::PsfAccuracy::default();
+                        (u, crate::io::psf_store::spec_digest(&spec, &accuracy))
+                    }),
             )?;
         }
     }
@@ -1193,25 +1203,29 @@ fn write_shared(
 /// oversampled one, with the measured report in the header (the same file
 /// `stepsim psf` writes, at its default sizes: the extent the renderer
 /// gives the PSF).
+///
+/// With `user` (the user's PSF store and the PSF's spec digest) the file is
+/// copied from the store when it holds it, and kept there when drawn
+/// ([`crate::io::psf_store::write_drawn_file`]).
 fn write_psf_file(
     path: &Path,
     psf: &Arc<dyn crate::psf::Psf>,
     name: &str,
     pixel_scale_arcsec: f64,
     max_stamp_px: usize,
+    user: Option<(&Path, String)>,
 ) -> Result<(), IoError> {
-    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
-    let report = crate::psf::report(name, psf.as_ref(), pixel_scale_arcsec)
-        .map_err(|e| IoError::format(path, e.to_string()))?;
-    let drawn = crate::psf::draw_for_file(
-        name,
-        psf.as_ref(),
-        pixel_scale_arcsec,
-        renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px),
-        DEFAULT_OVERSAMPLE,
-        Some(report),
-    );
-    write_psf(path, &drawn)
+    use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, draw_and_write, renderer_side_px};
+    use crate::io::psf_store::{file_digest, write_drawn_file};
+    let side = renderer_side_px(psf.as_ref(), pixel_scale_arcsec, max_stamp_px);
+    let draw = |path: &Path| draw_and_write(path, psf.as_ref(), name, pixel_scale_arcsec, side);
+    match user {
+        Some((dir, spec)) => {
+            let digest = file_digest(&spec, side, DEFAULT_OVERSAMPLE);
+            write_drawn_file(path, &digest, Some(dir), draw).map(|_| ())
+        }
+        None => draw(path),
+    }
 }
 
 /// The private files every process of a run writes identically:

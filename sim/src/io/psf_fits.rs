@@ -112,6 +112,29 @@ pub fn renderer_side_px(
 /// Samples per pixel of the oversampled PSF image written by default.
 pub const DEFAULT_OVERSAMPLE: usize = 4;
 
+/// Draws `psf` at `side_px` pixels (and [`DEFAULT_OVERSAMPLE`] times
+/// finer), measures it and writes the file `path` with the report in the
+/// header: a run's `private/psf/<name>.fits`.
+pub fn draw_and_write(
+    path: &Path,
+    psf: &dyn crate::psf::Psf,
+    name: &str,
+    pixel_scale_arcsec: f64,
+    side_px: usize,
+) -> Result<(), IoError> {
+    let report = crate::psf::report(name, psf, pixel_scale_arcsec)
+        .map_err(|e| IoError::format(path, e.to_string()))?;
+    let drawn = crate::psf::draw_for_file(
+        name,
+        psf,
+        pixel_scale_arcsec,
+        side_px,
+        DEFAULT_OVERSAMPLE,
+        Some(report),
+    );
+    write_psf(path, &drawn)
+}
+
 /// Writes a drawn PSF ([`crate::psf::draw_for_file`]) to
 /// `RUN/private/psf/<name>.fits` (or any path): the pixel-scale image in the
 /// primary HDU, the fine one in `OVERSAMPLED`, with the report's FWHM, χ and

@@ -309,19 +309,42 @@ pub fn encode(band: &BandTransfer, cal: &Calibration, spec_digest: &str) -> Vec<
         c.extend_from_slice(&z.re.to_le_bytes());
         c.extend_from_slice(&z.im.to_le_bytes());
     }
-    let content_sha = sha256_hex(&c);
+    frame(&format!("stepsim psf store {FORMAT}"), spec_digest, &c)
+}
+
+/// A store file: the header (`version` line, the spec digest, the
+/// content's SHA-256 and length, an empty line), then `content`.
+fn frame(version: &str, spec_digest: &str, content: &[u8]) -> Vec<u8> {
     let mut out = format!(
-        "stepsim psf store {FORMAT}\nspec-sha256 {spec_digest}\ncontent-sha256 {content_sha}\ncontent-bytes {}\n\n",
-        c.len()
+        "{version}\nspec-sha256 {spec_digest}\ncontent-sha256 {}\ncontent-bytes {}\n\n",
+        sha256_hex(content),
+        content.len()
     )
     .into_bytes();
-    out.extend_from_slice(&c);
+    out.extend_from_slice(content);
     out
 }
 
 /// The stored PSF of a file whose spec digest must be `want_spec`, or why
 /// it cannot be used (lower case, no full stop).
 pub fn parse(bytes: &[u8], want_spec: &str) -> Result<(BandTransfer, Calibration), String> {
+    let content = unframe(
+        bytes,
+        &format!("stepsim psf store {FORMAT}"),
+        FORMAT,
+        want_spec,
+    )?;
+    decode(content).ok_or_else(|| "has content that does not parse".into())
+}
+
+/// The content of a store file written by [`frame`] with `version` (of
+/// number `number`) for spec digest `want_spec`, or why it cannot be used.
+fn unframe<'a>(
+    bytes: &'a [u8],
+    version: &str,
+    number: u32,
+    want_spec: &str,
+) -> Result<&'a [u8], String> {
     let end = bytes
         .windows(2)
         .position(|w| w == b"\n\n")
@@ -330,12 +353,13 @@ pub fn parse(bytes: &[u8], want_spec: &str) -> Result<(BandTransfer, Calibration
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "has a header that is not text")?;
     let content = &bytes[end + 2..];
     let lines: Vec<&str> = header.lines().collect();
-    let [version, spec, sha, len] = lines[..] else {
+    let [_, spec, sha, len] = lines[..] else {
         return Err("has a header of the wrong shape (not a PSF store file)".into());
     };
-    if version != format!("stepsim psf store {FORMAT}") {
+    if lines[0] != version {
         return Err(format!(
-            "is of another format (`{version}`, this stepsim reads version {FORMAT})"
+            "is of another format (`{}`, this stepsim reads version {number})",
+            lines[0]
         ));
     }
     if spec.strip_prefix("spec-sha256 ") != Some(want_spec) {
@@ -354,7 +378,54 @@ pub fn parse(bytes: &[u8], want_spec: &str) -> Result<(BandTransfer, Calibration
     if sha.strip_prefix("content-sha256 ") != Some(sha256_hex(content).as_str()) {
         return Err("has content that does not match its SHA-256 (damaged or edited)".into());
     }
-    decode(content).ok_or_else(|| "has content that does not parse".into())
+    Ok(content)
+}
+
+/// Version of the drawn PSF files (`RUN/private/psf/<name>.fits`) kept in
+/// the user's store: bump it whenever the bytes of such a file change for a
+/// given PSF (its drawing, its report, the FITS writer), so that older
+/// files are drawn again. A test pins one file's bytes
+/// (`the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`).
+pub const FILE_FORMAT: u32 = 1;
+
+/// Hex SHA-256 naming the drawn file of the PSF of `spec_digest`
+/// ([`spec_digest`]) at `side_px` pixels with `oversample`.
+pub fn file_digest(spec_digest: &str, side_px: usize, oversample: usize) -> String {
+    sha256_hex(
+        format!(
+            "stepsim psf file {FILE_FORMAT}\npsf {spec_digest}\nside_px {side_px}\noversample {oversample}\n"
+        )
+        .as_bytes(),
+    )
+}
+
+/// Writes a PSF's drawn file `path` (drawing and measuring it costs about
+/// a third of a second, as much as a quarter of a one-image run): copied
+/// from the user's store `user` when a file there of digest `digest`
+/// ([`file_digest`]) checks, otherwise written by `draw` and then kept
+/// there (a cache: a failure to keep it is ignored). True when copied.
+pub fn write_drawn_file(
+    path: &Path,
+    digest: &str,
+    user: Option<&Path>,
+    draw: impl FnOnce(&Path) -> Result<(), IoError>,
+) -> Result<bool, IoError> {
+    let version = format!("stepsim psf file {FILE_FORMAT}");
+    let stored = user.map(|u| u.join(format!("{digest}.fits.bin")));
+    if let Some(from) = &stored
+        && let Ok(bytes) = std::fs::read(from)
+        && let Ok(content) = unframe(&bytes, &version, FILE_FORMAT, digest)
+    {
+        write_bytes_atomically(path, content)?;
+        return Ok(true);
+    }
+    draw(path)?;
+    if let Some(to) = &stored
+        && let Ok(content) = std::fs::read(path)
+    {
+        let _ = write_private(to, &frame(&version, digest, &content));
+    }
+    Ok(false)
 }
 
 fn decode(c: &[u8]) -> Option<(BandTransfer, Calibration)> {
@@ -501,6 +572,81 @@ mod tests {
             (FORMAT, content.as_str()),
             (1, PINNED_CONTENT_SHA256),
             "the solved PSF changed: bump FORMAT and record the new hash"
+        );
+    }
+
+    #[test]
+    fn the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format() {
+        // A drawn PSF file kept in the user's store outlives builds: a
+        // change of its bytes (drawing, report, writer) must bump
+        // FILE_FORMAT and record the new hash here. Drawn twice: the same
+        // bytes.
+        let (s, acc) = (spec(0.04), small());
+        let request = OpticalRequest::of(&s).unwrap();
+        let (band, cal) = crate::psf::solve_optical(&request, &acc).unwrap();
+        let psf = OpticalPsf::new(band, cal);
+        let tmp = tempfile::tempdir().unwrap();
+        let draw = |name: &str| {
+            let path = tmp.path().join(name);
+            crate::io::psf_fits::draw_and_write(&path, &psf, "coma", 0.206, 64).unwrap();
+            sha256_hex(&std::fs::read(path).unwrap())
+        };
+        let first = draw("a.fits");
+        assert_eq!(first, draw("b.fits"), "drawn twice, different bytes");
+        assert_eq!(
+            (FILE_FORMAT, first.as_str()),
+            (1, PINNED_FILE_SHA256),
+            "the drawn PSF file changed: bump FILE_FORMAT and record the new hash"
+        );
+    }
+
+    /// SHA-256 of the 64-pixel file of the coma PSF of
+    /// `the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`.
+    const PINNED_FILE_SHA256: &str =
+        "271e5cd3f2ef0eea93f691db82fc7ff70e1898b0abbfac2561685451058c763e";
+
+    #[test]
+    fn a_drawn_file_is_kept_in_the_users_store_and_copied_from_it() {
+        let tmp = tempfile::tempdir().unwrap();
+        let store = tmp.path().join("store");
+        let digest = file_digest(&"ab".repeat(32), 64, 4);
+        let drawn = std::cell::Cell::new(0);
+        let draw = |path: &Path| {
+            drawn.set(drawn.get() + 1);
+            write_bytes_atomically(path, b"SIMPLE = the drawn file")
+        };
+        let run = |name: &str, user: Option<&Path>| {
+            let path = tmp.path().join("run").join(name);
+            let copied = write_drawn_file(&path, &digest, user, draw).unwrap();
+            (copied, std::fs::read(path).unwrap())
+        };
+        // No store: drawn each time, nothing kept.
+        assert_eq!(
+            run("a.fits", None),
+            (false, b"SIMPLE = the drawn file".to_vec())
+        );
+        assert!(!store.exists());
+        // The first run with a store draws and keeps; the next copies.
+        assert!(!run("b.fits", Some(&store)).0);
+        assert_eq!(drawn.get(), 2);
+        assert_eq!(
+            run("c.fits", Some(&store)),
+            (true, b"SIMPLE = the drawn file".to_vec())
+        );
+        assert_eq!(drawn.get(), 2);
+        // Another file's digest is not this file.
+        let other = file_digest(&"ab".repeat(32), 65, 4);
+        assert_ne!(other, digest);
+        // A damaged store file is drawn again and rewritten.
+        let kept = store.join(format!("{digest}.fits.bin"));
+        let mut bytes = std::fs::read(&kept).unwrap();
+        *bytes.last_mut().unwrap() ^= 1;
+        std::fs::write(&kept, &bytes).unwrap();
+        assert!(!run("d.fits", Some(&store)).0);
+        assert_eq!(drawn.get(), 3);
+        assert_eq!(
+            run("e.fits", Some(&store)),
+            (true, b"SIMPLE = the drawn file".to_vec())
         );
     }
 
