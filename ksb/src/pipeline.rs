@@ -516,7 +516,7 @@ fn set_shear(o: &mut MeasuredObject, g: [f64; 2], max_shear: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{
+    use crate::scene::{
         SceneSpec, add_sky_and_noise, covariance, draw_gaussian_sampled, synthetic_scene,
     };
     use stepsim_contract::seed::{SeedKey, Stream};
@@ -575,7 +575,7 @@ mod tests {
         }
         for k in 0..30 {
             let (x, y) = (45.0 + 44.0 * (k % 6) as f64, 90.0 + 60.0 * (k / 6) as f64);
-            let gal = crate::draw::convolve(&covariance(2.0 + 0.1 * k as f64, [0.2, -0.1]), &psf);
+            let gal = crate::scene::convolve(&covariance(2.0 + 0.1 * k as f64, [0.2, -0.1]), &psf);
             draw_gaussian_sampled(&mut img, x, y, 2e5, &gal);
         }
         let m = measure_image(&img, &info(), &KsbParams::default()).unwrap();

@@ -475,9 +475,9 @@ fn measure_group(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{SceneSpec, synthetic_scene, write_public_run};
     use crate::image::Image;
     use crate::pipeline::measure_image;
+    use crate::scene::{SceneSpec, synthetic_scene, write_public_run};
 
     fn spec(n_stars: usize, seed: u64) -> SceneSpec {
         SceneSpec {
