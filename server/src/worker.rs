@@ -13,7 +13,7 @@ use std::time::Duration;
 use stepsim_contract::run_layout::Part;
 use stepsim_harness::{PublicFeedback, ScoreOptions, prepare, score_prepared_part, write_outputs};
 
-pub use crate::challenge::SCORER_VERSION;
+use crate::challenge::SCORER_VERSION;
 
 /// Default limit on one scoring job.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(600);

@@ -235,7 +235,11 @@ pub fn worker_name(n: usize) -> String {
         .unwrap_or_else(|_| "host".into());
     let mut b = [0u8; 4];
     let _ = getrandom::fill(&mut b);
-    format!("{host}:{}:{n}:{}", std::process::id(), crate::hex(&b))
+    format!(
+        "{host}:{}:{n}:{}",
+        std::process::id(),
+        stepsim_contract::digest::hex(&b)
+    )
 }
 
 /// The challenge's storage. Every method is one transaction; every method
