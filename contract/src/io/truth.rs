@@ -86,7 +86,7 @@ enum Source {
 
 /// The rows as FITS stores them: each row its columns in [`COLUMN_ORDER`],
 /// big-endian (K: 8 bytes, J: 4, D: 8), rows one after the other.
-pub fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
+fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
     let sources: Vec<Source> = COLUMN_ORDER
         .iter()
         .map(|name| {
