@@ -38,7 +38,7 @@ pub struct MeasuredObject {
     pub e2: f64,
     /// Weight 1 / (σ_int² + σ_γ²); 0 exactly when `flags != 0`.
     pub weight: f64,
-    /// Why the weight is zero ([`crate::flags`]).
+    /// Why the weight is zero (`flags.rs`).
     pub flags: u32,
     /// Weight scale r_g (pixels).
     pub rg_px: f64,
@@ -49,9 +49,9 @@ pub struct MeasuredObject {
     /// ½Tr P^γ used (NaN without a PSF model).
     pub pgamma: f64,
     /// With metacalibration: the five versions' measurements and whether
-    /// each version passes the cuts ([`crate::metacal`]); `e1`, `e2` and
+    /// each version passes the cuts (`metacal.rs`); `e1`, `e2` and
     /// `weight` are set from the dataset's response by
-    /// [`crate::metacal::apply_response`].
+    /// `apply_response` (`metacal.rs`).
     pub metacal: Option<(crate::metacal::McMeasure, [bool; 5])>,
 }
 

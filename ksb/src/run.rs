@@ -88,7 +88,7 @@ pub fn part_path(out: &Path, k: u32, n: u32) -> std::path::PathBuf {
     std::path::PathBuf::from(dir).join(format!("{k}-of-{n}.txt"))
 }
 
-/// Measures the datasets of shard `k` of `n` ([`shard_datasets`]) and
+/// Measures the datasets of shard `k` of `n` (`shard_datasets`) and
 /// writes them to [`part_path`]`(out, k, n)`, a submission of those images
 /// only; the first line after the header records the manifest's SHA-256
 /// (`# manifest-sha256 <hex>`), so that [`join_parts`] refuses parts of

@@ -18,7 +18,7 @@ pub type Keyword = (String, f64, String);
 /// `keywords` go into the table header.
 ///
 /// The rows go to cfitsio as one block of big-endian row bytes
-/// ([`row_bytes`], one `fits_write_tblbytes` call) and the file is built in
+/// (`row_bytes`, one `fits_write_tblbytes` call) and the file is built in
 /// memory and hashed as written ([`super::fits::write_fits_hashed`]); the
 /// bytes are those of the column-by-column writer
 /// [`write_truth_fits_slow`] (test

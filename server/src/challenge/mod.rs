@@ -233,7 +233,7 @@ impl Challenge {
     }
 
     /// Opens the challenge in `dir` with its store at `store` (`None`: the
-    /// one the directory names, [`crate::store::url_of_state`]).
+    /// one the directory names, the store's `url_of_state`).
     pub async fn open_with_store(
         dir: &Path,
         store: Option<&StoreUrl>,
