@@ -319,3 +319,122 @@ fn slow_twins_have_one_name() {
         found.join("\n")
     );
 }
+
+/// The libraries whose surface is curated (ARCHITECTURE.md, "Public
+/// surfaces"): their modules are private and lib.rs re-exports what users
+/// call, each item under one name, but for the modules of
+/// [`PUBLIC_MODULES`]. (`sim` and `figure` are not on it yet.)
+const CURATED_LIBRARIES: &[&str] = &[
+    "contract", "numerics", "harness", "ksb", "server", "testkit",
+];
+
+/// The public modules a curated library's lib.rs may declare: (crate,
+/// module, why the module is the name its users call by).
+const PUBLIC_MODULES: &[(&str, &str, &str)] = &[
+    ("contract", "digest", "SHA-256 as hex: `digest::sha256_hex`"),
+    (
+        "contract",
+        "io",
+        "the run's files: `io::write_atomically`, `io::truth`, `io::fits`",
+    ),
+    ("contract", "run_dir", "the paths of a run (SPEC §5)"),
+    ("contract", "run_layout", "manifest.json and datasets.json"),
+    ("contract", "seed", "the keyed random streams"),
+    ("contract", "shear", "the conventions of SPEC §1"),
+    ("contract", "truth", "the truth table's row and columns"),
+    ("numerics", "fit", "`fit::fit_clipped`"),
+    ("numerics", "linalg", "`linalg::solve_spd`"),
+    ("numerics", "quad", "`quad::simpson`"),
+    ("numerics", "robust", "`robust::mad_sigma`"),
+    ("numerics", "roots", "`roots::Bisection`"),
+    ("numerics", "simd", "`simd::has_avx2`"),
+    ("numerics", "stats", "`stats::median`, `stats::normal_cdf`"),
+    ("numerics", "student_t", "`student_t::t_quantile`"),
+    (
+        "testkit",
+        "scene",
+        "ksb's synthetic scenes (also compiled into ksb's tests)",
+    ),
+    (
+        "testkit",
+        "synthetic",
+        "the harness's synthetic runs (also compiled into its tests)",
+    ),
+];
+
+/// What breaks the curated surface in `lib` (a lib.rs's text) of crate
+/// `krate`: a `pub mod` not on [`PUBLIC_MODULES`], and a `pub use` of
+/// another crate's item (a second name for it; users name the other crate).
+/// Comments and test code are skipped. Returns (line number, line).
+fn surface_breaches(krate: &str, lib: &str) -> Vec<(usize, String)> {
+    let code = lib.split("#[cfg(test)]\nmod tests").next().unwrap_or("");
+    let own_modules: Vec<&str> = code
+        .lines()
+        .filter_map(|l| {
+            let l = l.trim_start();
+            let rest = l
+                .strip_prefix("pub mod ")
+                .or_else(|| l.strip_prefix("mod "))
+                .or_else(|| l.strip_prefix("pub(crate) mod "))?;
+            Some(rest.trim_end_matches([';', '{', ' ']))
+        })
+        .collect();
+    let mut out = Vec::new();
+    for (i, line) in code.lines().enumerate() {
+        let l = line.trim_start();
+        if let Some(name) = l.strip_prefix("pub mod ") {
+            let name = name.trim_end_matches([';', '{', ' ']);
+            if !PUBLIC_MODULES
+                .iter()
+                .any(|(c, m, _)| *c == krate && *m == name)
+            {
+                out.push((i + 1, line.to_string()));
+            }
+        } else if let Some(path) = l.strip_prefix("pub use ") {
+            let first = path
+                .trim_start_matches("::")
+                .split(|c: char| !(c.is_alphanumeric() || c == '_'))
+                .next()
+                .unwrap_or("");
+            let local = ["crate", "self", "super"].contains(&first) || own_modules.contains(&first);
+            if !local {
+                out.push((i + 1, line.to_string()));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_surface_reader_finds_unlisted_modules_and_second_names() {
+    let lib = "//! pub mod docs;\nmod error;\npub mod stats;\npub mod flags;\n\
+               pub use error::KsbError;\npub use crate::error::Location;\n\
+               pub use stepsim_contract::digest::hex;\npub use ::serde_json::Value;\n\
+               pub(crate) mod inner;\npub use inner::{\n    A, B,\n};\n\
+               #[cfg(test)]\nmod tests { pub use std::fs; }\n";
+    let lines: Vec<usize> = surface_breaches("numerics", lib)
+        .iter()
+        .map(|l| l.0)
+        .collect();
+    assert_eq!(lines, [4, 7, 8]);
+}
+
+#[test]
+fn curated_libraries_have_one_name_per_item() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = Vec::new();
+    for krate in CURATED_LIBRARIES {
+        let path = root.join(krate).join("src/lib.rs");
+        let lib = std::fs::read_to_string(&path).unwrap();
+        for (n, line) in surface_breaches(krate, &lib) {
+            found.push(format!("{krate}/src/lib.rs:{n}: {}", line.trim()));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "a curated library's lib.rs declares a public module not on PUBLIC_MODULES \
+         (tests/architecture.rs; make it private and re-export what users call), or re-exports \
+         another crate's item (users name that crate):\n{}",
+        found.join("\n")
+    );
+}

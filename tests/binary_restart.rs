@@ -402,8 +402,8 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
     assert!(stepsim(&mark).status.success());
     let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
     let team = bo(ch.store.team_by_name("KSB")).unwrap().unwrap();
-    assert_eq!(team.role, stepsim_server::store::Role::Baseline);
-    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
+    assert_eq!(team.role, stepsim_server::Role::Baseline);
+    let phase = bo(stepsim_server::Phase::read(ch.store.as_ref())).unwrap();
     assert_eq!(
         phase.deadline_s,
         Some(4_071_002_645),
@@ -429,7 +429,7 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
             .success()
     );
     let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
-    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
+    let phase = bo(stepsim_server::Phase::read(ch.store.as_ref())).unwrap();
     assert_eq!(
         (phase.deadline_s, phase.frozen, phase.closed),
         (Some(1_906_502_400), true, false)
@@ -452,7 +452,7 @@ fn the_organiser_commands_set_roles_deadline_freeze_close_rescore_and_password()
             .success()
     );
     let ch = bo(stepsim_server::Challenge::open(&state)).unwrap();
-    let phase = bo(stepsim_server::challenge::Phase::read(ch.store.as_ref())).unwrap();
+    let phase = bo(stepsim_server::Phase::read(ch.store.as_ref())).unwrap();
     assert!(phase.closed && phase.frozen);
     assert!(bo(ch.verify_organiser_password("a long enough secret")));
     assert!(!bo(

@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::Output;
-use stepsim_sim::config::{Part, RawConfig};
+use stepsim_contract::run_layout::Part;
 use stepsim_sim::plan::{Plan, holdout_fields, holdout_shear};
 
 use crate::common;
@@ -238,11 +238,9 @@ fn held_out_fields_are_chosen_by_key_not_by_position() {
 
 #[test]
 fn a_plan_splits_fields_and_adopting_a_seed_redraws_the_split() {
-    let mut raw = RawConfig::default();
-    raw.image.n_images = 6;
-    raw.challenge.holdout_fields = 3;
-    raw.run.seed = Some(5);
-    let plan = Plan::new(raw, Path::new("t.json")).unwrap();
+    let json =
+        r#"{"image": {"n_images": 6}, "challenge": {"holdout_fields": 3}, "run": {"seed": 5}}"#;
+    let plan = Plan::from_json(json, Path::new("t.json"), &[]).unwrap();
     assert_eq!(plan.datasets().len(), 60);
     assert_eq!(plan.n_images_in_run(), 60 * 3, "no twins by default");
     let held = &plan.datasets()[30];

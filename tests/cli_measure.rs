@@ -2,7 +2,7 @@
 //! format, thread-count independence, and refused input.
 
 use std::path::Path;
-use stepsim_ksb::draw::{SceneSpec, synthetic_scene, write_public_run};
+use stepsim_testkit::scene::{SceneSpec, synthetic_scene, write_public_run};
 
 use crate::common;
 use common::{ok, run_with, stderr, stepsim};

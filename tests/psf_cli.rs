@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::process::Output;
 use stepsim_sim::io::psf_fits::{read_image_hdu, read_psf_fits};
+use stepsim_sim::plan::Plan;
 
 use crate::common;
 use common::run;
@@ -58,9 +59,8 @@ fn writes_images_report_and_picture() {
     assert_eq!(report["pixel_scale_arcsec"], 0.206);
     // The resolved config is written beside the outputs (and reads back).
     let resolved = std::fs::read_to_string(out_dir.join("config.json")).unwrap();
-    let raw =
-        stepsim_sim::config::RawConfig::parse(&resolved, Path::new("config.json"), &[]).unwrap();
-    assert_eq!(raw.psfs.len(), 3);
+    let plan = Plan::from_json(&resolved, &out_dir.join("config.json"), &[]).unwrap();
+    assert_eq!(plan.n_psfs(), 3);
     let psfs = report["psfs"].as_array().unwrap();
     assert_eq!(psfs.len(), 3);
     for key in [

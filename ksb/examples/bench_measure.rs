@@ -10,9 +10,8 @@
 //! per-stage times of each run, the median total, and the peak memory.
 
 use std::time::Instant;
-use stepsim_ksb::KsbParams;
-use stepsim_ksb::draw::{SceneSpec, synthetic_scene};
-use stepsim_ksb::pipeline::{ImageInfo, measure_image};
+use stepsim_ksb::{ImageInfo, KsbParams, measure_image};
+use stepsim_testkit::scene::{SceneSpec, synthetic_scene};
 
 fn peak_rss_mib() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;

@@ -167,6 +167,10 @@ impl Background {
 
     /// The slow, obvious twin of [`Background::subtract`]: `level_at` for
     /// every pixel.
+    #[cfg_attr(
+        not(test),
+        expect(dead_code, reason = "a slow twin, the reference of a unit test")
+    )]
     pub fn subtract_slow(&self, img: &Image) -> Image {
         let mut out = img.clone();
         for iy in 0..img.height {
@@ -182,7 +186,7 @@ impl Background {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{add_sky_and_noise, covariance, draw_gaussian_sampled};
+    use crate::scene::{add_sky_and_noise, covariance, draw_gaussian_sampled};
     use stepsim_contract::seed::{SeedKey, Stream};
 
     #[test]

@@ -114,7 +114,7 @@ pub fn windowed(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{covariance, draw_gaussian_sampled};
+    use crate::scene::{covariance, draw_gaussian_sampled};
 
     const S: WindowSettings = WindowSettings {
         radius_rg: 5.0,

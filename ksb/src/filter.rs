@@ -109,6 +109,10 @@ pub fn smooth(img: &Image, sigma: f64) -> Image {
 /// Reference twin of [`smooth`]: the direct 2-D convolution with the
 /// product kernel, renormalised over existing pixels separately per axis
 /// exactly as the separable version does.
+#[cfg_attr(
+    not(test),
+    expect(dead_code, reason = "a slow twin, the reference of a unit test")
+)]
 pub fn smooth_slow(img: &Image, sigma: f64) -> Image {
     let k = kernel_1d(sigma);
     let r = (k.len() / 2) as i64;

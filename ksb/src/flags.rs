@@ -38,26 +38,26 @@ pub const BIG_SHEAR: u32 = 512;
 /// No PSF model.
 pub const NO_PSF: u32 = 1024;
 
-/// Names of the bits, lowest first.
-pub const NAMES: [&str; 11] = [
-    "EDGE",
-    "SATURATED",
-    "BLENDED",
-    "CENTROID",
-    "MOMENTS",
-    "SMALL",
-    "LARGE",
-    "LOW_SN",
-    "PGAMMA",
-    "BIG_SHEAR",
-    "NO_PSF",
-];
-
 /// Flags that disqualify an object from the star sample and the PSF model.
 pub const NOT_FOR_PSF: u32 = EDGE | SATURATED | BLENDED | CENTROID | MOMENTS | LARGE;
 
 #[cfg(test)]
 mod tests {
+    /// Names of the bits, lowest first.
+    const NAMES: [&str; 11] = [
+        "EDGE",
+        "SATURATED",
+        "BLENDED",
+        "CENTROID",
+        "MOMENTS",
+        "SMALL",
+        "LARGE",
+        "LOW_SN",
+        "PGAMMA",
+        "BIG_SHEAR",
+        "NO_PSF",
+    ];
+
     #[test]
     fn bits_are_distinct_and_named_in_order() {
         let all = [
@@ -74,7 +74,7 @@ mod tests {
             super::NO_PSF,
         ];
         for (i, b) in all.iter().enumerate() {
-            assert_eq!(*b, 1 << i, "{}", super::NAMES[i]);
+            assert_eq!(*b, 1 << i, "{}", NAMES[i]);
         }
     }
 }

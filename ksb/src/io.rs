@@ -81,7 +81,9 @@ pub fn write_fits_image(path: &Path, img: &Image) -> Result<(), KsbError> {
 /// Column header line of a submission (SPEC §6).
 pub const SUBMISSION_HEADER: &str = "# image x y e1 e2 weight flags";
 
-/// Formats a submission: the header line, then one line per object.
+/// Formats a submission: the header line, then one line per object (for
+/// the tests, as [`write_submission`]).
+#[cfg(test)]
 pub fn format_submission<'a>(
     rows: impl IntoIterator<Item = (&'a str, &'a MeasuredObject)>,
 ) -> String {
@@ -103,7 +105,9 @@ pub fn push_row(s: &mut String, image: &str, o: &MeasuredObject) {
     );
 }
 
-/// Writes a submission atomically.
+/// Writes a submission atomically (for the tests: a run writes its rows
+/// by [`push_row`]).
+#[cfg(test)]
 pub fn write_submission<'a>(
     path: &Path,
     rows: impl IntoIterator<Item = (&'a str, &'a MeasuredObject)>,

@@ -11,7 +11,7 @@
 //! ## Units and coordinates
 //! * Inside the crate, pixel positions are **array coordinates**: the centre
 //!   of pixel `(ix, iy)` (0-based, `ix` along NAXIS1) is `(ix, iy)`. At the
-//!   edges (the submission, [`pipeline::MeasuredObject`]) positions are FITS
+//!   edges (the submission, [`MeasuredObject`]) positions are FITS
 //!   pixels: array coordinate + 1.
 //! * Pixel values are **electrons** (ADU × gain), sky still in them when read;
 //!   sizes and weight scales are in pixels; magnitudes are on the image's
@@ -21,42 +21,69 @@
 //!   reduced-shear type.
 //!
 //! ## Pipeline (one image)
-//! [`background`] → [`filter`] → [`segment`] (detection, deblending) →
-//! [`centroid`] (windowed centroid and size r_g) → [`stars`] (stellar locus)
-//! → [`moments`] (KSB moments and polarisabilities) → [`psf_model`]
-//! (p_μ and P^sh*/P^sm* across the field, per weight scale) → [`shear`]
-//! (estimator, weights, cuts, [`flags`]). [`pipeline`] strings them together;
-//! [`run`] reads a public run directory and writes a submission.
 //!
-//! With [`params::Method::Metacal`] the shear estimate is metacalibration
-//! ([`metacal`]) instead of [`shear`]; detection, stars and cuts on the
-//! detection are shared.
+//! ```text
+//! background.rs   SExtractor-style mesh background and its rms
+//! filter.rs       the matched filter of detection
+//! segment.rs      detection and deblending
+//! centroid.rs     windowed centroid and size r_g
+//! stars.rs        the stellar locus in the size–magnitude plane
+//! moments.rs      KSB moments and polarisabilities
+//! psf_model.rs    p_μ and P^sh*/P^sm* across the field, per weight scale
+//! shear.rs        the estimator, weights and cuts (flags.rs: the flag bits)
+//! metacal.rs      metacalibration, the other estimator (Method::Metacal)
+//! pipeline.rs     the stages strung together for one image
+//! run.rs          a public run directory in, a submission out (shards too)
+//! io.rs           FITS images, manifest, submission text
+//! params.rs       KsbParams, every setting with its default
+//! ```
+//!
+//! With [`Method::Metacal`] the shear estimate is metacalibration instead
+//! of KSB+; detection, stars and cuts on the detection are shared.
+//!
+//! The modules are private: what users call is re-exported here, each item
+//! under one name. Synthetic test scenes live in `stepsim-testkit`
+//! (`scene`), which ksb's own unit tests compile in by `#[path]`.
 //!
 //! Every fast routine `f` has a slow, obvious twin `f_slow` in the same
 //! module, used by the tests.
 #![deny(missing_docs)]
 
-pub mod background;
-pub mod centroid;
-pub mod draw;
-pub mod error;
-pub mod filter;
-pub mod flags;
-pub mod image;
-pub mod io;
-pub mod linalg;
-pub mod metacal;
-pub mod moments;
-pub mod params;
-pub mod pipeline;
-pub mod polynomial;
-pub mod psf_model;
-pub mod run;
-pub mod segment;
-pub mod shear;
-pub mod stars;
+mod background;
+mod centroid;
+mod error;
+mod filter;
+mod flags;
+mod image;
+mod io;
+mod linalg;
+mod metacal;
+mod moments;
+mod params;
+mod pipeline;
+mod polynomial;
+mod psf_model;
+mod run;
+mod segment;
+mod shear;
+mod stars;
+
+// The unit tests draw their scenes with `stepsim-testkit`'s scene.rs and
+// this crate's own types: its source is compiled in, and names this crate
+// as `stepsim_ksb` as it does from outside.
+#[cfg(test)]
+extern crate self as stepsim_ksb;
+#[cfg(test)]
+#[allow(dead_code)]
+#[path = "../../testkit/src/scene.rs"]
+mod scene;
 
 pub use error::KsbError;
 pub use image::Image;
-pub use params::KsbParams;
-pub use pipeline::{MeasuredObject, measure_image};
+pub use io::{read_manifest, write_fits_image};
+pub use linalg::Mat2;
+pub use params::{KsbParams, Method, PgammaMode};
+pub use pipeline::{ImageInfo, ImageMeasurement, MeasuredObject, measure_image};
+pub use run::{
+    ImageSummary, Progress, join_parts, measure_run, measure_shard, part_path, parts_count,
+};

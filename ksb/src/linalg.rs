@@ -4,9 +4,6 @@
 /// A 2 × 2 matrix, `m[row][col]`.
 pub type Mat2 = [[f64; 2]; 2];
 
-/// The identity.
-pub const IDENTITY: Mat2 = [[1.0, 0.0], [0.0, 1.0]];
-
 /// Half the trace.
 pub fn half_trace(m: &Mat2) -> f64 {
     0.5 * (m[0][0] + m[1][1])
@@ -34,20 +31,23 @@ pub fn mul_vec(m: &Mat2, v: [f64; 2]) -> [f64; 2] {
     ]
 }
 
-/// Matrix product.
-pub fn mul(a: &Mat2, b: &Mat2) -> Mat2 {
-    let mut c = [[0.0; 2]; 2];
-    for (i, row) in c.iter_mut().enumerate() {
-        for (j, cij) in row.iter_mut().enumerate() {
-            *cij = a[i][0] * b[0][j] + a[i][1] * b[1][j];
-        }
-    }
-    c
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The identity.
+    const IDENTITY: Mat2 = [[1.0, 0.0], [0.0, 1.0]];
+
+    /// Matrix product.
+    fn mul(a: &Mat2, b: &Mat2) -> Mat2 {
+        let mut c = [[0.0; 2]; 2];
+        for (i, row) in c.iter_mut().enumerate() {
+            for (j, cij) in row.iter_mut().enumerate() {
+                *cij = a[i][0] * b[0][j] + a[i][1] * b[1][j];
+            }
+        }
+        c
+    }
 
     #[test]
     fn inverse_inverts() {

@@ -334,6 +334,7 @@ impl Deconvolver {
 
     /// The version of `stamp` (centre `c`) sheared by `g`, reconvolved:
     /// a side × side image with the galaxy at `c`.
+    #[cfg(test)]
     pub fn version(&self, gal: &[f64], c: [f64; 2], g: [f64; 2]) -> Image {
         let t = transforms(gal, c, &self.plans);
         self.version_of(&t, c, g)
@@ -469,8 +470,6 @@ pub struct ImageMetacal {
     decs: Vec<Deconvolver>,
     /// σ of the reconvolution (pixels).
     pub sigma: f64,
-    /// Stars stacked.
-    pub n_stars: usize,
 }
 
 impl ImageMetacal {
@@ -485,7 +484,6 @@ impl ImageMetacal {
                 .map(|&side| Deconvolver::new(&psf, side, sigma))
                 .collect(),
             sigma,
-            n_stars: psf.n_stars,
         })
     }
 }

@@ -243,6 +243,10 @@ fn row_sums(v: &[f32], a: &[f64], b: &[f64], c: &[f64]) -> [f64; 3] {
 /// window's bounding box tested against the disc, and its weight
 /// wx(dx) wy(dy) times its value added to each of the four sums, pixel by
 /// pixel: the sums of [`ksb_integrals`] bit for bit (tested). For the tests.
+#[cfg_attr(
+    not(test),
+    expect(dead_code, reason = "a slow twin, the reference of a unit test")
+)]
 pub fn window_moments_slow(
     img: &Image,
     xc: f64,
@@ -472,6 +476,10 @@ pub fn ksb_integrals(
 /// accumulates each KSB integrand exactly as written in the module docs, and
 /// the noise of e from its per-pixel derivative in a second pass. Slow and
 /// obvious; used by the tests.
+#[cfg_attr(
+    not(test),
+    expect(dead_code, reason = "a slow twin, the reference of a unit test")
+)]
 pub fn ksb_integrals_slow(
     img: &Image,
     xc: f64,
@@ -549,6 +557,10 @@ pub fn ksb_integrals_slow(
 /// ⟨η₁⟩ = a − b, ⟨η₂⟩ = 2c, ⟨|θ|²⟩ = a + b, ⟨η₁²⟩ = 3a² − 2(ab + 2c²) + 3b²,
 /// ⟨η₁η₂⟩ = 6c(a − b), ⟨η₂²⟩ = 4(ab + 2c²), ⟨η₁|θ|²⟩ = 3(a² − b²),
 /// ⟨η₂|θ|²⟩ = 6c(a + b).
+#[cfg_attr(
+    not(test),
+    expect(dead_code, reason = "a closed-form reference of unit tests")
+)]
 pub fn gaussian_integrals(flux: f64, cov: &Mat2, sigma_w: f64) -> KsbIntegrals {
     let det = cov[0][0] * cov[1][1] - cov[0][1] * cov[1][0];
     let inv = [
@@ -603,7 +615,7 @@ pub fn gaussian_integrals(flux: f64, cov: &Mat2, sigma_w: f64) -> KsbIntegrals {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{covariance, draw_gaussian_sampled, shear_covariance};
+    use crate::scene::{covariance, draw_gaussian_sampled, shear_covariance};
 
     /// A `w` × `h` image of uniform values in [−20, 80).
     fn uniform_image(rng: &mut SimRng, w: usize, h: usize) -> Image {

@@ -20,7 +20,7 @@ pub enum PgammaMode {
 pub enum Method {
     /// KSB+ (paper appendix A; docs/ksb.md).
     Ksb,
-    /// Metacalibration ([`crate::metacal`]): the response measured by
+    /// Metacalibration (`metacal.rs`): the response measured by
     /// shearing each galaxy's deconvolved image, selection included.
     Metacal,
 }
@@ -79,7 +79,7 @@ pub struct KsbParams {
     /// (0.04). Stars scatter in size by noise only: ≈ 0.01 at ν ≈ 100,
     /// ≈ 0.02 at ν ≈ 20 on the STEP images; a flat clump of galaxies or the
     /// lower edge of their size distribution widens past it when the
-    /// locus is refined ([`crate::stars::refine_locus`]).
+    /// locus is refined (`refine_locus`, `stars.rs`).
     pub locus_max_width: f64,
     /// Smallest robust width of the locus used while refining it (0.002;
     /// keeps noise-free stars of identical sizes from collapsing the window).

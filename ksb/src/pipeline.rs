@@ -38,7 +38,7 @@ pub struct MeasuredObject {
     pub e2: f64,
     /// Weight 1 / (σ_int² + σ_γ²); 0 exactly when `flags != 0`.
     pub weight: f64,
-    /// Why the weight is zero ([`crate::flags`]).
+    /// Why the weight is zero (`flags.rs`).
     pub flags: u32,
     /// Weight scale r_g (pixels).
     pub rg_px: f64,
@@ -49,9 +49,9 @@ pub struct MeasuredObject {
     /// ½Tr P^γ used (NaN without a PSF model).
     pub pgamma: f64,
     /// With metacalibration: the five versions' measurements and whether
-    /// each version passes the cuts ([`crate::metacal`]); `e1`, `e2` and
+    /// each version passes the cuts (`metacal.rs`); `e1`, `e2` and
     /// `weight` are set from the dataset's response by
-    /// [`crate::metacal::apply_response`].
+    /// `apply_response` (`metacal.rs`).
     pub metacal: Option<(crate::metacal::McMeasure, [bool; 5])>,
 }
 
@@ -516,7 +516,7 @@ fn set_shear(o: &mut MeasuredObject, g: [f64; 2], max_shear: f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{
+    use crate::scene::{
         SceneSpec, add_sky_and_noise, covariance, draw_gaussian_sampled, synthetic_scene,
     };
     use stepsim_contract::seed::{SeedKey, Stream};
@@ -575,7 +575,7 @@ mod tests {
         }
         for k in 0..30 {
             let (x, y) = (45.0 + 44.0 * (k % 6) as f64, 90.0 + 60.0 * (k / 6) as f64);
-            let gal = crate::draw::convolve(&covariance(2.0 + 0.1 * k as f64, [0.2, -0.1]), &psf);
+            let gal = crate::scene::convolve(&covariance(2.0 + 0.1 * k as f64, [0.2, -0.1]), &psf);
             draw_gaussian_sampled(&mut img, x, y, 2e5, &gal);
         }
         let m = measure_image(&img, &info(), &KsbParams::default()).unwrap();

@@ -178,8 +178,8 @@ impl PsfModel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{covariance, draw_gaussian_sampled};
     use crate::moments::gaussian_integrals;
+    use crate::scene::{covariance, draw_gaussian_sampled};
 
     #[test]
     fn uniform_gaussian_psf_model_matches_the_analytic_star() {

@@ -88,7 +88,7 @@ pub fn part_path(out: &Path, k: u32, n: u32) -> std::path::PathBuf {
     std::path::PathBuf::from(dir).join(format!("{k}-of-{n}.txt"))
 }
 
-/// Measures the datasets of shard `k` of `n` ([`shard_datasets`]) and
+/// Measures the datasets of shard `k` of `n` (`shard_datasets`) and
 /// writes them to [`part_path`]`(out, k, n)`, a submission of those images
 /// only; the first line after the header records the manifest's SHA-256
 /// (`# manifest-sha256 <hex>`), so that [`join_parts`] refuses parts of
@@ -475,9 +475,9 @@ fn measure_group(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{SceneSpec, synthetic_scene, write_public_run};
     use crate::image::Image;
     use crate::pipeline::measure_image;
+    use crate::scene::{SceneSpec, synthetic_scene, write_public_run};
 
     fn spec(n_stars: usize, seed: u64) -> SceneSpec {
         SceneSpec {

@@ -220,7 +220,7 @@ fn split_footprint(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{covariance, draw_gaussian_sampled};
+    use crate::scene::{covariance, draw_gaussian_sampled};
 
     #[test]
     fn two_close_peaks_are_split_and_one_elongated_source_is_not() {

@@ -122,10 +122,10 @@ impl PgammaFit {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::{convolve, covariance, draw_gaussian_integrated, shear_covariance};
     use crate::image::Image;
     use crate::linalg::inverse;
     use crate::moments::ksb_integrals;
+    use crate::scene::{convolve, covariance, draw_gaussian_integrated, shear_covariance};
 
     /// Draws one pixel-integrated, noise-free Gaussian at (32.3, 31.8) of a
     /// 64² stamp and measures its KSB shape at its windowed r_g.

@@ -227,7 +227,7 @@ pub fn refine_locus(ln: &[f64], mode: f64, params: &KsbParams) -> Option<(f64, f
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::uniform;
+    use crate::scene::uniform;
     use rand::RngExt;
     use stepsim_contract::seed::{SeedKey, Stream};
 

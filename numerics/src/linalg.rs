@@ -84,7 +84,7 @@ pub fn solve_spd_with_inverse(a: &[f64], b: &[f64]) -> Option<(Vec<f64>, Vec<f64
 
 /// Determinant by cofactor expansion along the first row (O(n!): the slow
 /// twin's building block, for small n).
-pub fn determinant_by_cofactors(a: &[f64], n: usize) -> f64 {
+fn determinant_by_cofactors(a: &[f64], n: usize) -> f64 {
     if n == 0 {
         return 1.0;
     }

@@ -29,6 +29,9 @@
 //! `worker` and `observe` sit beside the handlers: they use the challenge
 //! and the store, never `http`, and know no HTTP.
 //!
+//! The modules are private: what the binary and the tests call is
+//! re-exported here, each item under one name.
+//!
 //! A challenge lives in one directory (`--state DIR`): `challenge.db` (or
 //! `store.url`, naming a PostgreSQL database), `uploads/<sha256>`
 //! (immutable submission files) and `entries/<id>/{public,holdout}/` (the
@@ -36,13 +39,39 @@
 //! network file system) and the database.
 #![deny(missing_docs)]
 
-pub mod challenge;
-pub mod http;
-pub mod observe;
-pub mod store;
-pub mod worker;
+mod challenge;
+mod http;
+mod observe;
+mod store;
+mod worker;
 
-pub use challenge::{Challenge, ChallengeError, Settings};
+// The challenge and its rules.
+pub use challenge::leaderboard::{q_c_interval, rows as leaderboard_rows};
+pub use challenge::{
+    Challenge, ChallengeError, DEFAULT_QUOTA, Export, ORGANISER_PASSWORD_KEY, Phase,
+    SCORER_VERSION, Settings, verify_organiser_password,
+};
+
+// The store.
+pub use store::{Lease, MIGRATIONS, Role, STORE_FILE, SqliteStore, Store, StoreUrl};
+
+// The scoring queue and what the organisers see.
+pub use observe::{LogFormat, init_logging};
+pub use worker::{
+    DEFAULT_LEASE_S, DEFAULT_TIMEOUT, WorkerOptions, WorkerPool, run_worker, score_entry,
+};
+
+// HTTP: the handlers, the connection layer and its limits, the pages.
+pub use http::auth::bearer_token;
+pub use http::limits::{
+    DEFAULT_BODY_GRACE, DEFAULT_BODY_MIN_BYTES_PER_S, DEFAULT_BODY_STALL_TIMEOUT,
+    DEFAULT_CHECK_BUDGET, DEFAULT_HEADER_TIMEOUT, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_MAX_CONNECTIONS_PER_ADDR, DEFAULT_UPLOADS_AT_ONCE, DEFAULT_UPLOADS_PER_TEAM, Limits,
+    default_checks_at_once,
+};
+pub use http::net::serve_with_limits;
+pub use http::pages::{PAGE_CSP, SESSION_COOKIE, escape as escape_html};
+pub use http::{AppState, router, serve_blocking};
 
 /// Runs `f` to its end on a runtime of its own (for the command line's
 /// organiser commands, which call the async store).
@@ -53,8 +82,6 @@ pub fn block_on<F: std::future::Future>(f: F) -> Result<F::Output, ChallengeErro
         .map_err(|e| ChallengeError::Run(format!("cannot start a runtime: {e}")))?;
     Ok(rt.block_on(f))
 }
-
-pub use stepsim_contract::digest::hex;
 
 /// Seconds since the Unix epoch, now.
 pub fn now_s() -> i64 {

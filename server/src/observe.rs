@@ -56,7 +56,7 @@ pub struct Metrics {
     scorings: Mutex<BTreeMap<&'static str, (u64, f64)>>,
 }
 
-pub use crate::store::QueueCounts;
+use crate::store::QueueCounts;
 
 fn bump<K: Ord>(m: &Mutex<BTreeMap<K, u64>>, k: K) {
     *m.lock()

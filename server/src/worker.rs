@@ -13,7 +13,7 @@ use std::time::Duration;
 use stepsim_contract::run_layout::Part;
 use stepsim_harness::{PublicFeedback, ScoreOptions, prepare, score_prepared_part, write_outputs};
 
-pub use crate::challenge::SCORER_VERSION;
+use crate::challenge::SCORER_VERSION;
 
 /// Default limit on one scoring job.
 pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(600);
@@ -179,7 +179,7 @@ async fn nap(d: Duration, stop: &AtomicBool) -> bool {
 }
 
 /// Runs one worker on the challenge in `dir` until `stop` is set (on a
-/// runtime of its own): see [`work`].
+/// runtime of its own): see `work`.
 pub fn run_worker(
     dir: &Path,
     stop: Arc<AtomicBool>,
@@ -391,7 +391,7 @@ pub async fn work(
     }
 }
 
-/// The scoring workers of a process: tasks running [`work`] on a thread
+/// The scoring workers of a process: tasks running `work` on a thread
 /// and runtime of their own, and how many of them are alive (an upload is
 /// refused with 503 when none is: an accepted upload must be scored).
 #[derive(Debug)]

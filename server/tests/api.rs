@@ -11,8 +11,8 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use stepsim_contract::run_layout::Part;
 use stepsim_harness::{PublicFeedback, ScoreOptions, score_part};
-use stepsim_server::http::{AppState, router};
-use stepsim_server::{Challenge, worker};
+use stepsim_server::Challenge;
+use stepsim_server::{AppState, router};
 use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
@@ -390,7 +390,9 @@ async fn an_entry_is_scored_as_stepsim_score_scores_its_part() {
     // A worker scores it.
     let stop = Arc::new(AtomicBool::new(false));
     let (dir, stop2) = (f.state.clone(), stop.clone());
-    let w = std::thread::spawn(move || worker::run_worker(&dir, stop2, worker::DEFAULT_TIMEOUT));
+    let w = std::thread::spawn(move || {
+        stepsim_server::run_worker(&dir, stop2, stepsim_server::DEFAULT_TIMEOUT)
+    });
     let mut entry = Value::Null;
     for _ in 0..600 {
         let (_, _, e) = call(
@@ -837,14 +839,14 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
     }
     f.score_queue().await;
     let ch = Challenge::open(&f.state).await.unwrap();
-    ch.set_role("org", stepsim_server::store::Role::Organisers)
+    ch.set_role("org", stepsim_server::Role::Organisers)
         .await
         .unwrap();
-    ch.set_role("ksb", stepsim_server::store::Role::Baseline)
+    ch.set_role("ksb", stepsim_server::Role::Baseline)
         .await
         .unwrap();
     assert!(
-        ch.set_role("nobody", stepsim_server::store::Role::Baseline)
+        ch.set_role("nobody", stepsim_server::Role::Baseline)
             .await
             .is_err()
     );
@@ -913,7 +915,7 @@ async fn organisers_and_the_baseline_are_shown_tagged_and_never_ranked() {
         ]
     );
     // Marked back as participants, they are ranked.
-    ch.set_role("org", stepsim_server::store::Role::Participant)
+    ch.set_role("org", stepsim_server::Role::Participant)
         .await
         .unwrap();
     let (_, _, lb) = call(&app, get("/api/leaderboard", None)).await;
@@ -1024,15 +1026,11 @@ async fn the_organiser_password_is_kept_as_an_argon2_hash() {
     assert!(!ch.verify_organiser_password("").await);
     let ch = Challenge::open(&f.state).await.unwrap();
     assert!(
-        stepsim_server::challenge::verify_organiser_password(
-            ch.store.as_ref(),
-            "correct horse battery"
-        )
-        .await
+        stepsim_server::verify_organiser_password(ch.store.as_ref(), "correct horse battery").await
     );
     let phc = ch
         .store
-        .meta(stepsim_server::challenge::ORGANISER_PASSWORD_KEY)
+        .meta(stepsim_server::ORGANISER_PASSWORD_KEY)
         .await
         .unwrap()
         .unwrap();
@@ -1042,10 +1040,7 @@ async fn the_organiser_password_is_kept_as_an_argon2_hash() {
     // A damaged hash is a wrong password, not a panic.
     let ch = ch;
     ch.store
-        .set_meta(
-            stepsim_server::challenge::ORGANISER_PASSWORD_KEY,
-            "$argon2id$garbage",
-        )
+        .set_meta(stepsim_server::ORGANISER_PASSWORD_KEY, "$argon2id$garbage")
         .await
         .unwrap();
     assert!(!ch.verify_organiser_password("correct horse battery").await);
@@ -1065,7 +1060,7 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
             .await
             .unwrap()
             .unwrap();
-        let mut r = worker::score_entry(&ch, &job);
+        let mut r = stepsim_server::score_entry(&ch, &job);
         if let Ok((p, _)) = &mut r {
             *p = p.replace("\"m_mean\":0.01", "\"m_mean\":0.5");
         }
@@ -1108,7 +1103,13 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
     // The dead worker's late result is ignored; a second rescore by the same
     // scorer queues nothing.
     ch.store
-        .finish_job(id, "test", Err("late".into()), worker::SCORER_VERSION, 30)
+        .finish_job(
+            id,
+            "test",
+            Err("late".into()),
+            stepsim_server::SCORER_VERSION,
+            30,
+        )
         .await
         .unwrap();
     assert_eq!(ch.rescore().await.unwrap(), 0);
@@ -1120,7 +1121,7 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
     assert_eq!(
         got,
         vec![
-            (worker::SCORER_VERSION, "scored", 1),
+            (stepsim_server::SCORER_VERSION, "scored", 1),
             ("stepsim-harness 0.0.1", "scored", 1)
         ]
     );
@@ -1139,7 +1140,7 @@ async fn a_rescore_keeps_old_scores_and_scores_each_entry_once_per_scorer_versio
     )
     .await;
     let e = json(&e);
-    assert_eq!(e["scorer_version"], worker::SCORER_VERSION);
+    assert_eq!(e["scorer_version"], stepsim_server::SCORER_VERSION);
     assert_eq!(e["public"]["m_mean"], 0.01, "the newest score is shown");
 }
 
@@ -1159,7 +1160,7 @@ async fn write_public(f: &Fixture) -> (PathBuf, Vec<(String, Vec<u8>)>) {
             std::fs::write(public.join(&file), &bytes).unwrap();
             images.push(serde_json::json!({
                 "image": im.image, "dataset": d.dataset, "file": file,
-                "sha256": stepsim_server::challenge::hex(&sha2::Sha256::digest(&bytes)),
+                "sha256": stepsim_contract::digest::hex(&sha2::Sha256::digest(&bytes)),
             }));
             files.push((file, bytes));
         }
@@ -1210,7 +1211,7 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
             (
                 p.clone(),
                 b.len() as u64,
-                stepsim_server::challenge::hex(&sha2::Sha256::digest(b)),
+                stepsim_contract::digest::hex(&sha2::Sha256::digest(b)),
             )
         })
         .collect();
@@ -1227,7 +1228,7 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
             "{path}"
         );
         if path.ends_with(".fits") {
-            let sha = stepsim_server::challenge::hex(&sha2::Sha256::digest(bytes));
+            let sha = stepsim_contract::digest::hex(&sha2::Sha256::digest(bytes));
             assert_eq!(resp.headers()[header::ETAG], format!("\"{sha}\""));
         }
         let got = resp.into_body().collect().await.unwrap().to_bytes();
@@ -1278,7 +1279,7 @@ async fn the_public_data_downloads_as_listed_and_nothing_else() {
 
 #[tokio::test]
 async fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
-    use stepsim_server::store::{MIGRATIONS, SqliteStore, Store};
+    use stepsim_server::{MIGRATIONS, SqliteStore, Store};
     let tmp = tempfile::tempdir().unwrap();
     let db = tmp.path().join("challenge.db");
     {
@@ -1297,7 +1298,7 @@ async fn a_database_of_the_first_schema_is_migrated_with_its_scores_kept() {
     }
     let store = SqliteStore::open(&db, false).await.unwrap();
     let team = store.team_by_name("a").await.unwrap().unwrap();
-    assert_eq!(team.role, stepsim_server::store::Role::Participant);
+    assert_eq!(team.role, stepsim_server::Role::Participant);
     let scores = store.scores_of(1).await.unwrap();
     assert_eq!(scores.len(), 1);
     assert_eq!(
@@ -1318,7 +1319,7 @@ async fn parallel_uploads_of_one_team_cannot_pass_the_quota_together() {
     // the quota's check in the store.
     let app = router(AppState::with_limits(
         Challenge::open(&f.state).await.unwrap(),
-        stepsim_server::http::limits::Limits {
+        stepsim_server::Limits {
             uploads_per_team: 6,
             uploads_at_once: 6,
             ..Default::default()

@@ -20,8 +20,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
-use stepsim_server::http::{AppState, router};
-use stepsim_server::{Challenge, worker};
+use stepsim_server::Challenge;
+use stepsim_server::{AppState, router};
 use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
@@ -174,7 +174,7 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
         other_tokens.push(ch.add_team(o.0).await.unwrap());
     }
     // The reference pipeline's row: shown, tagged, never ranked.
-    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+    ch.set_role("KSB+ reference", stepsim_server::Role::Baseline)
         .await
         .unwrap();
     ch.set_name("STEP1-mini challenge").await.unwrap();
@@ -195,7 +195,7 @@ async fn a_team_uses_the_pages_in_a_real_browser() {
     let stop = Arc::new(AtomicBool::new(false));
     let (dir, stop2) = (state.clone(), stop.clone());
     let worker = std::thread::spawn(move || {
-        worker::run_worker(&dir, stop2, worker::DEFAULT_TIMEOUT).unwrap();
+        stepsim_server::run_worker(&dir, stop2, stepsim_server::DEFAULT_TIMEOUT).unwrap();
     });
     // The other teams upload through the API.
     let api = router(AppState::new(Challenge::open(&state).await.unwrap()));

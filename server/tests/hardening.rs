@@ -13,11 +13,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
-use stepsim_server::challenge::leaderboard;
-use stepsim_server::http::limits::Limits;
-use stepsim_server::http::{AppState, router};
-use stepsim_server::worker::WorkerPool;
-use stepsim_server::{Challenge, worker};
+use stepsim_server::{AppState, Challenge, Limits, WorkerPool, router};
 use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
@@ -72,9 +68,7 @@ impl Fixture {
         let app = self.app(limits.clone(), None).await;
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
-        tokio::spawn(stepsim_server::http::net::serve_with_limits(
-            listener, app, limits,
-        ));
+        tokio::spawn(stepsim_server::serve_with_limits(listener, app, limits));
         addr
     }
 }
@@ -102,13 +96,13 @@ fn json(s: &str) -> Value {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() {
     let f = fixture(4, &["a"]).await;
-    let pool = WorkerPool::start(&f.state, 1, worker::DEFAULT_TIMEOUT);
+    let pool = WorkerPool::start(&f.state, 1, stepsim_server::DEFAULT_TIMEOUT);
     let live = pool.live();
     // An organiser's sqlite3 holds an exclusive lock for 15 s (the store
     // waits 10 s for a lock, then fails).
     // On PostgreSQL an organiser's psql holds every table locked for 15 s.
     let db = f.state.join("challenge.db");
-    let pg = std::fs::read_to_string(f.state.join(stepsim_server::store::STORE_FILE)).ok();
+    let pg = std::fs::read_to_string(f.state.join(stepsim_server::STORE_FILE)).ok();
     let locker = std::thread::spawn(move || match pg {
         None => {
             let c = rusqlite::Connection::open(&db).unwrap();
@@ -164,7 +158,7 @@ async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() 
 #[tokio::test]
 async fn uploads_are_refused_with_503_when_no_worker_runs() {
     let f = fixture(4, &["a"]).await;
-    let pool = WorkerPool::start(&f.state, 2, worker::DEFAULT_TIMEOUT);
+    let pool = WorkerPool::start(&f.state, 2, stepsim_server::DEFAULT_TIMEOUT);
     let live = pool.live();
     assert_eq!(live.load(Ordering::SeqCst), 2);
     pool.stop();
@@ -522,7 +516,7 @@ async fn bearer_tokens_are_parsed_strictly_and_rate_limited_by_the_token() {
             .unwrap()
     };
     assert_eq!(
-        stepsim_server::http::auth::bearer_token(b"Bearer abc-._~+/9=="),
+        stepsim_server::bearer_token(b"Bearer abc-._~+/9=="),
         Some("abc-._~+/9==")
     );
     for bad in [
@@ -732,12 +726,12 @@ async fn the_final_board_marks_rows_whose_held_out_intervals_overlap() {
         let ch = Challenge::open(&f.state).await.unwrap();
         let teams = ch.store.teams().await.unwrap();
         let subs = ch.store.all_submissions().await.unwrap();
-        leaderboard::rows(&teams, &subs, revealed)
+        stepsim_server::leaderboard_rows(&teams, &subs, revealed)
             .iter()
             .map(|r| {
                 (
                     r.team.name.clone(),
-                    leaderboard::q_c_interval(r),
+                    stepsim_server::q_c_interval(r),
                     r.revealed.as_ref().map(|v| v.tied_above),
                 )
             })

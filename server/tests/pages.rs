@@ -9,8 +9,7 @@ use http_body_util::BodyExt;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use stepsim_server::Challenge;
-use stepsim_server::http::pages as web;
-use stepsim_server::http::{AppState, router};
+use stepsim_server::{AppState, router};
 use stepsim_testkit::synthetic::SynthRun;
 use tower::ServiceExt;
 
@@ -246,8 +245,14 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
         r.body
             .contains("<strong>4</strong> scored uploads per team")
     );
-    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
-    assert!(!web::PAGE_CSP.contains("script-src") && web::PAGE_CSP.contains("default-src 'none'"));
+    assert_eq!(
+        r.headers[header::CONTENT_SECURITY_POLICY],
+        stepsim_server::PAGE_CSP
+    );
+    assert!(
+        !stepsim_server::PAGE_CSP.contains("script-src")
+            && stepsim_server::PAGE_CSP.contains("default-src 'none'")
+    );
     assert_eq!(r.headers[header::X_FRAME_OPTIONS], "DENY");
     assert_eq!(r.headers[header::X_CONTENT_TYPE_OPTIONS], "nosniff");
     assert_eq!(r.headers[header::REFERRER_POLICY], "same-origin");
@@ -272,7 +277,7 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
     let r = a.sign_in("stp_0000").await;
     assert_eq!(r.status, StatusCode::UNAUTHORIZED);
     assert!(r.body.contains("this token is not valid"));
-    assert!(!a.cookies.contains_key(web::SESSION_COOKIE));
+    assert!(!a.cookies.contains_key(stepsim_server::SESSION_COOKIE));
     // The right one: a session cookie, HttpOnly, SameSite=Strict, Path=/.
     let r = a.sign_in(&f.tokens[0]).await;
     assert_eq!(
@@ -292,7 +297,7 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
     for attr in ["HttpOnly", "SameSite=Strict", "Path=/;"] {
         assert!(session.contains(attr), "{session}");
     }
-    let id = a.cookies[web::SESSION_COOKIE].clone();
+    let id = a.cookies[stepsim_server::SESSION_COOKIE].clone();
     assert_eq!(id.len(), 64, "256 random bits");
     let r = a.get("/entries").await;
     assert_eq!(r.status, StatusCode::OK);
@@ -315,7 +320,8 @@ async fn pages_need_a_session_and_signing_in_sets_a_strict_cookie() {
         .await
         .unwrap();
     assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
-    a.cookies.insert(web::SESSION_COOKIE.into(), id.clone());
+    a.cookies
+        .insert(stepsim_server::SESSION_COOKIE.into(), id.clone());
     assert_eq!(a.get("/entries").await.status, StatusCode::SEE_OTHER);
 }
 
@@ -350,7 +356,7 @@ async fn forms_without_the_right_token_or_from_another_origin_are_refused() {
         .post_form("/signin", &[("csrf", &good), ("token", &f.tokens[0])])
         .await;
     assert_eq!(r.status, StatusCode::FORBIDDEN);
-    assert!(!a.cookies.contains_key(web::SESSION_COOKIE));
+    assert!(!a.cookies.contains_key(stepsim_server::SESSION_COOKIE));
     a.origin = Some(ORIGIN.into());
     a.sign_in(&f.tokens[0]).await;
     let csrf = a.get("/entries").await.csrf();
@@ -423,7 +429,7 @@ async fn the_upload_form_shows_the_harness_message_with_its_line_and_queues_good
     let message = api["error"].as_str().unwrap();
     assert!(message.contains("line 4"), "{message}");
     assert!(
-        r.body.contains(&web::escape(message)),
+        r.body.contains(&stepsim_server::escape_html(message)),
         "{message} not in {}",
         r.body
     );
@@ -807,7 +813,7 @@ async fn the_challenge_page_shows_the_deadline_and_uploads_stop_after_it() {
 async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
     let f = fixture(&[HOSTILE, "KSB+ reference"]).await;
     let ch = Challenge::open(&f.state).await.unwrap();
-    ch.set_role("KSB+ reference", stepsim_server::store::Role::Baseline)
+    ch.set_role("KSB+ reference", stepsim_server::Role::Baseline)
         .await
         .unwrap();
     ch.set_organiser_password("correct horse").await.unwrap();
@@ -888,7 +894,7 @@ async fn roles_are_tagged_and_the_organisers_page_needs_the_password() {
 async fn the_organisers_see_refused_uploads_the_queue_and_the_metrics() {
     let f = fixture(&["alpha", "Organisers"]).await;
     let ch = Challenge::open(&f.state).await.unwrap();
-    ch.set_role("Organisers", stepsim_server::store::Role::Organisers)
+    ch.set_role("Organisers", stepsim_server::Role::Organisers)
         .await
         .unwrap();
     ch.set_organiser_password("correct horse").await.unwrap();
@@ -1041,10 +1047,13 @@ async fn the_data_page_lists_the_files_and_the_archive_extracts_and_verifies() {
         "{:?}",
         r.headers
     );
-    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
+    assert_eq!(
+        r.headers[header::CONTENT_SECURITY_POLICY],
+        stepsim_server::PAGE_CSP
+    );
     for (path, bytes) in &files {
         use sha2::Digest;
-        let sha = stepsim_server::challenge::hex(&sha2::Sha256::digest(bytes));
+        let sha = stepsim_contract::digest::hex(&sha2::Sha256::digest(bytes));
         assert!(
             r.body.contains(&format!("href=\"/data/{}\"", esc(path))),
             "{path}"
@@ -1277,7 +1286,10 @@ async fn unknown_routes_answer_a_page_to_browsers_and_json_to_api_clients() {
         "{}",
         r.body
     );
-    assert_eq!(r.headers[header::CONTENT_SECURITY_POLICY], web::PAGE_CSP);
+    assert_eq!(
+        r.headers[header::CONTENT_SECURITY_POLICY],
+        stepsim_server::PAGE_CSP
+    );
     assert!(r.body.contains("href=\"/static/style.css\""));
     assert!(r.body.contains("<h1>Not found</h1>"), "{}", r.body);
     assert!(

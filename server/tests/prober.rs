@@ -17,8 +17,8 @@ use axum::http::{Request, header};
 use http_body_util::BodyExt;
 use serde_json::Value;
 use std::path::Path;
-use stepsim_server::http::{AppState, router};
-use stepsim_server::{Challenge, worker};
+use stepsim_server::Challenge;
+use stepsim_server::{AppState, router};
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, challenge_run, submission_text};
 use tower::ServiceExt;
 
@@ -156,9 +156,9 @@ async fn play(dir: &Path, draw: &[(f64, f64)], catalogues: &[Vec<u8>]) -> (Strin
     // Score the queue as a worker does.
     let ch = Challenge::open(&dir.join("state")).await.unwrap();
     while let Some(job) = ch.store.claim_job(&common::lease(), 0).await.unwrap() {
-        let r = worker::score_entry(&ch, &job);
+        let r = stepsim_server::score_entry(&ch, &job);
         ch.store
-            .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+            .finish_job(job.id, "test", r, stepsim_server::SCORER_VERSION, 0)
             .await
             .unwrap();
     }

@@ -3,7 +3,6 @@
 
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
-use stepsim_sim::config::RawConfig;
 use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
 use stepsim_sim::plan::{Plan, SeedOrigin};
 use stepsim_sim::stats::median;
@@ -54,7 +53,8 @@ fn bench_plan(config: Option<&Path>, overrides: &[String]) -> anyhow::Result<Pla
         Some(path) => Plan::load(path, overrides)?,
         None => {
             let source = Path::new("<built-in STEP1 preset>");
-            Plan::new(RawConfig::parse("{}", source, overrides)?, source)?
+            let overrides: Vec<&str> = overrides.iter().map(String::as_str).collect();
+            Plan::from_json("{}", source, &overrides)?
         }
     };
     Ok(match plan.seed_origin() {

@@ -2,8 +2,7 @@
 //! directory (docs/server.md). They work while `stepsim serve` runs.
 
 use std::path::PathBuf;
-use stepsim_server::Challenge;
-use stepsim_server::store::{Role, StoreUrl};
+use stepsim_server::{Challenge, Role, StoreUrl};
 
 /// Reads an RFC 3339 time for `--deadline`/`--at`.
 fn rfc3339(text: &str) -> Result<i64, String> {
@@ -41,7 +40,7 @@ enum Command {
         #[arg(long, value_name = "DIR")]
         state: PathBuf,
         /// Scored submissions per team per rolling 24 hours.
-        #[arg(long, value_name = "N", default_value_t = stepsim_server::challenge::DEFAULT_QUOTA)]
+        #[arg(long, value_name = "N", default_value_t = stepsim_server::DEFAULT_QUOTA)]
         quota: u32,
         /// Serve a run without held-out fields (its public score is final).
         #[arg(long)]
@@ -267,7 +266,7 @@ async fn run_async(args: &Args) -> anyhow::Result<()> {
             let n = open(state).await?.rescore().await?;
             eprintln!(
                 "stepsim: {n} scored entries queued again for {}",
-                stepsim_server::worker::SCORER_VERSION
+                stepsim_server::SCORER_VERSION
             );
         }
         Command::OrganiserPassword { state } => {

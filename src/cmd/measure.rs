@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 use stepsim_contract::run_dir::PublicDir;
-use stepsim_ksb::params::{KsbParams, Method, PgammaMode};
+use stepsim_ksb::{KsbParams, Method, PgammaMode};
 
 /// How P^γ is applied.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -76,8 +76,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let threads = super::threads(args.threads);
     if args.finish {
-        let n = stepsim_ksb::run::parts_count(&args.out)?;
-        let (parts, images) = stepsim_ksb::run::join_parts(&args.run, &args.out, n)?;
+        let n = stepsim_ksb::parts_count(&args.out)?;
+        let (parts, images) = stepsim_ksb::join_parts(&args.run, &args.out, n)?;
         eprintln!(
             "stepsim: joined {parts} measure shards ({images} images) into {}",
             args.out.display()
@@ -85,7 +85,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         return Ok(());
     }
     // An unreadable manifest is reported by the pipeline itself.
-    if let Ok(m) = stepsim_ksb::io::read_manifest(&PublicDir::new(&args.run).manifest()) {
+    if let Ok(m) = stepsim_ksb::read_manifest(&PublicDir::new(&args.run).manifest()) {
         super::check_memory(
             "measure",
             stepsim_sim::memory::measure_estimate(
@@ -108,13 +108,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let (summary, written) = match args.shard {
         Some(sh) if sh.n > 1 => (
-            stepsim_ksb::run::measure_shard(
+            stepsim_ksb::measure_shard(
                 &args.run, &args.out, sh.k, sh.n, threads, &params, &progress,
             )?,
-            stepsim_ksb::run::part_path(&args.out, sh.k, sh.n),
+            stepsim_ksb::part_path(&args.out, sh.k, sh.n),
         ),
         _ => (
-            stepsim_ksb::run::measure_run(&args.run, &args.out, threads, &params, &progress)?,
+            stepsim_ksb::measure_run(&args.run, &args.out, threads, &params, &progress)?,
             args.out.clone(),
         ),
     };

@@ -2,8 +2,12 @@
 
 use std::path::PathBuf;
 use std::time::Duration;
-use stepsim_server::http::limits as l;
-use stepsim_server::store::StoreUrl;
+use stepsim_server::{
+    DEFAULT_BODY_GRACE, DEFAULT_BODY_MIN_BYTES_PER_S, DEFAULT_BODY_STALL_TIMEOUT,
+    DEFAULT_CHECK_BUDGET, DEFAULT_HEADER_TIMEOUT, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_MAX_CONNECTIONS_PER_ADDR, DEFAULT_UPLOADS_AT_ONCE, DEFAULT_UPLOADS_PER_TEAM, Limits,
+    StoreUrl, default_checks_at_once,
+};
 
 /// What `serve` and `worker` share: the store, and how a job is run.
 #[derive(Debug, clap::Args)]
@@ -17,7 +21,7 @@ pub struct WorkerArgs {
     timeout_s: u64,
     /// A job's lease: a worker renews it every third of this while it
     /// scores; a job whose worker died is taken again once it runs out.
-    #[arg(long, value_name = "S", default_value_t = stepsim_server::worker::DEFAULT_LEASE_S,
+    #[arg(long, value_name = "S", default_value_t = stepsim_server::DEFAULT_LEASE_S,
           value_parser = clap::value_parser!(i64).range(3..=86_400))]
     lease_s: i64,
 }
@@ -26,14 +30,14 @@ impl WorkerArgs {
     /// The worker's options; refuses a `--store` that is not a store
     /// address (read here, not by clap, whose refusal would repeat the
     /// value and a password in it).
-    pub fn options(&self) -> anyhow::Result<stepsim_server::worker::WorkerOptions> {
+    pub fn options(&self) -> anyhow::Result<stepsim_server::WorkerOptions> {
         let store = self
             .store
             .as_deref()
             .map(StoreUrl::parse)
             .transpose()
             .map_err(|e| anyhow::anyhow!(e))?;
-        Ok(stepsim_server::worker::WorkerOptions {
+        Ok(stepsim_server::WorkerOptions {
             timeout: Duration::from_secs(self.timeout_s),
             lease_s: self.lease_s,
             store,
@@ -57,37 +61,37 @@ pub struct Args {
     #[command(flatten)]
     worker: WorkerArgs,
     /// Close a connection whose request headers take longer (from their first byte).
-    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_HEADER_TIMEOUT.as_secs())]
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_HEADER_TIMEOUT.as_secs())]
     header_timeout_s: u64,
     /// Close a connection with no request in flight and no traffic for this long.
-    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_IDLE_TIMEOUT.as_secs())]
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_IDLE_TIMEOUT.as_secs())]
     idle_timeout_s: u64,
     /// Cut off a request body that sends nothing for this long (408).
-    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_BODY_STALL_TIMEOUT.as_secs())]
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_BODY_STALL_TIMEOUT.as_secs())]
     body_stall_s: u64,
     /// Cut off a request body slower than this on average after the first body-grace seconds.
-    #[arg(long, value_name = "BYTES", default_value_t = l::DEFAULT_BODY_MIN_BYTES_PER_S)]
+    #[arg(long, value_name = "BYTES", default_value_t = DEFAULT_BODY_MIN_BYTES_PER_S)]
     body_min_bytes_per_s: u64,
     /// See --body-min-bytes-per-s.
-    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_BODY_GRACE.as_secs())]
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_BODY_GRACE.as_secs())]
     body_grace_s: u64,
     /// Connections open at once, all clients.
-    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_MAX_CONNECTIONS)]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_CONNECTIONS)]
     max_connections: usize,
     /// Connections open at once from one client address (raise it behind a proxy).
-    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_MAX_CONNECTIONS_PER_ADDR)]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_CONNECTIONS_PER_ADDR)]
     max_connections_per_addr: usize,
     /// Uploads of one team received or checked at once.
-    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_UPLOADS_PER_TEAM)]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_UPLOADS_PER_TEAM)]
     uploads_per_team: usize,
     /// Uploads received or checked at once, all teams.
-    #[arg(long, value_name = "N", default_value_t = l::DEFAULT_UPLOADS_AT_ONCE)]
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_UPLOADS_AT_ONCE)]
     uploads_at_once: usize,
     /// Format checks at once (default: one per core).
     #[arg(long, value_name = "N")]
     checks_at_once: Option<usize>,
     /// Wall-clock budget of one format check, its wait for a turn included.
-    #[arg(long, value_name = "S", default_value_t = l::DEFAULT_CHECK_BUDGET.as_secs())]
+    #[arg(long, value_name = "S", default_value_t = DEFAULT_CHECK_BUDGET.as_secs())]
     check_budget_s: u64,
     /// The log on standard error: `plain` (a line of text an event) or
     /// `json` (a JSON object a line).
@@ -101,10 +105,10 @@ pub struct Args {
 
 /// Serves until the process ends.
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    stepsim_server::observe::init_logging(
-        stepsim_server::observe::LogFormat::from_name(&args.log_format).unwrap_or_default(),
+    stepsim_server::init_logging(
+        stepsim_server::LogFormat::from_name(&args.log_format).unwrap_or_default(),
     );
-    let limits = l::Limits {
+    let limits = Limits {
         header_timeout: Duration::from_secs(args.header_timeout_s),
         idle_timeout: Duration::from_secs(args.idle_timeout_s),
         body_stall_timeout: Duration::from_secs(args.body_stall_s),
@@ -114,12 +118,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         max_connections_per_addr: args.max_connections_per_addr,
         uploads_per_team: args.uploads_per_team,
         uploads_at_once: args.uploads_at_once,
-        checks_at_once: args
-            .checks_at_once
-            .unwrap_or_else(l::default_checks_at_once),
+        checks_at_once: args.checks_at_once.unwrap_or_else(default_checks_at_once),
         check_budget: Duration::from_secs(args.check_budget_s),
     };
-    stepsim_server::http::serve_blocking(
+    stepsim_server::serve_blocking(
         args.state.clone(),
         &args.listen,
         args.workers,

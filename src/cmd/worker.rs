@@ -32,8 +32,8 @@ pub struct Args {
 /// Scores the queue until the process is stopped (SIGINT or SIGTERM end
 /// it after the jobs under way).
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    stepsim_server::observe::init_logging(
-        stepsim_server::observe::LogFormat::from_name(&args.log_format).unwrap_or_default(),
+    stepsim_server::init_logging(
+        stepsim_server::LogFormat::from_name(&args.log_format).unwrap_or_default(),
     );
     for sig in [libc::SIGINT, libc::SIGTERM] {
         // SAFETY: `on_stop` only stores to an atomic, which is
@@ -49,8 +49,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         &args.state,
         opts.store.as_ref(),
     ))??;
-    let pool =
-        stepsim_server::worker::WorkerPool::start_with(&args.state, args.threads.max(1), opts);
+    let pool = stepsim_server::WorkerPool::start_with(&args.state, args.threads.max(1), opts);
     eprintln!(
         "stepsim worker: {} worker(s) scoring the queue of {}",
         args.threads.max(1),

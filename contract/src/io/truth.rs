@@ -18,7 +18,7 @@ pub type Keyword = (String, f64, String);
 /// `keywords` go into the table header.
 ///
 /// The rows go to cfitsio as one block of big-endian row bytes
-/// ([`row_bytes`], one `fits_write_tblbytes` call) and the file is built in
+/// (`row_bytes`, one `fits_write_tblbytes` call) and the file is built in
 /// memory and hashed as written ([`super::fits::write_fits_hashed`]); the
 /// bytes are those of the column-by-column writer
 /// [`write_truth_fits_slow`] (test
@@ -86,7 +86,7 @@ enum Source {
 
 /// The rows as FITS stores them: each row its columns in [`COLUMN_ORDER`],
 /// big-endian (K: 8 bytes, J: 4, D: 8), rows one after the other.
-pub fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
+fn row_bytes(rows: &[TruthRow]) -> Vec<u8> {
     let sources: Vec<Source> = COLUMN_ORDER
         .iter()
         .map(|name| {

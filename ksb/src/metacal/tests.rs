@@ -1,5 +1,5 @@
 use super::*;
-use crate::draw::{convolve, covariance, draw_gaussian_sampled, gaussian_value, shear_covariance};
+use crate::scene::{convolve, covariance, draw_gaussian_sampled, gaussian_value, shear_covariance};
 
 /// A point-sampled Gaussian image of `side`² with its centre at `c`.
 fn gaussian_stamp(side: usize, c: [f64; 2], cov: &crate::linalg::Mat2) -> Vec<f64> {

@@ -8,6 +8,7 @@
 //! renamed figure is a compile error and not a blank cell. The JSON API
 //! still sends the stored text as it is ([`stored_json`]).
 
+#[cfg(test)]
 use crate::store::Submission;
 use serde::Deserialize;
 use stepsim_harness::{PublicFeedback, Summary};
@@ -82,7 +83,9 @@ pub fn public_of_text(text: Option<&str>) -> Option<PublicFigures> {
     text.and_then(|t| serde_json::from_str(t).ok())
 }
 
-/// Both parts' figures of an entry, as far as it has them.
+/// Both parts' figures of an entry, as far as it has them (the tests'
+/// view of what is stored).
+#[cfg(test)]
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Figures {
     /// The public feedback (once scored).
@@ -91,6 +94,7 @@ pub struct Figures {
     pub holdout: Option<HoldoutFigures>,
 }
 
+#[cfg(test)]
 impl Figures {
     /// The figures stored for `sub`.
     pub fn of(sub: &Submission) -> Self {

@@ -13,18 +13,15 @@ pub mod leaderboard;
 pub mod phase;
 pub mod public_data;
 
-pub use crate::hex;
-pub use crate::store::DB_FILE;
-pub use export::{EXPORT_CSV_COLUMNS, Export, csv_field};
-pub use finals::{
-    ChoiceError, MAX_FINAL_ENTRIES, best_public, choose_final_entries, final_entries_or_default,
-};
+pub use export::Export;
+pub use finals::{ChoiceError, MAX_FINAL_ENTRIES, choose_final_entries, final_entries_or_default};
 pub use phase::Phase;
 
-use crate::store::{Role, Store, StoreError, StoreUrl};
+use crate::store::{DB_FILE, Role, Store, StoreError, StoreUrl};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use stepsim_contract::digest::hex;
 use stepsim_contract::run_dir::RunDir;
 use stepsim_harness::{has_holdout, load_truth_set};
 
@@ -32,12 +29,6 @@ use stepsim_harness::{has_holdout, load_truth_set};
 pub const SCORER_VERSION: &str = concat!("stepsim-harness ", env!("CARGO_PKG_VERSION"));
 /// Default rolling 24-hour quota of scored submissions per team.
 pub const DEFAULT_QUOTA: u32 = 4;
-/// The floor of the cap on one upload, in bytes: the harness's own floor.
-/// The cap recorded at `init` is the run's own limit
-/// (`stepsim_harness::run_submission_limit`: 256 bytes per truth
-/// object and 64 KiB per image, never below this), unless the organiser
-/// sets another (`challenge init --max-upload-bytes`).
-pub const DEFAULT_MAX_UPLOAD_BYTES: u64 = stepsim_harness::MAX_SUBMISSION_BYTES;
 /// Uploads refused by the format check allowed per team per 24 hours.
 pub const DEFAULT_FORMAT_FAILURE_CAP: u32 = 20;
 /// Requests allowed per token and per client address in one minute.
@@ -242,7 +233,7 @@ impl Challenge {
     }
 
     /// Opens the challenge in `dir` with its store at `store` (`None`: the
-    /// one the directory names, [`crate::store::url_of_state`]).
+    /// one the directory names, the store's `url_of_state`).
     pub async fn open_with_store(
         dir: &Path,
         store: Option<&StoreUrl>,

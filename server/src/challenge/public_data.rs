@@ -32,7 +32,7 @@ fn sha256_of(path: &std::path::Path) -> std::io::Result<String> {
     let mut f = std::fs::File::open(path)?;
     let mut h = Sha256::new();
     std::io::copy(&mut f, &mut h)?;
-    Ok(crate::hex(&h.finalize()))
+    Ok(stepsim_contract::digest::hex(&h.finalize()))
 }
 
 /// The files of the run's public part in the manifest's order:
@@ -48,7 +48,7 @@ pub fn public_files(public: &std::path::Path) -> Result<Vec<PublicFile>, String>
     let size = |p: &str| std::fs::metadata(public.file(p)).map(|m| m.len());
     let mut files = vec![PublicFile {
         path: PublicDir::MANIFEST.into(),
-        sha256: crate::hex(&Sha256::digest(text.as_bytes())),
+        sha256: stepsim_contract::digest::hex(&Sha256::digest(text.as_bytes())),
         bytes: text.len() as u64,
     }];
     if let Ok(bytes) = size(PublicDir::README) {

@@ -330,7 +330,7 @@ pub async fn serve(
     result.map_err(|e| crate::ChallengeError::Run(format!("server stopped: {e}")))
 }
 
-/// [`serve`] on a runtime of its own (for the command line).
+/// `serve` on a runtime of its own (for the command line).
 pub fn serve_blocking(
     dir: PathBuf,
     listen: &str,

@@ -221,7 +221,7 @@ pub enum Admission {
 /// Who takes a job, and for how long without renewal.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Lease {
-    /// The worker's name (host, process, thread: [`worker_name`]).
+    /// The worker's name (host, process, thread: `worker_name`).
     pub worker: String,
     /// How long a lease lasts without renewal, in seconds.
     pub seconds: i64,
@@ -235,7 +235,11 @@ pub fn worker_name(n: usize) -> String {
         .unwrap_or_else(|_| "host".into());
     let mut b = [0u8; 4];
     let _ = getrandom::fill(&mut b);
-    format!("{host}:{}:{n}:{}", std::process::id(), crate::hex(&b))
+    format!(
+        "{host}:{}:{n}:{}",
+        std::process::id(),
+        stepsim_contract::digest::hex(&b)
+    )
 }
 
 /// The challenge's storage. Every method is one transaction; every method
@@ -266,9 +270,9 @@ pub trait Store: Send + Sync + std::fmt::Debug {
     /// Every team, by id.
     async fn teams(&self) -> Result<Vec<Team>, StoreError>;
     /// Admits an upload in one transaction that holds the team: reads the
-    /// [`Ledger`] (settings, the team's uploads since `since_s`), answers
-    /// [`Admission::Duplicate`] when the team has an entry with these
-    /// bytes, [`Admission::Declined`] when `accept` says no, and otherwise
+    /// `Ledger` (settings, the team's uploads since `since_s`), answers
+    /// `Admission::Duplicate` when the team has an entry with these
+    /// bytes, `Admission::Declined` when `accept` says no, and otherwise
     /// inserts a queued entry. Two admissions of one team never both pass
     /// a quota, on any number of hosts.
     async fn admit(

@@ -66,7 +66,7 @@ pub fn write_public(dir: &Path, all: &SynthRun) -> Vec<(String, Vec<u8>)> {
             std::fs::write(public.join(&file), &bytes).unwrap();
             images.push(serde_json::json!({
                 "image": im.image, "dataset": d.dataset, "file": file,
-                "sha256": stepsim_server::challenge::hex(&sha2::Sha256::digest(&bytes)),
+                "sha256": stepsim_contract::digest::hex(&sha2::Sha256::digest(&bytes)),
             }));
             files.push((file, bytes));
         }
@@ -93,13 +93,13 @@ pub fn write_public(dir: &Path, all: &SynthRun) -> Vec<(String, Vec<u8>)> {
 /// databases, e.g. `postgres://postgres@127.0.0.1:5433/postgres`; set by
 /// `tests/all.sh` for the second run of these tests), else `None`: the
 /// state directory's SQLite file.
-pub async fn test_store() -> Option<stepsim_server::store::StoreUrl> {
+pub async fn test_store() -> Option<stepsim_server::StoreUrl> {
     let admin = std::env::var("STEPSIM_TEST_POSTGRES").ok()?;
     Some(fresh_database(&admin).await)
 }
 
 /// Creates an empty database on the server of `admin` and returns its URL.
-pub async fn fresh_database(admin: &str) -> stepsim_server::store::StoreUrl {
+pub async fn fresh_database(admin: &str) -> stepsim_server::StoreUrl {
     let (client, conn) = tokio_postgres::connect(admin, tokio_postgres::NoTls)
         .await
         .unwrap_or_else(|e| panic!("STEPSIM_TEST_POSTGRES={admin}: {e}"));
@@ -115,7 +115,7 @@ pub async fn fresh_database(admin: &str) -> stepsim_server::store::StoreUrl {
         .await
         .unwrap();
     let (base, _) = admin.rsplit_once('/').expect("a URL with a database");
-    stepsim_server::store::StoreUrl::Postgres(format!("{base}/{name}"))
+    stepsim_server::StoreUrl::Postgres(format!("{base}/{name}"))
 }
 
 /// `Challenge::init` on the tests' store ([`test_store`]).
@@ -130,8 +130,8 @@ pub async fn init(
 }
 
 /// The lease the tests' own scoring loops take jobs with.
-pub fn lease() -> stepsim_server::store::Lease {
-    stepsim_server::store::Lease {
+pub fn lease() -> stepsim_server::Lease {
+    stepsim_server::Lease {
         worker: "test".into(),
         seconds: 600,
     }
@@ -141,7 +141,7 @@ pub fn lease() -> stepsim_server::store::Lease {
 /// bytes, or every row of every table of its PostgreSQL database (for
 /// tests that a secret is never stored).
 pub async fn store_text(state: &Path) -> String {
-    match std::fs::read_to_string(state.join(stepsim_server::store::STORE_FILE)) {
+    match std::fs::read_to_string(state.join(stepsim_server::STORE_FILE)) {
         Ok(url) => {
             let (client, conn) = tokio_postgres::connect(url.trim(), tokio_postgres::NoTls)
                 .await
@@ -173,7 +173,6 @@ pub async fn store_text(state: &Path) -> String {
 /// Scores every queued job of the challenge in `state` now, as a worker
 /// does (claimed under [`lease`], recorded as worker "test" at time 0).
 pub async fn score_queue(state: &Path) {
-    use stepsim_server::worker;
     let ch = stepsim_server::Challenge::open(state).await.unwrap();
     while let Some(job) = ch
         .store
@@ -181,9 +180,9 @@ pub async fn score_queue(state: &Path) {
         .await
         .unwrap()
     {
-        let r = worker::score_entry(&ch, &job);
+        let r = stepsim_server::score_entry(&ch, &job);
         ch.store
-            .finish_job(job.id, "test", r, worker::SCORER_VERSION, 0)
+            .finish_job(job.id, "test", r, stepsim_server::SCORER_VERSION, 0)
             .await
             .unwrap();
     }

@@ -3,7 +3,7 @@
 //! copy, the harness's format check and the store's admission.
 
 use crate::challenge::admission::{Refusal, RefusalKind, admission_refusal, limits};
-use crate::challenge::{Phase, QUOTA_WINDOW_S, hex};
+use crate::challenge::{Phase, QUOTA_WINDOW_S};
 use crate::http::auth::auth;
 use crate::http::{ApiError, ApiResult, AppState};
 use crate::store::Team;
@@ -17,6 +17,7 @@ use sha2::{Digest, Sha256};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use stepsim_contract::digest::hex;
 use tokio::io::AsyncWriteExt;
 
 /// The small form fields sent before a multipart upload's `file` (name,

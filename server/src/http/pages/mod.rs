@@ -44,7 +44,7 @@ use format::{cap_text, size_text, when};
 pub(crate) use format::{fixed, interval_ends, signed};
 
 use super::{ApiError, AppState};
-use crate::challenge::{hex, token_hash};
+use crate::challenge::token_hash;
 use crate::store::Team;
 use axum::Router;
 use axum::extract::{Extension, Request};
@@ -56,6 +56,7 @@ use serde::Serialize;
 use serde_json::Value;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
+use stepsim_contract::digest::hex;
 
 /// The session cookie.
 pub const SESSION_COOKIE: &str = "stepsim_session";

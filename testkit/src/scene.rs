@@ -1,5 +1,7 @@
-//! Reference drawing of elliptical Gaussians, for tests and the benchmark
-//! (never used on real data). Slow and obvious on purpose.
+//! Synthetic scenes for the reference pipeline's tests and benchmark: a
+//! reference drawing of elliptical Gaussians (never used on real data; slow
+//! and obvious on purpose), a STEP-like scene of them, and its public half
+//! written to disk.
 //!
 //! Shapes follow SPEC §1: an elliptical Gaussian of geometric-mean width σ
 //! and ellipticity e (eq. 1 type, |e| = (1−β)/(1+β)) has covariance
@@ -7,12 +9,27 @@
 //! [`stepsim_contract::shear::shear_matrix`] at g = e (it maps the ellipse
 //! onto a circle); a shear g maps C to A_g⁻¹ C A_g⁻ᵀ. Both take A⁻¹ from
 //! [`stepsim_contract::shear::inverse_shear_matrix`].
+//!
+//! The file names the pipeline's crate as `stepsim_ksb`: ksb's own unit
+//! tests compile it in by `#[path]` (with `extern crate self as
+//! stepsim_ksb`), so that it draws into that crate's own [`Image`].
 
-use crate::image::Image;
-use crate::linalg::{Mat2, mul};
 use rand::RngExt;
 use stepsim_contract::seed::SeedKey;
 use stepsim_contract::shear::inverse_shear_matrix;
+use stepsim_ksb::{Image, KsbError, Mat2};
+
+/// The product `a b` of two 2 × 2 matrices (the pipeline's own product is
+/// internal to it; a fixture does not reach into the pipeline's insides).
+fn mul(a: &Mat2, b: &Mat2) -> Mat2 {
+    let mut m = [[0.0; 2]; 2];
+    for (i, row) in m.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = a[i][0] * b[0][j] + a[i][1] * b[1][j];
+        }
+    }
+    m
+}
 
 /// Covariance (pixels²) of an elliptical Gaussian of geometric-mean σ (px)
 /// and eq. 1 ellipticity `e`.
@@ -338,7 +355,7 @@ pub fn synthetic_scene(spec: &SceneSpec) -> (Vec<SceneObject>, Image) {
 pub fn write_public_run(
     dir: &std::path::Path,
     images: &[(&str, &str, &Image)],
-) -> Result<(), crate::KsbError> {
+) -> Result<(), KsbError> {
     use stepsim_contract::run_dir::PublicDir;
     use stepsim_contract::run_layout::{InstrumentFacts, MANIFEST_FORMAT, Manifest, ManifestImage};
     let gain: f64 = 4.0;
@@ -346,7 +363,7 @@ pub fn write_public_run(
     let mut entries = Vec::new();
     for (dataset, id, img) in images {
         let file = PublicDir::image_file(dataset, id);
-        crate::io::write_fits_image(
+        stepsim_ksb::write_fits_image(
             &public.file(&file),
             &(*img).clone().scaled((1.0 / gain) as f32),
         )?;
