@@ -1,6 +1,6 @@
 //! End-to-end checks of `stepsim psf`: outputs, report keys, refusals.
 //! (The six calibrated STEP1 PSFs are tested in the library,
-//! `stepsim_sim::psf::tests`; here a small config keeps the run short.)
+//! `stepsim_sim::model::psf::tests`; here a small config keeps the run short.)
 
 use std::path::Path;
 use std::process::Output;
@@ -58,8 +58,8 @@ fn writes_images_report_and_picture() {
     assert_eq!(report["pixel_scale_arcsec"], 0.206);
     // The resolved config is written beside the outputs (and reads back).
     let resolved = std::fs::read_to_string(out_dir.join("config.json")).unwrap();
-    let raw =
-        stepsim_sim::config::RawConfig::parse(&resolved, Path::new("config.json"), &[]).unwrap();
+    let raw = stepsim_sim::run::config::RawConfig::parse(&resolved, Path::new("config.json"), &[])
+        .unwrap();
     assert_eq!(raw.psfs.len(), 3);
     let psfs = report["psfs"].as_array().unwrap();
     assert_eq!(psfs.len(), 3);

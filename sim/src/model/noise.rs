@@ -23,12 +23,12 @@
 //!
 //! Measured statistics are in `docs/noise.md`.
 
-use crate::seed::{SeedKey, SimRng};
 use rand::RngExt;
 use rand_distr::{Distribution, Exp1, Normal, Poisson, StandardNormal};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
+use stepsim_contract::seed::{SeedKey, SimRng};
 
 /// Rows per noise block (each block has its own generator). Part of the
 /// on-disk contract: changing it changes every noisy image.
@@ -409,7 +409,7 @@ pub fn realise_slow(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::seed::Stream;
+    use stepsim_contract::seed::Stream;
 
     fn key() -> SeedKey {
         SeedKey::image(7, 1, 2, Stream::Noise)

@@ -25,9 +25,10 @@
 //! challenge needs a secret seed: a config without one gets a seed drawn from
 //! the operating system (`plan::Plan::new`).
 
-use crate::seed::{SeedKey, Stream};
 use rand::RngExt;
 use sha2::{Digest, Sha256};
+use stepsim_contract::digest::hex;
+use stepsim_contract::seed::{SeedKey, Stream};
 
 /// Hex digits of a dataset id after its `d` prefix (48 bits).
 pub const DATASET_ID_HEX: usize = 12;
@@ -117,12 +118,11 @@ impl BlindingKey {
     }
 }
 
-pub use stepsim_contract::digest::{hex, sha256_hex};
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::collections::HashSet;
+    use stepsim_contract::digest::sha256_hex;
 
     #[test]
     fn the_participants_example_row_names_an_image_id_of_the_real_shape() {

@@ -27,8 +27,8 @@
 //!   per image, 64 KiB for the run).
 
 use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, DEFAULT_SIZE_PX};
-use crate::memory::{MemoryEstimate, Part};
-use crate::plan::Plan;
+use crate::run::memory::{MemoryEstimate, Part};
+use crate::run::plan::Plan;
 use std::collections::BTreeMap;
 
 #[cfg(doc)]
@@ -60,7 +60,8 @@ pub fn images_in_run(plan: &Plan) -> u64 {
 
 /// Bytes of one truth table row.
 pub fn truth_row_bytes() -> u64 {
-    8 + 4 * crate::truth::INT_COLUMNS.len() as u64 + 8 * crate::truth::FLOAT_COLUMNS.len() as u64
+    8 + 4 * stepsim_contract::truth::INT_COLUMNS.len() as u64
+        + 8 * stepsim_contract::truth::FLOAT_COLUMNS.len() as u64
 }
 
 /// What the solved PSFs of a run write, measured once they are solved.
@@ -96,7 +97,7 @@ pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEsti
     let n = images_in_run(plan);
     let pixels = u64::from(img.width_px) * u64::from(img.height_px);
     let image = fits_file_bytes(pixels.saturating_mul(4));
-    let objects = crate::memory::objects_per_field(plan);
+    let objects = crate::run::memory::objects_per_field(plan);
     let rows = if objects.is_finite() && objects >= 0.0 {
         objects.ceil() as u64
     } else {
@@ -175,10 +176,10 @@ pub fn generate_estimate(plan: &Plan, solved: Option<&SolvedPsfs>) -> MemoryEsti
 #[derive(Debug, thiserror::Error)]
 #[error(
     "generate would write about {} ({}) to {place}, of which {} is already there, but only {} is free ({source_of_free}); lower image.n_images, image.width_px and image.height_px, use output.format \"int32\" with output.compression \"rice\", or free some space",
-    crate::memory::human(estimate.total_bytes()),
+    crate::run::memory::human(estimate.total_bytes()),
     estimate.parts_text(),
-    crate::memory::human(*present_bytes),
-    crate::memory::human(*free_bytes)
+    crate::run::memory::human(*present_bytes),
+    crate::run::memory::human(*free_bytes)
 )]
 pub struct NoSpace {
     /// The run directory.
@@ -268,7 +269,7 @@ mod tests {
                 .starts_with("1920 images of 4096 × 4096 px, float32")
         );
         // Truth tables: one row per expected object of a base field.
-        let rows = crate::memory::objects_per_field(&p).ceil() as u64;
+        let rows = crate::run::memory::objects_per_field(&p).ceil() as u64;
         assert_eq!(
             e.parts[1].bytes,
             1920 * fits_file_bytes(rows * truth_row_bytes())

@@ -23,11 +23,11 @@
 //! Measured against peak RSS in BENCHMARKS.md.
 
 use crate::io::image_fits::{Compression, SampleFormat};
-use crate::plan::Plan;
-use crate::psf::PsfSpec;
-use crate::render::Method;
-use crate::truth::TruthRow;
+use crate::model::psf::PsfSpec;
+use crate::model::render::Method;
+use crate::run::plan::Plan;
 use std::fmt;
+use stepsim_contract::truth::TruthRow;
 
 /// Code, allocator arenas and thread stacks (measured: 7 MiB for a run that
 /// stops at once; 32 MiB leaves room for the workers).
@@ -39,14 +39,14 @@ pub const PROGRAM_BYTES: u64 = 32 << 20;
 pub const OPTICAL_BUILD_BYTES: u64 = 128 << 20;
 
 /// Bytes per sample of the fine grid on which a PSF is measured
-/// ([`crate::psf::report`]: transfer, half-plane spectrum, inverse FFT and
+/// ([`crate::model::psf::report`]: transfer, half-plane spectrum, inverse FFT and
 /// image; measured 2.76 GiB peak, 44 B per sample, for its 8192² grid at
 /// 0.05″ per pixel; rounded up).
 pub const REPORT_BYTES_PER_SAMPLE: f64 = 48.0;
 
-/// Side of the fine grid [`crate::psf::report`] uses at a pixel scale.
+/// Side of the fine grid [`crate::model::psf::report`] uses at a pixel scale.
 pub fn report_grid_side(pixel_scale_arcsec: f64) -> usize {
-    let h = pixel_scale_arcsec / crate::psf::measure::FINE_OVERSAMPLE as f64;
+    let h = pixel_scale_arcsec / crate::model::psf::measure::FINE_OVERSAMPLE as f64;
     let want = (26.0 / h).ceil();
     if want.is_finite() && want < (1u64 << 40) as f64 {
         (want as usize).next_power_of_two().max(256)
@@ -214,15 +214,15 @@ pub fn image_bytes(plan: &Plan) -> f64 {
 
 /// Expected objects (galaxies + stars) of one base field: the galaxies
 /// drawn less those outside the magnitude range
-/// ([`crate::population::kept_fraction`]), and the stars.
+/// ([`crate::model::population::kept_fraction`]), and the stars.
 pub fn objects_per_field(plan: &Plan) -> f64 {
     let area = plan.placement_area().area_arcmin2;
     let galaxies = if plan.reads_skymaker_lists() {
         // A list's size is its own (read by the plan).
         0.0
     } else {
-        crate::population::model(&plan.population()).density_per_arcmin2()
-            * crate::population::kept_fraction(&plan.population())
+        crate::model::population::model(&plan.population()).density_per_arcmin2()
+            * crate::model::population::kept_fraction(&plan.population())
     };
     (galaxies + plan.stars().density_per_arcmin2) * area
 }

@@ -23,22 +23,23 @@
 //! input paths name the copies of the inputs the run keeps beside it
 //! ([`Plan::run_inputs`]), so that it reproduces the run from anywhere.
 
-use crate::config::{
-    ConfigError, Invalid, Part, RawConfig, RawPsf, RawPsfModel, Source, draw_seed,
-};
-use crate::io::IoError;
 use crate::io::image_fits::{Compression, SampleFormat};
 use crate::io::psf_fits::read_psf_fits_and_bytes;
 use crate::io::skymaker::{ListError, read_list_and_bytes};
-use crate::noise::{Detector, Instrument, sky_e_per_pixel};
-use crate::population::{Cosmology, GalaxySpec, ListObject, Placement, PopulationSpec, StarSpec};
-use crate::psf::{Psf, PsfError, PsfFileImage, PsfModel, PsfSpec, Telescope};
-use crate::render::{Accuracy, Renderer};
-use crate::seed::{SeedKey, Stream};
-use crate::wcs::{Geometry, TanWcs};
+use crate::model::noise::{Detector, Instrument, sky_e_per_pixel};
+use crate::model::population::{
+    Cosmology, GalaxySpec, ListObject, Placement, PopulationSpec, StarSpec,
+};
+use crate::model::psf::{Psf, PsfError, PsfFileImage, PsfModel, PsfSpec, Telescope};
+use crate::model::render::{Accuracy, Renderer};
+use crate::model::wcs::{Geometry, TanWcs};
+use crate::run::config::{ConfigError, Invalid, RawConfig, RawPsf, RawPsfModel, Source, draw_seed};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
+use stepsim_contract::io::IoError;
 use stepsim_contract::run_dir::PrivateDir;
+use stepsim_contract::run_layout::Part;
+use stepsim_contract::seed::{SeedKey, Stream};
 
 /// Why a config could not become a plan.
 #[derive(Debug, thiserror::Error)]
@@ -389,7 +390,7 @@ impl Plan {
 
     /// Everything the base fields are drawn from (or, for
     /// `source = skymaker_list`, the lists they are made of), for
-    /// [`crate::population::base_field`] and the other population functions.
+    /// [`crate::model::population::base_field`] and the other population functions.
     pub fn population(&self) -> PopulationSpec {
         PopulationSpec {
             seed: self.seed(),
@@ -490,7 +491,7 @@ impl Plan {
     }
 
     /// The TAN WCS of every image (one for all base fields: see
-    /// [`crate::wcs`]).
+    /// [`crate::model::wcs`]).
     pub fn image_wcs(&self) -> TanWcs {
         TanWcs::of_images(&self.geometry())
     }
@@ -520,7 +521,7 @@ impl Plan {
         )
     }
 
-    /// Everything PSF `index` is built from ([`crate::psf::build`]), with
+    /// Everything PSF `index` is built from ([`crate::model::psf::build`]), with
     /// the image a `fits` model names, read once by [`Plan::new`].
     ///
     /// # Panics
@@ -538,7 +539,7 @@ impl Plan {
         if let Some(p) = slot.get() {
             return Ok(p.clone());
         }
-        let built = crate::psf::build(&self.psf_spec(index))?;
+        let built = crate::model::psf::build(&self.psf_spec(index))?;
         Ok(slot.get_or_init(|| built).clone())
     }
 
@@ -558,7 +559,7 @@ impl Plan {
         if let Some(p) = slot.get() {
             return Ok((p.clone(), None));
         }
-        let accuracy = crate::psf::PsfAccuracy::default();
+        let accuracy = crate::model::psf::PsfAccuracy::default();
         let user = crate::io::psf_store::user_store_dir();
         let (built, origin) = crate::io::psf_store::load_or_build_shared(
             &self.psf_spec(index),
@@ -803,8 +804,8 @@ mod tests {
         // No hidden process-wide cache: building from the spec makes a new
         // PSF each time (equal in value).
         let (b, c) = (
-            crate::psf::build(&plan.psf_spec(1)).unwrap(),
-            crate::psf::build(&plan.psf_spec(1)).unwrap(),
+            crate::model::psf::build(&plan.psf_spec(1)).unwrap(),
+            crate::model::psf::build(&plan.psf_spec(1)).unwrap(),
         );
         assert!(!Arc::ptr_eq(&b, &c) && !Arc::ptr_eq(&a, &b));
         assert_eq!(format!("{b:?}"), format!("{c:?}"));
@@ -865,7 +866,7 @@ mod tests {
                 edge_sky_sigma: 0.5,
                 max_stamp_px: 256,
                 min_stamp_px: 16,
-                method: crate::render::Method::Stamp,
+                method: crate::model::render::Method::Stamp,
             }
         );
         // The defaults are the renderer's own.
@@ -968,13 +969,13 @@ mod tests {
         let read = spec.image.as_ref().unwrap();
         assert_eq!((read.nx, read.ny), (n, n));
         assert_eq!(read.path, dir.path().join("psfs/g.fits"));
-        let with_file = crate::psf::build(&spec).unwrap();
-        let r_with_file = crate::psf::Psf::radius_enclosing(with_file.as_ref(), 0.5);
+        let with_file = crate::model::psf::build(&spec).unwrap();
+        let r_with_file = crate::model::psf::Psf::radius_enclosing(with_file.as_ref(), 0.5);
         // Read once: the PSF builds from the plan's copy without the file,
         // and is the same PSF.
         std::fs::remove_dir_all(dir.path().join("psfs")).unwrap();
-        let psf = crate::psf::build(&spec).unwrap();
-        let r_half = crate::psf::Psf::radius_enclosing(psf.as_ref(), 0.5);
+        let psf = crate::model::psf::build(&spec).unwrap();
+        let r_half = crate::model::psf::Psf::radius_enclosing(psf.as_ref(), 0.5);
         assert_eq!(r_half, r_with_file);
         // σ = 0.2″: half the light within σ √(2 ln 2) = 0.2355″ before the
         // detector's pixel widens it (0.25″ measured).

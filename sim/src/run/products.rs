@@ -3,13 +3,15 @@
 //! function of this module and print.
 
 use crate::io::psf_fits::{self, renderer_side_px, write_psf};
-use crate::io::{IoError, png::write_picture, skymaker, truth, write_bytes_atomically};
-use crate::plan::Plan;
-use crate::population::{self, PopulationError};
-use crate::psf::{self, PsfError, PsfReport, panel};
-use crate::truth::TruthRow;
+use crate::io::skymaker;
+use crate::model::population::{self, PopulationError};
+use crate::model::psf::{self, PsfError, PsfReport, panel};
+use crate::run::plan::Plan;
 use rayon::prelude::*;
 use std::path::Path;
+use stepsim_contract::io::{IoError, truth, write_bytes_atomically};
+use stepsim_contract::truth::TruthRow;
+use stepsim_figure::png::write_picture;
 
 /// Why a product could not be made.
 #[derive(Debug, thiserror::Error)]

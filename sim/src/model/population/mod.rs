@@ -11,7 +11,7 @@
 //!
 //! Conventions (SPEC §1): sizes along the major axis; the renderer draws a
 //! component as the circular profile stretched to axis ratio `*_ba` along
-//! `pa_deg`, then applies the shear matrix A(g1, g2) of [`crate::shear`].
+//! `pa_deg`, then applies the shear matrix A(g1, g2) of [`stepsim_contract::shear`].
 
 pub mod cosmology;
 pub mod shapes;
@@ -25,14 +25,14 @@ pub use spec::{
     PopulationSpec, Sizes, StarSpec,
 };
 
-use crate::seed::{SeedKey, Stream};
-use crate::shear::{self, Complex64, Moments};
-use crate::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
-use crate::wcs::TanWcs;
+use crate::model::wcs::TanWcs;
 use cosmology::Lcdm;
 use rand::RngExt;
 use rand_distr::{Distribution, Poisson, StandardNormal};
 use shapes::ShapeLaw;
+use stepsim_contract::seed::{SeedKey, Stream};
+use stepsim_contract::shear::{self, Complex64, Moments};
+use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
 use stuff::StuffModel;
 
 /// Most objects one base field may hold (a guard against configs that
@@ -79,7 +79,7 @@ pub fn galaxy_placement_area(spec: &PopulationSpec) -> Placement {
     let (mut hx, mut hy) = (xr.1 - cx, yr.1 - cy);
     let (hx0, hy0) = (hx, hy);
     for &(g1, g2) in &spec.shears {
-        let a = crate::shear::shear_matrix(g1, g2);
+        let a = stepsim_contract::shear::shear_matrix(g1, g2);
         hx = hx.max(a[0][0].abs() * hx0 + a[0][1].abs() * hy0);
         hy = hy.max(a[1][0].abs() * hx0 + a[1][1].abs() * hy0);
     }
@@ -92,7 +92,7 @@ pub fn galaxy_placement_area(spec: &PopulationSpec) -> Placement {
 }
 
 /// The galaxies of `rows` with their positions lensed by (g1, g2) about
-/// [`PopulationSpec::lensing_centre`] ([`crate::shear::lens_offset`]), sky
+/// [`PopulationSpec::lensing_centre`] ([`stepsim_contract::shear::lens_offset`]), sky
 /// coordinates recomputed from the images' WCS ([`PopulationSpec::wcs`], the
 /// same for every base field: `_field` is unused); stars unchanged. Galaxies
 /// that land beyond the image and its margin ([`PopulationSpec::placement`])
@@ -114,7 +114,7 @@ pub fn lensed(
             if r.is_star() {
                 return Some(*r);
             }
-            let (dx, dy) = crate::shear::lens_offset((r.x - cx, r.y - cy), g1, g2);
+            let (dx, dy) = stepsim_contract::shear::lens_offset((r.x - cx, r.y - cy), g1, g2);
             let (x, y) = (cx + dx, cy + dy);
             if !(xr.0..=xr.1).contains(&x) || !(yr.0..=yr.1).contains(&y) {
                 return None;
@@ -343,7 +343,7 @@ fn star_row(
     y: f64,
     mag: f64,
     wcs: &TanWcs,
-    ins: &crate::noise::Instrument,
+    ins: &crate::model::noise::Instrument,
 ) -> TruthRow {
     let (ra, dec) = wcs.pixel_to_sky(x, y);
     TruthRow {
@@ -360,7 +360,7 @@ fn star_row(
     }
 }
 
-fn poisson(rng: &mut crate::seed::SimRng, mean: f64) -> usize {
+fn poisson(rng: &mut stepsim_contract::seed::SimRng, mean: f64) -> usize {
     if mean <= 0.0 {
         return 0;
     }
@@ -457,8 +457,9 @@ fn nearest(values: impl Iterator<Item = f64>, target: f64) -> i32 {
 /// ⟨r²⟩ = 6 h²; see [`sizes`]).
 pub fn component_sigma2(row: &TruthRow) -> (f64, f64) {
     (
-        0.5 * crate::profile::sersic::devaucouleurs_r2_over_re2() * row.bulge_re_arcsec.powi(2),
-        0.5 * crate::profile::Exponential::MEAN_R2 * row.disk_h_arcsec.powi(2),
+        0.5 * crate::model::profile::sersic::devaucouleurs_r2_over_re2()
+            * row.bulge_re_arcsec.powi(2),
+        0.5 * crate::model::profile::Exponential::MEAN_R2 * row.disk_h_arcsec.powi(2),
     )
 }
 

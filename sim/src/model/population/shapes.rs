@@ -10,11 +10,11 @@
 //! * One position angle θ uniform in [0, π), shared by bulge and disk.
 
 use super::{Flattening, InclinationLaw};
-use crate::seed::SimRng;
-use crate::stats::normal_cdf;
 use rand::RngExt;
 use rand_distr::StandardNormal;
 use std::f64::consts::PI;
+use stepsim_contract::seed::SimRng;
+use stepsim_numerics::stats::normal_cdf;
 
 /// The shape of one galaxy, before shear.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -152,8 +152,8 @@ pub fn flattening_from_axis_ratio(bulge_ba: f64, incl: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::seed::{SeedKey, Stream};
-    use crate::stats::{ks_p_value, ks_statistic};
+    use stepsim_contract::seed::{SeedKey, Stream};
+    use stepsim_numerics::stats::{ks_p_value, ks_statistic};
 
     fn law(incl: InclinationLaw) -> ShapeLaw {
         ShapeLaw::new(&Flattening::default(), incl, 85.0)

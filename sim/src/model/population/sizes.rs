@@ -16,9 +16,9 @@
 //! so that the size–luminosity relation does not brighten with z.
 //!
 //! The profiles' constants (r½/h of the exponential, ⟨r²⟩ of both laws,
-//! the de Vaucouleurs b) live with the profiles: [`crate::profile::sersic`].
+//! the de Vaucouleurs b) live with the profiles: [`crate::model::profile::sersic`].
 
-use crate::profile::Exponential;
+use crate::model::profile::Exponential;
 
 /// Mean bulge effective radius (kpc) of a bulge of absolute magnitude
 /// `m_abs` (with M* evolution removed; real, not h-scaled), from the

@@ -9,14 +9,14 @@
 //! carry their serde derives here and the config imports them; the range
 //! checks are the config's (ARCHITECTURE.md, "Configs in two layers").
 
-use crate::noise::Instrument;
-use crate::wcs::TanWcs;
+use crate::model::noise::Instrument;
+use crate::model::wcs::TanWcs;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// Everything the base fields of a run are drawn from: the seed, the
 /// models, where objects go on the images and, for a run made of SkyMaker
-/// lists, the lists (made by the plan: `crate::plan::Plan::population`).
+/// lists, the lists (made by the plan: `crate::run::plan::Plan::population`).
 #[derive(Debug, Clone)]
 pub struct PopulationSpec {
     /// The run's master seed.

@@ -8,8 +8,8 @@
 //! (uniform in m when s = 0).
 
 use super::StarSpec;
-use crate::seed::SimRng;
 use rand::RngExt;
+use stepsim_contract::seed::SimRng;
 
 /// Draws one star magnitude.
 pub fn draw_mag(stars: &StarSpec, rng: &mut SimRng) -> f64 {
@@ -42,9 +42,9 @@ pub fn mag_cdf(stars: &StarSpec, m: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::tests::count_slope;
-    use crate::seed::{SeedKey, Stream};
-    use crate::stats::{ks_p_value, ks_statistic};
+    use crate::model::population::tests::count_slope;
+    use stepsim_contract::seed::{SeedKey, Stream};
+    use stepsim_numerics::stats::{ks_p_value, ks_statistic};
 
     #[test]
     fn star_counts_have_slope_0_3() {

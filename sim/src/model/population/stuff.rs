@@ -35,8 +35,8 @@
 
 use super::cosmology::{DistanceTable, Lcdm};
 use super::{GalaxySpec, GalaxyType, InclinationLaw};
-use crate::seed::SimRng;
 use rand::RngExt;
+use stepsim_contract::seed::SimRng;
 
 /// One arcmin² in steradians.
 pub const ARCMIN2_SR: f64 =
@@ -444,7 +444,7 @@ pub fn mean_over_inclination(law: InclinationLaw, max_incl: f64, f: impl Fn(f64)
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::Cosmology;
+    use crate::model::population::Cosmology;
 
     #[test]
     fn k_correction_limits() {
@@ -484,10 +484,11 @@ mod tests {
         let fast = m.density_per_arcmin2();
         let slow = m.density_per_arcmin2_slow(g.z_max, 1000, 2000);
         assert!((fast / slow - 1.0).abs() < 2e-3, "{fast} vs {slow}");
-        let mut rng = crate::seed::SeedKey::base(6, 0, crate::seed::Stream::Test).rng();
+        let mut rng =
+            stepsim_contract::seed::SeedKey::base(6, 0, stepsim_contract::seed::Stream::Test).rng();
         let zs: Vec<f64> = (0..20_000).map(|_| m.draw(&mut rng).z).collect();
-        let d = crate::stats::ks_statistic(&zs, |z| m.z_cdf(z));
-        let p = crate::stats::ks_p_value(d, zs.len());
+        let d = stepsim_numerics::stats::ks_statistic(&zs, |z| m.z_cdf(z));
+        let p = stepsim_numerics::stats::ks_p_value(d, zs.len());
         assert!(p > 1e-3, "D = {d}, p = {p}");
         assert!((m.z_cdf(0.0)).abs() < 1e-15 && (m.z_cdf(g.z_max) - 1.0).abs() < 1e-12);
     }
@@ -496,7 +497,8 @@ mod tests {
     fn drawn_magnitudes_stay_in_range_and_phi_max_bounds_phi() {
         let g = GalaxySpec::default();
         let m = StuffModel::new(&g, Lcdm::new(&Cosmology::default()), 20.0, 24.0);
-        let mut rng = crate::seed::SeedKey::base(5, 0, crate::seed::Stream::Test).rng();
+        let mut rng =
+            stepsim_contract::seed::SeedKey::base(5, 0, stepsim_contract::seed::Stream::Test).rng();
         for _ in 0..2000 {
             let l = m.draw(&mut rng);
             let (lo, hi) = m.mag_range;

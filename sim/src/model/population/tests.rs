@@ -1,10 +1,10 @@
 //! Validation of the population against the STEP1/SPEC §2 claims.
 
 use super::*;
-use crate::plan::Plan;
-use crate::population::stars::mag_cdf;
-use crate::stats::{ks_p_value, ks_statistic, median};
+use crate::model::population::stars::mag_cdf;
+use crate::run::plan::Plan;
 use std::path::Path;
+use stepsim_numerics::stats::{ks_p_value, ks_statistic, median};
 
 /// The defaults with a fixed seed (so that the tests are reproducible), then
 /// `overrides`.
@@ -333,7 +333,7 @@ fn whole_galaxy_moments_are_flux_weighted_sums() {
         ..r
     };
     let q = galaxy_moments(&r);
-    let sb = 0.5 * crate::profile::sersic::devaucouleurs_r2_over_re2();
+    let sb = 0.5 * crate::model::profile::sersic::devaucouleurs_r2_over_re2();
     assert!((q.xx - (0.5 * sb + 1.5)).abs() < 1e-12);
     assert!((q.yy - (0.5 * sb + 0.375)).abs() < 1e-12);
     let mut row = r;
@@ -346,7 +346,7 @@ fn whole_galaxy_moments_are_flux_weighted_sums() {
 fn skymaker_round_trip_through_the_config_source() {
     let dir = tempfile::tempdir().unwrap();
     let plan = plan_with(&["image.width_px=1024", "image.height_px=1024"]);
-    let t_types = crate::population::t_types(&plan.population());
+    let t_types = crate::model::population::t_types(&plan.population());
     let mut fields = Vec::new();
     for f in 0..2 {
         let rows = base_field(&plan.population(), f).unwrap();
@@ -551,7 +551,7 @@ fn skymaker_lists_are_found_beside_the_config_and_read_once() {
     ];
     let drawn = Plan::from_json("{\"run\": {\"seed\": 5}}", Path::new("t.json"), &small).unwrap();
     std::fs::create_dir(dir.path().join("lists")).unwrap();
-    let t_types = crate::population::t_types(&drawn.population());
+    let t_types = crate::model::population::t_types(&drawn.population());
     let mut counts = Vec::new();
     for field in 0..2 {
         let rows = base_field(&drawn.population(), field).unwrap();

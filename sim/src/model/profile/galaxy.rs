@@ -11,7 +11,7 @@
 
 use super::transform::{LinearMap, ellipticity_of_moments, shear_matrix};
 use super::{DeVaucouleurs, Exponential, RadialProfile};
-use crate::truth::TruthRow;
+use stepsim_contract::truth::TruthRow;
 
 /// A truth row that cannot be drawn.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -227,7 +227,9 @@ pub fn check_row(row: &TruthRow) -> Result<(), RowError> {
             reason,
         })
     };
-    if row.kind != crate::truth::KIND_STAR && row.kind != crate::truth::KIND_GALAXY {
+    if row.kind != stepsim_contract::truth::KIND_STAR
+        && row.kind != stepsim_contract::truth::KIND_GALAXY
+    {
         return bad(
             "kind",
             f64::from(row.kind),
@@ -278,7 +280,7 @@ pub fn check_row(row: &TruthRow) -> Result<(), RowError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::transform::shear_ellipticity;
+    use crate::model::profile::transform::shear_ellipticity;
 
     fn row(bt: f64, g1: f64, g2: f64) -> TruthRow {
         TruthRow {

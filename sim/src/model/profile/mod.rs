@@ -8,7 +8,7 @@
 //! angle and shear are applied by the linear maps of [`transform`]; a galaxy
 //! is the [`galaxy::Galaxy`] sum of such transformed components; convolution
 //! with the PSF and the pixel is a product in Fourier space done by
-//! [`crate::render`].
+//! [`crate::model::render`].
 //!
 //! Units: arcsec on the sky, cycles per arcsec in Fourier space, electrons.
 

@@ -13,7 +13,7 @@
 //!
 //! A component stretched to axis ratio β along its major axis then has
 //! major-axis second moment σ² = ⟨r²⟩/2 and minor-axis β²σ²
-//! (see [`crate::shear::Moments::of_ellipse`]). The truth tables' combined
+//! (see [`stepsim_contract::shear::Moments::of_ellipse`]). The truth tables' combined
 //! ellipticities use these moments (`population`).
 
 use stepsim_numerics::quad::simpson;
@@ -67,7 +67,7 @@ pub fn r2_slow(profile: impl Fn(f64) -> f64, r_max: f64, n: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::profile::{DeVaucouleurs, Exponential};
+    use crate::model::profile::{DeVaucouleurs, Exponential};
 
     #[test]
     fn sersic_constants() {

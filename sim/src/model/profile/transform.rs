@@ -22,7 +22,7 @@ pub struct LinearMap {
 /// The shear matrix A(g) of SPEC §1 (det A = 1).
 pub fn shear_matrix(g1: f64, g2: f64) -> LinearMap {
     LinearMap {
-        m: crate::shear::shear_matrix(g1, g2),
+        m: stepsim_contract::shear::shear_matrix(g1, g2),
     }
 }
 
@@ -113,7 +113,7 @@ impl LinearMap {
 /// The eq. 1 ellipticity e = χ / (1 + sqrt(1 − |χ|²)) of a second-moment
 /// tensor (xx, xy, yy), with χ = (Qxx − Qyy, 2Qxy) / (Qxx + Qyy).
 pub fn ellipticity_of_moments(q: [f64; 3]) -> (f64, f64) {
-    let e = crate::shear::Moments {
+    let e = stepsim_contract::shear::Moments {
         xx: q[0],
         xy: q[1],
         yy: q[2],
@@ -125,7 +125,8 @@ pub fn ellipticity_of_moments(q: [f64; 3]) -> (f64, f64) {
 /// Paper eq. 8: e = (e_s + g) / (1 + g* e_s) in complex numbers.
 pub fn shear_ellipticity(e: (f64, f64), g: (f64, f64)) -> (f64, f64) {
     use num_complex::Complex64;
-    let out = crate::shear::apply_shear(Complex64::new(e.0, e.1), Complex64::new(g.0, g.1));
+    let out =
+        stepsim_contract::shear::apply_shear(Complex64::new(e.0, e.1), Complex64::new(g.0, g.1));
     (out.re, out.im)
 }
 

@@ -23,7 +23,7 @@ use super::measure::fwhm_from_area;
 use super::optical::{BandTransfer, Otf, SampledPupil, Wavefront};
 use super::sampled::SampledPsf;
 use super::{Calibration, Psf, PsfAccuracy, PsfError, StampGrid};
-use crate::moments;
+use crate::model::moments;
 use num_complex::Complex32;
 use std::sync::Arc;
 

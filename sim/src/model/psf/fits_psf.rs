@@ -56,7 +56,7 @@ pub fn from_image(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::psf::{GaussianPsf, Psf, StampGrid};
+    use crate::model::psf::{GaussianPsf, Psf, StampGrid};
 
     #[test]
     fn gaussian_image_gives_the_gaussian_transfer_and_is_recentred() {

@@ -30,7 +30,7 @@ impl GaussianPsf {
         let sigma_arcsec = fwhm_arcsec / (2.0 * (2.0 * std::f64::consts::LN_2).sqrt());
         // A maps the elliptical image onto a circle: the shear matrix of g = e
         // (a circle sheared by g has ellipticity g, SPEC §1).
-        let a = crate::shear::shear_matrix(e1, e2);
+        let a = stepsim_contract::shear::shear_matrix(e1, e2);
         // det A = 1, A symmetric: A⁻ᵀ = A⁻¹ = [[a11, −a01], [−a10, a00]].
         let ainv_t = [[a[1][1], -a[0][1]], [-a[1][0], a[0][0]]];
         Self {

@@ -8,7 +8,7 @@
 
 use super::optical::sinc;
 use super::{Psf, PsfError, StampGrid};
-use crate::moments;
+use crate::model::moments;
 use num_complex::Complex64;
 use rustfft::{FftDirection, FftPlanner};
 use serde::{Deserialize, Serialize};
@@ -310,7 +310,7 @@ pub fn draw_for_file(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::psf::GaussianPsf;
+    use crate::model::psf::GaussianPsf;
 
     #[test]
     fn gaussian_image_and_fwhm() {

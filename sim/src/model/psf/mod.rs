@@ -194,7 +194,7 @@ pub enum PsfError {
         /// PSF name.
         name: String,
         /// The moments error.
-        source: crate::moments::MomentsError,
+        source: crate::model::moments::MomentsError,
     },
     /// A PSF image read from a file is unusable.
     #[error("psf {name}: {path}: {message}")]

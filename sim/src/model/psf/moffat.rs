@@ -48,8 +48,8 @@ pub fn moffat(fwhm_arcsec: f64, beta: f64, trunc_fwhm: f64, pixel_scale_arcsec: 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::psf::Psf;
-    use crate::psf::measure::fwhm_from_area;
+    use crate::model::psf::Psf;
+    use crate::model::psf::measure::fwhm_from_area;
 
     #[test]
     fn fwhm_and_normalisation() {
@@ -60,7 +60,7 @@ mod tests {
             let s: f64 = p.values().iter().sum();
             assert!((s - 1.0).abs() < 1e-12);
             // T(0) = 1 and T falls with frequency.
-            let t = p.transfer(crate::psf::StampGrid::new(32, 0.2));
+            let t = p.transfer(crate::model::psf::StampGrid::new(32, 0.2));
             assert!((t[0].re - 1.0).abs() < 1e-6);
             assert!(t[5].re < t[1].re);
         }

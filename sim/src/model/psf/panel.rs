@@ -2,9 +2,9 @@
 //! the central part of a PSF image scaled to its own peak, with contours at
 //! given fractions of the peak. Returns an RGB buffer (top row first, so
 //! +y is up as in a FITS viewer), each tile labelled with its name (drawn
-//! with a real font when [`crate::io::png`] writes the picture).
+//! with a real font when [`stepsim_figure::png`] writes the picture).
 
-pub use crate::picture::{Label, Picture};
+use stepsim_figure::picture::{Label, Picture};
 
 /// How pixel values map to grey.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -212,7 +212,7 @@ pub fn caption(width: usize, height: usize, text: &str) -> Picture {
 /// ±5 %), and the wings (±15″, log stretch down to 1e-6, contours at
 /// 3e-5 … 0.25 of the peak), one column per PSF, with captions. `cores` are
 /// 256² images at p/8 and `wings` 512² images at p/2
-/// ([`crate::psf::image`]) for pixel scale `pixel_scale_arcsec` = p.
+/// ([`crate::model::psf::image`]) for pixel scale `pixel_scale_arcsec` = p.
 pub fn psf_set(
     cores: &[&[f64]],
     wings: &[&[f64]],

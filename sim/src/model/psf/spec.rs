@@ -3,7 +3,7 @@
 //! the image the plan read ([`PsfSpec`]).
 //!
 //! These are the model's own types: the plan makes them from the config's
-//! `psfs` and `telescope` sections (`crate::plan::Plan::psf_spec`). The
+//! `psfs` and `telescope` sections (`crate::run::plan::Plan::psf_spec`). The
 //! types the config spells exactly as the model does ([`Telescope`],
 //! [`Aberration`]) carry their serde derives here and the config imports
 //! them (ARCHITECTURE.md, "Configs in two layers").
@@ -108,7 +108,7 @@ pub enum PsfModel {
 
 /// Everything one PSF is built from: its name, target FWHM and model, the
 /// telescope, the image pixel scale and, for a `fits` model, the image the
-/// plan read (`crate::plan::Plan::psf_spec` hands these out).
+/// plan read (`crate::run::plan::Plan::psf_spec` hands these out).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PsfSpec {
     /// Name (in messages and file names; private).

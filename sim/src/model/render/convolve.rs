@@ -50,7 +50,7 @@ impl Convolver {
     /// A convolver with tiles of side `n` (even) and margin `margin`
     /// (2 · margin < n); `transfer` is the kernel's transfer function on the
     /// half-plane grid of an `n`-pixel stamp, row-major `[v][u]` as
-    /// [`crate::psf::Psf::transfer`] gives it (T(0) = 1 keeps the flux).
+    /// [`crate::model::psf::Psf::transfer`] gives it (T(0) = 1 keeps the flux).
     pub fn new(n: usize, margin: usize, transfer: &[Complex32]) -> Self {
         assert!(
             n % 2 == 0 && 2 * margin < n,

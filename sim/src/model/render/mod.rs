@@ -31,15 +31,14 @@ pub mod stamp;
 pub use image::{Canvas, draw_image, try_draw_image};
 pub use reference::ReferenceRenderer;
 
-pub use crate::profile::galaxy::check_row;
-use crate::profile::galaxy::{Galaxy, RowError};
-use crate::profile::{ProfileKind, RadialProfile};
-use crate::psf::{Psf, StampGrid};
-use crate::truth::TruthRow;
+use crate::model::profile::galaxy::{Galaxy, RowError, check_row};
+use crate::model::profile::{ProfileKind, RadialProfile};
+use crate::model::psf::{Psf, StampGrid};
 use serde::{Deserialize, Serialize};
 use stamp::{FftCache, Fill, StampEngine};
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
+use stepsim_contract::truth::TruthRow;
 
 /// A truth row the renderer refuses.
 pub type RenderError = RowError;
@@ -177,9 +176,9 @@ impl Renderer {
             psf_peak_fraction: 1.0,
             psf_fold_radius,
             unit_fold_radius: [
-                crate::profile::DeVaucouleurs
+                crate::model::profile::DeVaucouleurs
                     .radius_enclosing(1.0 - 0.5 * accuracy.folding_threshold),
-                crate::profile::Exponential
+                crate::model::profile::Exponential
                     .radius_enclosing(1.0 - 0.5 * accuracy.folding_threshold),
             ],
             engine32,
@@ -234,7 +233,7 @@ impl Renderer {
         let want = if want.is_finite() { want as usize } else { cap };
         let n = stamp::fft_friendly(want.min(cap) + 8).clamp(32, stamp::fft_friendly(cap));
         let row = TruthRow {
-            kind: crate::truth::KIND_STAR,
+            kind: stepsim_contract::truth::KIND_STAR,
             flux_e: 1.0,
             x: 1.0,
             y: 1.0,

@@ -36,7 +36,7 @@
 use super::convolve::Convolver;
 use super::stamp::fft_friendly;
 use super::{Accuracy, Method, Renderer};
-use crate::psf::{GaussianPsf, Psf, StampGrid};
+use crate::model::psf::{GaussianPsf, Psf, StampGrid};
 use num_complex::Complex32;
 use std::collections::HashMap;
 use std::f64::consts::PI;

@@ -1,7 +1,7 @@
 //! The Fourier-space stamp engine: fill the half-plane grid, inverse FFT.
 //!
 //! Layout: the grid of an `n × n` stamp has `n/2 + 1` columns (u ≥ 0) and
-//! `n` rows (v, wrapped as in [`crate::psf::StampGrid`]). The engine stores it column by
+//! `n` rows (v, wrapped as in [`crate::model::psf::StampGrid`]). The engine stores it column by
 //! column (`[u][v]`, each column contiguous) so the first inverse pass is
 //! `n/2 + 1` complex FFTs of length `n` along v; then each image row y is a
 //! complex-to-real FFT of length `n` along u. Both are unnormalised, so the
@@ -15,8 +15,8 @@
 //! aliasing of the PSF-convolved profile): the comparison with the
 //! real-space reference measures what this leaves out.
 
-use crate::profile::galaxy::Component;
-use crate::profile::{DeVaucouleurs, Exponential, ProfileKind};
+use crate::model::profile::galaxy::Component;
+use crate::model::profile::{DeVaucouleurs, Exponential, ProfileKind};
 use num_complex::Complex32;
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, FftNum, RealFftPlanner};

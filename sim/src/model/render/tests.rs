@@ -3,8 +3,8 @@
 //! test; measured values are in docs/rendering.md.
 
 use super::*;
-use crate::profile::transform::{ellipticity_of_moments, shear_ellipticity};
-use crate::psf::GaussianPsf;
+use crate::model::profile::transform::{ellipticity_of_moments, shear_ellipticity};
+use crate::model::psf::GaussianPsf;
 
 const P: f64 = 0.206;
 /// Sky σ per pixel of the STEP1 preset (≈ sqrt(8.0e4 e⁻ + 25)).
@@ -33,7 +33,7 @@ fn galaxy(
 ) -> TruthRow {
     TruthRow {
         id: 1,
-        kind: crate::truth::KIND_GALAXY,
+        kind: stepsim_contract::truth::KIND_GALAXY,
         x,
         y,
         flux_e: flux,
@@ -52,7 +52,7 @@ fn galaxy(
 fn star(x: f64, y: f64, flux: f64) -> TruthRow {
     TruthRow {
         id: 2,
-        kind: crate::truth::KIND_STAR,
+        kind: stepsim_contract::truth::KIND_STAR,
         hubble_type: -1,
         x,
         y,
@@ -534,7 +534,7 @@ fn an_elliptical_psf_gives_a_star_its_moments() {
     let r = Renderer::new(Arc::new(g), P, Accuracy::default(), SKY_SIGMA);
     let (_, _, data) = r.draw_f64_with_side(&star(50.4, 50.1, 1.0), 96).unwrap();
     let q = pixel_moments(&data, 96);
-    let a = crate::profile::shear_matrix(e1, e2).inverse();
+    let a = crate::model::profile::shear_matrix(e1, e2).inverse();
     let c = a.then_after(a).m;
     let want = [
         sigma * sigma * c[0][0] + P * P / 12.0,
@@ -592,11 +592,11 @@ fn with_method(psf: Arc<dyn Psf>, method: Method) -> Renderer {
 }
 
 fn step1_psf(name: &str) -> Arc<dyn Psf> {
-    let index = crate::psf::STEP1_PSFS
+    let index = crate::model::psf::STEP1_PSFS
         .iter()
         .position(|p| p.0 == name)
         .unwrap();
-    crate::psf::build(&crate::psf::PsfSpec::step1(index, P)).unwrap()
+    crate::model::psf::build(&crate::model::psf::PsfSpec::step1(index, P)).unwrap()
 }
 
 /// Max |a − b| over the image, divided by the peak of `b`.

@@ -7,8 +7,6 @@
 //! configured PSF × shear design on the other base fields. Nothing in
 //! `public/` tells the two parts apart (docs/server.md, "Threat model").
 
-pub use crate::run_layout::Part;
-
 use super::{Invalid, short_number};
 use serde::{Deserialize, Serialize};
 

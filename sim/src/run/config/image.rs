@@ -3,9 +3,9 @@
 //! [`Telescope`]; their range checks are here).
 
 use super::{Invalid, check_positive, check_range};
-use crate::noise::Instrument;
-use crate::psf::Telescope;
-use crate::wcs::Geometry;
+use crate::model::noise::Instrument;
+use crate::model::psf::Telescope;
+use crate::model::wcs::Geometry;
 use serde::{Deserialize, Serialize};
 
 /// Allowed `image.pixel_scale_arcsec`.
@@ -32,7 +32,7 @@ pub struct RawImage {
     pub field_dec_deg: f64,
     /// Accepted (and range-checked) so that older configs still parse, but
     /// it has no effect since output version 3: every image has the same
-    /// reference point ([`crate::wcs`]). It used to put base field k
+    /// reference point ([`crate::model::wcs`]). It used to put base field k
     /// `k × field_spacing_deg` east of field 0, which told the held-out
     /// datasets from the public ones (issue #23).
     pub field_spacing_deg: f64,

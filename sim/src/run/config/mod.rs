@@ -5,7 +5,7 @@
 //!    the key's dotted path). Every section has STEP1 defaults, so a file
 //!    only needs what differs.
 //! 2. [`RawConfig::validate`] checks ranges with the offending key named;
-//!    [`crate::plan::Plan`] then resolves the run: datasets enumerated
+//!    [`crate::run::plan::Plan`] then resolves the run: datasets enumerated
 //!    (PSF × shear), seed fixed, input files read.
 //!
 //! Overrides from the command line (`--set key.path=value`) are applied to the
@@ -19,14 +19,14 @@ mod population;
 mod psf;
 mod render;
 
-pub use challenge::{Part, RawChallenge};
+pub use challenge::RawChallenge;
 pub use image::RawImage;
 pub use population::{RawPopulation, Source};
 pub use psf::{RawPsf, RawPsfModel};
 pub use render::{RawOutput, RawRender};
 
-use crate::noise::Instrument;
-use crate::psf::Telescope;
+use crate::model::noise::Instrument;
+use crate::model::psf::Telescope;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -197,8 +197,8 @@ impl Default for RawConfig {
 pub struct RawRun {
     /// A name for humans (appears in the private half only).
     pub name: String,
-    /// Master seed: every random stream derives from it (see [`crate::seed`]).
-    /// Absent (the default, and the presets): [`crate::plan::Plan::new`] draws one from
+    /// Master seed: every random stream derives from it (see [`stepsim_contract::seed`]).
+    /// Absent (the default, and the presets): [`crate::run::plan::Plan::new`] draws one from
     /// the operating system, so that a release is blind; the resolved config
     /// (`RUN/private/config.json`) records it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -441,7 +441,7 @@ pub fn apply_override(tree: &mut serde_json::Value, arg: &str) -> Result<(), Con
 }
 
 impl RawConfig {
-    /// Checks every range of the config (what [`crate::plan::Plan::new`]
+    /// Checks every range of the config (what [`crate::run::plan::Plan::new`]
     /// refuses before resolving anything); the error names `source` and the
     /// offending key.
     pub fn validate(&self, source: &Path) -> Result<(), ConfigError> {

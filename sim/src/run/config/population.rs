@@ -4,7 +4,7 @@
 //! K-corrections) are documented in `docs/population.md`.
 
 use super::{Invalid, check_positive, check_range};
-use crate::population::{Cosmology, GalaxySpec, StarSpec};
+use crate::model::population::{Cosmology, GalaxySpec, StarSpec};
 use serde::{Deserialize, Serialize};
 
 /// `population`.
@@ -59,7 +59,7 @@ impl RawPopulation {
         check_positive("population.galaxies.flattening.sigma", f.sigma)?;
         check_range("population.galaxies.flattening.mean", f.mean, -10.0, 10.0)?;
         // Resampling must terminate quickly: demand a 0.1 % acceptance rate.
-        let cdf = crate::stats::normal_cdf;
+        let cdf = stepsim_numerics::stats::normal_cdf;
         let accept = cdf((f.max - f.mean) / f.sigma) - cdf((f.min - f.mean) / f.sigma);
         if accept < 1e-3 {
             return Err(Invalid::new(
@@ -167,7 +167,7 @@ impl RawPopulation {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::population::Flattening;
+    use crate::model::population::Flattening;
 
     #[test]
     fn defaults_validate_and_bad_values_name_their_key() {

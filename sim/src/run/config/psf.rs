@@ -1,7 +1,7 @@
 //! `psfs` section: one entry per PSF model (SPEC §3).
 
 use super::{Invalid, check_positive, check_range};
-use crate::psf::Aberration;
+use crate::model::psf::Aberration;
 use serde::{Deserialize, Serialize};
 
 /// One PSF model, tagged by `model`.
@@ -76,7 +76,7 @@ fn default_fwhm() -> f64 {
 impl RawPsf {
     /// The six STEP1 PSFs of SPEC §3 / paper Table 3.
     pub fn step1_set() -> Vec<Self> {
-        crate::psf::STEP1_PSFS
+        crate::model::psf::STEP1_PSFS
             .iter()
             .map(|&(name, aberration, target_chi)| RawPsf {
                 name: name.into(),
@@ -145,7 +145,7 @@ impl RawPsf {
 
 #[cfg(test)]
 mod tests {
-    use crate::config::RawConfig;
+    use crate::run::config::RawConfig;
     use std::path::Path;
 
     #[test]

@@ -2,7 +2,7 @@
 
 use super::{Invalid, check_range};
 use crate::io::image_fits::{Compression, SampleFormat};
-use crate::render::{Accuracy, Method};
+use crate::model::render::{Accuracy, Method};
 use serde::{Deserialize, Serialize};
 
 /// `render`: accuracy of the stamp renderer (GalSim GSParams-like). The

@@ -2,7 +2,7 @@
 //! stage timed (a benchmark, never a test assertion). Galaxies and stars are
 //! added to the image separately so that their costs can be told apart, and
 //! the image-level PSF convolution of the split method
-//! ([`crate::render::split`]) is its own stage; the result is the model that
+//! ([`crate::model::render::split`]) is its own stage; the result is the model that
 //! the noise stage uses. The image is made by the run's own pipeline
 //! ([`super::pipeline`]), so the benchmark times exactly what `generate`
 //! does per image. Process CPU time is read from `/proc/self/stat` (clock
@@ -10,10 +10,10 @@
 
 use super::pipeline::{Context, Lap, make_image};
 use super::{GenerateError, Made, RunDir};
-use crate::plan::Plan;
+use crate::run::plan::Plan;
 use std::path::Path;
 
-pub use super::pipeline::{StageTimes, process_cpu_s};
+use super::pipeline::{StageTimes, process_cpu_s};
 
 /// Makes image `field` (not the rotated twin) of the dataset with PSF
 /// `psf_index` and the last shear of the plan, exactly as `generate` makes
@@ -47,7 +47,7 @@ pub fn run_once(
     let cpu_start = process_cpu_s();
     let mut lap = Lap::start(true);
 
-    let base = crate::population::base_field(&plan.population(), field)
+    let base = crate::model::population::base_field(&plan.population(), field)
         .map_err(|source| GenerateError::Population { field, source })?;
     t.population_s = lap.lap().0;
 

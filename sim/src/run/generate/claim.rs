@@ -13,9 +13,9 @@
 //! the seed it drew is then dropped.
 
 use super::GenerateError;
-use crate::io::IoError;
-use crate::plan::{Plan, SeedOrigin};
+use crate::run::plan::{Plan, SeedOrigin};
 use std::path::{Path, PathBuf};
+use stepsim_contract::io::IoError;
 use stepsim_contract::run_dir::RunDir;
 
 /// How the run's seed was chosen.
@@ -117,7 +117,7 @@ pub fn create_new(path: &Path, bytes: &[u8]) -> Result<bool, IoError> {
 }
 
 /// A temporary name for `path` unique to this process and call: the form of
-/// [`crate::io::temporary_name`] (`.<name>.<n>.<pid>.tmp`, so a killed
+/// [`stepsim_contract::io::temporary_name`] (`.<name>.<n>.<pid>.tmp`, so a killed
 /// writer's file is cleaned up the same way), with a counter so that threads
 /// of one process do not share it.
 fn unique_temporary(path: &Path) -> PathBuf {

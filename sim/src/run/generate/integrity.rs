@@ -8,13 +8,13 @@
 //! leftover of another config, for instance after `private/config.json` was
 //! deleted), and a `private/blinding.key` or `private/datasets.json` with
 //! other content than this run's. Temporary files (`.<name>.<pid>.tmp`) are left to
-//! [`crate::io::remove_stale_temporaries`].
+//! [`stepsim_contract::io::remove_stale_temporaries`].
 
 use super::{GenerateError, Job, RunDir, Sidecar};
-use crate::io::IoError;
-use crate::plan::Plan;
+use crate::run::plan::Plan;
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
+use stepsim_contract::io::IoError;
 
 /// Version of what `generate` writes: bumped whenever the bytes of a run's
 /// files change on purpose, so that a rerun refuses the files of an older
@@ -96,7 +96,7 @@ pub fn keep_inputs(plan: &Plan, paths: &RunDir) -> Result<(), GenerateError> {
                 });
             }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                crate::io::write_bytes_atomically(&copy, &input.bytes)?;
+                stepsim_contract::io::write_bytes_atomically(&copy, &input.bytes)?;
             }
             Err(e) => return Err(IoError::os(&copy, e).into()),
         }
@@ -134,7 +134,7 @@ fn listing(dir: &Path) -> Result<Vec<std::path::PathBuf>, IoError> {
     let mut out = Vec::new();
     for e in entries {
         let p = e.map_err(|e| IoError::os(dir, e))?.path();
-        if crate::io::temporary_owner(&p).is_none() {
+        if stepsim_contract::io::temporary_owner(&p).is_none() {
             out.push(p);
         }
     }

@@ -7,7 +7,7 @@
 //!
 //! 1. truth rows = `sheared(base_field(k) [rotated], g1(d), g2(d))`;
 //! 2. model = `draw_image(renderer of PSF(d), rows)` (electrons, no sky);
-//! 3. pixels = [`crate::noise::realise`] with key
+//! 3. pixels = [`crate::model::noise::realise`] with key
 //!    `SeedKey::image(seed, k, d, Noise).with_index(rotated)`;
 //! 4. `public/<dataset-id>/<image-id>.fits`, `private/truth/<image-id>.fits`,
 //!    optionally `private/model/<image-id>.fits`, and last the sidecar
@@ -41,27 +41,28 @@ pub mod times;
 
 pub use claim::{Claim, SeedUse};
 pub use integrity::OUTPUT_VERSION;
-pub use readme::{SUBMISSION_FORMAT, participants_readme};
+pub use readme::participants_readme;
 pub use shard::{AutoShardError, BadShard, SLURM_ARRAY_VARS, Shard};
 
-use crate::blind::{BlindingKey, sha256_hex};
-use crate::io::{IoError, write_bytes_atomically};
-use crate::noise::Detector;
-use crate::plan::Plan;
-use crate::render::Renderer;
-use crate::run_layout::{
-    DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
-    Manifest, ManifestImage,
-};
-use crate::seed::{SeedKey, Stream};
-use crate::truth::TruthRow;
+use crate::model::noise::Detector;
+use crate::model::render::Renderer;
+use crate::run::blind::BlindingKey;
+use crate::run::plan::Plan;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
+use stepsim_contract::digest::sha256_hex;
+use stepsim_contract::io::{IoError, write_bytes_atomically};
 use stepsim_contract::run_dir::{PublicDir, RunDir};
+use stepsim_contract::run_layout::{
+    DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets, InstrumentFacts, MANIFEST_FORMAT,
+    Manifest, ManifestImage,
+};
+use stepsim_contract::seed::{SeedKey, Stream};
+use stepsim_contract::truth::TruthRow;
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -75,18 +76,18 @@ pub enum GenerateError {
         /// The base field.
         field: u32,
         /// The renderer's error.
-        source: crate::render::RenderError,
+        source: crate::model::render::RenderError,
     },
     /// The population cannot be made (checked before anything is written).
     #[error("population: {0}")]
-    Preflight(crate::population::PopulationError),
+    Preflight(crate::model::population::PopulationError),
     /// The population of a base field could not be made.
     #[error("base field {field}: {source}")]
     Population {
         /// The base field.
         field: u32,
         /// The population's error.
-        source: crate::population::PopulationError,
+        source: crate::model::population::PopulationError,
     },
     /// A PSF could not be built.
     #[error("psfs.{index} ({name}): {source}")]
@@ -96,12 +97,12 @@ pub enum GenerateError {
         /// Its name.
         name: String,
         /// The PSF module's error.
-        source: crate::psf::PsfError,
+        source: crate::model::psf::PsfError,
     },
     /// The run does not fit on its file system (checked again once the
     /// PSFs are solved, with their sizes).
     #[error("{0}; the solved PSFs are kept in private/psf/cache/ for the next attempt")]
-    NoSpace(#[from] Box<crate::disk::NoSpace>),
+    NoSpace(#[from] Box<crate::run::disk::NoSpace>),
     /// The output directory holds a run made from another config.
     #[error(
         "{path} holds a run made from a different config; use another --out, or delete the whole run directory"
@@ -327,11 +328,11 @@ pub struct Options {
     /// Which share of the images to make.
     pub shard: Shard,
     /// The submission-format paragraph of the participants' README
-    /// (default [`SUBMISSION_FORMAT`]).
+    /// (default [`stepsim_contract::SUBMISSION_FORMAT_MD`]).
     pub submission_format: Option<String>,
     /// The space the run is checked against once its PSFs are solved,
     /// before the first image is written (`None`: not checked).
-    pub disk: Option<crate::disk::DiskSpace>,
+    pub disk: Option<crate::run::disk::DiskSpace>,
 }
 
 /// What the run reports while it works (for a progress bar).
@@ -400,9 +401,9 @@ pub struct Summary {
     /// Temporary files (`*.tmp`) still under the run directory at the end:
     /// being written by another shard right now, or not ours.
     pub stray_tmp: Vec<PathBuf>,
-    /// What the whole run writes ([`crate::disk::generate_estimate`]), with
+    /// What the whole run writes ([`crate::run::disk::generate_estimate`]), with
     /// the sides of the PSFs this process solved and the store's files.
-    pub disk_estimate: crate::memory::MemoryEstimate,
+    pub disk_estimate: crate::run::memory::MemoryEstimate,
 }
 
 /// Makes (this shard's share of) the run described by `plan` in `out`.
@@ -421,21 +422,21 @@ pub fn generate(
 ) -> Result<Summary, GenerateError> {
     let paths = RunDir::new(out);
     // Everything that could fail before drawing is checked before writing.
-    crate::population::preflight(&plan.population()).map_err(GenerateError::Preflight)?;
+    crate::model::population::preflight(&plan.population()).map_err(GenerateError::Preflight)?;
     let claim = claim::claim(plan, out)?;
     let plan = &claim.plan;
     let config_sha256 = config_sha256(plan);
     let key = blinding_key(plan);
     let all = jobs(plan, &key)?;
     refuse_foreign_or_undo_claim(plan, &paths, &key, &all, claim.created)?;
-    let removed_tmp = crate::io::remove_stale_temporaries(out);
+    let removed_tmp = stepsim_contract::io::remove_stale_temporaries(out);
     let work = find_pending(plan, &paths, &all, options.shard, &config_sha256)?;
     make_dataset_dirs(&paths, &all)?;
     let psfs = build_psfs(plan, &paths, &work, progress)?;
     let disk_estimate =
-        crate::disk::generate_estimate(plan, Some(&solved_psfs(plan, &paths, &psfs)));
+        crate::run::disk::generate_estimate(plan, Some(&solved_psfs(plan, &paths, &psfs)));
     if let Some(d) = &options.disk {
-        crate::disk::check(
+        crate::run::disk::check(
             &out.display().to_string(),
             disk_estimate.clone(),
             d.present_bytes,
@@ -492,7 +493,7 @@ pub fn generate(
 
 /// What the solved PSFs write: the side of each one's file (those this
 /// process built) and the bytes of the run's store files.
-fn solved_psfs(plan: &Plan, paths: &RunDir, psfs: &Psfs) -> crate::disk::SolvedPsfs {
+fn solved_psfs(plan: &Plan, paths: &RunDir, psfs: &Psfs) -> crate::run::disk::SolvedPsfs {
     use crate::io::psf_store::{file_for, is_stored};
     let scale = plan.pixel_scale_arcsec();
     let max_stamp = plan.accuracy().max_stamp_px;
@@ -504,7 +505,7 @@ fn solved_psfs(plan: &Plan, paths: &RunDir, psfs: &Psfs) -> crate::disk::SolvedP
             (*p, side)
         })
         .collect();
-    let accuracy = crate::psf::PsfAccuracy::default();
+    let accuracy = crate::model::psf::PsfAccuracy::default();
     let files: std::collections::BTreeSet<PathBuf> = plan
         .psf_specs()
         .iter()
@@ -516,7 +517,7 @@ fn solved_psfs(plan: &Plan, paths: &RunDir, psfs: &Psfs) -> crate::disk::SolvedP
         .filter_map(|f| std::fs::metadata(f).ok())
         .map(|m| m.len())
         .sum();
-    crate::disk::SolvedPsfs {
+    crate::run::disk::SolvedPsfs {
         file_side_px,
         store_bytes,
     }
@@ -828,9 +829,9 @@ impl<'a> FieldPopulations<'a> {
     /// Draws the population of `field` and stores it unless another copy
     /// was stored first. `Err` carries this draw's own error.
     fn draw(&self, field: u32, twin: bool, cell: &PopulationCell) -> Result<(), GenerateError> {
-        match crate::population::base_field(&self.plan.population(), field) {
+        match crate::model::population::base_field(&self.plan.population(), field) {
             Ok(base) => {
-                let twin = twin.then(|| crate::population::rotated(&base));
+                let twin = twin.then(|| crate::model::population::rotated(&base));
                 let _ = cell.set(Some(Arc::new(Population { base, twin })));
                 Ok(())
             }
@@ -1169,7 +1170,7 @@ fn write_shared(
     let para = options
         .submission_format
         .as_deref()
-        .unwrap_or(SUBMISSION_FORMAT);
+        .unwrap_or(stepsim_contract::SUBMISSION_FORMAT_MD);
     write_bytes_atomically(
         &paths.public().readme(),
         participants_readme(plan, para).as_bytes(),
@@ -1195,15 +1196,15 @@ fn write_shared(
 /// gives the PSF).
 fn write_psf_file(
     path: &Path,
-    psf: &Arc<dyn crate::psf::Psf>,
+    psf: &Arc<dyn crate::model::psf::Psf>,
     name: &str,
     pixel_scale_arcsec: f64,
     max_stamp_px: usize,
 ) -> Result<(), IoError> {
     use crate::io::psf_fits::{DEFAULT_OVERSAMPLE, renderer_side_px, write_psf};
-    let report = crate::psf::report(name, psf.as_ref(), pixel_scale_arcsec)
+    let report = crate::model::psf::report(name, psf.as_ref(), pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
-    let drawn = crate::psf::draw_for_file(
+    let drawn = crate::model::psf::draw_for_file(
         name,
         psf.as_ref(),
         pixel_scale_arcsec,
@@ -1349,7 +1350,7 @@ fn find_tmp(dir: &Path, out: &mut Vec<PathBuf>) {
 mod tests {
     use super::*;
     use crate::io::image_fits::{ImageHeader, SampleFormat, write_image_fits};
-    use crate::render::try_draw_image;
+    use crate::model::render::try_draw_image;
 
     fn plan(overrides: &[&str]) -> Plan {
         let mut o: Vec<String> = [
@@ -1410,7 +1411,8 @@ mod tests {
         assert_eq!((d.datasets[3].g1, d.datasets[3].g2), (0.04, -0.02));
         // Truth rows carry the dataset's shear.
         let im = &d.datasets[3].images[1];
-        let rows = crate::io::truth::read_truth_fits(&run.private().truth(&im.image)).unwrap();
+        let rows =
+            stepsim_contract::io::truth::read_truth_fits(&run.private().truth(&im.image)).unwrap();
         assert!(!rows.is_empty() && rows.iter().all(|r| r.g1 == 0.04 && r.g2 == -0.02));
         // Second run: everything verified, nothing written.
         let s = generate(&p, dir.path(), &Options::default(), &quiet).unwrap();
@@ -1445,10 +1447,10 @@ mod tests {
             "image.height_px=256",
             "psfs=[{\"name\":\"o\",\"model\":\"optical\",\"aberration\":\"none\",\"fwhm_arcsec\":0.9},{\"name\":\"g\",\"model\":\"gaussian\"}]",
         ]);
-        let before = crate::disk::generate_estimate(&p, None);
+        let before = crate::run::disk::generate_estimate(&p, None);
         let s = generate(&p, dir.path(), &Options::default(), &|_: Event| {}).unwrap();
         let after = &s.disk_estimate;
-        let part = |e: &crate::memory::MemoryEstimate, what: &str| {
+        let part = |e: &crate::run::memory::MemoryEstimate, what: &str| {
             e.parts
                 .iter()
                 .find(|x| x.what.contains(what))
@@ -1461,7 +1463,7 @@ mod tests {
                 f.extension().is_some_and(|x| x == ext) && !f.starts_with(run.private().psf_cache())
             })
         };
-        let block = crate::disk::FITS_BLOCK_BYTES;
+        let block = crate::run::disk::FITS_BLOCK_BYTES;
         // Images: at most three header blocks more than written, each.
         let images = under(run.public().path(), "fits");
         let est = part(after, "images of");
@@ -1493,7 +1495,7 @@ mod tests {
         // rows drawn (Poisson), so it lies within 5σ of the estimate.
         let truth = under(&run.private().truth_dir(), "fits");
         let est = part(after, "truth tables") as f64;
-        let expected = crate::memory::objects_per_field(&p);
+        let expected = crate::run::memory::objects_per_field(&p);
         let rel = 5.0 / expected.sqrt();
         assert!(expected > 20.0, "{expected}");
         assert!(
@@ -1522,8 +1524,10 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(run.private().datasets()).unwrap())
                 .unwrap();
         let truth = |k: usize| {
-            crate::io::truth::read_truth_fits(&run.private().truth(&d.datasets[k].images[0].image))
-                .unwrap()
+            stepsim_contract::io::truth::read_truth_fits(
+                &run.private().truth(&d.datasets[k].images[0].image),
+            )
+            .unwrap()
         };
         let (flat, lensed) = (truth(0), truth(1));
         let (cx, cy) = p.lensing_centre();
@@ -1535,7 +1539,8 @@ mod tests {
             let want = if r.is_star() {
                 (f.x, f.y)
             } else {
-                let (dx, dy) = crate::shear::lens_offset((f.x - cx, f.y - cy), 0.04, -0.02);
+                let (dx, dy) =
+                    stepsim_contract::shear::lens_offset((f.x - cx, f.y - cy), 0.04, -0.02);
                 (cx + dx, cy + dy)
             };
             assert!(
@@ -1559,12 +1564,13 @@ mod tests {
         let det = p.detector();
         let sky_adu = det.sky_e_per_px / det.gain_e_per_adu;
         for j in &js {
-            let img = crate::io::image_fits::read_image_fits(
+            let img = stepsim_contract::io::image::read_image_fits(
                 &paths.public().image(&j.dataset_id, &j.image_id),
             )
             .unwrap();
-            let model = crate::io::image_fits::read_image_fits(&paths.private().model(&j.image_id))
-                .unwrap();
+            let model =
+                stepsim_contract::io::image::read_image_fits(&paths.private().model(&j.image_id))
+                    .unwrap();
             assert!(model.pixels.iter().any(|&m| m > 1.0), "model has objects");
             for (a, m) in img.pixels.iter().zip(&model.pixels) {
                 // float32 rounding at 2e4 ADU: ulp 0.002
@@ -1601,9 +1607,9 @@ mod tests {
             .unwrap();
         let d = &p.datasets()[3];
         assert_eq!((d.psf, d.g1, d.g2), (1, 0.04, -0.02));
-        let rows = crate::population::sheared(
-            &crate::population::rotated(
-                &crate::population::base_field(&p.population(), 1).unwrap(),
+        let rows = crate::model::population::sheared(
+            &crate::model::population::rotated(
+                &crate::model::population::base_field(&p.population(), 1).unwrap(),
             ),
             d.g1,
             d.g2,
@@ -1613,7 +1619,7 @@ mod tests {
         let (w, h) = (p.geometry().width_px, p.geometry().height_px);
         let model = try_draw_image(&r, &rows, w, h).unwrap();
         let noise_key = SeedKey::image(p.seed(), 1, 3, Stream::Noise).with_index(1);
-        let pixels = crate::noise::realise_slow(&model, w as usize, &det, Some(noise_key));
+        let pixels = crate::model::noise::realise_slow(&model, w as usize, &det, Some(noise_key));
         let by_hand = dir.path().join("by_hand.fits");
         write_image_fits(
             &by_hand,
@@ -1631,7 +1637,8 @@ mod tests {
                 == std::fs::read(paths.public().image(&job.dataset_id, &job.image_id)).unwrap()
         );
         let truth =
-            crate::io::truth::read_truth_fits(&paths.private().truth(&job.image_id)).unwrap();
+            stepsim_contract::io::truth::read_truth_fits(&paths.private().truth(&job.image_id))
+                .unwrap();
         assert_eq!(truth, rows);
     }
 }

@@ -5,7 +5,7 @@
 //! 1. rows of the dataset: sheared (and lensed) base field ([`dataset_rows`]);
 //! 2. model: galaxies, stars, then the image-level PSF convolution
 //!    ([`draw_model`]);
-//! 3. pixels: sky, photon and read noise ([`crate::noise::realise`]) keyed
+//! 3. pixels: sky, photon and read noise ([`crate::model::noise::realise`]) keyed
 //!    by the job ([`super::Job::noise_key`]);
 //! 4. files: the public image, the truth table ([`crate::io::truth_header::truth_keywords`]), the
 //!    optional model, and last the sidecar with their SHA-256 (each file
@@ -16,14 +16,14 @@
 
 use super::{GenerateError, Job, Made, RunDir, Sidecar};
 use crate::io::image_fits::{ImageHeader, SampleFormat, write_image_fits};
-use crate::io::truth::write_truth_fits;
 use crate::io::truth_header::truth_keywords;
-use crate::io::write_bytes_atomically;
-use crate::noise::{self, Detector};
-use crate::plan::Plan;
-use crate::render::{Canvas, RenderError, Renderer};
-use crate::truth::TruthRow;
+use crate::model::noise::{self, Detector};
+use crate::model::render::{Canvas, RenderError, Renderer};
+use crate::run::plan::Plan;
 use std::time::Instant;
+use stepsim_contract::io::truth::write_truth_fits;
+use stepsim_contract::io::write_bytes_atomically;
+use stepsim_contract::truth::TruthRow;
 
 /// Wall-clock seconds of each stage of one image, and what it held.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -115,9 +115,9 @@ impl Lap {
 /// lensed too with `population.lens_positions`.
 pub fn dataset_rows(plan: &Plan, job: &Job, base: &[TruthRow]) -> Vec<TruthRow> {
     let d = &plan.datasets()[job.dataset as usize];
-    let rows = crate::population::sheared(base, d.g1, d.g2);
+    let rows = crate::model::population::sheared(base, d.g1, d.g2);
     if plan.lens_positions() {
-        crate::population::lensed(&plan.population(), job.field, &rows, d.g1, d.g2)
+        crate::model::population::lensed(&plan.population(), job.field, &rows, d.g1, d.g2)
     } else {
         rows
     }
@@ -126,7 +126,7 @@ pub fn dataset_rows(plan: &Plan, job: &Job, base: &[TruthRow]) -> Vec<TruthRow> 
 /// The noise-free model of `rows` in electrons: the leading galaxies, then
 /// the rest (stars), then the image-level convolution of the split method.
 /// Stamps are added in row order whatever the split, so the bytes equal
-/// those of [`crate::render::try_draw_image`].
+/// those of [`crate::model::render::try_draw_image`].
 pub fn draw_model(
     renderer: &Renderer,
     rows: &[TruthRow],

@@ -2,15 +2,11 @@
 //! data and the conventions, never a PSF name, shear, seed or run name.
 
 use crate::io::image_fits::{Compression, SampleFormat};
-use crate::plan::Plan;
+use crate::run::plan::Plan;
 use std::fmt::Write as _;
 
-/// The submission format of SPEC §6, as told to participants: the one copy,
-/// [`stepsim_contract::SUBMISSION_FORMAT_MD`].
-pub const SUBMISSION_FORMAT: &str = stepsim_contract::SUBMISSION_FORMAT_MD;
-
 /// The participants' README of a run. `submission_format` is the paragraph
-/// describing the submission format (see [`SUBMISSION_FORMAT`]).
+/// describing the submission format (see [`stepsim_contract::SUBMISSION_FORMAT_MD`]).
 pub fn participants_readme(plan: &Plan, submission_format: &str) -> String {
     let ins = plan.instrument();
     let img = plan.geometry();

@@ -10,10 +10,10 @@
 //! to "now", in the order the entries are visited: sorted by path, that is by
 //! the opaque dataset and image ids, an order keyed by the blinding secret.
 
-use crate::io::IoError;
 use std::fs::{File, FileTimes};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use stepsim_contract::io::IoError;
 
 /// The instant of a run: the modification time of its `private/config.json`,
 /// rounded down to a whole second.
@@ -31,7 +31,7 @@ pub fn entries(root: &Path) -> Result<Vec<PathBuf>, IoError> {
     fn walk(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), IoError> {
         for e in std::fs::read_dir(dir).map_err(|e| IoError::os(dir, e))? {
             let p = e.map_err(|e| IoError::os(dir, e))?.path();
-            if crate::io::temporary_owner(&p).is_some() {
+            if stepsim_contract::io::temporary_owner(&p).is_some() {
                 continue;
             }
             if p.is_dir() {
