@@ -5,8 +5,7 @@ use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
 use stepsim_numerics::stats::median;
 use stepsim_sim::run::config::RawConfig;
-use stepsim_sim::run::generate::bench::{peak_memory_bytes, run_once};
-use stepsim_sim::run::generate::pipeline::StageTimes;
+use stepsim_sim::run::generate::bench::{StageTimes, peak_memory_bytes, run_once};
 use stepsim_sim::{Plan, SeedOrigin};
 
 /// Arguments of `stepsim bench`.

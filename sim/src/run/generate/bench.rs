@@ -4,7 +4,7 @@
 //! the image-level PSF convolution of the split method
 //! ([`crate::model::render::split`]) is its own stage; the result is the model that
 //! the noise stage uses. The image is made by the run's own pipeline
-//! ([`super::pipeline`]), so the benchmark times exactly what `generate`
+//! (`pipeline.rs`), so the benchmark times exactly what `generate`
 //! does per image. Process CPU time is read from `/proc/self/stat` (clock
 //! ticks, 10 ms) around each stage.
 
@@ -13,7 +13,7 @@ use super::{GenerateError, Made, RunDir};
 use crate::run::plan::Plan;
 use std::path::Path;
 
-use super::pipeline::{StageTimes, process_cpu_s};
+pub use super::pipeline::{StageTimes, process_cpu_s};
 
 /// Makes image `field` (not the rotated twin) of the dataset with PSF
 /// `psf_index` and the last shear of the plan, exactly as `generate` makes
@@ -41,8 +41,8 @@ pub fn run_once(
         .into_iter()
         .find(|j| j.field == field && !j.rotated && j.dataset == dataset.index)
         .expect("the field is in range");
-    let paths = RunDir::new(scratch);
-    super::make_dataset_dirs(&paths, std::slice::from_ref(&job))?;
+    let run = RunDir::new(scratch);
+    super::make_dataset_dirs(&run, std::slice::from_ref(&job))?;
     let mut t = StageTimes::default();
     let cpu_start = process_cpu_s();
     let mut lap = Lap::start(true);
@@ -71,7 +71,7 @@ pub fn run_once(
     };
     let cx = Context {
         plan,
-        paths: &paths,
+        run: &run,
         det: &det,
         made: &made,
     };

@@ -29,7 +29,7 @@ pub enum SeedUse {
     Adopted,
 }
 
-/// The outcome of [`claim`].
+/// The outcome of `claim` (a run claiming its directory).
 #[derive(Debug, Clone)]
 pub struct Claim {
     /// The plan of the run (with an adopted seed where there was one).

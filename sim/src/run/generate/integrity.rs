@@ -23,8 +23,8 @@ pub const OUTPUT_VERSION: u32 = 3;
 
 /// Refuses, naming it, the first file or directory (in sorted order) that
 /// does not belong to the run of `all`.
-pub fn refuse_foreign_files(plan: &Plan, paths: &RunDir, all: &[Job]) -> Result<(), GenerateError> {
-    let (public, private) = (paths.public(), paths.private());
+pub fn refuse_foreign_files(plan: &Plan, run: &RunDir, all: &[Job]) -> Result<(), GenerateError> {
+    let (public, private) = (run.public(), run.private());
     let mut datasets: HashSet<PathBuf> = HashSet::new();
     let mut public_files: HashSet<PathBuf> = HashSet::new();
     let mut private_files: HashSet<PathBuf> = HashSet::new();
@@ -84,9 +84,9 @@ pub fn refuse_foreign_files(plan: &Plan, paths: &RunDir, all: &[Job]) -> Result<
 /// ([`GenerateError::InputChanged`]) a copy whose bytes differ from the
 /// file the plan read, so that a run is never continued with other inputs
 /// than it was made with.
-pub fn keep_inputs(plan: &Plan, paths: &RunDir) -> Result<(), GenerateError> {
+pub fn keep_inputs(plan: &Plan, run: &RunDir) -> Result<(), GenerateError> {
     for input in plan.run_inputs() {
-        let copy = paths.private().input(&input.name);
+        let copy = run.private().input(&input.name);
         match std::fs::read(&copy) {
             Ok(bytes) if bytes == *input.bytes => {}
             Ok(_) => {
@@ -146,11 +146,11 @@ fn listing(dir: &Path) -> Result<Vec<std::path::PathBuf>, IoError> {
 /// file) when it cannot be read as a sidecar of this stepsim, or was made by
 /// another config or output version.
 pub fn read_sidecar(
-    paths: &RunDir,
+    run: &RunDir,
     job: &Job,
     config_sha256: &str,
 ) -> Result<Option<Sidecar>, GenerateError> {
-    let path = paths.private().sidecar(&job.image_id);
+    let path = run.private().sidecar(&job.image_id);
     let text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),

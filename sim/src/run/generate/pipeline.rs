@@ -154,7 +154,7 @@ pub fn draw_model(
 /// What every image of a run shares.
 pub(crate) struct Context<'a> {
     pub plan: &'a Plan,
-    pub paths: &'a RunDir,
+    pub run: &'a RunDir,
     pub det: &'a Detector,
     pub made: &'a Made<'a>,
 }
@@ -169,7 +169,7 @@ pub(crate) fn make_image(
     lap: &mut Lap,
     t: &mut StageTimes,
 ) -> Result<(), GenerateError> {
-    let (plan, paths, det) = (cx.plan, cx.paths, cx.det);
+    let (plan, run, det) = (cx.plan, cx.run, cx.det);
     let d = &plan.datasets()[job.dataset as usize];
     let (w, h) = (plan.geometry().width_px, plan.geometry().height_px);
     let output = plan.output();
@@ -197,13 +197,13 @@ pub(crate) fn make_image(
     (t.noise_s, t.noise_cpu_s) = lap.lap();
 
     let header = ImageHeader::new(&plan.geometry(), plan.instrument());
-    let image_path = paths.public().image(&job.dataset_id, &job.image_id);
+    let image_path = run.public().image(&job.dataset_id, &job.image_id);
     let format = (output.format, output.compression);
     let image_sha256 = write_image_fits(&image_path, &pixels, w, h, &header, format.0, format.1)?;
     drop(pixels);
     t.write_s = lap.lap().0;
 
-    let truth_path = paths.private().truth(&job.image_id);
+    let truth_path = run.private().truth(&job.image_id);
     let keywords = truth_keywords(job.field, job.rotated, d.psf, d.g1, d.g2);
     let truth_sha256 = write_truth_fits(&truth_path, &rows, &keywords)?;
     t.truth_s = lap.lap().0;
@@ -213,7 +213,7 @@ pub(crate) fn make_image(
             .iter()
             .map(|&m| (f64::from(m) / det.gain_e_per_adu) as f32)
             .collect();
-        let path = paths.private().model(&job.image_id);
+        let path = run.private().model(&job.image_id);
         let none = crate::io::image_fits::Compression::None;
         let sha = write_image_fits(&path, &adu, w, h, &header, SampleFormat::Float32, none)?;
         t.model_s = lap.lap().0;
@@ -234,7 +234,7 @@ pub(crate) fn make_image(
         output_version: super::OUTPUT_VERSION,
     };
     let text = serde_json::to_string_pretty(&side).expect("sidecar serialises") + "\n";
-    write_bytes_atomically(&paths.private().sidecar(&job.image_id), text.as_bytes())?;
+    write_bytes_atomically(&run.private().sidecar(&job.image_id), text.as_bytes())?;
     t.checksum_s = lap.lap().0;
     Ok(())
 }
