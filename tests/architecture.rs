@@ -120,7 +120,7 @@ const RUN_PATHS_HOME: &str = "contract/src/run_dir.rs";
 /// text it holds, why).
 const NOT_A_RUN: &[(&str, &str, &str)] = &[
     (
-        "sim/src/products.rs",
+        "sim/src/run/products.rs",
         r#"out.join("config.json")"#,
         "the output directory of `stepsim psf` and `stepsim catalog`",
     ),

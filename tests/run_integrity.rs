@@ -230,7 +230,7 @@ fn an_unwritable_output_is_refused_before_any_work() {
     std::fs::write(d.join("plain"), "x").unwrap();
     // The claim of private/config.json comes before any work: no PSF is
     // built (a missing PSF file is refused even earlier, when the config is
-    // loaded: see the tests in sim/src/plan.rs).
+    // loaded: see the tests in sim/src/run/plan.rs).
     let o = generate(d, "x.json", "plain/run", &[]);
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
