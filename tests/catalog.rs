@@ -3,7 +3,8 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Output;
-use stepsim_sim::io::{skymaker, truth};
+use stepsim_contract::io::truth;
+use stepsim_sim::io::skymaker;
 
 use crate::common;
 use common::{run_with, stepsim};

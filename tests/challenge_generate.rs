@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::Output;
 use stepsim_contract::run_layout::Part;
-use stepsim_sim::plan::{Plan, holdout_fields, holdout_shear};
+use stepsim_sim::{Plan, holdout_fields, holdout_shear};
 
 use crate::common;
 

@@ -322,12 +322,12 @@ fn threads_and_shards_write_identical_bytes() {
         let file = im["file"].as_str().unwrap();
         let bytes = &a[Path::new(file)];
         assert_eq!(
-            stepsim_sim::blind::sha256_hex(bytes),
+            stepsim_contract::digest::sha256_hex(bytes),
             im["sha256"].as_str().unwrap()
         );
     }
     // The images are noisy sky-level images of the right size with objects.
-    let img = stepsim_sim::io::image_fits::read_image_fits(
+    let img = stepsim_contract::io::image::read_image_fits(
         &d.join("t1/public").join(list[0]["file"].as_str().unwrap()),
     )
     .unwrap();
@@ -460,8 +460,8 @@ fn rice_int32_output_is_the_float_image_rounded_exactly() {
         assert_ne!(a, b, "ids are unique to a run");
         let fa = d.join("f/public").join(a);
         let fb = d.join("r/public").join(b);
-        let x = stepsim_sim::io::image_fits::read_image_fits(&fa).unwrap();
-        let y = stepsim_sim::io::image_fits::read_image_fits(&fb).unwrap();
+        let x = stepsim_contract::io::image::read_image_fits(&fa).unwrap();
+        let y = stepsim_contract::io::image::read_image_fits(&fb).unwrap();
         assert_eq!(x.pixels.len(), y.pixels.len());
         for (p, q) in x.pixels.iter().zip(&y.pixels) {
             assert_eq!(stepsim_sim::io::image_fits::adu_to_i32(*p) as f32, *q);
@@ -544,7 +544,7 @@ fn killed_run_leaves_no_truncated_file_and_resumes_identically() {
         let name = path.to_string_lossy().into_owned();
         if name.ends_with(".fits") && !name.contains("/.") {
             let img =
-                stepsim_sim::io::image_fits::read_image_fits(&d.join("run/public").join(&path))
+                stepsim_contract::io::image::read_image_fits(&d.join("run/public").join(&path))
                     .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert_eq!(img.pixels.len(), 512 * 512);
         }
@@ -691,8 +691,8 @@ fn a_run_that_fits_only_before_its_psfs_are_solved_is_refused_before_any_image()
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::write(d.join("c.json"), OPTICAL).unwrap();
-    let plan = stepsim_sim::plan::Plan::load(&d.join("c.json"), &[]).unwrap();
-    let before = stepsim_sim::disk::generate_estimate(&plan, None).total_bytes();
+    let plan = stepsim_sim::Plan::load(&d.join("c.json"), &[]).unwrap();
+    let before = stepsim_sim::run::disk::generate_estimate(&plan, None).total_bytes();
     let limit = (before + (1 << 20)).to_string();
     let args = ["generate", "--config", "c.json", "--out", "r"];
     let o = run_env(&args, d, &[("STEPSIM_DISK_LIMIT_BYTES", &limit)]);

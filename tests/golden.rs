@@ -18,7 +18,7 @@ use rand::RngExt;
 use rand_distr::{Distribution, Normal, Poisson, StandardNormal};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use stepsim_sim::seed::{SeedKey, Stream};
+use stepsim_contract::seed::{SeedKey, Stream};
 
 use crate::common;
 use common::files;
@@ -133,7 +133,7 @@ fn a_small_run_has_the_pinned_bytes() {
         .map(|(rel, bytes)| {
             (
                 rel.to_string_lossy().into_owned(),
-                stepsim_sim::blind::sha256_hex(&bytes),
+                stepsim_contract::digest::sha256_hex(&bytes),
             )
         })
         .collect();

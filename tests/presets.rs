@@ -1,7 +1,7 @@
 //! Every preset in configs/ loads, validates and describes what its name says.
 
 use std::path::Path;
-use stepsim_sim::plan::Plan;
+use stepsim_sim::Plan;
 
 fn load(name: &str) -> Plan {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -34,10 +34,7 @@ fn the_step1_presets_carry_no_seed() {
             .join(name);
         let json = std::fs::read_to_string(&path).unwrap();
         assert_eq!(Plan::seed_written_in(&json, &path), None, "{name}");
-        assert_eq!(
-            load(name).seed_origin(),
-            stepsim_sim::plan::SeedOrigin::Drawn
-        );
+        assert_eq!(load(name).seed_origin(), stepsim_sim::SeedOrigin::Drawn);
     }
 }
 
@@ -63,14 +60,14 @@ fn mini_has_the_same_datasets_on_small_images() {
     let full = load("step1.json");
     let mini = load("step1-mini.json");
     // The same PSF × shear design (the base fields differ in number).
-    let design = |p: &stepsim_sim::plan::Plan| {
+    let design = |p: &stepsim_sim::Plan| {
         p.datasets()
             .iter()
             .map(|d| (d.index, d.psf, d.shear, d.part, d.g1, d.g2))
             .collect::<Vec<_>>()
     };
     assert_eq!(design(&mini), design(&full));
-    let psfs = |p: &stepsim_sim::plan::Plan| {
+    let psfs = |p: &stepsim_sim::Plan| {
         p.psf_specs()
             .iter()
             .map(|s| (s.name.clone(), s.fwhm_arcsec, s.model.clone()))

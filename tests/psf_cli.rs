@@ -1,11 +1,11 @@
 //! End-to-end checks of `stepsim psf`: outputs, report keys, refusals.
 //! (The six calibrated STEP1 PSFs are tested in the library,
-//! `stepsim_sim::psf::tests`; here a small config keeps the run short.)
+//! `stepsim_sim::model::psf::tests`; here a small config keeps the run short.)
 
 use std::path::Path;
 use std::process::Output;
+use stepsim_sim::Plan;
 use stepsim_sim::io::psf_fits::{read_image_hdu, read_psf_fits};
-use stepsim_sim::plan::Plan;
 
 use crate::common;
 use common::run;

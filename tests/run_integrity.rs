@@ -96,11 +96,16 @@ fn a_sidecar_of_another_config_or_version_is_refused_by_name() {
         .path();
     let text = std::fs::read_to_string(&side).unwrap();
     let v: serde_json::Value = serde_json::from_str(&text).unwrap();
-    assert_eq!(v["output_version"], stepsim_sim::generate::OUTPUT_VERSION);
+    assert_eq!(
+        v["output_version"],
+        stepsim_sim::run::generate::OUTPUT_VERSION
+    );
     let sha = v["config_sha256"].as_str().unwrap().to_string();
     assert_eq!(
         sha,
-        stepsim_sim::blind::sha256_hex(&std::fs::read(d.join("run/private/config.json")).unwrap())
+        stepsim_contract::digest::sha256_hex(
+            &std::fs::read(d.join("run/private/config.json")).unwrap()
+        )
     );
     let name = side.file_name().unwrap().to_string_lossy().into_owned();
     for (changed, why) in [
@@ -112,7 +117,7 @@ fn a_sidecar_of_another_config_or_version_is_refused_by_name() {
             text.replace(
                 &format!(
                     "\"output_version\": {}",
-                    stepsim_sim::generate::OUTPUT_VERSION
+                    stepsim_sim::run::generate::OUTPUT_VERSION
                 ),
                 "\"output_version\": 1",
             ),
@@ -225,7 +230,7 @@ fn an_unwritable_output_is_refused_before_any_work() {
     std::fs::write(d.join("plain"), "x").unwrap();
     // The claim of private/config.json comes before any work: no PSF is
     // built (a missing PSF file is refused even earlier, when the config is
-    // loaded: see the tests in sim/src/plan.rs).
+    // loaded: see the tests in sim/src/run/plan.rs).
     let o = generate(d, "x.json", "plain/run", &[]);
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);

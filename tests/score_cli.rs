@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 use stepsim_contract::run_dir::RunDir;
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
 
 use crate::common;
@@ -202,7 +202,7 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
         "fig5_residual_magnitude",
     ] {
         let png = std::fs::read(fx.path(&format!("out/{f}.png"))).unwrap();
-        assert!(stepsim_sim::io::png::decode(&png).is_some(), "{f}.png");
+        assert!(stepsim_figure::png::decode(&png).is_some(), "{f}.png");
         let svg = std::fs::read_to_string(fx.path(&format!("out/{f}.svg"))).unwrap();
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
     }
@@ -381,7 +381,7 @@ fn directory_submissions_and_the_leaderboard() {
     assert_eq!(j["entries"][0]["rank"], 1);
     assert_eq!(j["entries"][1]["submission"], "worse.txt");
     let png = std::fs::read(lb.join("fig3_m_sigma_c.png")).unwrap();
-    assert!(stepsim_sim::io::png::decode(&png).is_some());
+    assert!(stepsim_figure::png::decode(&png).is_some());
     let svg = std::fs::read_to_string(lb.join("fig3_m_sigma_c.svg")).unwrap();
     assert_eq!(
         svg.matches("<circle").count(),

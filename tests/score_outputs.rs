@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::process::Output;
 use stepsim_contract::run_dir::RunDir;
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthSpec, make_run, submission_text};
 
 use crate::common;

@@ -1,5 +1,5 @@
 //! A raster picture with text to lay over it: the value the PSF panel
-//! (`stepsim_sim::psf::panel`) makes and [`crate::png`] writes. Text is kept
+//! (`stepsim_sim::model::psf::panel`) makes and [`crate::png`] writes. Text is kept
 //! as labels, not pixels, so that it is drawn with a real font at the end.
 
 /// A line of text on a raster picture.

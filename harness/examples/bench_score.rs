@@ -13,8 +13,8 @@
 //! Markdown, 8 plot files). Set `STEPSIM_BENCH_KEEP=1` to keep the run.
 
 use std::time::Instant;
+use stepsim_contract::truth::TruthRow;
 use stepsim_harness::{ScoreOptions, build_report, match_images, prepare, write_outputs};
-use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthSpec, make_run};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -17,9 +17,9 @@ use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 use stepsim_harness::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
-use stepsim_sim::plan::Plan;
-use stepsim_sim::population::{base_field, lensed, rotated, sheared};
-use stepsim_sim::render::{Accuracy, Renderer, Stamp, draw_image};
+use stepsim_sim::Plan;
+use stepsim_sim::model::population::{base_field, lensed, rotated, sheared};
+use stepsim_sim::model::render::{Accuracy, Renderer, Stamp, draw_image};
 
 const W: usize = 512;
 const HALF: i64 = 12;
@@ -67,7 +67,7 @@ fn chi1(x: f64, y: f64, pixel: impl Fn(usize, usize) -> f64) -> Option<f64> {
         (HALF + 1) as f64 + x - x.round(),
         (HALF + 1) as f64 + y - y.round(),
     );
-    let m = stepsim_sim::moments::adaptive_from(&win, n, n, start, 2.0).ok()?;
+    let m = stepsim_sim::model::moments::adaptive_from(&win, n, n, start, 2.0).ok()?;
     Some(m.chi().0)
 }
 
@@ -174,7 +174,7 @@ fn ratio_error_over_fields(per_field: &[(f64, f64)]) -> f64 {
 /// larger of the two estimates `summary` prints.
 fn run(n_fields: [u32; 2]) -> [[(f64, f64, usize); 2]; 2] {
     let plan = plan(n_fields[0].max(n_fields[1]));
-    let psf = Arc::new(stepsim_sim::psf::GaussianPsf::round(0.9));
+    let psf = Arc::new(stepsim_sim::model::psf::GaussianPsf::round(0.9));
     let renderer = Renderer::new(
         psf,
         plan.geometry().pixel_scale_arcsec,

@@ -5,11 +5,11 @@
 //! 68 ± 5 % and 95 ± 3 % of the realisations (docs/scoring.md).
 
 use rand::{RngExt, SeedableRng};
+use stepsim_contract::seed::{SimRng, splitmix64};
+use stepsim_contract::truth::TruthRow;
 use stepsim_harness::{
     FitModel, ImageStats, PsfReport, image_stats, score_tables, score_tables_with,
 };
-use stepsim_sim::seed::{SimRng, splitmix64};
-use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run};
 
 /// Realisations per design.

@@ -10,7 +10,7 @@ use stepsim_harness::parse_file;
 
 fn write_table(path: &Path, x: &[f64]) {
     use fitsio::tables::{ColumnDataType, ColumnDescription};
-    use stepsim_sim::io::fits::{Primary, create_fits, finish_fits};
+    use stepsim_contract::io::fits::{Primary, create_fits, finish_fits};
     let mut f = create_fits(path, Primary::default()).unwrap();
     let mut cols = vec![
         ColumnDescription::new("IMAGE")

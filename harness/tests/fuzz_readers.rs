@@ -15,8 +15,8 @@ use crate::common;
 use common::{Col, doubles, fits_table, good_table, index, text, zeros};
 use rand::{RngExt, SeedableRng};
 use std::path::{Path, PathBuf};
+use stepsim_contract::seed::SimRng;
 use stepsim_harness::{parse_file_limited, read_report, read_submission_limited};
-use stepsim_sim::seed::SimRng;
 
 fn cases() -> usize {
     std::env::var("STEPSIM_FUZZ_CASES")

@@ -1,10 +1,10 @@
 //! Known-answer tests of the metrics: synthetic submissions with a chosen
 //! m, c, q, weights, contamination and selection, scored in memory.
 
+use stepsim_contract::truth::TruthRow;
 use stepsim_harness::{
     DISK_EDGES_ARCSEC, MAG_EDGES, PsfReport, binned_residuals, fit_line_closed_form, score_tables,
 };
-use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run};
 
 const AREA: f64 = 1.0;

@@ -3,10 +3,10 @@
 //! public feedback is those numbers rounded.
 
 use stepsim_contract::run_layout::Part;
+use stepsim_contract::truth::TruthRow;
 use stepsim_harness::{
     FEEDBACK_DECIMALS, PublicFeedback, ScoreOptions, has_holdout, round_to, score, score_part,
 };
-use stepsim_sim::truth::TruthRow;
 use stepsim_testkit::synthetic::{self, SynthRun, SynthSpec, submission_text};
 
 /// A public part (2 PSFs × 3 STEP1 shears on 2 fields) and a held-out part

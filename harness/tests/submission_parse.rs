@@ -3,8 +3,8 @@
 
 use rand::{RngExt, SeedableRng};
 use std::path::Path;
+use stepsim_contract::seed::SimRng;
 use stepsim_harness::{HarnessError, parse_file, read_submission};
-use stepsim_sim::seed::SimRng;
 
 use crate::common;
 use common::index;

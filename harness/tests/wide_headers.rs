@@ -330,7 +330,7 @@ fn expected(names: &[String]) -> Result<(), String> {
 #[test]
 fn random_header_shapes_end_as_the_rules_say() {
     use rand::{RngExt, SeedableRng};
-    let mut rng = stepsim_sim::seed::SimRng::seed_from_u64(2323);
+    let mut rng = stepsim_contract::seed::SimRng::seed_from_u64(2323);
     let pool = [
         "image", "x", "y", "e1", "e2", "weight", "flags", "X", "E1", "Image", "mag", "",
     ];

@@ -12,10 +12,10 @@
 //! the directory given (drawn by `stepsim_figure::chart`).
 
 use std::path::Path;
+use stepsim_contract::truth::TruthRow;
 use stepsim_figure::chart::{BLUE, Chart, Colour, Figure, GREY, Item, ORANGE, RED};
-use stepsim_sim::plan::Plan;
-use stepsim_sim::population::base_field;
-use stepsim_sim::truth::TruthRow;
+use stepsim_sim::Plan;
+use stepsim_sim::model::population::base_field;
 
 const FIELDS: u32 = 4;
 

@@ -15,10 +15,10 @@
 use rand::{RngExt, SeedableRng};
 use std::sync::Arc;
 use std::time::Instant;
-use stepsim_sim::psf::GaussianPsf;
-use stepsim_sim::render::{Accuracy, Renderer, StageTimes, draw_image};
-use stepsim_sim::seed::SimRng;
-use stepsim_sim::truth::TruthRow;
+use stepsim_contract::seed::SimRng;
+use stepsim_contract::truth::TruthRow;
+use stepsim_sim::model::psf::GaussianPsf;
+use stepsim_sim::model::render::{Accuracy, Renderer, StageTimes, draw_image};
 
 fn population(n_gal: usize, n_star: usize, side: f64) -> Vec<TruthRow> {
     let mut rng = SimRng::seed_from_u64(4);

@@ -7,13 +7,13 @@
 //! ```
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::plan::Plan;
-use stepsim_sim::psf::{GaussianPsf, Psf};
-use stepsim_sim::render::{Accuracy, Method, Renderer, StageTimes};
+use stepsim_sim::Plan;
+use stepsim_sim::model::psf::{GaussianPsf, Psf};
+use stepsim_sim::model::render::{Accuracy, Method, Renderer, StageTimes};
 fn main() {
     let plan = Plan::from_json("{}", Path::new("t"), &["run.seed=20060101"]).unwrap();
-    let rows = stepsim_sim::population::sheared(
-        &stepsim_sim::population::base_field(&plan.population(), 0).unwrap(),
+    let rows = stepsim_sim::model::population::sheared(
+        &stepsim_sim::model::population::base_field(&plan.population(), 0).unwrap(),
         0.1,
         0.0,
     );

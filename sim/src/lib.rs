@@ -13,35 +13,28 @@
 //! * Ellipticity: the reduced-shear type e = (1−β)/(1+β) e^{2iθ} (paper eq. 1)
 //!   unless a name says `chi` (distortion).
 //!
+//! ## Layers
+//! * [`model`]: profiles, population, PSFs, renderer, noise, WCS, moments;
+//!   values in, values out.
+//! * [`io`]: the simulator's file formats (images, PSF files and store,
+//!   SkyMaker lists, truth header keywords); uses the models, not the run.
+//! * [`run`]: the config, the [`Plan`] that resolves it, the memory and
+//!   disk estimates, `generate` and the other products of a plan.
+//!
 //! ## Invariants
 //! * The numerical core does no file I/O: everything on disk goes through
 //!   [`io`].
 //! * Every random draw comes from a generator keyed by
-//!   (run seed, base field, dataset, purpose) — see [`seed`].
+//!   (run seed, base field, dataset, purpose) — see
+//!   [`stepsim_contract::seed`].
 //! * Objects are immutable values.
 #![deny(missing_docs)]
 
-pub mod blind;
-pub mod config;
-pub mod disk;
-pub mod generate;
 pub mod io;
-pub mod memory;
-pub mod moments;
-pub mod noise;
-pub mod plan;
-pub mod population;
-pub mod products;
-pub mod profile;
-pub mod psf;
-pub mod render;
-/// The shared statistics, now in `stepsim-numerics` (re-exported while
-/// sim's own modules still name them `crate::stats`).
-pub use stepsim_numerics::stats;
-pub mod wcs;
+pub mod model;
+pub mod run;
 
-// The on-disk contract and the pictures live in their own crates, so that
-// the scorer and the reference pipeline read a run without linking the
-// simulator; they are re-exported under their old paths.
-pub use stepsim_contract::{run_layout, seed, shear, truth};
-pub use stepsim_figure::picture;
+pub use run::plan::{
+    Dataset, Output, Plan, PlanError, RunInput, SeedOrigin, Shear, holdout_fields, holdout_shear,
+    list_path,
+};

@@ -1,9 +1,13 @@
-//! The dependency graph between sim's top-level modules has no cycle, and
-//! ARCHITECTURE.md lists it as it is.
+//! sim's modules stand in three layers, their dependency graph has no
+//! cycle, and ARCHITECTURE.md lists it as it is.
 //!
-//! Every `crate::name` path (including `use crate::{a, b::c}` groups) in a
-//! file under `sim/src/<module>` is an edge `<module> -> name`; comments are
-//! left out. A cycle makes the test fail with the cycle spelled out.
+//! The layers are folders of `sim/src`: `model/` (what a run simulates),
+//! `io/` (the simulator's file formats) and `run/` (config, plan and the
+//! run). The models use neither `run` nor `io`; `io` uses the models, not
+//! `run`. Every `crate::a::b` path (including `use crate::{a, b::c}` groups)
+//! in a file is an edge from the file's module to `a::b` when `a` is a layer
+//! folder (`model::psf`), else to `a` (`io`); comments are left out. A cycle
+//! makes the test fail with the cycle spelled out.
 
 use std::path::{Path, PathBuf};
 
@@ -15,10 +19,29 @@ fn sim_src() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
 }
 
+/// The folders of `sim/src` whose modules are nodes of their own.
+const LAYERS: [&str; 2] = ["model", "run"];
+
+/// The graph of sim's modules (library code only, or with the tests).
+fn sim_graph(library_only: bool) -> Graph {
+    layered_module_graph(&sim_src(), &LAYERS, library_only)
+}
+
+/// Which layer may use which: the models nothing, io the models, the run
+/// both.
+const LAYER_RULES: [(&str, &[&str]); 3] = [
+    ("io", &["model"]),
+    ("model", &[]),
+    ("run", &["io", "model"]),
+];
+
 #[test]
 fn sim_modules_form_no_cycle() {
-    let g = library_module_graph(&sim_src());
-    assert!(g.contains_key("plan") && g.contains_key("config"), "{g:?}");
+    let g = sim_graph(true);
+    assert!(
+        g.contains_key("run::plan") && g.contains_key("run::config"),
+        "{g:?}"
+    );
     if let Some(cycle) = find_cycle(&g) {
         panic!(
             "sim's modules depend on each other in a cycle: {}\n\nthe graph:\n{}",
@@ -29,8 +52,53 @@ fn sim_modules_form_no_cycle() {
 }
 
 #[test]
+fn the_layers_depend_downward_only() {
+    let g = sim_graph(true);
+    assert_layered(&layers_of(&g), &["io", "model", "run"], &LAYER_RULES, "sim");
+}
+
+#[test]
+fn the_layer_rules_see_a_planted_edge() {
+    let g = sim_graph(true);
+    let plant = |from: &str, to: &str| {
+        let mut planted = g.clone();
+        planted.get_mut(from).unwrap().insert(to.into());
+        offences(&layers_of(&planted), &LAYER_RULES)
+    };
+    assert!(offences(&layers_of(&g), &LAYER_RULES).is_empty());
+    assert_eq!(plant("model::wcs", "run::config"), ["model -> run"]);
+    assert_eq!(plant("model::psf", "io"), ["model -> io"]);
+    assert_eq!(plant("io", "run::plan"), ["io -> run"]);
+    assert!(plant("run::plan", "io").is_empty());
+}
+
+#[test]
+fn the_graph_reads_layered_paths_and_groups() {
+    let code = "use crate::model::{psf::Psf, wcs};\nuse crate::{io, run::plan::Plan};\n\
+                fn f() { crate::model::render::draw(); crate::run::{self}; }\n";
+    let found: Vec<String> = crate_paths_to(&code_only(code), 2).into_iter().collect();
+    assert_eq!(
+        found,
+        [
+            "io",
+            "model::psf",
+            "model::render",
+            "model::wcs",
+            "run",
+            "run::plan"
+        ]
+    );
+    let node = |p: &str| layered_node(Path::new(p), &LAYERS);
+    assert_eq!(node("model/psf/zernike.rs"), "model::psf");
+    assert_eq!(node("model/wcs.rs"), "model::wcs");
+    assert_eq!(node("model/mod.rs"), "model");
+    assert_eq!(node("io/skymaker.rs"), "io");
+    assert_eq!(node("lib.rs"), "lib");
+}
+
+#[test]
 fn architecture_lists_the_module_graph_as_it_is() {
-    let g = library_module_graph(&sim_src());
+    let g = sim_graph(true);
     let doc_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../ARCHITECTURE.md");
     let doc = std::fs::read_to_string(&doc_path).unwrap();
     let start = "<!-- sim module graph: begin -->\n```\n";
@@ -49,62 +117,69 @@ fn architecture_lists_the_module_graph_as_it_is() {
 
 /// The model layer: what a run simulates, knowing no file and no config.
 const MODELS: [&str; 7] = [
-    "psf",
-    "population",
-    "profile",
-    "render",
-    "noise",
-    "wcs",
-    "moments",
+    "model::psf",
+    "model::population",
+    "model::profile",
+    "model::render",
+    "model::noise",
+    "model::wcs",
+    "model::moments",
 ];
 
-/// The run layer the models must not reach: the config (its schema), the
-/// plan that reads it, file formats and the run's bookkeeping.
-const RUN_LAYER: [&str; 7] = [
-    "config", "plan", "io", "generate", "products", "memory", "disk",
-];
-
-/// "model -> module" for every edge of `g` from one of `models` to one of
-/// `forbidden`.
+/// "model -> module" for every edge of `g` from one of `models` to a module
+/// of a layer in `forbidden` (`run` is every `run::…`).
 fn edges_between(g: &Graph, models: &[&str], forbidden: &[&str]) -> Vec<String> {
+    let hits = |to: &str| {
+        forbidden
+            .iter()
+            .any(|f| to == *f || to.starts_with(&format!("{f}::")))
+    };
     models
         .iter()
         .flat_map(|m| g.get(*m).into_iter().flatten().map(move |to| (m, to)))
-        .filter(|(_, to)| forbidden.contains(&to.as_str()))
+        .filter(|(_, to)| hits(to))
         .map(|(m, to)| format!("{m} -> {to}"))
         .collect()
 }
 
 #[test]
 fn the_models_know_no_config_plan_or_files() {
-    let src = sim_src();
-    let library = library_module_graph(&src);
+    let library = sim_graph(true);
     assert!(
         MODELS.iter().all(|m| library.contains_key(*m)),
         "{library:?}"
     );
-    let wrong = edges_between(&library, &MODELS, &RUN_LAYER);
+    let models: Vec<&str> = library
+        .keys()
+        .map(String::as_str)
+        .filter(|m| m.starts_with("model::"))
+        .collect();
+    assert_eq!(models.len(), MODELS.len(), "{models:?}");
+    let wrong = edges_between(&library, &models, &["run", "io"]);
     assert!(
         wrong.is_empty(),
-        "the models (sim/src/{{{}}}) must take typed specs from the plan, not \
-         reach the run layer {RUN_LAYER:?}:\n{}",
-        MODELS.join(","),
+        "the models (sim/src/model/) must take typed specs from the plan, not \
+         reach the run layer or the files (sim/src/run/, sim/src/io/):\n{}",
         wrong.join("\n")
     );
     // Not even a model's tests name the config: only the plan reads it.
-    let everything = module_graph(&src);
-    let wrong = edges_between(&everything, &MODELS, &["config"]);
+    let everything = sim_graph(false);
+    let wrong = edges_between(&everything, &models, &["run::config"]);
     assert!(
         wrong.is_empty(),
-        "a model's code or tests use `crate::config`:\n{}",
+        "a model's code or tests use `crate::run::config`:\n{}",
         wrong.join("\n")
     );
     // The check sees an edge when there is one.
     let mut planted = library.clone();
-    planted.get_mut("wcs").unwrap().insert("config".into());
+    planted
+        .get_mut("model::wcs")
+        .unwrap()
+        .insert("run::config".into());
+    planted.get_mut("model::psf").unwrap().insert("io".into());
     assert_eq!(
-        edges_between(&planted, &MODELS, &RUN_LAYER),
-        ["wcs -> config"]
+        edges_between(&planted, &models, &["run", "io"]),
+        ["model::psf -> io", "model::wcs -> run::config"]
     );
 }
 
@@ -149,11 +224,29 @@ fn paths_are_read_from_code_not_from_prose() {
     );
     let found: Vec<String> = crate_paths(&code).into_iter().collect();
     assert_eq!(found, ["config", "io", "plan", "seed", "wcs"]);
+    let deep: Vec<String> = crate_paths_to(&code, 2).into_iter().collect();
+    assert_eq!(
+        deep,
+        [
+            "config::A",
+            "config::B",
+            "io::x",
+            "plan",
+            "seed::SeedKey",
+            "wcs::TanWcs"
+        ]
+    );
 }
 
 /// The modules of sim that may touch files: the edges of ARCHITECTURE.md's
 /// invariant ("sim does no file I/O in its numerical core").
-const FILE_EDGES: [&str; 5] = ["io", "generate", "config", "products", "disk"];
+const FILE_EDGES: [&str; 5] = [
+    "io",
+    "run::generate",
+    "run::config",
+    "run::products",
+    "run::disk",
+];
 
 /// What in code reads or writes files (or the file system's tree).
 const FILE_IO: [&str; 6] = [
@@ -183,14 +276,8 @@ fn file_io_outside(edges: &[&str]) -> (usize, Vec<String>) {
     let mut checked = 0;
     for f in &files {
         let rel = f.strip_prefix(&src).unwrap();
-        let top = rel
-            .components()
-            .next()
-            .unwrap()
-            .as_os_str()
-            .to_string_lossy();
-        let top = top.trim_end_matches(".rs");
-        if edges.contains(&top) || f.file_name().is_some_and(|n| n == "tests.rs") {
+        let node = layered_node(rel, &LAYERS);
+        if edges.contains(&node.as_str()) || f.file_name().is_some_and(|n| n == "tests.rs") {
             continue;
         }
         checked += 1;
@@ -212,7 +299,7 @@ fn only_the_edge_modules_touch_files() {
         offenders.join("\n")
     );
     // The check sees the edges' own I/O when they are not excused.
-    let (_, io) = file_io_outside(&["generate", "config", "products", "disk"]);
+    let (_, io) = file_io_outside(&["run::generate", "run::config", "run::products", "run::disk"]);
     assert!(io.iter().any(|o| o.starts_with("io")), "{io:?}");
 }
 

@@ -10,9 +10,9 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use stepsim_sim::plan::Plan;
-use stepsim_sim::psf::GaussianPsf;
-use stepsim_sim::render::{Accuracy, Renderer};
+use stepsim_sim::Plan;
+use stepsim_sim::model::psf::GaussianPsf;
+use stepsim_sim::model::render::{Accuracy, Renderer};
 
 /// Centroid-subtracted second moments (xx, xy, yy) of a stamp, in pixels².
 fn pixel_moments(data: &[f64], n: usize) -> [f64; 3] {
@@ -46,12 +46,12 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
         ],
     )
     .unwrap();
-    let base = stepsim_sim::population::base_field(&plan.population(), 0).unwrap();
+    let base = stepsim_sim::model::population::base_field(&plan.population(), 0).unwrap();
     let (g1, g2) = (0.05, -0.03);
-    let rows = stepsim_sim::population::sheared(&base, g1, g2);
+    let rows = stepsim_sim::model::population::sheared(&base, g1, g2);
     // Compact galaxies (the 512² stamp holds their second moments) of three
     // kinds: bulge-dominated, disk-dominated and mixed.
-    let compact = |r: &&stepsim_sim::truth::TruthRow| {
+    let compact = |r: &&stepsim_contract::truth::TruthRow| {
         !r.is_star() && r.bulge_re_arcsec < 0.15 && r.disk_h_arcsec < 0.4
     };
     let pick = |lo: f64, hi: f64| {
@@ -85,7 +85,7 @@ fn drawn_population_galaxies_have_their_truth_ellipticity() {
         let (_, _, data) = renderer.draw_f64_with_side(&row, n).unwrap();
         let q = pixel_moments(&data, n);
         let add = sigma_px * sigma_px + 1.0 / 12.0;
-        let m = stepsim_sim::shear::Moments {
+        let m = stepsim_contract::shear::Moments {
             xx: q[0] - add,
             xy: q[1],
             yy: q[2] - add,

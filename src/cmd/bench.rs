@@ -3,9 +3,9 @@
 
 use anyhow::{Context as _, bail};
 use std::path::{Path, PathBuf};
-use stepsim_sim::generate::bench::{StageTimes, peak_memory_bytes, run_once};
-use stepsim_sim::plan::{Plan, SeedOrigin};
-use stepsim_sim::stats::median;
+use stepsim_numerics::stats::median;
+use stepsim_sim::run::generate::bench::{StageTimes, peak_memory_bytes, run_once};
+use stepsim_sim::{Plan, SeedOrigin};
 
 /// Arguments of `stepsim bench`.
 #[derive(Debug, clap::Args)]
@@ -91,8 +91,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let threads = super::threads(args.threads);
     super::check_memory(
         "bench",
-        stepsim_sim::memory::bench_estimate(&plan, psf_index),
-        stepsim_sim::memory::RUN_HINT,
+        stepsim_sim::run::memory::bench_estimate(&plan, psf_index),
+        stepsim_sim::run::memory::RUN_HINT,
     )?;
     let pool = super::thread_pool(threads)?;
     let dir = args.scratch.clone().unwrap_or_else(std::env::temp_dir);
@@ -211,7 +211,7 @@ mod tests {
         std::fs::write(&list, "100 10.0 12.0 20.0\n").unwrap();
         let set = list_override(&list).unwrap();
         let plan = bench_plan(None, &[set, "image.n_images=1".into()]).unwrap();
-        let rows = stepsim_sim::population::base_field(&plan.population(), 0).unwrap();
+        let rows = stepsim_sim::model::population::base_field(&plan.population(), 0).unwrap();
         assert_eq!(rows.len(), 1);
         assert!(rows[0].is_star() && (rows[0].x, rows[0].y) == (10.0, 12.0));
     }

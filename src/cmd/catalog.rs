@@ -17,8 +17,8 @@
 
 use super::ConfigArgs;
 use std::path::PathBuf;
-use stepsim_sim::plan::SeedOrigin;
-use stepsim_sim::products;
+use stepsim_sim::SeedOrigin;
+use stepsim_sim::run::products;
 
 /// Arguments of `stepsim catalog`.
 #[derive(Debug, clap::Args)]
@@ -35,10 +35,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let plan = args.config.plan()?;
     super::fits_path("--out", &args.out)?;
     // The population is refused (with its key) before the memory estimate.
-    stepsim_sim::population::preflight(&plan.population())?;
+    stepsim_sim::model::population::preflight(&plan.population())?;
     super::check_memory(
         "catalog",
-        stepsim_sim::memory::catalog_estimate(&plan),
+        stepsim_sim::run::memory::catalog_estimate(&plan),
         "lower population.galaxies.mag_faint, population.stars.density_per_arcmin2, image.margin_arcsec or the image size",
     )?;
     let counts = products::write_catalog(&plan, &args.out)?;

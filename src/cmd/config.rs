@@ -2,7 +2,7 @@
 //! seed when the config gives none: each `generate` draws its own).
 
 use super::ConfigArgs;
-use stepsim_sim::plan::SeedOrigin;
+use stepsim_sim::SeedOrigin;
 
 /// Arguments of `stepsim config`.
 #[derive(Debug, clap::Args)]

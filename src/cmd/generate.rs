@@ -4,9 +4,9 @@ use super::ConfigArgs;
 use anyhow::Context as _;
 use std::path::PathBuf;
 use stepsim_contract::run_dir::RunDir;
-use stepsim_sim::generate::{self, Event, Options, SeedUse, Shard};
-use stepsim_sim::memory;
-use stepsim_sim::plan::SeedOrigin;
+use stepsim_sim::SeedOrigin;
+use stepsim_sim::run::generate::{self, Event, Options, SeedUse, Shard};
+use stepsim_sim::run::memory;
 
 /// Arguments of `stepsim generate`.
 #[derive(Debug, clap::Args)]
@@ -137,7 +137,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 /// `--finish`: verify every image and write the manifest.
-fn finish(args: &Args, plan: &stepsim_sim::plan::Plan, threads: usize) -> anyhow::Result<()> {
+fn finish(args: &Args, plan: &stepsim_sim::Plan, threads: usize) -> anyhow::Result<()> {
     let pool = super::thread_pool(threads)?;
     match pool.install(|| generate::finish(plan, &args.out)) {
         Ok(f) => {

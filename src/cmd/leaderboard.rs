@@ -59,7 +59,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 json.into_bytes(),
             ];
             for (name, b) in OUTPUTS.iter().zip(&bytes) {
-                stepsim_sim::io::write_bytes_atomically(&dir.join(name), b)?;
+                stepsim_contract::io::write_bytes_atomically(&dir.join(name), b)?;
             }
             eprintln!(
                 "stepsim: leaderboard of {} reports in {}",

@@ -51,7 +51,7 @@ pub struct Args {
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
     /// parts into FILE.
     #[arg(long, value_name = "K/N|auto", value_parser = super::shard_arg, conflicts_with = "finish")]
-    shard: Option<stepsim_sim::generate::Shard>,
+    shard: Option<stepsim_sim::run::generate::Shard>,
     /// Join the parts FILE.shards/K-of-N.txt of every shard into FILE,
     /// byte-identical to an unsharded measure (refused when one is missing).
     #[arg(long)]
@@ -88,7 +88,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Ok(m) = stepsim_ksb::read_manifest(&PublicDir::new(&args.run).manifest()) {
         super::check_memory(
             "measure",
-            stepsim_sim::memory::measure_estimate(
+            stepsim_sim::run::memory::measure_estimate(
                 m.instrument.width_px,
                 m.instrument.height_px,
                 m.images.len(),

@@ -67,7 +67,7 @@ pub fn available_cores() -> usize {
 /// do not describe a contiguous array, is a usage error (exit 2): the
 /// command line asks for something this environment does not give, and
 /// nothing has been read or written yet.
-pub fn shard_arg(s: &str) -> Result<stepsim_sim::generate::Shard, String> {
+pub fn shard_arg(s: &str) -> Result<stepsim_sim::run::generate::Shard, String> {
     shard_arg_with(s, |name| std::env::var(name).ok())
 }
 
@@ -75,8 +75,8 @@ pub fn shard_arg(s: &str) -> Result<stepsim_sim::generate::Shard, String> {
 pub fn shard_arg_with(
     s: &str,
     var: impl Fn(&str) -> Option<String>,
-) -> Result<stepsim_sim::generate::Shard, String> {
-    use stepsim_sim::generate::Shard;
+) -> Result<stepsim_sim::run::generate::Shard, String> {
+    use stepsim_sim::run::generate::Shard;
     if s.trim() == "auto" {
         Shard::from_slurm(var).map_err(|e| e.to_string())
     } else {
@@ -113,7 +113,7 @@ pub fn thread_pool(n: usize) -> anyhow::Result<rayon::ThreadPool> {
 /// anything.
 pub fn check_memory(
     command: &str,
-    estimate: stepsim_sim::memory::MemoryEstimate,
+    estimate: stepsim_sim::run::memory::MemoryEstimate,
     hint: &str,
 ) -> anyhow::Result<()> {
     let var = stepsim_sim::io::MEMORY_LIMIT_ENV;
@@ -127,7 +127,7 @@ pub fn check_memory(
             v.to_string_lossy()
         );
     }
-    stepsim_sim::memory::check(command, estimate, stepsim_sim::io::available_memory(), hint)?;
+    stepsim_sim::run::memory::check(command, estimate, stepsim_sim::io::available_memory(), hint)?;
     Ok(())
 }
 
@@ -197,16 +197,16 @@ pub fn bytes_under(dir: &std::path::Path) -> u64 {
 /// least), and returns the space measured, against which `generate`
 /// checks again once the PSFs are solved.
 pub fn check_disk(
-    plan: &stepsim_sim::plan::Plan,
+    plan: &stepsim_sim::Plan,
     out: &std::path::Path,
-) -> anyhow::Result<stepsim_sim::disk::DiskSpace> {
-    let space = stepsim_sim::disk::DiskSpace {
+) -> anyhow::Result<stepsim_sim::run::disk::DiskSpace> {
+    let space = stepsim_sim::run::disk::DiskSpace {
         present_bytes: bytes_under(out),
         free: free_disk(out)?,
     };
-    stepsim_sim::disk::check(
+    stepsim_sim::run::disk::check(
         &out.display().to_string(),
-        stepsim_sim::disk::generate_estimate(plan, None),
+        stepsim_sim::run::disk::generate_estimate(plan, None),
         space.present_bytes,
         space.free.clone(),
     )?;
@@ -239,11 +239,8 @@ pub struct ConfigArgs {
 
 impl ConfigArgs {
     /// Loads and validates the config with its overrides.
-    pub fn plan(&self) -> anyhow::Result<stepsim_sim::plan::Plan> {
-        Ok(stepsim_sim::plan::Plan::load(
-            &self.config,
-            &self.overrides,
-        )?)
+    pub fn plan(&self) -> anyhow::Result<stepsim_sim::Plan> {
+        Ok(stepsim_sim::Plan::load(&self.config, &self.overrides)?)
     }
 }
 

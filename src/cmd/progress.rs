@@ -4,8 +4,8 @@
 
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
-use stepsim_sim::generate::Event;
 use stepsim_sim::io::psf_store::Origin;
+use stepsim_sim::run::generate::Event;
 
 /// Longest silence between two log lines while images are made.
 pub const LOG_EVERY_S: u64 = 30;

@@ -18,7 +18,7 @@
 use super::ConfigArgs;
 use std::path::PathBuf;
 use stepsim_sim::io::psf_fits;
-use stepsim_sim::products::{self, PsfSetOptions};
+use stepsim_sim::run::products::{self, PsfSetOptions};
 
 /// Arguments of `stepsim psf`.
 #[derive(Debug, clap::Args)]
@@ -61,7 +61,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     super::check_memory(
         "psf",
-        stepsim_sim::memory::psf_estimate(
+        stepsim_sim::run::memory::psf_estimate(
             &plan,
             products::largest_psf_side_px(&plan, size_px),
             options.oversample,

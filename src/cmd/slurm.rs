@@ -50,7 +50,7 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     use anyhow::Context as _;
     // The config must exist and be valid now, not when the first job starts.
-    stepsim_sim::plan::Plan::load(&args.config, &[])?;
+    stepsim_sim::Plan::load(&args.config, &[])?;
     let cwd = std::env::current_dir().context("cannot read the current directory")?;
     let stepsim = match &args.stepsim {
         Some(p) => absolute(&cwd, p),

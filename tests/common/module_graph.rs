@@ -115,6 +115,100 @@ pub fn crate_paths(code: &str) -> BTreeSet<String> {
     found
 }
 
+/// The paths a piece of code reaches through `crate::`, each cut to its
+/// first `depth` segments and joined by `::` (`crate::model::{psf::Psf,
+/// wcs}` gives `model::psf` and `model::wcs` at depth 2); [`crate_paths`]
+/// is depth 1.
+pub fn crate_paths_to(code: &str, depth: usize) -> BTreeSet<String> {
+    let mut found = BTreeSet::new();
+    let mut rest = code;
+    while let Some(i) = rest.find("crate::") {
+        let before = rest[..i].chars().next_back();
+        rest = &rest[i + "crate::".len()..];
+        if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '$') {
+            continue;
+        }
+        use_tree(rest, &mut Vec::new(), depth, &mut found);
+    }
+    found
+}
+
+/// Reads the use tree at the start of `text` (after a `::`), adding to
+/// `out` every path it names, cut to `depth` segments, below `prefix`;
+/// returns the length of text read.
+fn use_tree(
+    text: &str,
+    prefix: &mut Vec<String>,
+    depth: usize,
+    out: &mut BTreeSet<String>,
+) -> usize {
+    let ident_len = |t: &str| {
+        t.find(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .unwrap_or(t.len())
+    };
+    let mut at = 0;
+    let pushed = prefix.len();
+    let mut grouped = false;
+    loop {
+        let t = &text[at..];
+        if let Some(group) = t.strip_prefix('{') {
+            // `{a, b::c, ...}`: each member is a tree below the prefix.
+            let mut used = 1;
+            let mut g = group;
+            loop {
+                let skip = g.len() - g.trim_start().len();
+                used += skip;
+                g = &g[skip..];
+                if g.starts_with('}') {
+                    used += 1;
+                    break;
+                }
+                if let Some(r) = g.strip_prefix(',') {
+                    used += 1;
+                    g = r;
+                    continue;
+                }
+                let n = use_tree(g, prefix, depth, out);
+                if n == 0 {
+                    break; // not a use tree: stop reading
+                }
+                used += n;
+                g = &g[n..];
+            }
+            at += used;
+            grouped = true;
+            break;
+        }
+        let n = ident_len(t);
+        if n == 0 {
+            break;
+        }
+        prefix.push(t[..n].to_string());
+        at += n;
+        if text[at..].starts_with("::") {
+            at += 2;
+            continue;
+        }
+        break;
+    }
+    let names: Vec<&String> = prefix
+        .iter()
+        .take(depth)
+        .filter(|s| s.as_str() != "self" && s.as_str() != "super")
+        .collect();
+    if !grouped && !names.is_empty() && prefix.len() > pushed {
+        out.insert(
+            names
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join("::"),
+        );
+    }
+    prefix.truncate(pushed);
+    at
+}
+
 pub fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     for e in std::fs::read_dir(dir).unwrap() {
         let p = e.unwrap().path();
@@ -300,4 +394,89 @@ pub fn assert_layered(g: &Graph, names: &[&str], allowed: &[(&str, &[&str])], wh
             cycle.join(" -> ")
         );
     }
+}
+
+/// The module graph of the crate whose sources are in `src`, with the
+/// modules of each folder named in `layers` as nodes of their own
+/// (`model::psf` for `src/model/psf/`, `src/model/psf.rs`); a layer's own
+/// `mod.rs` is the node `model`. With `library_only`, test code is left out
+/// ([`library_code`]).
+pub fn layered_module_graph(src: &Path, layers: &[&str], library_only: bool) -> Graph {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let node_of = |p: &Path| -> String { layered_node(p.strip_prefix(src).unwrap(), layers) };
+    let modules: BTreeSet<String> = files
+        .iter()
+        .map(|p| node_of(p))
+        .filter(|m| m != "lib")
+        .collect();
+    let mut g: Graph = modules
+        .iter()
+        .map(|m| (m.clone(), BTreeSet::new()))
+        .collect();
+    for f in &files {
+        let from = node_of(f);
+        if from == "lib" {
+            continue;
+        }
+        let text = std::fs::read_to_string(f).unwrap();
+        let code = code_only(&text);
+        let code = if library_only {
+            library_code(f, &code)
+        } else {
+            &code
+        };
+        for path in crate_paths_to(code, 2) {
+            let mut parts = path.split("::");
+            let first = parts.next().unwrap_or("");
+            let to = match parts.next() {
+                Some(second) if layers.contains(&first) => format!("{first}::{second}"),
+                _ => first.to_string(),
+            };
+            if to != from && modules.contains(&to) {
+                g.get_mut(&from).unwrap().insert(to);
+            }
+        }
+    }
+    g
+}
+
+/// The node of the file at `rel` (relative to `src/`) in a
+/// [`layered_module_graph`]: `model::psf` for `model/psf/mod.rs` or
+/// `model/psf.rs`, `model` for `model/mod.rs`, `io` for `io/skymaker.rs`.
+pub fn layered_node(rel: &Path, layers: &[&str]) -> String {
+    let parts: Vec<String> = rel
+        .components()
+        .map(|c| {
+            c.as_os_str()
+                .to_string_lossy()
+                .trim_end_matches(".rs")
+                .to_string()
+        })
+        .collect();
+    match &parts[..] {
+        [first, second, ..] if layers.contains(&first.as_str()) && second != "mod" => {
+            format!("{first}::{second}")
+        }
+        [first, ..] => first.clone(),
+        [] => String::new(),
+    }
+}
+
+/// `g` with each node replaced by its layer (the part before `::`), the
+/// edges inside a layer left out.
+pub fn layers_of(g: &Graph) -> Graph {
+    let layer = |n: &str| n.split("::").next().unwrap_or(n).to_string();
+    let mut out = Graph::new();
+    for (from, to) in g {
+        let f = layer(from);
+        let entry = out.entry(f.clone()).or_default();
+        for t in to {
+            let t = layer(t);
+            if t != f {
+                entry.insert(t);
+            }
+        }
+    }
+    out
 }

@@ -7,8 +7,8 @@ use std::path::Path;
 #[path = "../../../tests/common/fits_table.rs"]
 mod fits_table;
 pub use fits_table::*;
+use stepsim_contract::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
 use stepsim_harness::ImageIndex;
-use stepsim_sim::run_layout::{DATASETS_FORMAT, DatasetEntry, DatasetImage, Datasets};
 
 /// Two images `imA`, `imB` of 100 × 80 pixels.
 pub fn index() -> ImageIndex {

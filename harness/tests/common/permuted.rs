@@ -13,7 +13,7 @@
 
 use std::path::{Path, PathBuf};
 use stepsim_contract::run_dir::RunDir;
-use stepsim_sim::run_layout::Datasets;
+use stepsim_contract::run_layout::Datasets;
 use stepsim_testkit::synthetic::{self, SynthRun, SynthSpec};
 
 /// One submitted row: image id, x, y, e1, e2, weight.

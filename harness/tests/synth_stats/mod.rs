@@ -8,8 +8,8 @@
 #![allow(dead_code)]
 
 use rand::{RngExt, SeedableRng};
+use stepsim_contract::seed::{SimRng, splitmix64};
 use stepsim_harness::{BinAcc, DatasetMeta, ImageStats};
-use stepsim_sim::seed::{SimRng, splitmix64};
 
 /// A synthetic design and its truth.
 #[derive(Debug, Clone)]

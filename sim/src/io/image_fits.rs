@@ -17,19 +17,17 @@
 //! * Nothing else: no PSF, shear, seed or other truth, and no `DATE` or any
 //!   time-dependent keyword, so a rerun writes identical bytes.
 //!
-//! Files are written atomically ([`super::write_atomically`]).
+//! Files are written atomically ([`stepsim_contract::io::write_atomically`]).
 
-use super::IoError;
-use super::fits::{Primary, fits_bytes, write_fits_hashed};
-use super::write_atomically;
-use crate::noise::Instrument;
-use crate::wcs::{Geometry, TanWcs};
+use crate::model::noise::Instrument;
+use crate::model::wcs::{Geometry, TanWcs};
 use fitsio::FitsFile;
 use fitsio::images::{ImageDescription, ImageType};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-
-pub use stepsim_contract::io::image::{FitsImage, read_image_fits};
+use stepsim_contract::io::IoError;
+use stepsim_contract::io::fits::{Primary, fits_bytes, write_fits_hashed};
+use stepsim_contract::io::write_atomically;
 
 /// Pixel type of the written images (the config's `output.format`).
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq, Eq)]
@@ -54,7 +52,7 @@ pub enum Compression {
 /// What goes into the header of an image besides its pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImageHeader {
-    /// The TAN WCS (the same for every image of a run: [`crate::wcs`]).
+    /// The TAN WCS (the same for every image of a run: [`crate::model::wcs`]).
     pub wcs: TanWcs,
     /// GAIN, e⁻/ADU.
     pub gain_e_per_adu: f64,
@@ -360,6 +358,7 @@ fn delete_key(f: &mut FitsFile, key: &str) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stepsim_contract::io::image::read_image_fits;
 
     fn header() -> ImageHeader {
         let img = Geometry {

@@ -1,24 +1,18 @@
 //! File input and output. Nothing in the numerical core touches files: all
 //! reading and writing of FITS, CSV, JSON and SkyMaker lists lives here.
 //!
-//! Every writer goes through [`write_atomically`]: the file is written under a
-//! temporary name in the same directory and renamed into place only when
-//! complete, so a killed run never leaves a truncated file under a final name.
+//! Every writer goes through [`stepsim_contract::io::write_atomically`]: the
+//! file is written under a temporary name in the same directory and renamed
+//! into place only when complete, so a killed run never leaves a truncated file under a final name.
 //! The error type, the atomic writes, FITS open/create by plain name and the
-//! truth tables are the run's on-disk contract and live in `stepsim-contract`
-//! (re-exported here); the PNG writer lives in `stepsim-figure`.
+//! truth tables are the run's on-disk contract and live in
+//! [`stepsim_contract::io`]; the PNG writer is [`stepsim_figure::png`].
 
 pub mod image_fits;
 pub mod psf_fits;
 pub mod psf_store;
 pub mod skymaker;
 pub mod truth_header;
-
-pub use stepsim_contract::io::{
-    IoError, fits, remove_stale_temporaries, temporary_name, temporary_owner, truth,
-    write_atomically, write_bytes_atomically,
-};
-pub use stepsim_figure::png;
 
 /// Environment variable that sets the memory (bytes) a command may plan to
 /// use, instead of what the system reports (for tests, and for organisers

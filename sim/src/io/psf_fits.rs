@@ -7,12 +7,12 @@
 //! `PIXSCALE` (arcsec of this HDU's samples), `OVERSAMP`, `PSFNAME`, plus
 //! the caller's measurements (FWHM, χ, seeing, amplitude).
 
-use super::fits::{Primary, create_fits, open_fits};
-use super::{IoError, write_atomically};
 use fitsio::FitsFile;
 use fitsio::hdu::HduInfo;
 use fitsio::images::{ImageDescription, ImageType};
 use std::path::Path;
+use stepsim_contract::io::fits::{Primary, create_fits, open_fits};
+use stepsim_contract::io::{IoError, write_atomically};
 
 /// A square PSF image.
 #[derive(Debug, Clone, Copy)]
@@ -85,7 +85,7 @@ pub fn write_psf_fits(
         let ext = f.create_image("OVERSAMPLED", &desc).map_err(fe)?;
         ext.write_image(&mut f, oversampled.data).map_err(fe)?;
         common(&mut f, &ext, oversampled.scale_arcsec).map_err(fe)?;
-        super::fits::finish_fits(f, path)
+        stepsim_contract::io::fits::finish_fits(f, path)
     })
 }
 
@@ -100,13 +100,13 @@ pub const DEFAULT_SIZE_PX: usize = 128;
 /// flux), and at least [`DEFAULT_SIZE_PX`]. 328 for the STEP1 PSFs at
 /// 0.206″ (±163 px); a 128² file missed 1.1e-3 of their flux.
 ///
-/// [`kernel_margin_px`]: crate::render::split::kernel_margin_px
+/// [`kernel_margin_px`]: crate::model::render::split::kernel_margin_px
 pub fn renderer_side_px(
-    psf: &dyn crate::psf::Psf,
+    psf: &dyn crate::model::psf::Psf,
     pixel_scale_arcsec: f64,
     max_stamp_px: usize,
 ) -> usize {
-    let m = crate::render::split::kernel_margin_px(psf, pixel_scale_arcsec, max_stamp_px);
+    let m = crate::model::render::split::kernel_margin_px(psf, pixel_scale_arcsec, max_stamp_px);
     (2 * m + 2).max(DEFAULT_SIZE_PX)
 }
 /// Samples per pixel of the oversampled PSF image written by default.
@@ -117,14 +117,14 @@ pub const DEFAULT_OVERSAMPLE: usize = 4;
 /// header: a run's `private/psf/<name>.fits`.
 pub fn draw_and_write(
     path: &Path,
-    psf: &dyn crate::psf::Psf,
+    psf: &dyn crate::model::psf::Psf,
     name: &str,
     pixel_scale_arcsec: f64,
     side_px: usize,
 ) -> Result<(), IoError> {
-    let report = crate::psf::report(name, psf, pixel_scale_arcsec)
+    let report = crate::model::psf::report(name, psf, pixel_scale_arcsec)
         .map_err(|e| IoError::format(path, e.to_string()))?;
-    let drawn = crate::psf::draw_for_file(
+    let drawn = crate::model::psf::draw_for_file(
         name,
         psf,
         pixel_scale_arcsec,
@@ -135,12 +135,12 @@ pub fn draw_and_write(
     write_psf(path, &drawn)
 }
 
-/// Writes a drawn PSF ([`crate::psf::draw_for_file`]) to
+/// Writes a drawn PSF ([`crate::model::psf::draw_for_file`]) to
 /// `RUN/private/psf/<name>.fits` (or any path): the pixel-scale image in the
 /// primary HDU, the fine one in `OVERSAMPLED`, with the report's FWHM, χ and
 /// calibration in the headers when given. This is what `stepsim psf` and the
 /// generate step write.
-pub fn write_psf(path: &Path, drawn: &crate::psf::DrawnPsf) -> Result<(), IoError> {
+pub fn write_psf(path: &Path, drawn: &crate::model::psf::DrawnPsf) -> Result<(), IoError> {
     let (n, oversample, p) = (drawn.n, drawn.oversample, drawn.pixel_scale_arcsec);
     let mut keys: Vec<Keyword> = Vec::new();
     if let Some(r) = &drawn.report {
@@ -277,14 +277,14 @@ mod tests {
         // old 128² file left out), and the outer border holds almost nothing
         // (no wrapped wings).
         let p = 0.206;
-        let psf = crate::psf::build(&crate::psf::PsfSpec::step1(0, p)).unwrap();
+        let psf = crate::model::psf::build(&crate::model::psf::PsfSpec::step1(0, p)).unwrap();
         let n = renderer_side_px(psf.as_ref(), p, 1024);
         assert_eq!(n, 328);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("none.fits");
         write_psf(
             &path,
-            &crate::psf::draw_for_file("none", psf.as_ref(), p, n, 1, None),
+            &crate::model::psf::draw_for_file("none", psf.as_ref(), p, n, 1, None),
         )
         .unwrap();
         let (v, nx, ny) = read_psf_fits(&path).unwrap();
@@ -308,7 +308,7 @@ mod tests {
         assert!(outside > 9e-4 && outside < 1.3e-3, "{outside}");
         assert!(border.abs() < 1e-6, "{border}");
         // A Gaussian needs no more than the smallest default side.
-        let g = crate::psf::GaussianPsf::round(0.9);
+        let g = crate::model::psf::GaussianPsf::round(0.9);
         assert_eq!(renderer_side_px(&g, p, 1024), DEFAULT_SIZE_PX);
     }
 }

@@ -50,14 +50,14 @@
 //! trusted like the binary, so it is made private to the user (0700) and
 //! must not be a directory others can write.
 
-use super::{IoError, write_bytes_atomically};
-use crate::psf::calibrate::OpticalPsf;
-use crate::psf::optical::BandTransfer;
-use crate::psf::{Calibration, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec};
+use crate::model::psf::calibrate::OpticalPsf;
+use crate::model::psf::optical::BandTransfer;
+use crate::model::psf::{Calibration, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec};
 use num_complex::Complex64;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use stepsim_contract::digest::sha256_hex;
+use stepsim_contract::io::{IoError, write_bytes_atomically};
 
 /// Version of the file format and of what it holds: bump it whenever the
 /// solved PSF or this layout changes, so that older files are rebuilt.
@@ -248,7 +248,10 @@ pub fn load_or_build_shared(
     user: Option<&Path>,
 ) -> Result<(Arc<dyn Psf>, Origin), StoreError> {
     let Some(request) = OpticalRequest::of(spec) else {
-        return Ok((crate::psf::build_with(spec, accuracy)?, Origin::Built));
+        return Ok((
+            crate::model::psf::build_with(spec, accuracy)?,
+            Origin::Built,
+        ));
     };
     let digest = spec_digest(spec, accuracy);
     let name = format!("{digest}.bin");
@@ -270,7 +273,7 @@ pub fn load_or_build_shared(
         let from = from.clone();
         return Ok((psf, Origin::Copied { file, from }));
     }
-    let (band, cal) = crate::psf::solve_optical(&request, accuracy)?;
+    let (band, cal) = crate::model::psf::solve_optical(&request, accuracy)?;
     let bytes = encode(&band, &cal, &digest);
     write_bytes_atomically(&file, &bytes)?;
     if let Some(from) = &shared {
@@ -477,7 +480,7 @@ fn decode(c: &[u8]) -> Option<(BandTransfer, Calibration)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::psf::{Aberration, PsfModel, Telescope};
+    use crate::model::psf::{Aberration, PsfModel, Telescope};
 
     fn spec(target_chi: f64) -> PsfSpec {
         let model = PsfModel::Optical {
@@ -564,7 +567,7 @@ mod tests {
         // and record the new content hash here.
         let (s, acc) = (spec(0.04), small());
         let request = OpticalRequest::of(&s).unwrap();
-        let (band, cal) = crate::psf::solve_optical(&request, &acc).unwrap();
+        let (band, cal) = crate::model::psf::solve_optical(&request, &acc).unwrap();
         let file = encode(&band, &cal, &spec_digest(&s, &acc));
         let at = file.windows(2).position(|w| w == b"\n\n").unwrap();
         let content = sha256_hex(&file[at + 2..]);
@@ -583,7 +586,7 @@ mod tests {
         // bytes.
         let (s, acc) = (spec(0.04), small());
         let request = OpticalRequest::of(&s).unwrap();
-        let (band, cal) = crate::psf::solve_optical(&request, &acc).unwrap();
+        let (band, cal) = crate::model::psf::solve_optical(&request, &acc).unwrap();
         let psf = OpticalPsf::new(band, cal);
         let tmp = tempfile::tempdir().unwrap();
         let draw = |name: &str| {
@@ -737,7 +740,7 @@ mod tests {
             }
         );
         assert_eq!(std::fs::read(&fb).unwrap(), bytes);
-        let grid = crate::psf::StampGrid::new(48, 0.206);
+        let grid = crate::model::psf::StampGrid::new(48, 0.206);
         assert_eq!(*second.transfer(grid), *first.transfer(grid));
         assert_eq!(second.calibration(), first.calibration());
         // The run's own copy comes first (the user's is not read again).
@@ -771,8 +774,8 @@ mod tests {
         let (again, o2) = load_or_build(&s, &acc, dir.path()).unwrap();
         assert_eq!(o2, Origin::Reused { file: file.clone() });
         // The very same PSF as building it directly (and as the first).
-        let direct = crate::psf::build_with(&s, &acc).unwrap();
-        let grid = crate::psf::StampGrid::new(48, 0.206);
+        let direct = crate::model::psf::build_with(&s, &acc).unwrap();
+        let grid = crate::model::psf::StampGrid::new(48, 0.206);
         let t = direct.transfer(grid);
         assert_eq!(*built.transfer(grid), *t);
         assert_eq!(*again.transfer(grid), *t);

@@ -27,11 +27,11 @@
 //! Reading never panics: every error names the file, the 1-based line, the
 //! field and the offending text.
 
-use super::{IoError, write_bytes_atomically};
-pub use crate::population::ListObject;
-use crate::truth::TruthRow;
+use crate::model::population::ListObject;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use stepsim_contract::io::{IoError, write_bytes_atomically};
+use stepsim_contract::truth::TruthRow;
 
 /// An error in a SkyMaker list.
 #[derive(Debug, thiserror::Error)]

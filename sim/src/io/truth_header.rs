@@ -1,7 +1,7 @@
 //! The header keywords of truth tables, built in one place for `generate`
 //! (one table per image) and `stepsim catalog` (one per base field).
 
-use super::truth::Keyword;
+use stepsim_contract::io::truth::Keyword;
 
 /// The keywords naming a base field in a truth table's header: `FIELD`
 /// and `ROTATED` (the one place they are built: `generate` and `stepsim catalog`

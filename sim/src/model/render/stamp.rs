@@ -1,0 +1,606 @@
+//! The Fourier-space stamp engine: fill the half-plane grid, inverse FFT.
+//!
+//! Layout: the grid of an `n × n` stamp has `n/2 + 1` columns (u ≥ 0) and
+//! `n` rows (v, wrapped as in [`crate::model::psf::StampGrid`]). The engine stores it column by
+//! column (`[u][v]`, each column contiguous) so the first inverse pass is
+//! `n/2 + 1` complex FFTs of length `n` along v; then each image row y is a
+//! complex-to-real FFT of length `n` along u. Both are unnormalised, so the
+//! result is scaled by 1/n² (that makes the pixels sum to the k = 0 value,
+//! the flux).
+//!
+//! The Nyquist row and column (|u| or |v| = 1/(2p)) hold the sum of the
+//! transform at +ν_N and −ν_N, the two frequencies the pixel samples cannot
+//! tell apart (this is what the DFT of the samples of a real, band-limited
+//! image holds there). Frequencies beyond Nyquist are not folded in (no
+//! aliasing of the PSF-convolved profile): the comparison with the
+//! real-space reference measures what this leaves out.
+
+use crate::model::profile::galaxy::Component;
+use crate::model::profile::{DeVaucouleurs, Exponential, ProfileKind};
+use num_complex::Complex32;
+use realfft::num_complex::Complex;
+use realfft::{ComplexToReal, FftNum, RealFftPlanner};
+use rustfft::{Fft, FftPlanner};
+use std::collections::HashMap;
+use std::f64::consts::PI;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use super::StageTimes;
+
+/// The smallest even n ≥ `m` of the form 2^a 3^b 5^c (a ≥ 1).
+pub fn fft_friendly(m: usize) -> usize {
+    let mut n = m.max(2);
+    n += n % 2;
+    while !is_friendly(n) {
+        n += 2;
+    }
+    n
+}
+
+/// The largest even n ≤ `m` of the form 2^a 3^b 5^c (at least 2).
+pub fn fft_friendly_below(m: usize) -> usize {
+    let mut n = m.max(2);
+    n -= n % 2;
+    while n > 2 && !is_friendly(n) {
+        n -= 2;
+    }
+    n
+}
+
+fn is_friendly(mut n: usize) -> bool {
+    for f in [2, 3, 5] {
+        while n % f == 0 {
+            n /= f;
+        }
+    }
+    n == 1
+}
+
+/// What one stamp holds: geometry and the object.
+#[derive(Debug, Clone)]
+pub struct Fill {
+    /// Stamp side (even).
+    pub n: usize,
+    /// Pixel scale (arcsec).
+    pub pixel_scale_arcsec: f64,
+    /// Object centre minus the centre of stamp pixel (0, 0), in pixels.
+    pub dx_px: f64,
+    /// The same along y.
+    pub dy_px: f64,
+    /// Flux of a point source (stars); 0 for galaxies.
+    pub star_flux_e: f64,
+    /// Galaxy components (empty for stars).
+    pub components: Vec<Component>,
+    /// Skip the galaxy transform where |T S| < cut.
+    pub cut: f64,
+    /// Image-array column of stamp pixel 0.
+    pub x0: i64,
+    /// Image-array row of stamp pixel 0.
+    pub y0: i64,
+}
+
+/// The two FFT plans of one stamp side.
+struct Plans<T: FftNum> {
+    columns: Arc<dyn Fft<T>>,
+    rows: Arc<dyn ComplexToReal<T>>,
+}
+
+/// FFT plans and per-side tables, shared by all threads.
+pub struct FftCache<T: FftNum> {
+    plans: Mutex<HashMap<usize, Arc<Plans<T>>>>,
+    sincs: Mutex<HashMap<usize, Arc<Vec<f64>>>>,
+}
+
+impl<T: FftNum> Default for FftCache<T> {
+    fn default() -> Self {
+        Self {
+            plans: Mutex::new(HashMap::new()),
+            sincs: Mutex::new(HashMap::new()),
+        }
+    }
+}
+
+impl<T: FftNum> std::fmt::Debug for FftCache<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FftCache")
+    }
+}
+
+impl<T: FftNum> FftCache<T> {
+    fn plans(&self, n: usize) -> Arc<Plans<T>> {
+        let mut map = self.plans.lock().expect("fft plan cache");
+        map.entry(n)
+            .or_insert_with(|| {
+                Arc::new(Plans {
+                    columns: FftPlanner::<T>::new().plan_fft_inverse(n),
+                    rows: RealFftPlanner::<T>::new().plan_fft_inverse(n),
+                })
+            })
+            .clone()
+    }
+
+    /// sinc(m / n) for the wrapped frequency index m of row/column 0..n.
+    pub(crate) fn sinc(&self, n: usize) -> Arc<Vec<f64>> {
+        let mut map = self.sincs.lock().expect("sinc cache");
+        map.entry(n)
+            .or_insert_with(|| {
+                Arc::new(
+                    (0..n)
+                        .map(|j| {
+                            let m = wrap(j, n) as f64 / n as f64;
+                            if m == 0.0 {
+                                1.0
+                            } else {
+                                (PI * m).sin() / (PI * m)
+                            }
+                        })
+                        .collect(),
+                )
+            })
+            .clone()
+    }
+}
+
+/// Wrapped frequency index of row `j` of an n-point grid.
+#[inline]
+fn wrap(j: usize, n: usize) -> i64 {
+    if j <= n / 2 {
+        j as i64
+    } else {
+        j as i64 - n as i64
+    }
+}
+
+/// e^{−2πi m d / n} for m = 0..count, by complex recurrence from
+/// e^{−2πi d / n}, re-anchored with an exact `sin_cos` every 32 steps
+/// (error < 1e-14).
+fn phases(count: usize, n: usize, d: f64) -> Vec<(f64, f64)> {
+    let exact = |m: usize| {
+        let a = -2.0 * PI * ((m as f64 * d) / n as f64).rem_euclid(1.0);
+        let (s, c) = a.sin_cos();
+        (c, s)
+    };
+    let step = exact(1);
+    let mut out = Vec::with_capacity(count);
+    let mut cur = (1.0, 0.0);
+    for m in 0..count {
+        if m % 32 == 0 {
+            cur = exact(m);
+        }
+        out.push(cur);
+        cur = (
+            cur.0 * step.0 - cur.1 * step.1,
+            cur.0 * step.1 + cur.1 * step.0,
+        );
+    }
+    out
+}
+
+/// Renders [`Fill`]s in precision `T`.
+#[derive(Debug)]
+pub struct StampEngine<T: FftNum> {
+    cache: FftCache<T>,
+}
+
+impl<T: FftNum> StampEngine<T> {
+    /// An engine with the given cache.
+    pub fn new(cache: FftCache<T>) -> Self {
+        Self { cache }
+    }
+
+    /// Renders one stamp: row-major n × n pixels in electrons.
+    /// `transfer` is the PSF transfer on the stamp's grid (row-major `[v][u]`).
+    pub fn render(
+        &self,
+        fill: &Fill,
+        transfer: &[Complex32],
+        times: Option<&mut StageTimes>,
+    ) -> Vec<T> {
+        let t0 = times.as_ref().map(|_| Instant::now());
+        let n = fill.n;
+        let nc = n / 2 + 1;
+        let sinc = self.cache.sinc(n);
+        let mut buf = vec![Complex::<T>::new(T::zero(), T::zero()); nc * n];
+        fill_kspace(fill, transfer, &sinc, &mut buf);
+        let t1 = t0.map(|_| Instant::now());
+
+        let plans = self.cache.plans(n);
+        let mut scratch = vec![
+            Complex::<T>::new(T::zero(), T::zero());
+            plans
+                .columns
+                .get_inplace_scratch_len()
+                .max(plans.rows.get_scratch_len())
+        ];
+        let s = plans.columns.get_inplace_scratch_len();
+        plans
+            .columns
+            .process_with_scratch(&mut buf, &mut scratch[..s]);
+        let mut out = vec![T::zero(); n * n];
+        let mut row = vec![Complex::<T>::new(T::zero(), T::zero()); nc];
+        let scale = T::from_f64(1.0 / (n as f64 * n as f64)).expect("float");
+        let s = plans.rows.get_scratch_len();
+        for (y, out_row) in out.chunks_exact_mut(n).enumerate() {
+            for (i, r) in row.iter_mut().enumerate() {
+                *r = buf[i * n + y];
+            }
+            // Hermitian symmetry makes these real; clear the rounding.
+            row[0].im = T::zero();
+            row[nc - 1].im = T::zero();
+            plans
+                .rows
+                .process_with_scratch(&mut row, out_row, &mut scratch[..s])
+                .expect("lengths match the plan");
+            for v in out_row.iter_mut() {
+                *v = *v * scale;
+            }
+        }
+        if let (Some(times), Some(t0), Some(t1)) = (times, t0, t1) {
+            times.kspace_ns += (t1 - t0).as_nanos() as u64;
+            times.fft_ns += t1.elapsed().as_nanos() as u64;
+        }
+        out
+    }
+}
+
+/// What both fills of one stamp derive from its [`Fill`] before their loops.
+struct Setup {
+    n: usize,
+    nc: usize,
+    /// Frequency step, cycles per arcsec.
+    dk: f64,
+    /// Shift phases e^{−2πi m d / n} along x for m = 0..=n/2.
+    px: Vec<(f64, f64)>,
+    /// The same along y.
+    pos_y: Vec<(f64, f64)>,
+    /// The phase of each row j: rows 0..=n/2 are m = j; rows above are
+    /// m = j − n, the conjugates of rows n − j.
+    py: Vec<(f64, f64)>,
+    /// Frequency v of each row j.
+    vs: Vec<f64>,
+    /// (law, flux, Gram matrix of the map) of each galaxy component.
+    comps: Vec<(ProfileKind, f64, [f64; 3])>,
+}
+
+impl Setup {
+    fn new(fill: &Fill, transfer: &[Complex32]) -> Self {
+        let n = fill.n;
+        let nc = n / 2 + 1;
+        assert_eq!(transfer.len(), n * nc, "PSF transfer of the wrong grid");
+        let dk = 1.0 / (n as f64 * fill.pixel_scale_arcsec);
+        let pos_y = phases(n / 2 + 1, n, fill.dy_px);
+        let py = (0..n)
+            .map(|j| {
+                if j <= n / 2 {
+                    pos_y[j]
+                } else {
+                    let (c, s) = pos_y[n - j];
+                    (c, -s)
+                }
+            })
+            .collect();
+        Self {
+            n,
+            nc,
+            dk,
+            px: phases(nc, n, fill.dx_px),
+            pos_y,
+            py,
+            vs: (0..n).map(|j| wrap(j, n) as f64 * dk).collect(),
+            comps: fill
+                .components
+                .iter()
+                .map(|c| (c.kind, c.flux_e, c.map.gram()))
+                .collect(),
+        }
+    }
+
+    fn spectrum<'a>(
+        &'a self,
+        fill: &'a Fill,
+        transfer: &'a [Complex32],
+        sinc: &'a [f64],
+    ) -> Spectrum<'a> {
+        Spectrum {
+            fill,
+            transfer,
+            sinc,
+            px: &self.px,
+            py: &self.pos_y,
+            comps: &self.comps,
+            dk: self.dk,
+        }
+    }
+}
+
+/// amp · (tre + i tim) · (pxr + i pxi) · (pyr + i pyi) as (re, im): the
+/// galaxy transform times PSF ⊗ pixel times the shift phases.
+#[inline]
+fn shifted(
+    amp: f64,
+    (tre, tim): (f64, f64),
+    (pxr, pxi): (f64, f64),
+    (pyr, pyi): (f64, f64),
+) -> (f64, f64) {
+    let (ph_r, ph_i) = (pxr * pyr - pxi * pyi, pxr * pyi + pxi * pyr);
+    (
+        amp * (tre * ph_r - tim * ph_i),
+        amp * (tre * ph_i + tim * ph_r),
+    )
+}
+
+/// One grid cell in the FFT's precision.
+#[inline]
+fn cell<T: FftNum>((re, im): (f64, f64)) -> Complex<T> {
+    Complex::new(
+        T::from_f64(re).expect("float"),
+        T::from_f64(im).expect("float"),
+    )
+}
+
+/// Fills the `[u][v]` buffer with object × PSF × pixel × shift.
+///
+/// The Nyquist row and column hold what the samples of a real image hold
+/// there: both frequencies ±ν_N fall on the same cell, so the cell is the sum
+/// of the continuous transform at +ν_N and −ν_N (at the corner, of all four
+/// sign combinations); see [`nyquist_cell`].
+///
+/// A column at a time, in passes over plain arrays: the PSF ⊗ pixel
+/// transfer, then each galaxy component's transform (one loop per profile
+/// law, without branches, which the compiler turns into vector square roots
+/// and divisions), then the product with the shift phases. Each cell gets
+/// the same operations in the same order as in [`fill_kspace_slow`],
+/// so the same bits; the transform is also evaluated where the cut then
+/// zeroes the cell (at the STEP1 settings only cells near the grid's
+/// corners are cut).
+///
+/// Where the CPU runs AVX2 the same code runs built for it (four f64 lanes
+/// instead of two; same bits, `stepsim_numerics::simd`).
+pub(crate) fn fill_kspace<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if stepsim_numerics::simd::has_avx2() {
+        // SAFETY: the CPU runs AVX2 (checked just above).
+        return unsafe { fill_kspace_avx2(fill, transfer, sinc, buf) };
+    }
+    fill_kspace_body(fill, transfer, sinc, buf);
+}
+
+/// [`fill_kspace_body`] built for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn fill_kspace_avx2<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    fill_kspace_body(fill, transfer, sinc, buf);
+}
+
+/// The body of [`fill_kspace`], in whichever build its caller has.
+#[inline(always)]
+pub(crate) fn fill_kspace_body<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    let g = Setup::new(fill, transfer);
+    let (n, nc) = (g.n, g.nc);
+    let at = g.spectrum(fill, transfer, sinc);
+    let is_star = fill.components.is_empty();
+    let (mut tre, mut tim, mut amp) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    for i in 0..nc {
+        let col = &mut buf[i * n..(i + 1) * n];
+        if i == n / 2 {
+            for (j, c) in col.iter_mut().enumerate() {
+                *c = cell(nyquist_cell(&at, i, j));
+            }
+            continue;
+        }
+        let u = i as f64 * g.dk;
+        let su = sinc[i];
+        for j in 0..n {
+            let tr = transfer[j * nc + i];
+            let ts = su * sinc[j];
+            (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
+        }
+        if is_star {
+            amp.fill(fill.star_flux_e);
+        } else {
+            amp.fill(0.0);
+            for &(kind, flux, [a, b, c]) in &g.comps {
+                let t = |v: f64| a * u * u + 2.0 * b * u * v + c * v * v;
+                match kind {
+                    ProfileKind::Exponential => {
+                        for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                            *f += flux * Exponential::transform_k2(t(v));
+                        }
+                    }
+                    ProfileKind::DeVaucouleurs => {
+                        for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                            *f += flux * DeVaucouleurs::transform_k2(t(v));
+                        }
+                    }
+                }
+            }
+        }
+        for (j, c) in col.iter_mut().enumerate() {
+            *c = if j == n / 2 {
+                cell(nyquist_cell(&at, i, j))
+            } else if !is_star && tre[j].abs() + tim[j].abs() < fill.cut {
+                Complex::new(T::zero(), T::zero())
+            } else {
+                cell(shifted(amp[j], (tre[j], tim[j]), g.px[i], g.py[j]))
+            };
+        }
+    }
+}
+
+/// [`fill_kspace`]'s slow, obvious twin: every cell on its own, in order,
+/// with the same arithmetic; the two must agree bit for bit (tested).
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn fill_kspace_slow<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+) {
+    let g = Setup::new(fill, transfer);
+    let (n, nc) = (g.n, g.nc);
+    let at = g.spectrum(fill, transfer, sinc);
+    for i in 0..nc {
+        for j in 0..n {
+            buf[i * n + j] = if i == n / 2 || j == n / 2 {
+                cell(nyquist_cell(&at, i, j))
+            } else {
+                let (u, v) = (i as f64 * g.dk, g.vs[j]);
+                let tr = transfer[j * nc + i];
+                let ts = sinc[i] * sinc[j];
+                let (tre, tim) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
+                if fill.components.is_empty() {
+                    cell(shifted(fill.star_flux_e, (tre, tim), g.px[i], g.py[j]))
+                } else if tre.abs() + tim.abs() < fill.cut {
+                    Complex::new(T::zero(), T::zero())
+                } else {
+                    let mut amp = 0.0;
+                    for &(kind, flux, [a, b, c]) in &g.comps {
+                        let t = a * u * u + 2.0 * b * u * v + c * v * v;
+                        amp += flux * kind.transform_k2(t);
+                    }
+                    cell(shifted(amp, (tre, tim), g.px[i], g.py[j]))
+                }
+            };
+        }
+    }
+}
+
+/// What [`fill_kspace`] needs to evaluate the stamp's continuous transform at
+/// any signed frequency index.
+struct Spectrum<'a> {
+    fill: &'a Fill,
+    transfer: &'a [Complex32],
+    sinc: &'a [f64],
+    /// Shift phases along x for m = 0..=n/2.
+    px: &'a [(f64, f64)],
+    /// Shift phases along y for m = 0..=n/2.
+    py: &'a [(f64, f64)],
+    comps: &'a [(ProfileKind, f64, [f64; 3])],
+    dk: f64,
+}
+
+impl Spectrum<'_> {
+    /// object × PSF × pixel × shift at the signed frequency index (mu, mv),
+    /// |mu|, |mv| ≤ n/2.
+    ///
+    /// The PSF transfer is known on the half plane u ≥ 0; at u < 0 it is the
+    /// conjugate of the transfer at (−u, −v) (a real PSF). The grid holds one
+    /// Nyquist row, v = +ν_N; the transfer at v = −ν_N, u ≠ 0, ±ν_N is taken
+    /// from it. That is exact for PSFs symmetric about the x axis (the round
+    /// Gaussian L of the split method) and otherwise an error bounded by
+    /// |T| at Nyquist (≲ 1e-6 for the PSFs the renderer is meant for).
+    fn at(&self, mu: i64, mv: i64) -> (f64, f64) {
+        let n = self.fill.n as i64;
+        let nc = (n / 2 + 1) as usize;
+        let row = |m: i64| -> usize {
+            if m == -n / 2 {
+                (n / 2) as usize
+            } else {
+                m.rem_euclid(n) as usize
+            }
+        };
+        let (t_re, t_im) = if mu >= 0 {
+            let t = self.transfer[row(mv) * nc + mu as usize];
+            (f64::from(t.re), f64::from(t.im))
+        } else {
+            let t = self.transfer[row(-mv) * nc + (-mu) as usize];
+            (f64::from(t.re), -f64::from(t.im))
+        };
+        let ts = self.sinc[row(mu)] * self.sinc[row(mv)];
+        let (tre, tim) = (t_re * ts, t_im * ts);
+        let amp = if self.fill.components.is_empty() {
+            self.fill.star_flux_e
+        } else {
+            if tre.abs() + tim.abs() < self.fill.cut {
+                return (0.0, 0.0);
+            }
+            let (u, v) = (mu as f64 * self.dk, mv as f64 * self.dk);
+            self.comps
+                .iter()
+                .map(|&(kind, flux, [a, b, c])| {
+                    flux * kind.transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
+                })
+                .sum()
+        };
+        let signed = |table: &[(f64, f64)], m: i64| {
+            let (c, s) = table[m.unsigned_abs() as usize];
+            if m >= 0 { (c, s) } else { (c, -s) }
+        };
+        shifted(amp, (tre, tim), signed(self.px, mu), signed(self.py, mv))
+    }
+}
+
+/// The cell (column `i`, row `j`) of the half-plane grid when it lies on the
+/// Nyquist row or column: the sum of the transform over the frequencies that
+/// the pixel samples cannot tell apart, ±ν_N on each Nyquist axis. This is
+/// what the DFT of the samples of the (band-limited) image holds there;
+/// leaving the cell zero instead removes a pattern of alternating sign over
+/// the whole stamp, which the image convolution of the split method turns
+/// into lobes at the stamp's edges.
+fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize) -> (f64, f64) {
+    let n = at.fill.n;
+    let half = (n / 2) as i64;
+    let mu = i as i64; // columns are u ≥ 0
+    let mv = wrap(j, n);
+    let us: &[i64] = if i == n / 2 { &[half, -half] } else { &[mu] };
+    let vs: &[i64] = if j == n / 2 { &[half, -half] } else { &[mv] };
+    let mut sum = (0.0, 0.0);
+    for &u in us {
+        for &v in vs {
+            let (re, im) = at.at(u, v);
+            sum.0 += re;
+            sum.1 += im;
+        }
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn phase_recurrence_matches_sin_cos() {
+        let n = 1000;
+        let d = 500.37;
+        for (m, &(c, s)) in phases(n / 2 + 1, n, d).iter().enumerate() {
+            let a = -2.0 * PI * m as f64 * d / n as f64;
+            assert!(
+                (c - a.cos()).abs() < 1e-12 && (s - a.sin()).abs() < 1e-12,
+                "{m}"
+            );
+        }
+    }
+
+    #[test]
+    fn friendly_sizes() {
+        assert_eq!(fft_friendly(1), 2);
+        assert_eq!(fft_friendly(31), 32);
+        assert_eq!(fft_friendly(33), 36);
+        assert_eq!(fft_friendly(98), 100);
+        assert_eq!(fft_friendly(101), 108);
+        assert_eq!(fft_friendly_below(1023), 1000);
+        assert_eq!(fft_friendly_below(1024), 1024);
+        for n in 2..400 {
+            let f = fft_friendly(n);
+            assert!(f >= n && f % 2 == 0 && is_friendly(f));
+            assert!((n..f).all(|m| m % 2 == 1 || !is_friendly(m)));
+        }
+    }
+}
