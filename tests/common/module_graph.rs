@@ -66,59 +66,12 @@ pub fn code_only(source: &str) -> String {
 
 /// The top-level names a piece of code reaches through `crate::`.
 pub fn crate_paths(code: &str) -> BTreeSet<String> {
-    let mut found = BTreeSet::new();
-    let mut rest = code;
-    while let Some(i) = rest.find("crate::") {
-        let before = rest[..i].chars().next_back();
-        rest = &rest[i + "crate::".len()..];
-        if before.is_some_and(|c| c.is_alphanumeric() || c == '_' || c == '$') {
-            continue; // e.g. `$crate::` or `mycrate::`
-        }
-        if let Some(group) = rest.strip_prefix('{') {
-            // `crate::{a, b::{c, d}, e}`: the names at depth one.
-            let mut depth = 1;
-            let mut name = String::new();
-            let mut at_start = true;
-            for c in group.chars() {
-                match c {
-                    '{' => depth += 1,
-                    '}' => {
-                        depth -= 1;
-                        if depth == 0 {
-                            break;
-                        }
-                    }
-                    ',' if depth == 1 => at_start = true,
-                    c if depth == 1 && at_start && (c.is_alphanumeric() || c == '_') => {
-                        name.push(c)
-                    }
-                    _ if depth == 1 && at_start && !name.is_empty() => {
-                        found.insert(std::mem::take(&mut name));
-                        at_start = false;
-                    }
-                    _ => {}
-                }
-            }
-            if !name.is_empty() {
-                found.insert(name);
-            }
-        } else {
-            let name: String = rest
-                .chars()
-                .take_while(|c| c.is_alphanumeric() || *c == '_')
-                .collect();
-            if !name.is_empty() {
-                found.insert(name);
-            }
-        }
-    }
-    found
+    crate_paths_to(code, 1)
 }
 
 /// The paths a piece of code reaches through `crate::`, each cut to its
 /// first `depth` segments and joined by `::` (`crate::model::{psf::Psf,
-/// wcs}` gives `model::psf` and `model::wcs` at depth 2); [`crate_paths`]
-/// is depth 1.
+/// wcs}` gives `model::psf` and `model::wcs` at depth 2).
 pub fn crate_paths_to(code: &str, depth: usize) -> BTreeSet<String> {
     let mut found = BTreeSet::new();
     let mut rest = code;
@@ -252,46 +205,7 @@ pub fn library_module_graph(src: &Path) -> Graph {
 }
 
 fn graph_of(src: &Path, library_only: bool) -> Graph {
-    let mut files = Vec::new();
-    rust_files(src, &mut files);
-    let top_of = |p: &Path| -> String {
-        let rel = p.strip_prefix(src).unwrap();
-        let first = rel
-            .components()
-            .next()
-            .unwrap()
-            .as_os_str()
-            .to_string_lossy();
-        first.trim_end_matches(".rs").to_string()
-    };
-    let modules: BTreeSet<String> = files
-        .iter()
-        .map(|p| top_of(p.as_path()))
-        .filter(|m| m != "lib")
-        .collect();
-    let mut g: Graph = modules
-        .iter()
-        .map(|m| (m.clone(), BTreeSet::new()))
-        .collect();
-    for f in &files {
-        let from = top_of(f);
-        if from == "lib" {
-            continue;
-        }
-        let text = std::fs::read_to_string(f).unwrap();
-        let code = code_only(&text);
-        let code = if library_only {
-            library_code(f, &code)
-        } else {
-            &code
-        };
-        for to in crate_paths(code) {
-            if to != from && modules.contains(&to) {
-                g.get_mut(&from).unwrap().insert(to);
-            }
-        }
-    }
-    g
+    layered_module_graph(src, &[], library_only)
 }
 
 /// A cycle of `g` (first node repeated at the end), if there is one.
