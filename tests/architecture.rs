@@ -11,7 +11,7 @@
 
 use std::path::Path;
 
-use crate::common::module_graph::rust_files;
+use crate::common::module_graph::{library_code, rust_files};
 
 /// The paths the code map of `text` names, from the repository's root.
 fn code_map_paths(text: &str) -> Vec<String> {
@@ -449,6 +449,119 @@ fn curated_libraries_have_one_name_per_item() {
         "a curated library's lib.rs declares a public module not on PUBLIC_MODULES \
          (tests/architecture.rs; make it private and re-export what users call), or re-exports \
          another crate's item (users name that crate):\n{}",
+        found.join("\n")
+    );
+}
+
+/// The second names in one module file's `code`: a `pub use x::…` (or
+/// `pub use self::x::…`) whose path runs through a `pub mod x` declared in
+/// the same file, so that the item is reachable both here and as
+/// `x::Item`. `public(path)` says whether the deeper modules of a path
+/// (`["run", "plan"]` for `pub use run::plan::Plan`) are public below the
+/// first; a re-export through a private module is one name. Returns (line
+/// number, line).
+fn second_names(code: &str, public: &dyn Fn(&[&str]) -> bool) -> Vec<(usize, String)> {
+    let public_modules: Vec<&str> = code
+        .lines()
+        .filter_map(|l| {
+            let name = l.trim_start().strip_prefix("pub mod ")?;
+            Some(name.trim_end_matches([';', '{', ' ']))
+        })
+        .collect();
+    let mut out = Vec::new();
+    for (i, line) in code.lines().enumerate() {
+        let Some(path) = line.trim_start().strip_prefix("pub use ") else {
+            continue;
+        };
+        let path = path.strip_prefix("self::").unwrap_or(path);
+        let path = path.split(['{', ';', ' ', ',']).next().unwrap_or("");
+        let mut segments: Vec<&str> = path.split("::").collect();
+        segments.pop(); // the item, or "" before a `{…}` list
+        let first_public = segments.first().is_some_and(|m| public_modules.contains(m));
+        if first_public && public(&segments) {
+            out.push((i + 1, line.to_string()));
+        }
+    }
+    out
+}
+
+#[test]
+fn the_second_name_reader_finds_reexports_from_public_submodules() {
+    let code = "//! pub mod docs;\npub mod galaxy;\nmod spec;\npub mod run;\n\
+                pub use galaxy::Galaxy;\npub use spec::PsfSpec;\npub use self::galaxy::{\n    A,\n};\n\
+                pub use run::plan::Plan;\npub use run::Shard;\npub use stepsim_contract::Part;\n\
+                pub(crate) use galaxy::GL8;\n";
+    // `run::plan` is private, `run::open` would be public.
+    let public = |path: &[&str]| !path.contains(&"plan");
+    let lines: Vec<usize> = second_names(code, &public).iter().map(|l| l.0).collect();
+    assert_eq!(lines, [5, 7, 11]);
+}
+
+/// The file of module `name` declared in `file`: beside a `lib.rs` or
+/// `mod.rs`, else in the directory named after `file`.
+fn module_file(file: &Path, name: &str) -> std::path::PathBuf {
+    let stem = file.file_stem().unwrap_or_default();
+    let dir = if stem == "lib" || stem == "mod" {
+        file.parent().unwrap().to_path_buf()
+    } else {
+        file.with_extension("")
+    };
+    let flat = dir.join(format!("{name}.rs"));
+    if flat.exists() {
+        flat
+    } else {
+        dir.join(name).join("mod.rs")
+    }
+}
+
+/// Whether every module of `path` after the first is declared `pub mod` in
+/// its parent, starting from module `path[0]` declared in `file`.
+fn public_below(file: &Path, path: &[&str]) -> bool {
+    let mut at = module_file(file, path[0]);
+    for name in &path[1..] {
+        let Ok(text) = std::fs::read_to_string(&at) else {
+            return false;
+        };
+        let declared = text.lines().any(|l| {
+            l.trim() == format!("pub mod {name};") || l.trim() == format!("pub mod {name} {{")
+        });
+        if !declared {
+            return false;
+        }
+        at = module_file(&at, name);
+    }
+    true
+}
+
+#[test]
+fn submodules_have_one_name_per_item() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for krate in CURATED_LIBRARIES {
+        rust_files(&root.join(krate).join("src"), &mut files);
+    }
+    files.sort();
+    let mut read = 0;
+    let mut found = Vec::new();
+    for file in &files {
+        let name = file.file_name().unwrap_or_default();
+        if name != "mod.rs" && name != "lib.rs" {
+            continue;
+        }
+        read += 1;
+        let text = std::fs::read_to_string(file).unwrap();
+        let code = library_code(file, &text);
+        for (n, line) in second_names(code, &|path| public_below(file, path)) {
+            let rel = file.strip_prefix(root).unwrap().display();
+            found.push(format!("{rel}:{n}: {}", line.trim()));
+        }
+    }
+    assert!(read > 20, "only {read} mod.rs and lib.rs files read");
+    assert!(
+        found.is_empty(),
+        "a module both declares `pub mod x` and re-exports from it, giving an item two public \
+         names (make x private and keep the re-export, or drop the re-export and name the path \
+         `x::Item`):\n{}",
         found.join("\n")
     );
 }

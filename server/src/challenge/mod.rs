@@ -1,16 +1,16 @@
 //! The challenge itself, knowing nothing of HTTP: its state directory and
-//! the organiser's operations on it (here), where it stands ([`phase`]),
+//! the organiser's operations on it (here), where it stands ([`Phase`]),
 //! what admits an upload ([`admission`]), which entries count
-//! ([`finals`]), an entry's figures ([`figures`]), the leaderboard
+//! ([`final_entries_or_default`]), an entry's figures ([`figures`]), the leaderboard
 //! ([`leaderboard`]) and the run's public files ([`public_data`]). It
 //! stands on the store alone.
 
 pub mod admission;
 mod export;
 pub mod figures;
-pub mod finals;
+mod finals;
 pub mod leaderboard;
-pub mod phase;
+mod phase;
 pub mod public_data;
 
 pub use export::Export;

@@ -50,9 +50,10 @@
 //! trusted like the binary, so it is made private to the user (0700) and
 //! must not be a directory others can write.
 
-use crate::model::psf::calibrate::OpticalPsf;
 use crate::model::psf::optical::BandTransfer;
-use crate::model::psf::{Calibration, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec};
+use crate::model::psf::{
+    Calibration, OpticalPsf, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec,
+};
 use num_complex::Complex64;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

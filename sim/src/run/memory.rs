@@ -46,7 +46,7 @@ pub const REPORT_BYTES_PER_SAMPLE: f64 = 48.0;
 
 /// Side of the fine grid [`crate::model::psf::report`] uses at a pixel scale.
 pub fn report_grid_side(pixel_scale_arcsec: f64) -> usize {
-    let h = pixel_scale_arcsec / crate::model::psf::measure::FINE_OVERSAMPLE as f64;
+    let h = pixel_scale_arcsec / crate::model::psf::FINE_OVERSAMPLE as f64;
     let want = (26.0 / h).ceil();
     if want.is_finite() && want < (1u64 << 40) as f64 {
         (want as usize).next_power_of_two().max(256)

@@ -280,7 +280,7 @@ pub fn check_row(row: &TruthRow) -> Result<(), RowError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::profile::transform::shear_ellipticity;
+    use crate::model::profile::shear_ellipticity;
 
     fn row(bt: f64, g1: f64, g2: f64) -> TruthRow {
         TruthRow {

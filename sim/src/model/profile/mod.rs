@@ -5,23 +5,24 @@
 //! de Vaucouleurs law): its surface density f(r), its Hankel transform
 //! f̃(k) = ∫ f(r) J₀(2πkr) 2πr dr (k in cycles per unit size, so f̃(0) = 1),
 //! its enclosed flux and its second moment. Sizes, flattening, position
-//! angle and shear are applied by the linear maps of [`transform`]; a galaxy
-//! is the [`galaxy::Galaxy`] sum of such transformed components; convolution
+//! angle and shear are applied by the linear maps ([`LinearMap`]); a galaxy
+//! is the [`Galaxy`] sum of such transformed components; convolution
 //! with the PSF and the pixel is a product in Fourier space done by
 //! [`crate::model::render`].
 //!
 //! Units: arcsec on the sky, cycles per arcsec in Fourier space, electrons.
 
-pub mod devaucouleurs;
-pub mod exponential;
-pub mod galaxy;
+mod devaucouleurs;
+mod exponential;
+mod galaxy;
 pub mod sersic;
-pub mod transform;
+mod transform;
 
-pub use devaucouleurs::DeVaucouleurs;
+pub(crate) use devaucouleurs::GL8;
+pub use devaucouleurs::{DeVaucouleurs, hankel_slow};
 pub use exponential::Exponential;
-pub use galaxy::{Component, Galaxy, ProfileKind};
-pub use transform::{LinearMap, shear_matrix};
+pub use galaxy::{Component, Galaxy, ProfileKind, RowError, check_row};
+pub use transform::{LinearMap, ellipticity_of_moments, shear_ellipticity, shear_matrix};
 
 /// A circularly symmetric profile of unit flux and unit size.
 pub trait RadialProfile {

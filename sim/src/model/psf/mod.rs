@@ -11,31 +11,34 @@
 //! file: [`pupil`] (obstructed aperture with spider arms), [`zernike`]
 //! (the wavefront error), [`optical`] (Fourier optics to the OTF),
 //! [`atmosphere`] (Kolmogorov long-exposure MTF), [`jitter`] (tracking
-//! error), [`calibrate`] (seeing and amplitude solved for the targets).
-//! [`build`] turns a [`PsfSpec`] into a ready [`Psf`]; [`measure`] makes
-//! PSF images and the `psf_report.json` numbers. See `docs/psf.md`.
+//! error), `calibrate.rs` (seeing and amplitude solved for the targets:
+//! [`OpticalPsf`]). [`build`] turns a [`PsfSpec`] into a ready [`Psf`];
+//! `measure.rs` makes PSF images ([`image`]) and the `psf_report.json`
+//! numbers ([`report`]). See `docs/psf.md`.
 
 pub mod atmosphere;
-pub mod calibrate;
+mod calibrate;
 mod fft2;
 pub mod fits_psf;
 mod gaussian;
 pub mod jitter;
-pub mod measure;
+mod measure;
 pub mod moffat;
 pub mod optical;
 pub mod panel;
 pub mod pupil;
-pub mod sampled;
+mod sampled;
 mod spec;
 pub mod zernike;
 
 #[cfg(test)]
 mod tests;
 
-pub use calibrate::OpticalPsf;
+pub use calibrate::{OpticalPsf, default_amplitude};
 pub use gaussian::GaussianPsf;
-pub use measure::{DrawnPsf, PsfReport, draw_for_file, image, report};
+pub use measure::{
+    DrawnPsf, FINE_OVERSAMPLE, PsfReport, contour_radius, draw_for_file, image, report,
+};
 pub use sampled::SampledPsf;
 pub use spec::{Aberration, PsfModel, PsfSpec, STEP1_PSFS, Telescope};
 
@@ -341,7 +344,7 @@ impl<'a> OpticalRequest<'a> {
     }
 }
 
-/// Builds and calibrates one optical PSF (see [`calibrate`]).
+/// Builds and calibrates one optical PSF (see `calibrate.rs`).
 pub fn build_optical(
     request: &OpticalRequest,
     accuracy: &PsfAccuracy,

@@ -76,7 +76,7 @@ pub enum PsfModel {
         aberration: Aberration,
         /// Aberration amplitude in waves (or, for jitter, the smear σ in
         /// arcsec); `None`: solved for `target_chi`, or a documented
-        /// default ([`super::calibrate::default_amplitude`]).
+        /// default ([`super::default_amplitude`]).
         amplitude: Option<f64>,
         /// Target adaptive-moment distortion |χ| of the pixel-convolved PSF.
         target_chi: Option<f64>,

@@ -4,7 +4,8 @@
 //! PSF's own pixel image.
 
 use super::atmosphere::Kolmogorov;
-use super::measure::{contour_radius, fwhm_from_area};
+use super::contour_radius;
+use super::measure::fwhm_from_area;
 use super::optical::{BandTransfer, Otf, SampledPupil, Wavefront};
 use super::pupil::Pupil;
 use super::*;

@@ -20,7 +20,7 @@ pub(crate) const BATCH: usize = 2048;
 
 /// The noise-free, sky-free electron image of `rows`, row-major
 /// (index (y − 1) · width + (x − 1) for FITS pixel (x, y)); objects partly
-/// off the image are clipped. Rows that fail [`crate::model::profile::galaxy::check_row`] are
+/// off the image are clipped. Rows that fail [`crate::model::profile::check_row`] are
 /// skipped: call [`try_draw_image`] to have them refused instead.
 pub fn draw_image(renderer: &Renderer, rows: &[TruthRow], width: u32, height: u32) -> Vec<f32> {
     let mut canvas = Canvas::new(renderer, width, height);
@@ -68,15 +68,14 @@ impl<'a> Canvas<'a> {
         }
     }
 
-    /// Adds `rows`, skipping rows that fail [`crate::model::profile::galaxy::check_row`].
+    /// Adds `rows`, skipping rows that fail [`crate::model::profile::check_row`].
     pub fn add(&mut self, rows: &[TruthRow]) {
         self.add_rows(rows);
     }
 
     /// Adds `rows`, or refuses them all (nothing added) if one cannot be drawn.
     pub fn try_add(&mut self, rows: &[TruthRow]) -> Result<(), RenderError> {
-        rows.iter()
-            .try_for_each(crate::model::profile::galaxy::check_row)?;
+        rows.iter().try_for_each(crate::model::profile::check_row)?;
         self.add_rows(rows);
         Ok(())
     }

@@ -14,7 +14,7 @@
 //! electrons. A star is the same with the galaxy factor replaced by its flux.
 //!
 //! Accuracy is governed by one struct, [`Accuracy`]; the slow real-space
-//! twin is [`mod@reference`]; [`image::draw_image`] adds stamps into a full image
+//! twin is [`ReferenceRenderer`]; [`draw_image`] adds stamps into a full image
 //! reproducibly. Measured accuracy and speed: `docs/rendering.md`,
 //! `BENCHMARKS.md`.
 //!
@@ -23,16 +23,15 @@
 //! pixel (i, j) is FITS pixel (x0 + 1 + i, y0 + 1 + j).
 
 pub mod convolve;
-pub mod image;
-pub mod reference;
+mod image;
+mod reference;
 pub mod split;
 pub mod stamp;
 
 pub use image::{Canvas, draw_image, try_draw_image};
 pub use reference::ReferenceRenderer;
 
-use crate::model::profile::galaxy::{Galaxy, RowError, check_row};
-use crate::model::profile::{ProfileKind, RadialProfile};
+use crate::model::profile::{Galaxy, ProfileKind, RadialProfile, RowError, check_row};
 use crate::model::psf::{Psf, StampGrid};
 use serde::{Deserialize, Serialize};
 use stamp::{FftCache, Fill, StampEngine};

@@ -24,8 +24,7 @@
 //! No FFT, no periodicity, no Fourier transforms of profiles: an
 //! independent check of [`super::Renderer`].
 
-use crate::model::profile::devaucouleurs::GL8;
-use crate::model::profile::galaxy::{Galaxy, RowError};
+use crate::model::profile::{GL8, Galaxy, RowError};
 use stepsim_contract::truth::TruthRow;
 use stepsim_numerics::stats::normal_cdf;
 
@@ -58,7 +57,7 @@ impl ReferenceRenderer {
     ) -> Result<Vec<f64>, RowError> {
         let p = self.pixel_scale_arcsec;
         if row.is_star() {
-            crate::model::profile::galaxy::check_row(row)?;
+            crate::model::profile::check_row(row)?;
             let sigma = self.psf_sigma_arcsec.unwrap_or(1e-9 * p);
             let axis = |first: i64, len: usize, c: f64| -> Vec<f64> {
                 (0..len)

@@ -15,8 +15,7 @@
 //! aliasing of the PSF-convolved profile): the comparison with the
 //! real-space reference measures what this leaves out.
 
-use crate::model::profile::galaxy::Component;
-use crate::model::profile::{DeVaucouleurs, Exponential, ProfileKind};
+use crate::model::profile::{Component, DeVaucouleurs, Exponential, ProfileKind};
 use num_complex::Complex32;
 use realfft::num_complex::Complex;
 use realfft::{ComplexToReal, FftNum, RealFftPlanner};

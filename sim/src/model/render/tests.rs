@@ -3,7 +3,7 @@
 //! test; measured values are in docs/rendering.md.
 
 use super::*;
-use crate::model::profile::transform::{ellipticity_of_moments, shear_ellipticity};
+use crate::model::profile::{ellipticity_of_moments, shear_ellipticity};
 use crate::model::psf::GaussianPsf;
 
 const P: f64 = 0.206;

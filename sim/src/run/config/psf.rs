@@ -16,7 +16,7 @@ pub enum RawPsfModel {
         /// Noll-normalised Zernike), or for `jitter` the σ in arcsec of the
         /// 1-D Gaussian smear. When absent and `target_chi` is given, it is
         /// solved for; when both are absent a documented default is used
-        /// (`psf::calibrate::default_amplitude`, docs/psf.md).
+        /// (`psf::default_amplitude`, docs/psf.md).
         #[serde(default)]
         amplitude: Option<f64>,
         /// Target adaptive-moment distortion |χ| of the pixel-convolved PSF.
