@@ -121,13 +121,29 @@ async fn a_database_lock_longer_than_the_busy_timeout_does_not_end_the_worker() 
                     .await
                     .unwrap();
                 tokio::spawn(conn);
-                let tx = c.transaction().await.unwrap();
-                tx.batch_execute(
-                    "LOCK TABLE meta, teams, submissions, scores, format_failures \
-                     IN ACCESS EXCLUSIVE MODE",
-                )
-                .await
-                .unwrap();
+                // The tables are locked one after another: when the worker
+                // holds one of them and waits for one already locked here,
+                // PostgreSQL ends one of the two transactions ("deadlock
+                // detected"); the organiser then tries again, as psql's user
+                // would.
+                let tx = loop {
+                    let tx = c.transaction().await.unwrap();
+                    match tx
+                        .batch_execute(
+                            "LOCK TABLE meta, teams, submissions, scores, format_failures \
+                             IN ACCESS EXCLUSIVE MODE",
+                        )
+                        .await
+                    {
+                        Ok(()) => break tx,
+                        Err(e)
+                            if e.code()
+                                == Some(
+                                    &tokio_postgres::error::SqlState::T_R_DEADLOCK_DETECTED,
+                                ) => {}
+                        Err(e) => panic!("{e}"),
+                    }
+                };
                 tokio::time::sleep(Duration::from_secs(15)).await;
                 tx.commit().await.unwrap();
             });
