@@ -453,6 +453,32 @@ fn curated_libraries_have_one_name_per_item() {
     );
 }
 
+#[test]
+fn no_library_module_reexports_another_crates_item() {
+    // The lib.rs rule above, for every file of the libraries: a
+    // `pub use num_complex::Complex64` inside a module is a second name too.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut found = Vec::new();
+    for krate in CURATED_LIBRARIES {
+        let mut files = Vec::new();
+        rust_files(&root.join(krate).join("src"), &mut files);
+        for file in files {
+            let text = std::fs::read_to_string(&file).unwrap();
+            for (n, line) in surface_breaches(krate, &text) {
+                if line.trim_start().starts_with("pub use ") {
+                    let rel = file.strip_prefix(root).unwrap().display().to_string();
+                    found.push(format!("{rel}:{n}: {}", line.trim()));
+                }
+            }
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "a library module re-exports another crate's item (users name that crate):\n{}",
+        found.join("\n")
+    );
+}
+
 /// The second names in one module file's `code`: a `pub use x::…` (or
 /// `pub use self::x::…`) whose path runs through a `pub mod x` declared in
 /// the same file, so that the item is reachable both here and as

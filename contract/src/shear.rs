@@ -17,7 +17,7 @@
 //! [`Moments::sheared`] (explicit matrix algebra) is the slow, obvious twin
 //! of the closed form [`apply_shear`]; the tests compare them.
 
-pub use num_complex::Complex64;
+use num_complex::Complex64;
 
 /// Ellipticity e = (1−β)/(1+β) e^{2iθ} of axis ratio `beta` at angle
 /// `theta` (radians) — paper eq. 1.

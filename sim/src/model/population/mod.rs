@@ -27,12 +27,13 @@ pub use spec::{
 
 use crate::model::wcs::TanWcs;
 use cosmology::Lcdm;
+use num_complex::Complex64;
 use rand::RngExt;
 use rand_distr::{Distribution, Poisson, StandardNormal};
 use shapes::ShapeLaw;
 use std::sync::{Arc, Mutex, OnceLock};
 use stepsim_contract::seed::{SeedKey, Stream};
-use stepsim_contract::shear::{self, Complex64, Moments};
+use stepsim_contract::shear::{self, Moments};
 use stepsim_contract::truth::{KIND_GALAXY, KIND_STAR, TruthRow};
 use stuff::StuffModel;
 
