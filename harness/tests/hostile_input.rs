@@ -4,7 +4,9 @@
 
 use crate::common;
 
-use common::{Col, card, doubles, empty_primary, fits_table, good_table, index, pad, text, zeros};
+use common::{
+    Col, card, doubles, empty_primary, fits_table, good_table, gzip, index, pad, text, zeros,
+};
 use std::path::Path;
 use stepsim_harness::{parse_file, read_submission, read_submission_limited};
 
@@ -254,14 +256,6 @@ fn absurd_values_are_refused_naming_line_column_and_value() {
     assert_eq!(fr.rows[0].1.e1, 1e6);
 }
 
-fn gzip(data: &[u8]) -> Vec<u8> {
-    let mut v = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3];
-    v.extend(miniz_oxide::deflate::compress_to_vec(data, 6));
-    v.extend(crc32fast::hash(data).to_le_bytes());
-    v.extend((data.len() as u32).to_le_bytes());
-    v
-}
-
 #[test]
 fn reads_are_bounded_raw_and_decompressed() {
     let idx = index();
@@ -269,12 +263,12 @@ fn reads_are_bounded_raw_and_decompressed() {
     let text = b"# image x y e1 e2\nimA 1 2 0.1 0.2\nimB 3 4 0 0\n";
     // A gzip text submission is read (decompressed within the cap) ...
     let p = dir.path().join("s.txt.gz");
-    std::fs::write(&p, gzip(text)).unwrap();
+    std::fs::write(&p, gzip(text, 6)).unwrap();
     assert_eq!(read_submission(&p, &idx).unwrap().n_rows(), 2);
     // ... and a bomb is refused at the cap, naming the file and the cap.
     let mut bomb_text = text.to_vec();
     bomb_text.extend(std::iter::repeat_n(b'\n', 3 << 20));
-    std::fs::write(&p, gzip(&bomb_text)).unwrap();
+    std::fs::write(&p, gzip(&bomb_text, 6)).unwrap();
     let e = read_submission_limited(&p, &idx, 1 << 20)
         .unwrap_err()
         .to_string();

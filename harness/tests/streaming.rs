@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use common::{doubles, fits_table, text};
+use common::{doubles, fits_table, gzip, text};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -16,15 +16,6 @@ use stepsim_harness::{
     read_submission_spilled, run_submission_limit, score, score_slow,
 };
 use stepsim_testkit::synthetic::{SynthRun, SynthSpec, make_run, submission_text};
-
-/// A gzip member of `data` (real CRC-32 and size).
-fn gzip(data: &[u8]) -> Vec<u8> {
-    let mut v = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3];
-    v.extend(miniz_oxide::deflate::compress_to_vec(data, 6));
-    v.extend(crc32fast::hash(data).to_le_bytes());
-    v.extend((data.len() as u32).to_le_bytes());
-    v
-}
 
 struct Fixture {
     dir: tempfile::TempDir,
@@ -172,16 +163,16 @@ fn streamed_reports_equal_the_whole_file_twin_in_every_form() {
         ("s.txt", text.clone().into_bytes()),
         ("s.csv", fx.csv().into_bytes()),
         ("s.fits", fx.fits()),
-        ("s.txt.gz", gzip(text.as_bytes())),
-        ("s.fits.gz", gzip(&fx.fits())),
+        ("s.txt.gz", gzip(text.as_bytes(), 6)),
+        ("s.fits.gz", gzip(&fx.fits(), 6)),
         ("u.txt", unsorted(&text).into_bytes()),
     ];
     // Three gzip members, split inside a line.
     let b = text.as_bytes();
     let (m1, m2) = (b.len() / 3 + 5, 2 * b.len() / 3 + 1);
-    let mut multi = gzip(&b[..m1]);
-    multi.extend(gzip(&b[m1..m2]));
-    multi.extend(gzip(&b[m2..]));
+    let mut multi = gzip(&b[..m1], 6);
+    multi.extend(gzip(&b[m1..m2], 6));
+    multi.extend(gzip(&b[m2..], 6));
     forms.push(("m.txt.gz", multi));
     let mut reports = Vec::new();
     for (name, bytes) in &forms {
@@ -218,7 +209,11 @@ fn streamed_reports_equal_the_whole_file_twin_in_every_form() {
             ));
         }
         if k == 3 {
-            std::fs::write(d.join(format!("{}.txt.gz", info.image)), gzip(s.as_bytes())).unwrap();
+            std::fs::write(
+                d.join(format!("{}.txt.gz", info.image)),
+                gzip(s.as_bytes(), 6),
+            )
+            .unwrap();
         } else {
             std::fs::write(d.join(format!("{}.txt", info.image)), s).unwrap();
         }
@@ -348,8 +343,8 @@ fn the_limit_follows_the_run_and_the_option_overrides_it() {
     // limit allows it.
     let mut text = fx.text().into_bytes();
     let pad = 300usize << 20;
-    let blank = gzip(&vec![b'\n'; 1 << 20]);
-    let mut g = gzip(&text);
+    let blank = gzip(&vec![b'\n'; 1 << 20], 6);
+    let mut g = gzip(&text, 6);
     for _ in 0..300 {
         g.extend_from_slice(&blank);
     }
@@ -433,7 +428,7 @@ fn gzip_members_are_checked_and_bounded() {
     let idx = fx.index();
     let text = fx.text();
     // A corrupted CRC-32 is refused, naming the file.
-    let mut g = gzip(text.as_bytes());
+    let mut g = gzip(text.as_bytes(), 6);
     let n = g.len();
     g[n - 8] ^= 0x01;
     let p = fx.path("crc.txt.gz");
@@ -452,7 +447,7 @@ fn gzip_members_are_checked_and_bounded() {
         );
     }
     // So is a flipped bit in the data that still inflates.
-    let mut g = gzip(text.as_bytes());
+    let mut g = gzip(text.as_bytes(), 6);
     let k = g.len() / 2;
     g[k] ^= 0x10;
     std::fs::write(&p, &g).unwrap();
@@ -461,9 +456,9 @@ fn gzip_members_are_checked_and_bounded() {
         .to_string();
     assert!(e.contains("not a valid gzip file"), "{e}");
     // 400 000 empty members (8 MB): refused at the member bound, at once.
-    let empty = gzip(b"");
+    let empty = gzip(b"", 6);
     assert_eq!(empty.len(), 20);
-    let mut bomb = gzip(text.as_bytes());
+    let mut bomb = gzip(text.as_bytes(), 6);
     for _ in 0..400_000 {
         bomb.extend_from_slice(&empty);
     }
@@ -485,7 +480,7 @@ fn gzip_members_are_checked_and_bounded() {
     assert!(secs < 5.0, "{secs} s");
     assert_eq!(stepsim_harness::MAX_GZIP_MEMBERS, 65_536);
     // Exactly the bound reads.
-    let mut ok = gzip(text.as_bytes());
+    let mut ok = gzip(text.as_bytes(), 6);
     for _ in 1..65_536 {
         ok.extend_from_slice(&empty);
     }

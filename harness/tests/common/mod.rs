@@ -50,3 +50,12 @@ pub fn good_table(extra: Vec<Col>) -> Vec<u8> {
     cols.extend(extra);
     fits_table(&cols)
 }
+
+/// A gzip member of `data` (real CRC-32 and size), deflated at `level`.
+pub fn gzip(data: &[u8], level: u8) -> Vec<u8> {
+    let mut v = vec![0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3];
+    v.extend(miniz_oxide::deflate::compress_to_vec(data, level));
+    v.extend(crc32fast::hash(data).to_le_bytes());
+    v.extend((data.len() as u32).to_le_bytes());
+    v
+}
