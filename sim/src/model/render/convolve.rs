@@ -110,11 +110,13 @@ impl Convolver {
         let b = self.block();
         // One band of output rows per row of blocks; each band's rows are cut
         // at the block edges and the blocks of a band are computed in
-        // parallel, each straight into its part of the output (the output's
-        // pages are first touched here, in parallel). The FFT buffers are
+        // parallel, each straight into its part of the output. Every output
+        // pixel is written by its block, so the output is not zero-filled
+        // first (`vec!` of zeros takes fresh zero pages from the system, and
+        // they are first touched here, in parallel). The FFT buffers are
         // each thread's own and kept from one call to the next, so a long run
         // allocates them once per thread, not once per block.
-        let mut out = super::image::zeroed(width * height);
+        let mut out = vec![0.0f32; width * height];
         out.par_chunks_mut(b * width)
             .enumerate()
             .for_each(|(by, band)| {
