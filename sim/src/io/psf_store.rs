@@ -403,8 +403,8 @@ pub fn file_digest(spec_digest: &str, side_px: usize, oversample: usize) -> Stri
     )
 }
 
-/// Writes a PSF's drawn file `path` (drawing and measuring it costs about
-/// a third of a second, as much as a quarter of a one-image run): copied
+/// Writes a PSF's drawn file `path` (drawing and measuring it took 13 % of
+/// a one-image run's CPU in a profile, docs/psf.md): copied
 /// from the user's store `user` when a file there of digest `digest`
 /// ([`file_digest`]) checks, otherwise written by `draw` and then kept
 /// there (a cache: a failure to keep it is ignored). True when copied.
