@@ -121,6 +121,75 @@ fn pgamma_fit_and_psf_order_options_are_accepted() {
 }
 
 #[test]
+fn the_pgamma_calibration_divides_each_estimate_and_can_be_turned_off() {
+    // The same detections with and without the calibration; each weighted
+    // row's estimate differs by its k (a function of size and |e| only, so
+    // both components by the same factor), k varies between galaxies, and
+    // the synthetic scenes' Gaussian PSF gives k within a few per cent of 1.
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let rows = |calibration: &str| -> Vec<Vec<f64>> {
+        let out = dir.path().join(format!("{calibration}.txt"));
+        ok(run_with(
+            stepsim()
+                .args(["measure", "--calibration", calibration, "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(&out),
+        ));
+        std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| {
+                l.split_whitespace()
+                    .skip(1)
+                    .map(|v| v.parse().unwrap())
+                    .collect()
+            })
+            .collect()
+    };
+    let (on, off) = (rows("exponential"), rows("none"));
+    assert_eq!(on.len(), off.len());
+    let mut ks = Vec::new();
+    for (a, b) in on.iter().zip(&off) {
+        assert_eq!((a[0], a[1]), (b[0], b[1]), "positions");
+        if a[4] > 0.0 && b[4] > 0.0 && a[2].abs() > 0.02 && a[3].abs() > 0.02 {
+            let (k1, k2) = (b[2] / a[2], b[3] / a[3]);
+            // Both printed to 6 decimals.
+            assert!(
+                (k1 - k2).abs() < 2e-4 / a[2].abs().min(a[3].abs()),
+                "{a:?} {b:?}"
+            );
+            ks.push(k1);
+        }
+    }
+    assert!(ks.len() > 30, "{} rows compared", ks.len());
+    let (lo, hi) = ks
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &k| {
+            (l.min(k), h.max(k))
+        });
+    assert!(lo > 0.9 && hi < 1.1, "k from {lo} to {hi}");
+    assert!(
+        hi - lo > 1e-3,
+        "k from {lo} to {hi}: the same for every galaxy"
+    );
+    assert_ne!(on, rows("gaussian"));
+    let out = run_with(stepsim().args([
+        "measure",
+        "--calibration",
+        "sersic",
+        "--run",
+        "x",
+        "--out",
+        "y",
+    ]));
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
 fn missing_manifest_and_broken_image_are_refused_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let out = measure(&dir.path().join("nowhere"), &dir.path().join("s.txt"), "1");

@@ -31,6 +31,7 @@
 //! moments.rs      KSB moments and polarisabilities
 //! psf_model.rs    p_μ and P^sh*/P^sm* across the field, per weight scale
 //! shear.rs        the estimator, weights and cuts (flags.rs: the flag bits)
+//! calibration.rs  P^γ calibrated on the image's own PSF with model galaxies
 //! metacal.rs      metacalibration, the other estimator (Method::Metacal)
 //! pipeline.rs     the stages strung together for one image
 //! run.rs          a public run directory in, a submission out (shards too)
@@ -50,6 +51,7 @@
 #![deny(missing_docs)]
 
 mod background;
+mod calibration;
 mod centroid;
 mod error;
 mod filter;
@@ -78,6 +80,7 @@ extern crate self as stepsim_ksb;
 #[path = "../../testkit/src/scene.rs"]
 mod scene;
 
+pub use calibration::CalibrationProfile;
 pub use error::KsbError;
 pub use image::Image;
 pub use io::{read_manifest, write_fits_image};

@@ -84,7 +84,7 @@ struct Transforms {
 }
 
 /// Signed frequency of FFT index `a` on a grid of `side`, cycles per pixel.
-fn freq(a: usize, side: usize) -> f64 {
+pub(crate) fn freq(a: usize, side: usize) -> f64 {
     let a = a as f64;
     let s = side as f64;
     if a < s / 2.0 { a / s } else { a / s - 1.0 }
@@ -110,7 +110,7 @@ impl Plans {
     }
 
     /// In-place 2-D transform of a row-major side × side array.
-    fn fft2(&self, buf: &mut [Complex64], inverse: bool) {
+    pub(crate) fn fft2(&self, buf: &mut [Complex64], inverse: bool) {
         let s = self.side;
         let plan = if inverse { &self.inv } else { &self.fwd };
         for row in buf.chunks_exact_mut(s) {

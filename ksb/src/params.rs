@@ -2,6 +2,7 @@
 //! where it comes from (STYLE §4). Sizes are in pixels, significances in
 //! units of the noise of the quantity named.
 
+use crate::calibration::CalibrationProfile;
 use crate::error::KsbError;
 
 /// How P^γ enters the estimator (paper appendix A4; KSB table row
@@ -122,6 +123,10 @@ pub struct KsbParams {
     pub poisson_variance: bool,
     /// The shear method (KSB+).
     pub method: Method,
+    /// KSB+'s P^γ calibrated on the image's own PSF with model galaxies of
+    /// this profile (docs/ksb.md, step 8); `None` keeps P^γ as KSB+
+    /// gives it.
+    pub calibration: Option<CalibrationProfile>,
     /// Metacalibration keeps galaxies whose reconvolved size r_g exceeds
     /// this × the reconvolution's σ (1.2, i.e. (r_g² − σ²)/σ² > 0.44, about
     /// KSB's r_g > 1.25 r_g*).
@@ -168,6 +173,7 @@ impl Default for KsbParams {
             pgamma_mode: PgammaMode::PerObject,
             poisson_variance: true,
             method: Method::Ksb,
+            calibration: Some(CalibrationProfile::Exponential),
             metacal_size_min_factor: 1.2,
         }
     }

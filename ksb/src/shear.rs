@@ -41,10 +41,15 @@ pub fn pgamma(shape: &KsbShape, corr: &PsfCorrection) -> f64 {
     half_trace(&shape.psh) - corr.ratio * half_trace(&shape.psm)
 }
 
+/// The anisotropy-corrected ellipticity e − P^sm p.
+pub fn e_cor(shape: &KsbShape, corr: &PsfCorrection) -> [f64; 2] {
+    let sm = mul_vec(&shape.psm, corr.p);
+    [shape.e[0] - sm[0], shape.e[1] - sm[1]]
+}
+
 /// The estimate with a given P^γ.
 pub fn estimate_with(shape: &KsbShape, corr: &PsfCorrection, pgamma: f64) -> ShearEstimate {
-    let sm = mul_vec(&shape.psm, corr.p);
-    let e_cor = [shape.e[0] - sm[0], shape.e[1] - sm[1]];
+    let e_cor = e_cor(shape, corr);
     let sigma_e = (0.5 * (shape.sigma_e[0].powi(2) + shape.sigma_e[1].powi(2))).sqrt();
     ShearEstimate {
         e_cor,
@@ -55,6 +60,7 @@ pub fn estimate_with(shape: &KsbShape, corr: &PsfCorrection, pgamma: f64) -> She
 }
 
 /// The estimate with the galaxy's own P^γ.
+#[cfg(test)]
 pub fn estimate(shape: &KsbShape, corr: &PsfCorrection) -> ShearEstimate {
     estimate_with(shape, corr, pgamma(shape, corr))
 }

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 use stepsim_contract::run_dir::PublicDir;
-use stepsim_ksb::{KsbParams, Method, PgammaMode};
+use stepsim_ksb::{CalibrationProfile, KsbParams, Method, PgammaMode};
 
 /// How P^γ is applied.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -22,6 +22,18 @@ pub enum MethodArg {
     /// reconvolved and measured again; rows are R⁻¹ e with R the
     /// dataset's response, selection included (docs/metacal.md).
     Metacal,
+}
+
+/// The calibration of KSB+'s P^γ on each image's PSF.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum CalibrationArg {
+    /// Round exponential model galaxies drawn through the image's PSF stars
+    /// (docs/ksb.md, "P^γ calibrated on the PSF").
+    Exponential,
+    /// Round Gaussian model galaxies.
+    Gaussian,
+    /// None: P^γ as KSB+ gives it.
+    None,
 }
 
 /// Arguments of `stepsim measure`.
@@ -47,6 +59,10 @@ pub struct Args {
     /// The shear method.
     #[arg(long, value_enum, default_value_t = MethodArg::Ksb)]
     method: MethodArg,
+    /// KSB+'s P^γ calibrated on each image's own PSF with model galaxies
+    /// of this profile (no effect on metacal).
+    #[arg(long, value_enum, default_value_t = CalibrationArg::Exponential)]
+    calibration: CalibrationArg,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
     /// parts into FILE.
@@ -71,6 +87,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         method: match args.method {
             MethodArg::Ksb => Method::Ksb,
             MethodArg::Metacal => Method::Metacal,
+        },
+        calibration: match args.calibration {
+            CalibrationArg::Exponential => Some(CalibrationProfile::Exponential),
+            CalibrationArg::Gaussian => Some(CalibrationProfile::Gaussian),
+            CalibrationArg::None => None,
         },
         ..KsbParams::default()
     };
