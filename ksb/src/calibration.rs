@@ -33,8 +33,10 @@
 use crate::centroid::{WindowSettings, windowed};
 use crate::image::Image;
 use crate::linalg::{half_trace, inverse, mul_vec};
-use crate::metacal::{PSF_SIDE, Plans, PsfStack, freq};
+use crate::metacal::{Plans, PsfStack, freq};
 use crate::moments::{KsbShape, ksb_integrals};
+use crate::psf_model::PsfCorrection;
+use crate::shear::{e_cor, pgamma};
 use rustfft::num_complex::Complex64;
 use std::f64::consts::PI;
 
@@ -119,14 +121,29 @@ pub struct SizeFactor {
 impl SizeFactor {
     /// k at [`size`] `size`.
     fn at_size(&self, size: f64) -> f64 {
-        let (i, f) = bracket(&self.ln_rg, size.ln());
-        self.k[i] + f * (self.k[(i + 1).min(self.k.len() - 1)] - self.k[i])
+        lerp(&self.ln_rg, &self.k, size.ln())
     }
 
     /// k of a galaxy of windowed size `rg` and |e_cor| `e`: linear in the
-    /// log of its [`size`], held at the ends.
+    /// log of its [`size`], held at the ends; NaN for a NaN size or |e|.
     pub fn factor(&self, rg: f64, e: f64) -> f64 {
-        self.at_size(size(rg, e))
+        let z = size(rg, e);
+        if z.is_nan() {
+            f64::NAN
+        } else {
+            self.at_size(z)
+        }
+    }
+}
+
+/// `values` (one per node) at `t`, linear between the increasing `nodes`
+/// and held at the ends ([`bracket`]).
+fn lerp(nodes: &[f64], values: &[f64], t: f64) -> f64 {
+    let (i, f) = bracket(nodes, t);
+    if f == 0.0 {
+        values[i]
+    } else {
+        values[i] + f * (values[i + 1] - values[i])
     }
 }
 
@@ -161,9 +178,7 @@ struct Row {
 impl Row {
     /// (|e|, k) at ln size `t`: linear in ln size, held at the ends.
     fn at(&self, t: f64) -> (f64, f64) {
-        let (i, f) = bracket(&self.ln_rg, t);
-        let lin = |v: &[f64]| v[i] + f * (v[(i + 1).min(v.len() - 1)] - v[i]);
-        (lin(&self.e), lin(&self.k))
+        (lerp(&self.ln_rg, &self.e, t), lerp(&self.ln_rg, &self.k, t))
     }
 
     /// The rings' response at ln size `t` with k(size) = `f` (linear in
@@ -202,6 +217,9 @@ impl ModelShape {
 /// add a response of its own (2 % for |e_s| = 0.4, σ 1.5 px through the
 /// halo PSF of the tests).
 pub fn size(rg: f64, e: f64) -> f64 {
+    if e.is_nan() {
+        return f64::NAN;
+    }
     rg * (1.0 - (e * e).min(0.99)).sqrt().sqrt()
 }
 
@@ -218,13 +236,7 @@ struct Grid {
 impl Grid {
     fn new(psf: &PsfStack, side: usize) -> Self {
         let plans = Plans::new(side);
-        let (h, o) = (PSF_SIDE / 2, side / 2);
-        let mut pix = vec![0.0; side * side];
-        for j in 0..PSF_SIDE {
-            for i in 0..PSF_SIDE {
-                pix[(j + o - h) * side + (i + o - h)] = psf.pix[j * PSF_SIDE + i];
-            }
-        }
+        let pix = psf.on_grid(side);
         let mut psf_t: Vec<Complex64> = pix.iter().map(|&v| Complex64::new(v, 0.0)).collect();
         plans.fft2(&mut psf_t, false);
         Self {
@@ -310,23 +322,34 @@ impl Bench {
     ) -> Option<ModelShape> {
         let shape = self.shape(&self.draw(grid, s, g_int, g), rg0, true)?;
         let star = self.shape(&grid.psf_img, shape.sigma_w, false)?;
-        let p = mul_vec(&inverse(&star.psm)?, star.e);
-        let ratio = half_trace(&star.psh) / half_trace(&star.psm);
-        let sm = mul_vec(&shape.psm, p);
+        let corr = PsfCorrection {
+            p: mul_vec(&inverse(&star.psm)?, star.e),
+            ratio: half_trace(&star.psh) / half_trace(&star.psm),
+        };
         Some(ModelShape {
             rg: shape.sigma_w,
-            e_cor: [shape.e[0] - sm[0], shape.e[1] - sm[1]],
-            pgamma: half_trace(&shape.psh) - ratio * half_trace(&shape.psm),
+            e_cor: e_cor(&shape, &corr),
+            pgamma: pgamma(&shape, &corr),
         })
     }
 
     /// The five measurements of the model of scale `s` and intrinsic
     /// shape `g_int`: unsheared, then sheared by +g₁, −g₁, +g₂, −g₂. All
     /// five on the small grid when the window of r_g ≈ `rg0` fits in it
-    /// with a quarter to spare, else on the large one.
+    /// with a quarter to spare, else (or when the small grid fails) on the
+    /// large one.
     fn model(&self, s: f64, g_int: [f64; 2], rg0: f64) -> Option<Member> {
         let small = 1.25 * self.win.radius_rg * rg0 < (self.grids[0].side / 2) as f64;
-        let grid = &self.grids[usize::from(!small)];
+        if small {
+            if let Some(m) = self.model_on(&self.grids[0], s, g_int, rg0) {
+                return Some(m);
+            }
+        }
+        self.model_on(&self.grids[1], s, g_int, rg0)
+    }
+
+    /// [`Self::model`] on one grid.
+    fn model_on(&self, grid: &Grid, s: f64, g_int: [f64; 2], rg0: f64) -> Option<Member> {
         let base = self.measure(grid, s, g_int, [0.0, 0.0], rg0)?;
         let mut sheared = Vec::with_capacity(4);
         for g in [[STEP, 0.0], [-STEP, 0.0], [0.0, STEP], [0.0, -STEP]] {
@@ -402,28 +425,35 @@ impl PgammaCalibration {
                 rings: Vec::new(),
             };
             // Model scales from FIRST_SCALE r_g* up, until the models' r_g
-            // passes the top: the smallest are measured at about r_g*.
+            // passes the top: the smallest are measured at about r_g*. Each
+            // model starts from the last one's r_g, one step larger.
             let mut s = FIRST_SCALE * rg_star;
             let mut rg0 = rg_star;
             while rg0 < rg_top && s < rg_top {
-                if let Some(ring) = bench.ring(s, e_int, rg0) {
-                    let rg = ring_mean(&ring, |m| m.base.size());
-                    let k = ring_mean(&ring, |m| m.response(|_| 1.0));
-                    if row.ln_rg.last().is_none_or(|&l| rg.ln() > l) && k > 0.0 {
-                        row.ln_rg.push(rg.ln());
-                        row.e
-                            .push(ring_mean(&ring, |m| m.base.e_cor[0].hypot(m.base.e_cor[1])));
-                        row.k.push(k);
-                        row.rings.push(ring);
+                match bench.ring(s, e_int, rg0) {
+                    Some(ring) => {
+                        let z = ring_mean(&ring, |m| m.base.size());
+                        let k = ring_mean(&ring, |m| m.response(|_| 1.0));
+                        rg0 = ring_mean(&ring, |m| m.base.rg) * SIZE_STEP;
+                        if row.ln_rg.last().is_none_or(|&l| z.ln() > l) && k > 0.0 {
+                            row.ln_rg.push(z.ln());
+                            row.e
+                                .push(ring_mean(&ring, |m| m.base.e_cor[0].hypot(m.base.e_cor[1])));
+                            row.k.push(k);
+                            row.rings.push(ring);
+                        }
                     }
-                    rg0 = rg;
+                    None => rg0 *= SIZE_STEP,
                 }
                 s *= SIZE_STEP;
             }
-            if row.ln_rg.len() < 2 {
+            // A row of fewer than two models is left out; without the
+            // round row there is no calibration.
+            if row.ln_rg.len() >= 2 {
+                rows.push(row);
+            } else if e_int == 0.0 {
                 return None;
             }
-            rows.push(row);
         }
         Some(Self { rows })
     }

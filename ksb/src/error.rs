@@ -44,6 +44,12 @@ pub enum KsbError {
         /// The allowed range.
         reason: &'static str,
     },
+    /// Two parameters that cannot be used together.
+    #[error("invalid parameters: {message}")]
+    Combination {
+        /// Which, and what to do.
+        message: &'static str,
+    },
     /// The thread pool could not be built.
     #[error("cannot start {threads} threads: {message}")]
     Threads {

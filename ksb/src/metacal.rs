@@ -202,6 +202,20 @@ pub struct PsfStack {
     pub n_stars: usize,
 }
 
+impl PsfStack {
+    /// The stack on a side × side grid (side ≥ PSF_SIDE), its centre at
+    /// index side / 2 in both axes, zero around it.
+    pub fn on_grid(&self, side: usize) -> Vec<f64> {
+        let mut grid = vec![0.0; side * side];
+        let (h, o) = (PSF_SIDE / 2, side / 2);
+        for (j, row) in self.pix.chunks_exact(PSF_SIDE).enumerate() {
+            let start = (j + o - h) * side + o - h;
+            grid[start..start + PSF_SIDE].copy_from_slice(row);
+        }
+        grid
+    }
+}
+
 /// Stacks the stars at `stars` (array coordinates of their windowed
 /// centroids) of the background-subtracted image `sub`: each star's stamp
 /// is moved to the grid centre by its transform's phase (exact for a
@@ -300,13 +314,8 @@ impl Deconvolver {
     /// σ `sigma`.
     pub fn new(psf: &PsfStack, side: usize, sigma: f64) -> Self {
         let plans = Plans::new(side);
-        let mut stamp = vec![0.0; side * side];
-        let (h, o) = (PSF_SIDE / 2, side / 2);
-        for j in 0..PSF_SIDE {
-            for i in 0..PSF_SIDE {
-                stamp[(j + o - h) * side + (i + o - h)] = psf.pix[j * PSF_SIDE + i];
-            }
-        }
+        let stamp = psf.on_grid(side);
+        let o = side / 2;
         let c = [o as f64, o as f64];
         let psf = transforms(&stamp, c, &plans);
         let gamma = (0..side * side)

@@ -204,6 +204,16 @@ impl KsbParams {
                 })
             }
         };
+        if self.method == Method::Ksb
+            && self.pgamma_mode == PgammaMode::FitSize
+            && self.calibration.is_some()
+        {
+            return Err(KsbError::Combination {
+                message: "the P^γ calibration is the response of each galaxy's own P^γ, \
+                          not of a P^γ fitted against size: with pgamma_mode FitSize set \
+                          calibration None (`--pgamma fit-size --calibration none`)",
+            });
+        }
         if self.background_mesh_px < 8 {
             return Err(KsbError::Param {
                 name: "background_mesh_px",
@@ -265,5 +275,17 @@ mod tests {
             ..KsbParams::default()
         };
         assert!(p.validate().unwrap_err().to_string().contains("psf_order"));
+        let fit = KsbParams {
+            pgamma_mode: PgammaMode::FitSize,
+            ..KsbParams::default()
+        };
+        let e = fit.validate().unwrap_err().to_string();
+        assert!(e.contains("--calibration none"), "{e}");
+        KsbParams {
+            calibration: None,
+            ..fit
+        }
+        .validate()
+        .unwrap();
     }
 }

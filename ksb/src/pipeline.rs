@@ -73,6 +73,10 @@ pub struct ImageMeasurement {
     pub star_candidates: Vec<SizeMag>,
     /// PSF model polynomial order, if a model was built.
     pub psf_order: Option<usize>,
+    /// The smallest and largest P^γ factor k given to the image's
+    /// galaxies; `None` when P^γ was not calibrated (turned off, no stars,
+    /// or no models).
+    pub calibration_k: Option<[f64; 2]>,
     /// Background noise σ (electrons).
     pub background_rms_e: f64,
     /// Seconds per stage (for benchmarks; not part of any output file).
@@ -367,89 +371,102 @@ impl Detections {
                 }
             })
             .collect();
-        let (objects, stage): (Vec<MeasuredObject>, &str) = if params.method == Method::Metacal {
-            let cands_of_rows: Vec<&Candidate> = cands
-                .iter()
-                .zip(&star)
-                .filter(|(_, s)| !**s)
-                .map(|(c, _)| c)
-                .collect();
-            let mc =
-                locus.and_then(|l| crate::metacal::ImageMetacal::new(sub, &psf_stars, l.rg_star));
-            let objects = rows
-                .into_iter()
-                .zip(cands_of_rows)
-                .map(|((o, _), c)| {
-                    crate::metacal::measure_object(o, c.flags, sub, mc.as_ref(), params, bg.rms)
-                })
-                .collect();
-            (objects, "metacal")
-        } else {
-            let fit = match (params.pgamma_mode, locus) {
-                (PgammaMode::FitSize, Some(l)) => {
-                    let pts: Vec<(f64, f64)> = rows
-                        .iter()
-                        .filter(|(o, _)| o.flags == 0)
-                        .filter_map(|(o, sc)| {
-                            sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c)))
-                        })
-                        .collect();
-                    PgammaFit::fit(&pts, l.rg_star)
-                }
-                _ => None,
-            };
-            let calibration = match (params.calibration, locus) {
-                (Some(profile), Some(l)) => {
-                    crate::metacal::stack_psf(sub, &psf_stars).and_then(|psf| {
-                        PgammaCalibration::new(
-                            &psf,
-                            l.rg_star,
-                            rg_hi(l.rg_star),
-                            profile,
-                            &params.window_settings(),
-                        )
-                    })
-                }
-                _ => None,
-            };
-            // The intrinsic shapes of the image's good galaxies, |e_cor|
-            // with its noise taken out in quadrature.
-            let sizes = calibration.as_ref().map(|cal| {
-                let shapes: Vec<f64> = rows
+        let (objects, stage, calibration_k): (Vec<MeasuredObject>, &str, Option<[f64; 2]>) =
+            if params.method == Method::Metacal {
+                let cands_of_rows: Vec<&Candidate> = cands
                     .iter()
-                    .filter(|(o, _)| o.flags == 0)
-                    .filter_map(|(_, sc)| {
-                        let (s, c) = sc.as_ref()?;
-                        let e = e_cor(s, c);
-                        let e2 =
-                            e[0] * e[0] + e[1] * e[1] - s.sigma_e[0].powi(2) - s.sigma_e[1].powi(2);
-                        Some(cal.shape_index(s.sigma_w, e2.max(0.0).sqrt()))
+                    .zip(&star)
+                    .filter(|(_, s)| !**s)
+                    .map(|(c, _)| c)
+                    .collect();
+                let mc = locus
+                    .and_then(|l| crate::metacal::ImageMetacal::new(sub, &psf_stars, l.rg_star));
+                let objects = rows
+                    .into_iter()
+                    .zip(cands_of_rows)
+                    .map(|((o, _), c)| {
+                        crate::metacal::measure_object(o, c.flags, sub, mc.as_ref(), params, bg.rms)
                     })
                     .collect();
-                cal.for_shapes(&shapes)
-            });
-            lap("calibration", &mut t0);
-            for (o, sc) in &mut rows {
-                let Some((s, c)) = sc else { continue };
-                let k = sizes.as_ref().map_or(1.0, |f| {
-                    let e = e_cor(s, c);
-                    f.factor(s.sigma_w, e[0].hypot(e[1]))
-                });
-                let est: ShearEstimate = match &fit {
-                    Some(fit) => estimate_with(s, c, fit.eval(o.rg_px) * k),
-                    None => estimate_with(s, c, pgamma(s, c) * k),
+                (objects, "metacal", None)
+            } else {
+                let fit = match (params.pgamma_mode, locus) {
+                    (PgammaMode::FitSize, Some(l)) => {
+                        let pts: Vec<(f64, f64)> = rows
+                            .iter()
+                            .filter(|(o, _)| o.flags == 0)
+                            .filter_map(|(o, sc)| {
+                                sc.map(|(s, c)| (o.rg_px, crate::shear::pgamma(&s, &c)))
+                            })
+                            .collect();
+                        PgammaFit::fit(&pts, l.rg_star)
+                    }
+                    _ => None,
                 };
-                o.pgamma = est.pgamma;
-                if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
-                    o.flags |= flags::PGAMMA;
+                let calibration = match (params.calibration, locus) {
+                    (Some(profile), Some(l)) => crate::metacal::stack_psf(sub, &psf_stars)
+                        .and_then(|psf| {
+                            PgammaCalibration::new(
+                                &psf,
+                                l.rg_star,
+                                rg_hi(l.rg_star),
+                                profile,
+                                &params.window_settings(),
+                            )
+                        }),
+                    _ => None,
+                };
+                // Each galaxy's |e_cor| with its noise taken out in quadrature:
+                // it places the image's good galaxies among the shape rows, and
+                // with r_g it gives every galaxy's size.
+                let shape_e = |s: &KsbShape, c: &crate::psf_model::PsfCorrection| {
+                    let e = e_cor(s, c);
+                    let e2 =
+                        e[0] * e[0] + e[1] * e[1] - s.sigma_e[0].powi(2) - s.sigma_e[1].powi(2);
+                    if e2.is_nan() {
+                        f64::NAN
+                    } else {
+                        e2.max(0.0).sqrt()
+                    }
+                };
+                let sizes = calibration.as_ref().map(|cal| {
+                    let shapes: Vec<f64> = rows
+                        .iter()
+                        .filter(|(o, _)| o.flags == 0)
+                        .filter_map(|(_, sc)| {
+                            let (s, c) = sc.as_ref()?;
+                            let e = shape_e(s, c);
+                            e.is_finite().then(|| cal.shape_index(s.sigma_w, e))
+                        })
+                        .collect();
+                    cal.for_shapes(&shapes)
+                });
+                lap("calibration", &mut t0);
+                let mut k_range: Option<[f64; 2]> = None;
+                for (o, sc) in &mut rows {
+                    let Some((s, c)) = sc else { continue };
+                    let k = sizes
+                        .as_ref()
+                        .map_or(1.0, |f| f.factor(s.sigma_w, shape_e(s, c)));
+                    if sizes.is_some() && k.is_finite() {
+                        let r = k_range.get_or_insert([k, k]);
+                        *r = [r[0].min(k), r[1].max(k)];
+                    }
+                    let est: ShearEstimate = match &fit {
+                        Some(fit) => estimate_with(s, c, fit.eval(o.rg_px) * k),
+                        None => estimate_with(s, c, pgamma(s, c) * k),
+                    };
+                    o.pgamma = est.pgamma;
+                    if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
+                        o.flags |= flags::PGAMMA;
+                    }
+                    set_shear(o, est.gamma, params.max_shear);
+                    if o.flags == 0 {
+                        o.weight = weight(est.sigma_gamma, params.sigma_int);
+                    }
                 }
-                set_shear(o, est.gamma, params.max_shear);
-                if o.flags == 0 {
-                    o.weight = weight(est.sigma_gamma, params.sigma_int);
-                }
-            }
-            (rows.into_iter().map(|r| r.0).collect(), "shear")
-        };
+                (rows.into_iter().map(|r| r.0).collect(), "shear", k_range)
+            };
         let (w, h) = (width as f64, height as f64);
         let mut objects: Vec<MeasuredObject> = objects
             .into_iter()
@@ -464,6 +481,7 @@ impl Detections {
             locus,
             star_candidates: sizemag,
             psf_order: model.as_ref().map(PsfModel::order),
+            calibration_k,
             background_rms_e: bg.rms,
             timings,
         }

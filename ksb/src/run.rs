@@ -46,6 +46,9 @@ pub struct ImageSummary {
     pub rg_star_px: Option<f64>,
     /// PSF model order, if any.
     pub psf_order: Option<usize>,
+    /// The range of the P^γ calibration's k over the image's galaxies, if
+    /// it was calibrated.
+    pub calibration_k: Option<[f64; 2]>,
 }
 
 /// Told (images measured, images in all) after each group of images, so
@@ -217,6 +220,7 @@ fn summary(im: &stepsim_contract::run_layout::ManifestImage, m: &ImageMeasuremen
         n_stars: m.n_stars,
         rg_star_px: m.locus.map(|l| l.rg_star),
         psf_order: m.psf_order,
+        calibration_k: m.calibration_k,
     }
 }
 

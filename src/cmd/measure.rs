@@ -27,10 +27,10 @@ pub enum MethodArg {
 /// The calibration of KSB+'s P^γ on each image's PSF.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum CalibrationArg {
-    /// Round exponential model galaxies drawn through the image's PSF stars
-    /// (docs/ksb.md, "P^γ calibrated on the PSF").
+    /// Exponential model galaxies (round and elliptical) drawn through the
+    /// image's PSF stars (docs/ksb.md, step 8).
     Exponential,
-    /// Round Gaussian model galaxies.
+    /// Gaussian model galaxies.
     Gaussian,
     /// None: P^γ as KSB+ gives it.
     None,
@@ -149,8 +149,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let order = s
             .psf_order
             .map_or("no PSF model".to_string(), |o| format!("PSF order {o}"));
+        let k = match (params.method, params.calibration, s.calibration_k) {
+            (Method::Ksb, Some(_), Some([lo, hi])) => format!(", P^γ k {lo:.3}–{hi:.3}"),
+            (Method::Ksb, Some(_), None) => ", P^γ not calibrated".to_string(),
+            _ => String::new(),
+        };
         eprintln!(
-            "stepsim: {}: {} objects, {} weighted, {} stars, {locus}, {order}",
+            "stepsim: {}: {} objects, {} weighted, {} stars, {locus}, {order}{k}",
             s.image, s.n_objects, s.n_weighted, s.n_stars
         );
     }
