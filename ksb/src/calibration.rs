@@ -32,7 +32,6 @@
 
 use crate::centroid::{WindowSettings, windowed};
 use crate::image::Image;
-use crate::linalg::{half_trace, inverse, mul_vec};
 use crate::metacal::{Plans, PsfStack, freq};
 use crate::moments::{KsbShape, ksb_integrals};
 use crate::psf_model::PsfCorrection;
@@ -139,11 +138,18 @@ impl SizeFactor {
 /// `values` (one per node) at `t`, linear between the increasing `nodes`
 /// and held at the ends ([`bracket`]).
 fn lerp(nodes: &[f64], values: &[f64], t: f64) -> f64 {
+    lerp_by(nodes, t, |i| values[i])
+}
+
+/// [`lerp`] of the node values `value(i)`, evaluated only at the one or
+/// two nodes it needs.
+fn lerp_by(nodes: &[f64], t: f64, value: impl Fn(usize) -> f64) -> f64 {
     let (i, f) = bracket(nodes, t);
+    let v0 = value(i);
     if f == 0.0 {
-        values[i]
+        v0
     } else {
-        values[i] + f * (values[i + 1] - values[i])
+        v0 + f * (value(i + 1) - v0)
     }
 }
 
@@ -169,29 +175,22 @@ struct Row {
     ln_rg: Vec<f64>,
     /// |e_cor| (ring mean) at g = 0.
     e: Vec<f64>,
-    /// k (ring mean of [`Member::response`] with k = 1).
-    k: Vec<f64>,
     /// The ring at each size.
     rings: Vec<Vec<Member>>,
 }
 
 impl Row {
-    /// (|e|, k) at ln size `t`: linear in ln size, held at the ends.
-    fn at(&self, t: f64) -> (f64, f64) {
-        (lerp(&self.ln_rg, &self.e, t), lerp(&self.ln_rg, &self.k, t))
+    /// |e_cor| at ln size `t`: linear in ln size, held at the ends.
+    fn e_at(&self, t: f64) -> f64 {
+        lerp(&self.ln_rg, &self.e, t)
     }
 
-    /// The rings' response at ln size `t` with k(size) = `f` (linear in
+    /// The rings' response at ln size `t` with k(size) = `k` (linear in
     /// ln size between the rings, held at the ends).
-    fn response_at(&self, t: f64, f: &SizeFactor) -> f64 {
-        let (i, frac) = bracket(&self.ln_rg, t);
-        let r = |i: usize| ring_mean(&self.rings[i], |m| m.response(|size| f.at_size(size)));
-        let r0 = r(i);
-        if frac == 0.0 {
-            r0
-        } else {
-            r0 + frac * (r(i + 1) - r0)
-        }
+    fn response_at(&self, t: f64, k: &dyn Fn(f64) -> f64) -> f64 {
+        lerp_by(&self.ln_rg, t, |i| {
+            ring_mean(&self.rings[i], |m| m.response(k))
+        })
     }
 }
 
@@ -322,10 +321,7 @@ impl Bench {
     ) -> Option<ModelShape> {
         let shape = self.shape(&self.draw(grid, s, g_int, g), rg0, true)?;
         let star = self.shape(&grid.psf_img, shape.sigma_w, false)?;
-        let corr = PsfCorrection {
-            p: mul_vec(&inverse(&star.psm)?, star.e),
-            ratio: half_trace(&star.psh) / half_trace(&star.psm),
-        };
+        let corr = PsfCorrection::of_star(&star)?;
         Some(ModelShape {
             rg: shape.sigma_w,
             e_cor: e_cor(&shape, &corr),
@@ -391,7 +387,7 @@ impl Member {
     /// The response ½ (∂γ̂₁/∂g₁ + ∂γ̂₂/∂g₂) of γ̂ = e_cor / (P^γ k(size)),
     /// each sheared version with its own P^γ and size (central
     /// differences).
-    fn response(&self, k: impl Fn(f64) -> f64) -> f64 {
+    fn response(&self, k: &dyn Fn(f64) -> f64) -> f64 {
         let gamma = |m: &ModelShape, c: usize| m.e_cor[c] / (m.pgamma * k(m.size()));
         let [p1, m1, p2, m2] = &self.sheared;
         0.5 * ((gamma(p1, 0) - gamma(m1, 0)) + (gamma(p2, 1) - gamma(m2, 1))) / (2.0 * STEP)
@@ -421,7 +417,6 @@ impl PgammaCalibration {
             let mut row = Row {
                 ln_rg: Vec::new(),
                 e: Vec::new(),
-                k: Vec::new(),
                 rings: Vec::new(),
             };
             // Model scales from FIRST_SCALE r_g* up, until the models' r_g
@@ -433,13 +428,12 @@ impl PgammaCalibration {
                 match bench.ring(s, e_int, rg0) {
                     Some(ring) => {
                         let z = ring_mean(&ring, |m| m.base.size());
-                        let k = ring_mean(&ring, |m| m.response(|_| 1.0));
+                        let k = ring_mean(&ring, |m| m.response(&|_| 1.0));
                         rg0 = ring_mean(&ring, |m| m.base.rg) * SIZE_STEP;
                         if row.ln_rg.last().is_none_or(|&l| z.ln() > l) && k > 0.0 {
                             row.ln_rg.push(z.ln());
                             row.e
                                 .push(ring_mean(&ring, |m| m.base.e_cor[0].hypot(m.base.e_cor[1])));
-                            row.k.push(k);
                             row.rings.push(ring);
                         }
                     }
@@ -464,7 +458,7 @@ impl PgammaCalibration {
     /// beyond it.
     pub fn shape_index(&self, rg: f64, e: f64) -> f64 {
         let t = size(rg, e).ln();
-        let es: Vec<f64> = self.rows.iter().map(|r| r.at(t).0).collect();
+        let es: Vec<f64> = self.rows.iter().map(|r| r.e_at(t)).collect();
         if e.is_nan() || e <= es[0] {
             return 0.0;
         }
@@ -520,15 +514,19 @@ impl PgammaCalibration {
                 .map(|(r, w)| w * f(r))
                 .sum()
         };
+        // The plain k: each row's response with k = 1.
         let plain = SizeFactor {
-            k: nodes.iter().map(|&t| mix(&|r| r.at(t).1)).collect(),
+            k: nodes
+                .iter()
+                .map(|&t| mix(&|r| r.response_at(t, &|_| 1.0)))
+                .collect(),
             ln_rg: nodes.clone(),
         };
         let mut f = plain.clone();
         for _ in 0..ITERATIONS {
             let r: Vec<f64> = nodes
                 .iter()
-                .map(|&t| mix(&|row| row.response_at(t, &f)))
+                .map(|&t| mix(&|row| row.response_at(t, &|size| f.at_size(size))))
                 .collect();
             if !r.iter().all(|r| r.is_finite() && *r > 0.0) {
                 return plain;
@@ -545,7 +543,10 @@ impl PgammaCalibration {
             .iter()
             .map(|r| {
                 (0..r.ln_rg.len())
-                    .map(|i| [r.ln_rg[i].exp(), r.e[i], r.k[i]])
+                    .map(|i| {
+                        let k = ring_mean(&r.rings[i], |m| m.response(&|_| 1.0));
+                        [r.ln_rg[i].exp(), r.e[i], k]
+                    })
                     .collect()
             })
             .collect()

@@ -19,7 +19,7 @@
 use crate::centroid::{WindowSettings, windowed};
 use crate::image::Image;
 use crate::linalg::{half_trace, inverse, mul_vec};
-use crate::moments::{PixelNoise, ksb_integrals};
+use crate::moments::{KsbShape, PixelNoise, ksb_integrals};
 use crate::params::KsbParams;
 use crate::polynomial::{FieldFrame, Poly2, fit_clipped};
 use rayon::prelude::*;
@@ -31,6 +31,17 @@ pub struct PsfCorrection {
     pub p: [f64; 2],
     /// ½Tr P^sh* / ½Tr P^sm*.
     pub ratio: f64,
+}
+
+impl PsfCorrection {
+    /// The correction a star's KSB shape gives: p = (P^sm*)⁻¹ e* and
+    /// R = ½Tr P^sh* / ½Tr P^sm*; `None` if P^sm* is singular.
+    pub fn of_star(star: &KsbShape) -> Option<Self> {
+        Some(Self {
+            p: mul_vec(&inverse(&star.psm)?, star.e),
+            ratio: half_trace(&star.psh) / half_trace(&star.psm),
+        })
+    }
 }
 
 /// The model at one weight scale.
@@ -83,8 +94,7 @@ pub fn star_at_scale(
         return None;
     }
     let shape = ksb_integrals(img, c.x, c.y, rg, params.window_radius_rg * rg, noise).shape()?;
-    let p = mul_vec(&inverse(&shape.psm)?, shape.e);
-    let ratio = half_trace(&shape.psh) / half_trace(&shape.psm);
+    let PsfCorrection { p, ratio } = PsfCorrection::of_star(&shape)?;
     (p[0].is_finite() && p[1].is_finite() && ratio.is_finite()).then_some(StarAtScale {
         x: c.x,
         y: c.y,

@@ -129,7 +129,6 @@ impl PgammaFit {
 mod tests {
     use super::*;
     use crate::image::Image;
-    use crate::linalg::inverse;
     use crate::moments::ksb_integrals;
     use crate::scene::{convolve, covariance, draw_gaussian_integrated, shear_covariance};
 
@@ -165,10 +164,7 @@ mod tests {
             let gal = convolve(&shear_covariance(&covariance(sigma, e), g), psf);
             let shape = measure(&gal, None);
             let star = measure(psf, Some(shape.sigma_w));
-            let corr = PsfCorrection {
-                p: mul_vec(&inverse(&star.psm).unwrap(), star.e),
-                ratio: half_trace(&star.psh) / half_trace(&star.psm),
-            };
+            let corr = PsfCorrection::of_star(&star).unwrap();
             let est = estimate(&shape, &corr);
             for c in 0..2 {
                 err[c] += (est.gamma[c] - g[c]) / n as f64;

@@ -150,10 +150,7 @@ fn ring_m(psf: &[(f64, Mat2)], sigma: f64, es: f64, k: &dyn Fn(f64, f64) -> f64)
         let img = drawn_in_pixels(&shear_covariance(&covariance(sigma, e), g), psf);
         let shape = bench.shape(&img, 3.0, true).unwrap();
         let star = bench.shape(&star_img, shape.sigma_w, false).unwrap();
-        let corr = PsfCorrection {
-            p: mul_vec(&inverse(&star.psm).unwrap(), star.e),
-            ratio: half_trace(&star.psh) / half_trace(&star.psm),
-        };
+        let corr = PsfCorrection::of_star(&star).unwrap();
         let ec = e_cor(&shape, &corr);
         let kk = k(shape.sigma_w, ec[0].hypot(ec[1]));
         let est = estimate_with(&shape, &corr, pgamma(&shape, &corr) * kk);
@@ -252,7 +249,6 @@ fn the_factor_is_linear_in_ln_rg_and_in_the_shape_index_and_held_at_the_ends() {
     let row = |e: [f64; 3], k: [f64; 3]| Row {
         ln_rg: sizes.iter().map(|r: &f64| r.ln()).collect(),
         e: e.to_vec(),
-        k: k.to_vec(),
         rings: sizes
             .iter()
             .zip(k)
@@ -308,19 +304,20 @@ fn a_size_that_follows_the_shear_is_taken_into_k() {
     let row = Row {
         ln_rg: vec![1.0f64.ln(), 1.5f64.ln(), 2.0f64.ln()],
         e: vec![0.0; 3],
-        k: vec![1.0, 1.1, 1.2],
         rings: vec![vec![member(1.0, 1.0)], vec![m], vec![member(2.0, 1.2)]],
     };
     let cal = PgammaCalibration { rows: vec![row] };
     let t = 1.5f64.ln();
+    // The members' responses with k = 1.
     let plain = SizeFactor {
         ln_rg: cal.rows[0].ln_rg.clone(),
-        k: cal.rows[0].k.clone(),
+        k: vec![1.0, 1.1, 1.2],
     };
-    let before = cal.rows[0].response_at(t, &plain);
+    assert_eq!(cal.for_shapes(&[]).ln_rg, plain.ln_rg);
+    let before = cal.rows[0].response_at(t, &|z| plain.at_size(z));
     assert!(before < 1.0 - 1e-3, "plain k: response {before}");
     let f = cal.for_shapes(&[]);
-    let after = cal.rows[0].response_at(t, &f);
+    let after = cal.rows[0].response_at(t, &|z| f.at_size(z));
     // Measured: 0.99704 with the plain k, 0.99979 after the two
     // iterations (k 1.1 → 1.096).
     assert!(
