@@ -10,10 +10,11 @@
 //! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |
 //! | 5 | 32 | `SMALL` | r_g ≤ `size_min_factor` × r_g* (star-like or smaller) |
 //! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |
-//! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `min_sn` |
+//! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `ksb_min_sn` (KSB+) or `min_sn` (metacal) |
 //! | 8 | 256 | `PGAMMA` | ½Tr P^γ < `min_pgamma` |
 //! | 9 | 512 | `BIG_SHEAR` | |γ̂| ≥ `max_shear` (written as 0 beyond the submission range, `stepsim_contract::MAX_ABS_SHEAR`) |
 //! | 10 | 1024 | `NO_PSF` | too few stars for a PSF model on this image |
+//! | 11 | 2048 | `SHIFTED` | KSB+: the windowed centroid lies ≥ `ksb_max_peak_shift_px` from the smoothed image's peak (a blend the detection did not split; as the *ellipto* pipeline of STEP1 flags a centroid that moved) |
 
 /// Footprint on the border or window beyond the image.
 pub const EDGE: u32 = 1;
@@ -29,7 +30,7 @@ pub const MOMENTS: u32 = 16;
 pub const SMALL: u32 = 32;
 /// Too large (r_g at rg_max).
 pub const LARGE: u32 = 64;
-/// Too faint (ν < min_sn).
+/// Too faint (ν < ksb_min_sn for KSB+, min_sn for metacal).
 pub const LOW_SN: u32 = 128;
 /// P^γ too small.
 pub const PGAMMA: u32 = 256;
@@ -37,6 +38,8 @@ pub const PGAMMA: u32 = 256;
 pub const BIG_SHEAR: u32 = 512;
 /// No PSF model.
 pub const NO_PSF: u32 = 1024;
+/// KSB+: centroid shifted from the peak (an unsplit blend).
+pub const SHIFTED: u32 = 2048;
 
 /// Flags that disqualify an object from the star sample and the PSF model.
 pub const NOT_FOR_PSF: u32 = EDGE | SATURATED | BLENDED | CENTROID | MOMENTS | LARGE;
@@ -44,7 +47,7 @@ pub const NOT_FOR_PSF: u32 = EDGE | SATURATED | BLENDED | CENTROID | MOMENTS | L
 #[cfg(test)]
 mod tests {
     /// Names of the bits, lowest first.
-    const NAMES: [&str; 11] = [
+    const NAMES: [&str; 12] = [
         "EDGE",
         "SATURATED",
         "BLENDED",
@@ -56,6 +59,7 @@ mod tests {
         "PGAMMA",
         "BIG_SHEAR",
         "NO_PSF",
+        "SHIFTED",
     ];
 
     #[test]
@@ -72,6 +76,7 @@ mod tests {
             super::PGAMMA,
             super::BIG_SHEAR,
             super::NO_PSF,
+            super::SHIFTED,
         ];
         for (i, b) in all.iter().enumerate() {
             assert_eq!(*b, 1 << i, "{}", NAMES[i]);

@@ -103,8 +103,21 @@ pub struct KsbParams {
     /// with a PSF halo m went from −0.083 (1.1) to −0.056 (1.3) and −0.022
     /// (1.6, with a third of the galaxies); see docs/ksb.md.
     pub size_min_factor: f64,
-    /// Galaxies need Gaussian-weighted S/N ν ≥ this (10, like CH and C1/C2).
+    /// Metacal's galaxies need Gaussian-weighted S/N ν ≥ this (10, like
+    /// CH and C1/C2).
     pub min_sn: f64,
+    /// KSB+'s galaxies need ν ≥ this (20). Faint galaxies are the ones
+    /// with a neighbour of ≥ 10 % of their flux within 3″ that the
+    /// detection does not split, and such blends respond less than the
+    /// shear in the unlensed STEP1 scene: on 16 fields of the preset
+    /// (PSF `none`) m went from −0.115 (ν ≥ 10) to −0.050 (ν ≥ 20), and
+    /// to −0.015 with the centroid-shift flag; see docs/baseline.md.
+    pub ksb_min_sn: f64,
+    /// KSB+'s galaxies need their windowed centroid within this of the
+    /// smoothed image's sub-pixel peak (0.4 px; `flags::SHIFTED`): a
+    /// neighbour merged into the footprint pulls the light's mean away
+    /// from its mode.
+    pub ksb_max_peak_shift_px: f64,
     /// Galaxies need ½Tr[P^γ] ≥ this (0.1).
     pub min_pgamma: f64,
     /// Galaxies need |γ̂| < this (1).
@@ -166,6 +179,8 @@ impl Default for KsbParams {
             scale_step: 1.06,
             size_min_factor: 1.25,
             min_sn: 10.0,
+            ksb_min_sn: 20.0,
+            ksb_max_peak_shift_px: 0.4,
             min_pgamma: 0.1,
             max_shear: 1.0,
             sigma_int: 0.3,
@@ -244,6 +259,14 @@ impl KsbParams {
         pos("psf_stars_per_term", self.psf_stars_per_term)?;
         pos("scale_step", self.scale_step - 1.0)?;
         pos("min_pgamma", self.min_pgamma)?;
+        pos("ksb_max_peak_shift_px", self.ksb_max_peak_shift_px)?;
+        if !(self.ksb_min_sn.is_finite() && self.ksb_min_sn >= 0.0) {
+            return Err(KsbError::Param {
+                name: "ksb_min_sn",
+                value: self.ksb_min_sn,
+                reason: "must be finite and at least 0",
+            });
+        }
         pos("max_shear", self.max_shear)?;
         pos("sigma_int", self.sigma_int)?;
         if self.psf_order > 4 {
