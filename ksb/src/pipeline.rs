@@ -628,18 +628,25 @@ mod tests {
         assert_eq!((o.e1, o.e2, o.flags), (0.0, 0.0, flags::MOMENTS));
     }
 
-    #[test]
-    fn a_noise_free_image_is_measured() {
-        // Constant sky, 8 stars and 30 galaxies (σ 2.0–4.9 px), no noise: every object is
-        // detected, the locus is the PSF σ, no panic on zero noise.
-        let psf = covariance(1.856, [0.03, 0.0]);
+    /// A noise-free 310 × 380 image of a constant sky (100 e⁻) with 8
+    /// bright stars of covariance `psf` in a row at y = 40.
+    fn sky_with_stars(psf: &crate::linalg::Mat2) -> Image {
         let mut img = Image::zeros(310, 380);
         for v in &mut img.data {
             *v = 100.0;
         }
         for k in 0..8 {
-            draw_gaussian_sampled(&mut img, 30.0 + 33.0 * k as f64, 40.0, 1e5, &psf);
+            draw_gaussian_sampled(&mut img, 30.0 + 33.0 * k as f64, 40.0, 1e5, psf);
         }
+        img
+    }
+
+    #[test]
+    fn a_noise_free_image_is_measured() {
+        // Constant sky, 8 stars and 30 galaxies (σ 2.0–4.9 px), no noise: every object is
+        // detected, the locus is the PSF σ, no panic on zero noise.
+        let psf = covariance(1.856, [0.03, 0.0]);
+        let mut img = sky_with_stars(&psf);
         for k in 0..30 {
             let (x, y) = (45.0 + 44.0 * (k % 6) as f64, 90.0 + 60.0 * (k / 6) as f64);
             let gal = crate::scene::convolve(&covariance(2.0 + 0.1 * k as f64, [0.2, -0.1]), &psf);
@@ -679,13 +686,7 @@ mod tests {
         // noisy images it acts with the noise of faint ones,
         // docs/baseline.md.)
         let psf = covariance(1.856, [0.0, 0.0]);
-        let mut img = Image::zeros(310, 380);
-        for v in &mut img.data {
-            *v = 100.0;
-        }
-        for k in 0..8 {
-            draw_gaussian_sampled(&mut img, 30.0 + 33.0 * k as f64, 40.0, 1e5, &psf);
-        }
+        let mut img = sky_with_stars(&psf);
         let gal = crate::scene::convolve(&covariance(2.5, [0.1, 0.05]), &psf);
         let mut pairs = Vec::new();
         for k in 0..24 {
