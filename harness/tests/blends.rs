@@ -67,36 +67,33 @@ impl Scene {
 }
 
 fn plan(n_fields: u32, scene: Scene) -> Plan {
-    if scene == Scene::Preset {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/step1.json");
-        let text = std::fs::read_to_string(&path).unwrap();
-        let o: Vec<String> = vec![
-            format!("run.seed={SEED}"),
-            format!("image.width_px={W}"),
-            format!("image.height_px={W}"),
-            format!("image.n_images={n_fields}"),
-            "population.lens_positions=true".into(),
-            "shears=[{\"g1\":-0.05},{\"g1\":0.05}]".into(),
-        ];
-        let o: Vec<&str> = o.iter().map(String::as_str).collect();
-        return Plan::from_json(&text, &path, &o).unwrap();
-    }
-    let o: Vec<String> = [
+    let mut o: Vec<String> = vec![
         format!("run.seed={SEED}"),
         format!("image.width_px={W}"),
         format!("image.height_px={W}"),
         format!("image.n_images={n_fields}"),
-        "population.galaxies.mag_faint=24".into(),
         "population.lens_positions=true".into(),
-        // No stars: they stay put while lensed galaxies move, which would
-        // add star–galaxy overlaps that change with the sign of g.
-        "population.stars.density_per_arcmin2=0".into(),
         "shears=[{\"g1\":-0.05},{\"g1\":0.05}]".into(),
-        "psfs=[{\"name\":\"g\",\"model\":\"gaussian\",\"fwhm_arcsec\":0.9}]".into(),
-    ]
-    .into();
+    ];
+    let (text, path) = match scene {
+        Scene::Preset => {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/step1.json");
+            (std::fs::read_to_string(&path).unwrap(), path)
+        }
+        Scene::Bright => {
+            o.extend([
+                "population.galaxies.mag_faint=24".into(),
+                // No stars: they stay put while lensed galaxies move, which
+                // would add star–galaxy overlaps that change with the sign
+                // of g.
+                "population.stars.density_per_arcmin2=0".into(),
+                "psfs=[{\"name\":\"g\",\"model\":\"gaussian\",\"fwhm_arcsec\":0.9}]".into(),
+            ]);
+            ("{}".to_string(), Path::new("blends.json").to_path_buf())
+        }
+    };
     let o: Vec<&str> = o.iter().map(String::as_str).collect();
-    Plan::from_json("{}", Path::new("blends.json"), &o).unwrap()
+    Plan::from_json(&text, &path, &o).unwrap()
 }
 
 /// χ1 of the adaptive moments in the window about (x, y) (FITS pixels) of

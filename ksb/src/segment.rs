@@ -23,8 +23,8 @@ pub struct Detection {
     pub x: f64,
     /// Peak of the smoothed image, array coordinates.
     pub y: f64,
-    /// The smoothed image's peak to a fraction of a pixel: a parabola
-    /// through the peak pixel and its two neighbours along each axis
+    /// The smoothed image's peak to a fraction of a pixel: the vertex of a
+    /// quadratic surface fitted to the 3 × 3 pixels about the peak pixel
     /// ([`subpixel_peak`]), array coordinates. The light's mode, against
     /// which a blend's windowed centroid shifts (`flags::SHIFTED`).
     pub peak: (f64, f64),
