@@ -317,3 +317,54 @@ fn sharded_measure_joined_is_byte_identical_to_one_measure() {
     ok(finish());
     assert!(std::fs::read(&sub).unwrap() == std::fs::read(&whole).unwrap());
 }
+
+#[test]
+fn the_size_cut_option_changes_only_the_small_flags() {
+    // `--size-cut psf-corrected` moves galaxies in and out of SMALL (32);
+    // the rows, positions and the detection's flags stay. (The P^γ
+    // calibration's mix of shapes comes from the galaxies that pass every
+    // cut, so k, and with it PGAMMA (256) and BIG_SHEAR (512), may move.)
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let rows = |cut: &str| -> Vec<Vec<f64>> {
+        let out = dir.path().join(format!("{cut}.txt"));
+        ok(run_with(
+            stepsim()
+                .args(["measure", "--size-cut", cut, "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(&out),
+        ));
+        std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| {
+                l.split_whitespace()
+                    .skip(1)
+                    .map(|v| v.parse().unwrap())
+                    .collect()
+            })
+            .collect()
+    };
+    let (windowed, corrected) = (rows("windowed"), rows("psf-corrected"));
+    assert_eq!(windowed.len(), corrected.len());
+    let mut changed = 0;
+    for (a, b) in windowed.iter().zip(&corrected) {
+        assert_eq!((a[0], a[1]), (b[0], b[1]), "positions");
+        let (fa, fb) = (a[5] as u32, b[5] as u32);
+        let k_moves = 256 | 512;
+        assert_eq!(fa & !(32 | k_moves), fb & !(32 | k_moves), "{a:?} {b:?}");
+        changed += usize::from(fa & 32 != fb & 32);
+    }
+    assert!(changed > 0, "no SMALL flag changed");
+    let bad = run_with(
+        stepsim()
+            .args(["measure", "--size-cut", "area", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(dir.path().join("x.txt")),
+    );
+    assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));
+}

@@ -8,7 +8,7 @@
 //! | 2 | 4 | `BLENDED` | split from a footprint with another peak within `deblend_flag_px`, another object within `close_pair_px`, or two detections merged |
 //! | 3 | 8 | `CENTROID` | windowed centroid did not converge or moved > `centroid_max_shift_px` |
 //! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |
-//! | 5 | 32 | `SMALL` | r_g ≤ `size_min_factor` × r_g* (star-like or smaller) |
+//! | 5 | 32 | `SMALL` | r_g (or the PSF-corrected size, `size_cut`) ≤ `size_min_factor` × r_g* (star-like or smaller) |
 //! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |
 //! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `ksb_min_sn` (KSB+) or `min_sn` (metacal) |
 //! | 8 | 256 | `PGAMMA` | ½Tr P^γ < `min_pgamma` |
@@ -26,7 +26,7 @@ pub const BLENDED: u32 = 4;
 pub const CENTROID: u32 = 8;
 /// Moments failed.
 pub const MOMENTS: u32 = 16;
-/// Too small (r_g ≤ size_min_factor × r_g*).
+/// Too small (r_g, or the size `size_cut` names, ≤ size_min_factor × r_g*).
 pub const SMALL: u32 = 32;
 /// Too large (r_g at rg_max).
 pub const LARGE: u32 = 64;

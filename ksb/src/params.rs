@@ -16,6 +16,22 @@ pub enum PgammaMode {
     FitSize,
 }
 
+/// What KSB+'s `SMALL` cut compares with `size_min_factor` × r_g*
+/// (`stepsim measure --size-cut`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SizeCut {
+    /// The windowed r_g (KSB table row "Galaxy size r_g"; the default).
+    /// It follows the shear to first order in g·e, so the cut selects
+    /// galaxies by their alignment with the shear: on 16 fields of the
+    /// STEP1 preset it adds about +0.03 to m (docs/baseline.md).
+    Windowed,
+    /// The r_g of the round object of the same PSF-corrected area
+    /// (`psf_corrected_size` in shear.rs), which a shear keeps: the
+    /// selection no longer depends on the shear, and the estimator's own
+    /// bias shows (docs/baseline.md).
+    PsfCorrected,
+}
+
 /// The shear method (`stepsim measure --method`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -103,6 +119,8 @@ pub struct KsbParams {
     /// with a PSF halo m went from −0.083 (1.1) to −0.056 (1.3) and −0.022
     /// (1.6, with a third of the galaxies); see docs/ksb.md.
     pub size_min_factor: f64,
+    /// Which size the `SMALL` cut uses ([`SizeCut::Windowed`]).
+    pub size_cut: SizeCut,
     /// Metacal's galaxies need Gaussian-weighted S/N ν ≥ this (10, like
     /// CH and C1/C2).
     pub min_sn: f64,
@@ -178,6 +196,7 @@ impl Default for KsbParams {
             psf_min_stars: 3,
             scale_step: 1.06,
             size_min_factor: 1.25,
+            size_cut: SizeCut::Windowed,
             min_sn: 10.0,
             ksb_min_sn: 20.0,
             ksb_max_peak_shift_px: 0.4,

@@ -20,6 +20,8 @@
 
 use crate::linalg::{half_trace, mul_vec};
 use crate::moments::KsbShape;
+#[cfg(doc)]
+use crate::params::SizeCut;
 use crate::psf_model::PsfCorrection;
 use stepsim_numerics::fit::{Clip, fit_clipped};
 
@@ -68,6 +70,36 @@ pub fn estimate(shape: &KsbShape, corr: &PsfCorrection) -> ShearEstimate {
 /// Weight w = 1 / (σ_int² + σ_γ²).
 pub fn weight(sigma_gamma: f64, sigma_int: f64) -> f64 {
     1.0 / (sigma_int * sigma_int + sigma_gamma * sigma_gamma)
+}
+
+/// The size the `SMALL` cut compares with `size_min_factor` × r_g* under
+/// [`SizeCut::PsfCorrected`]: the r_g of the round object whose
+/// PSF-corrected area equals this one's.
+///
+/// r_g alone follows the shear to first order in g·e: the PSF adds to both
+/// axes of a sheared galaxy, so a galaxy stretched along the shear grows and
+/// one stretched across it shrinks, and a cut on r_g keeps more of the first
+/// (docs/baseline.md, "The size cut's selection"). For a Gaussian of axes
+/// a ≥ b (σ's) the windowed r_g is √(ab) and the weighted e is
+/// (a − b)/(a + b), so a² + b² = 2 r_g² (1 + e²)/(1 − e²); with a round PSF of
+/// σ p = r_g*, the galaxy's own axes give
+/// det = (a² − p²)(b² − p²) = r_g⁴ − p² (a² + b²) + p⁴,
+/// which a shear (determinant 1) keeps. The result is √(√det + p²): r_g
+/// itself for a round object. An object whose det is not positive (or
+/// |e| ≥ 1) gets p, below any cut; a NaN input gives NaN.
+pub fn psf_corrected_size(rg: f64, e: [f64; 2], rg_star: f64) -> f64 {
+    let e2 = e[0] * e[0] + e[1] * e[1];
+    if rg.is_nan() || e2.is_nan() {
+        return f64::NAN;
+    }
+    let p2 = rg_star * rg_star;
+    let det = if e2 < 1.0 {
+        let trace = 2.0 * rg * rg * (1.0 + e2) / (1.0 - e2);
+        rg.powi(4) - p2 * trace + p2 * p2
+    } else {
+        0.0
+    };
+    (det.max(0.0).sqrt() + p2).sqrt()
 }
 
 /// A fit of P^γ against t = ln(r_g / r_g*).
@@ -196,6 +228,45 @@ mod tests {
         let round = covariance(4.37 / 2.3548, [0.0, 0.0]);
         let err = ring_error(&round, 2.0, 0.0, [0.05, 0.02]);
         assert!(err[0].abs() < 1e-4 && err[1].abs() < 1e-4, "{err:?}");
+    }
+
+    #[test]
+    fn the_psf_corrected_size_does_not_follow_the_shear() {
+        // Elliptical Gaussians (geometric-mean σ 1.5 px, |e_s| 0.4, eq. 1)
+        // through a round Gaussian PSF of FWHM 4.37 px, sheared by ±0.05
+        // along and across their major axis: r_g moves at first order in
+        // g·e (the SMALL cut's selection bias), the PSF-corrected size
+        // must not.
+        let psf = covariance(4.37 / 2.3548, [0.0, 0.0]);
+        let star = measure(&psf, None);
+        let rg_star = star.sigma_w;
+        // The pixel adds 1/12 px² to σ².
+        let sigma_pix = ((4.37_f64 / 2.3548).powi(2) + 1.0 / 12.0).sqrt();
+        assert!((rg_star - sigma_pix).abs() < 1e-3, "{rg_star}");
+        for th in [0.0_f64, 0.3, 1.1] {
+            let e = [0.4 * (2.0 * th).cos(), 0.4 * (2.0 * th).sin()];
+            let along = [0.05 * (2.0 * th).cos(), 0.05 * (2.0 * th).sin()];
+            let size_of = |g: [f64; 2]| {
+                let s = measure(
+                    &convolve(&shear_covariance(&covariance(1.5, e), g), &psf),
+                    None,
+                );
+                (s.sigma_w, psf_corrected_size(s.sigma_w, s.e, rg_star))
+            };
+            let (rg_up, size_up) = size_of(along);
+            let (rg_down, size_down) = size_of([-along[0], -along[1]]);
+            let (rg_0, size_0) = size_of([0.0, 0.0]);
+            let moved = (rg_up - rg_down) / rg_0;
+            let kept = (size_up - size_down) / size_0;
+            assert!(moved > 5e-3, "θ {th}: r_g moved {moved}");
+            // Measured: r_g 1.9 %, the size 4e-6 … 5e-6.
+            assert!(kept.abs() < 2e-5, "θ {th}: size moved {kept} (r_g {moved})");
+        }
+        // A round object's size is its r_g; a line's is r_g*.
+        assert!((psf_corrected_size(2.7, [0.0, 0.0], 1.9) - 2.7).abs() < 1e-12);
+        assert_eq!(psf_corrected_size(2.7, [0.8, 0.7], 1.9), 1.9);
+        assert!(psf_corrected_size(f64::NAN, [0.0, 0.0], 1.9).is_nan());
+        assert!(psf_corrected_size(2.7, [f64::NAN, 0.0], 1.9).is_nan());
     }
 
     #[test]
