@@ -139,6 +139,34 @@ fn pgamma_fit_and_psf_order_options_are_accepted() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+/// `stepsim measure` of the public run `run` with `options`, written into
+/// `dir` (a file named by the options): its stderr and the submission's
+/// rows (the columns after `image`).
+fn measured_rows(run: &Path, dir: &Path, options: &[&str]) -> (String, Vec<Vec<f64>>) {
+    let out = dir.join(format!("{}.txt", options.join("_")));
+    let err = stderr(&ok(run_with(
+        stepsim()
+            .arg("measure")
+            .args(options)
+            .arg("--run")
+            .arg(run)
+            .arg("--out")
+            .arg(&out),
+    )));
+    let rows = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| {
+            l.split_whitespace()
+                .skip(1)
+                .map(|v| v.parse().unwrap())
+                .collect()
+        })
+        .collect();
+    (err, rows)
+}
+
 #[test]
 fn the_pgamma_calibration_divides_each_estimate_and_can_be_turned_off() {
     // The same detections with and without the calibration; each weighted
@@ -148,30 +176,13 @@ fn the_pgamma_calibration_divides_each_estimate_and_can_be_turned_off() {
     let run = dir.path().join("public");
     public_run(&run);
     let rows = |calibration: &str| -> Vec<Vec<f64>> {
-        let out = dir.path().join(format!("{calibration}.txt"));
-        let err = stderr(&ok(run_with(
-            stepsim()
-                .args(["measure", "--calibration", calibration, "--run"])
-                .arg(&run)
-                .arg("--out")
-                .arg(&out),
-        )));
+        let (err, rows) = measured_rows(&run, dir.path(), &["--calibration", calibration]);
         // Each image's line gives the range of k, unless it is off.
         let lines = err.lines().filter(|l| l.contains(" weighted, ")).count();
         let with_k = err.lines().filter(|l| l.contains(", P^γ k 0.")).count();
         assert_eq!(lines, 2, "{err}");
         assert_eq!(with_k, if calibration == "none" { 0 } else { 2 }, "{err}");
-        std::fs::read_to_string(&out)
-            .unwrap()
-            .lines()
-            .skip(1)
-            .map(|l| {
-                l.split_whitespace()
-                    .skip(1)
-                    .map(|v| v.parse().unwrap())
-                    .collect()
-            })
-            .collect()
+        rows
     };
     let (on, off) = (rows("exponential"), rows("none"));
     assert_eq!(on.len(), off.len());
@@ -327,27 +338,7 @@ fn the_size_cut_option_changes_only_the_small_flags() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("public");
     public_run(&run);
-    let rows = |cut: &str| -> Vec<Vec<f64>> {
-        let out = dir.path().join(format!("{cut}.txt"));
-        ok(run_with(
-            stepsim()
-                .args(["measure", "--size-cut", cut, "--run"])
-                .arg(&run)
-                .arg("--out")
-                .arg(&out),
-        ));
-        std::fs::read_to_string(&out)
-            .unwrap()
-            .lines()
-            .skip(1)
-            .map(|l| {
-                l.split_whitespace()
-                    .skip(1)
-                    .map(|v| v.parse().unwrap())
-                    .collect()
-            })
-            .collect()
-    };
+    let rows = |cut: &str| measured_rows(&run, dir.path(), &["--size-cut", cut]).1;
     let (windowed, corrected) = (rows("windowed"), rows("psf-corrected"));
     assert_eq!(windowed.len(), corrected.len());
     let mut changed = 0;
