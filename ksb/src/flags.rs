@@ -5,8 +5,8 @@
 //! |---|---|---|---|
 //! | 0 | 1 | `EDGE` | footprint on the border or weight window beyond the image |
 //! | 1 | 2 | `SATURATED` | a footprint pixel at or above saturation |
-//! | 2 | 4 | `BLENDED` | split from a footprint with another peak within `deblend_flag_px`, another object within `close_pair_px`, or two detections merged |
-//! | 3 | 8 | `CENTROID` | windowed centroid did not converge or moved > `centroid_max_shift_px` |
+//! | 2 | 4 | `BLENDED` | split from a footprint with another peak within `deblend_flag_px`, another object within `close_pair_px`, or two detections merged (KSB+); metacal: its unsheared version shows a second peak within `close_pair_px` (`metacal::neighbour_peak`) |
+//! | 3 | 8 | `CENTROID` | windowed centroid did not converge or moved > `centroid_max_shift_px` (metacal: on its unsheared version, from the detection's position) |
 //! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |
 //! | 5 | 32 | `SMALL` | r_g (or the PSF-corrected size, `size_cut`) ≤ `size_min_factor` × r_g* (star-like or smaller) |
 //! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |

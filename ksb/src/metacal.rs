@@ -16,7 +16,10 @@
 //! 1e-3. Five versions are made (no shear, ±0.01 in g₁ and in g₂), each
 //! measured the same way: windowed centroid and size ([`crate::centroid`],
 //! a round adaptive Gaussian weight) and the KSB weighted ellipticity
-//! e = q / T ([`crate::moments`]).
+//! e = q / T ([`crate::moments`]), and put to the selection's tests that
+//! depend on the shear (a resolved neighbour, [`neighbour_peak`]; the
+//! centroid's shift from the detection, [`VersionTests`]), so that the
+//! selection response below sees them.
 //!
 //! The response of a dataset is R = R_γ + R_S, both 2 × 2 means over its
 //! galaxies: R_γ,ij = ⟨(e_i(+g_j) − e_i(−g_j)) / 0.02⟩ over the galaxies
@@ -73,6 +76,9 @@ pub struct McMeasure {
     pub s0: [f64; 5],
     /// The version's centroid converged and its moments are defined.
     pub ok: [bool; 5],
+    /// The version shows a second peak near the galaxy
+    /// ([`neighbour_peak`]).
+    pub blended: [bool; 5],
 }
 
 /// Transforms of one stamp: F and its first and second k-derivatives as
@@ -307,6 +313,9 @@ pub struct Deconvolver {
     gamma: Vec<f64>,
     /// σ of Γ (pixels).
     pub sigma: f64,
+    /// Per-pixel variance of a version made of white noise of variance 1:
+    /// the mean of |Γ(k) / P̂(k)|² over the grid.
+    noise_gain: f64,
 }
 
 impl Deconvolver {
@@ -323,12 +332,19 @@ impl Deconvolver {
                 let k2 = freq(p % side, side).powi(2) + freq(p / side, side).powi(2);
                 (-2.0 * PI * PI * sigma * sigma * k2).exp()
             })
-            .collect();
+            .collect::<Vec<f64>>();
+        let noise_gain = gamma
+            .iter()
+            .zip(&psf.f[0])
+            .map(|(g, p)| (g / p.norm()).powi(2))
+            .sum::<f64>()
+            / (side * side) as f64;
         Self {
             plans,
             psf,
             gamma,
             sigma,
+            noise_gain,
         }
     }
 
@@ -379,17 +395,21 @@ impl Deconvolver {
         }
     }
 
-    /// The five measured versions of the galaxy at (x, y) of `sub` with
-    /// windowed size `rg`; `None` if its stamp leaves the image.
+    /// The five measured versions of the galaxy at `pos` (array
+    /// coordinates of its windowed centroid) of `sub` with windowed size
+    /// `rg`, each version's centroid found from the detection's position
+    /// `det`; `None` if its stamp leaves the image. The version tests are
+    /// `tests`'.
     pub fn measure(
         &self,
         sub: &Image,
-        x: f64,
-        y: f64,
+        pos: [f64; 2],
+        det: [f64; 2],
         rg: f64,
         win: &WindowSettings,
-        noise_sigma: f64,
+        tests: &VersionTests,
     ) -> Option<McMeasure> {
+        let [x, y] = pos;
         let (stamp, c) = cut(sub, x, y, self.plans.side)?;
         let t = transforms(&stamp, c, &self.plans);
         // Noise correction ("fixnoise", Sheldon & Huff 2017 §4.2): shearing
@@ -399,6 +419,7 @@ impl Deconvolver {
         // back, responds the opposite way; adding it cancels that response
         // (at √2 the noise). Its seed is the stamp's position in the image.
         let side = self.plans.side;
+        let noise_sigma = tests.noise_sigma;
         let noise = (noise_sigma > 0.0).then(|| {
             let key = SeedKey::base(FIXNOISE_SEED, 0, Stream::Noise)
                 .with_index((y.round() as u64) << 32 | x.round() as u64);
@@ -414,9 +435,21 @@ impl Deconvolver {
             rg: [0.0; 5],
             s0: [0.0; 5],
             ok: [false; 5],
+            blended: [false; 5],
         };
+        // The versions' noise: the image's, filtered, and the correction's.
+        let sigma_v = noise_sigma * (2.0 * self.noise_gain).sqrt();
         let rg0 = (rg * rg + self.sigma * self.sigma).sqrt();
+        // The detection's position in the stamp, before shearing.
+        let d0 = [det[0] - x + c[0], det[1] - y + c[1]];
         for (v, g) in VERSIONS.iter().enumerate() {
+            // Where the version's shear about c takes it: c + M (d − c).
+            let mm = m_minus_one(*g);
+            let rel = [d0[0] - c[0], d0[1] - c[1]];
+            let start = [
+                d0[0] + mm[0][0] * rel[0] + mm[0][1] * rel[1],
+                d0[1] + mm[1][0] * rel[0] + mm[1][1] * rel[1],
+            ];
             let mut img = self.version_of(&t, c, *g);
             if let Some((tn, cr)) = &noise {
                 let nv = self.version_of(tn, *cr, *g);
@@ -425,7 +458,7 @@ impl Deconvolver {
                     *a += b;
                 }
             }
-            let Some(w) = windowed(&img, c[0], c[1], rg0, true, win) else {
+            let Some(w) = windowed(&img, start[0], start[1], rg0, true, win) else {
                 continue;
             };
             let ints = ksb_integrals(&img, w.x, w.y, w.rg, win.radius_rg * w.rg, None);
@@ -435,10 +468,113 @@ impl Deconvolver {
             m.e[v] = [ints.q[0] / ints.trace, ints.q[1] / ints.trace];
             m.rg[v] = w.rg;
             m.s0[v] = ints.s0;
-            m.ok[v] = w.converged && !w.at_bound;
+            m.ok[v] = w.converged
+                && !w.at_bound
+                && (w.x - start[0]).hypot(w.y - start[1]) <= tests.max_shift;
+            m.blended[v] = neighbour_peak(&img, w.x, w.y, tests.blend_radius, sigma_v);
         }
         Some(m)
     }
+}
+
+/// The tests each version of a galaxy is put to besides its
+/// measurement ([`Deconvolver::measure`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VersionTests {
+    /// σ of the image's background noise (0: none, and no noise
+    /// correction).
+    pub noise_sigma: f64,
+    /// A second peak within this of the centroid makes the version
+    /// blended ([`neighbour_peak`]).
+    pub blend_radius: f64,
+    /// The version's windowed centroid may move at most this far from
+    /// the detection's position (the detection's `CENTROID` test).
+    pub max_shift: f64,
+}
+
+impl VersionTests {
+    /// The tests of `params` with the background σ `noise_sigma`.
+    pub fn new(params: &KsbParams, noise_sigma: f64) -> Self {
+        Self {
+            noise_sigma,
+            blend_radius: params.close_pair_px,
+            max_shift: params.centroid_max_shift_px,
+        }
+    }
+}
+
+/// Significance (in the version's pixel σ) a second peak and the dip
+/// between it and the galaxy's peak need to count ([`neighbour_peak`]).
+const PEAK_NSIGMA: f64 = 4.0;
+
+/// Whether `img` shows, within `radius` of (x, y), two local maxima (each
+/// above its 8 neighbours and above [`PEAK_NSIGMA`] σ) with a dip of at
+/// least [`PEAK_NSIGMA`] σ below the lower one on the segment between
+/// them: a neighbour the version resolves. Metacalibration decides this
+/// on every version, so that which galaxies count as blended responds to
+/// the shear as the image would, and the selection response sees it
+/// (what detecting on each version, metadetection, does for the whole
+/// detection). Without noise (`sigma` 0) any dip counts.
+pub fn neighbour_peak(img: &Image, x: f64, y: f64, radius: f64, sigma: f64) -> bool {
+    let (w, h) = (img.width as i64, img.height as i64);
+    let at = |i: i64, j: i64| f64::from(img.data[(j * w + i) as usize]);
+    let floor = PEAK_NSIGMA * sigma;
+    let mut peaks: Vec<(f64, f64, f64)> = Vec::new();
+    let (i0, i1) = (
+        ((x - radius).floor() as i64).max(1),
+        ((x + radius).ceil() as i64).min(w - 2),
+    );
+    let (j0, j1) = (
+        ((y - radius).floor() as i64).max(1),
+        ((y + radius).ceil() as i64).min(h - 2),
+    );
+    for j in j0..=j1 {
+        for i in i0..=i1 {
+            let (dx, dy) = (i as f64 - x, j as f64 - y);
+            if dx * dx + dy * dy > radius * radius {
+                continue;
+            }
+            let v = at(i, j);
+            if v <= floor {
+                continue;
+            }
+            // Strictly above the neighbours before it in raster order, at
+            // least as high as those after: one pixel per flat top.
+            let local = (-1..=1).all(|b: i64| {
+                (-1..=1).all(|a: i64| {
+                    let n = at(i + a, j + b);
+                    (a == 0 && b == 0) || if (b, a) < (0, 0) { v > n } else { v >= n }
+                })
+            });
+            if local {
+                peaks.push((dx * dx + dy * dy, i as f64, j as f64));
+            }
+        }
+    }
+    if peaks.len() < 2 {
+        return false;
+    }
+    peaks.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let own = peaks[0];
+    let sample = |px: f64, py: f64| -> f64 {
+        let (fx, fy) = (px.floor(), py.floor());
+        let (tx, ty) = (px - fx, py - fy);
+        let (ix, iy) = (fx as i64, fy as i64);
+        (1.0 - ty) * ((1.0 - tx) * at(ix, iy) + tx * at(ix + 1, iy))
+            + ty * ((1.0 - tx) * at(ix, iy + 1) + tx * at(ix + 1, iy + 1))
+    };
+    peaks[1..].iter().any(|p| {
+        let low = at(own.1 as i64, own.2 as i64).min(at(p.1 as i64, p.2 as i64));
+        let d = (p.1 - own.1).hypot(p.2 - own.2);
+        let steps = (2.0 * d).ceil() as usize;
+        let dip = (1..steps)
+            .map(|s| {
+                let t = s as f64 / steps as f64;
+                sample(own.1 + t * (p.1 - own.1), own.2 + t * (p.2 - own.2))
+            })
+            .fold(f64::INFINITY, f64::min);
+        dip < low - floor.max(f64::EPSILON * low.abs())
+    })
 }
 
 /// The run seed of the noise-correction stamps.
@@ -497,13 +633,14 @@ impl ImageMetacal {
     }
 }
 
-/// Measures the galaxy row `o` (detection flags `det_flags`) by
-/// metacalibration: its five versions and their cuts, its flags for the
-/// unsheared version. `e1`, `e2` and the weight stay 0 until
+/// Measures the galaxy row `o` (detection flags `det_flags`, detected at
+/// `det`, array coordinates) by metacalibration: its five versions and
+/// their cuts, its flags for the unsheared version. `e1`, `e2` and the weight stay 0 until
 /// [`apply_response`].
 pub fn measure_object(
     mut o: MeasuredObject,
     det_flags: u32,
+    det: [f64; 2],
     sub: &Image,
     mc: Option<&ImageMetacal>,
     params: &KsbParams,
@@ -524,13 +661,24 @@ pub fn measure_object(
         .position(|&s| s == side)
         .expect("a stamp side");
     let win = params.window_settings();
-    let Some(m) = mc.decs[k].measure(sub, o.x - 1.0, o.y - 1.0, o.rg_px, &win, noise_sigma) else {
+    let tests = VersionTests::new(params, noise_sigma);
+    let Some(m) = mc.decs[k].measure(sub, [o.x - 1.0, o.y - 1.0], det, o.rg_px, &win, &tests)
+    else {
         o.flags |= flags::EDGE;
         return o;
     };
     let min_rg = params.metacal_size_min_factor * mc.sigma;
+    // Blending and the centroid's shift are decided on each version
+    // ([`neighbour_peak`], [`VersionTests::max_shift`]), not by the
+    // detection, so that R_S sees how they respond to the shear.
+    let others = det_flags & !(flags::BLENDED | flags::CENTROID);
+    o.flags = others;
+    if m.blended[0] {
+        o.flags |= flags::BLENDED;
+    }
     let pass = |v: usize| {
-        det_flags == 0
+        others == 0
+            && !m.blended[v]
             && m.ok[v]
             && m.s0[0] > 0.0
             && o.sn * m.s0[v] / m.s0[0] >= params.min_sn

@@ -111,7 +111,7 @@ fn the_response_of_a_gaussian_is_the_finite_difference_of_its_analytic_elliptici
         data: observed.iter().map(|&v| v as f32).collect(),
     };
     let m = dec
-        .measure(&img, c[0], c[1], 2.8, &win, 0.0)
+        .measure(&img, c, c, 2.8, &win, &NOISELESS)
         .expect("inside");
     assert!(m.ok.iter().all(|&b| b));
     let round = [[sigma * sigma, 0.0], [0.0, sigma * sigma]];
@@ -195,6 +195,7 @@ fn the_selection_response_counts_galaxies_that_cross_a_cut() {
         rg: [2.0; 5],
         s0: [1.0; 5],
         ok: [true; 5],
+        blended: [false; 5],
     };
     let objs = vec![
         (mk(0.3), [false, true, false, true, true]),
@@ -256,6 +257,14 @@ fn rotating_by_90_degrees_and_back_is_the_identity_and_moves_the_centre_with_the
     assert_eq!(r[p[1] as usize * side + p[0] as usize], a[side + 4]);
 }
 
+/// The version tests without noise, and KSB+'s blend radius and largest
+/// centroid shift.
+const NOISELESS: VersionTests = VersionTests {
+    noise_sigma: 0.0,
+    blend_radius: 10.0,
+    max_shift: 3.0,
+};
+
 /// The window settings of the deconvolution tests: tight tolerance, many
 /// iterations.
 fn test_window() -> WindowSettings {
@@ -290,7 +299,7 @@ fn ring_mean(
                 data: draw(&gal).iter().map(|&v| v as f32).collect(),
             };
             let m = dec
-                .measure(&img, c[0], c[1], 2.8, win, 0.0)
+                .measure(&img, c, c, 2.8, win, &NOISELESS)
                 .expect("inside");
             (m, [true; 5])
         })
@@ -299,4 +308,123 @@ fn ring_mean(
     objs.iter()
         .map(|(m, _)| apply_inverse(&r, m.e[0]))
         .fold([0.0, 0.0], |a, e| [a[0] + e[0] / 8.0, a[1] + e[1] / 8.0])
+}
+
+/// Two round Gaussians of σ `s` through a Gaussian PSF of σ 1.8 px, the
+/// second `d` px to the right of the first (flux `f2`), on a 96² image,
+/// symmetric about its centre (48, 48): the image and the first one's
+/// centre.
+fn pair_stamp(s: f64, d: f64, f2: f64) -> (Image, [f64; 2]) {
+    let side = 96;
+    let c = [48.0 - d / 2.0, 48.0];
+    let cov = convolve(&covariance(s, [0.0, 0.0]), &covariance(1.8, [0.0, 0.0]));
+    let a = gaussian_stamp(side, c, &cov);
+    let b = gaussian_stamp(side, [c[0] + d, c[1]], &cov);
+    let img = Image {
+        width: side,
+        height: side,
+        data: a.iter().zip(&b).map(|(x, y)| (x + f2 * y) as f32).collect(),
+    };
+    (img, c)
+}
+
+#[test]
+fn a_resolved_neighbour_is_a_second_peak_and_a_merged_one_is_not() {
+    // Well apart: two peaks with a deep dip between them.
+    let (img, c) = pair_stamp(1.5, 9.0, 0.5);
+    assert!(neighbour_peak(&img, c[0], c[1], 10.0, 0.0));
+    // Beyond the radius it does not count.
+    assert!(!neighbour_peak(&img, c[0], c[1], 8.0, 0.0));
+    // Closer than the blend's resolution: one peak.
+    let (img, c) = pair_stamp(1.5, 3.0, 0.5);
+    assert!(!neighbour_peak(&img, c[0], c[1], 10.0, 0.0));
+    // Alone: one peak.
+    let (img, c) = pair_stamp(1.5, 9.0, 0.0);
+    assert!(!neighbour_peak(&img, c[0], c[1], 10.0, 0.0));
+    // A dip shallower than 4 σ does not count: the resolved pair with a
+    // noise σ of a tenth of its second peak's height.
+    let (img, c) = pair_stamp(1.5, 9.0, 0.5);
+    let second = f64::from(img.data[48 * 96 + 53]);
+    assert!(neighbour_peak(&img, c[0], c[1], 10.0, 0.1 * second));
+    assert!(!neighbour_peak(&img, c[0], c[1], 10.0, 0.3 * second));
+}
+
+#[test]
+fn stretching_a_pair_along_its_axis_resolves_it_and_squeezing_merges_it() {
+    // A pair along x: the +g₁ version stretches x (SPEC §1), so it can
+    // only resolve more than the −g₁ one. At some separation the two
+    // versions disagree: that is the selection the response must see.
+    let stack = PsfStack {
+        pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &covariance(1.8, [0.0, 0.0])),
+        n_stars: 1,
+    };
+    let dec = Deconvolver::new(&stack, 64, 2.4);
+    let win = test_window();
+    let mut disagree = 0;
+    for step in 0..60 {
+        let d = 4.0 + 0.1 * f64::from(step);
+        let (img, _) = pair_stamp(1.0, d, 1.0);
+        // The pair's centre: one blended object, as a detector that does
+        // not split it would measure it.
+        let m = dec
+            .measure(&img, [48.0; 2], [48.0; 2], 3.0, &win, &NOISELESS)
+            .expect("inside");
+        assert!(
+            m.blended[1] >= m.blended[2],
+            "d = {d}: +g₁ merged where −g₁ resolved"
+        );
+        assert_eq!(
+            m.blended[3], m.blended[4],
+            "d = {d}: g₂ is symmetric for a pair along x"
+        );
+        if m.blended[1] != m.blended[2] {
+            disagree += 1;
+        }
+    }
+    assert!(
+        disagree > 0,
+        "no separation where the sheared versions disagree"
+    );
+}
+
+#[test]
+fn a_centroid_pulled_onto_a_brighter_neighbour_is_tested_on_every_version() {
+    // A faint galaxy with a neighbour three times brighter to its right,
+    // its centroid started at the faint one (the detection's position).
+    // The window runs onto the pair's light-weighted centre, so the shift
+    // grows with the separation: beyond about 3.8 px it exceeds 3 px.
+    // The version stretched along the pair (+g₁) crosses that first, and
+    // at some separation only it fails: the shift test responds to the
+    // shear, and R_S sees it because it is made on every version.
+    let stack = PsfStack {
+        pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &covariance(1.8, [0.0, 0.0])),
+        n_stars: 1,
+    };
+    let dec = Deconvolver::new(&stack, 64, 2.4);
+    let win = test_window();
+    let (mut disagree, mut failed) = (0, 0);
+    for step in 0..30 {
+        let d = 2.5 + 0.1 * f64::from(step);
+        let (img, c) = pair_stamp(1.2, d, 3.0);
+        let m = dec
+            .measure(&img, [48.0; 2], c, 2.0, &win, &NOISELESS)
+            .expect("inside");
+        assert_eq!(
+            m.ok[3], m.ok[4],
+            "d = {d}: g₂ is symmetric for a pair along x"
+        );
+        if m.ok[1] != m.ok[2] {
+            disagree += 1;
+            assert!(m.ok[2] && !m.ok[1], "d = {d}: {:?}", m.ok);
+        }
+        failed += usize::from(!m.ok[0]);
+    }
+    assert!(
+        failed > 0 && failed < 30,
+        "{failed} of 30 separations fail unsheared"
+    );
+    assert!(
+        disagree > 0,
+        "no separation where the sheared versions disagree"
+    );
 }
