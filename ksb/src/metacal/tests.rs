@@ -349,26 +349,40 @@ fn a_resolved_neighbour_is_a_second_peak_and_a_merged_one_is_not() {
     assert!(!neighbour_peak(&img, c[0], c[1], 10.0, 0.3 * second));
 }
 
-#[test]
-fn stretching_a_pair_along_its_axis_resolves_it_and_squeezing_merges_it() {
-    // A pair along x: the +g₁ version stretches x (SPEC §1), so it can
-    // only resolve more than the −g₁ one. At some separation the two
-    // versions disagree: that is the selection the response must see.
+/// The versions of pairs along x ([`pair_stamp`] of galaxy σ `s` and
+/// second flux `f2`) at `n` separations from `d0` in steps of 0.1 px,
+/// through a PSF of σ 1.8 px reconvolved to 2.4 px, each measured about
+/// the pair's centre with its centroid started at the image centre or,
+/// with `from_first`, at the first galaxy: (separation, versions).
+fn pairs_measured(s: f64, f2: f64, d0: f64, n: u32, from_first: bool) -> Vec<(f64, McMeasure)> {
     let stack = PsfStack {
         pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &covariance(1.8, [0.0, 0.0])),
         n_stars: 1,
     };
     let dec = Deconvolver::new(&stack, 64, 2.4);
     let win = test_window();
+    (0..n)
+        .map(|step| {
+            let d = d0 + 0.1 * f64::from(step);
+            let (img, c) = pair_stamp(s, d, f2);
+            let start = if from_first { c } else { [48.0; 2] };
+            let m = dec
+                .measure(&img, [48.0; 2], start, 2.5, &win, &NOISELESS)
+                .expect("inside");
+            (d, m)
+        })
+        .collect()
+}
+
+#[test]
+fn stretching_a_pair_along_its_axis_resolves_it_and_squeezing_merges_it() {
+    // A pair along x: the +g₁ version stretches x (SPEC §1), so it can
+    // only resolve more than the −g₁ one. At some separation the two
+    // versions disagree: that is the selection the response must see.
+    // Measured about the pair's centre: one blended object, as a detector
+    // that does not split it would measure it.
     let mut disagree = 0;
-    for step in 0..60 {
-        let d = 4.0 + 0.1 * f64::from(step);
-        let (img, _) = pair_stamp(1.0, d, 1.0);
-        // The pair's centre: one blended object, as a detector that does
-        // not split it would measure it.
-        let m = dec
-            .measure(&img, [48.0; 2], [48.0; 2], 3.0, &win, &NOISELESS)
-            .expect("inside");
+    for (d, m) in pairs_measured(1.0, 1.0, 4.0, 60, false) {
         assert!(
             m.blended[1] >= m.blended[2],
             "d = {d}: +g₁ merged where −g₁ resolved"
@@ -377,9 +391,7 @@ fn stretching_a_pair_along_its_axis_resolves_it_and_squeezing_merges_it() {
             m.blended[3], m.blended[4],
             "d = {d}: g₂ is symmetric for a pair along x"
         );
-        if m.blended[1] != m.blended[2] {
-            disagree += 1;
-        }
+        disagree += usize::from(m.blended[1] != m.blended[2]);
     }
     assert!(
         disagree > 0,
@@ -396,19 +408,8 @@ fn a_centroid_pulled_onto_a_brighter_neighbour_is_tested_on_every_version() {
     // The version stretched along the pair (+g₁) crosses that first, and
     // at some separation only it fails: the shift test responds to the
     // shear, and R_S sees it because it is made on every version.
-    let stack = PsfStack {
-        pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &covariance(1.8, [0.0, 0.0])),
-        n_stars: 1,
-    };
-    let dec = Deconvolver::new(&stack, 64, 2.4);
-    let win = test_window();
     let (mut disagree, mut failed) = (0, 0);
-    for step in 0..30 {
-        let d = 2.5 + 0.1 * f64::from(step);
-        let (img, c) = pair_stamp(1.2, d, 3.0);
-        let m = dec
-            .measure(&img, [48.0; 2], c, 2.0, &win, &NOISELESS)
-            .expect("inside");
+    for (d, m) in pairs_measured(1.2, 3.0, 2.5, 30, true) {
         assert_eq!(
             m.ok[3], m.ok[4],
             "d = {d}: g₂ is symmetric for a pair along x"
