@@ -398,8 +398,8 @@ impl Deconvolver {
     /// The five measured versions of the galaxy at `pos` (array
     /// coordinates of its windowed centroid) of `sub` with windowed size
     /// `rg`, each version's centroid found from the detection's position
-    /// `det`; `None` if its stamp leaves the image. The version tests are
-    /// `tests`'.
+    /// `det`, and each put to `tests`; `None` if its stamp leaves the
+    /// image.
     pub fn measure(
         &self,
         sub: &Image,
@@ -635,8 +635,8 @@ impl ImageMetacal {
 
 /// Measures the galaxy row `o` (detection flags `det_flags`, detected at
 /// `det`, array coordinates) by metacalibration: its five versions and
-/// their cuts, its flags for the unsheared version. `e1`, `e2` and the weight stay 0 until
-/// [`apply_response`].
+/// their cuts, its flags for the unsheared version. `e1`, `e2` and the
+/// weight stay 0 until [`apply_response`].
 pub fn measure_object(
     mut o: MeasuredObject,
     det_flags: u32,
