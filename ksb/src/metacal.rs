@@ -440,15 +440,14 @@ impl Deconvolver {
         // The versions' noise: the image's, filtered, and the correction's.
         let sigma_v = noise_sigma * (2.0 * self.noise_gain).sqrt();
         let rg0 = (rg * rg + self.sigma * self.sigma).sqrt();
-        // The detection's position in the stamp, before shearing.
-        let d0 = [det[0] - x + c[0], det[1] - y + c[1]];
+        // The detection's position relative to the stamp's centre c.
+        let rel = [det[0] - x, det[1] - y];
         for (v, g) in VERSIONS.iter().enumerate() {
-            // Where the version's shear about c takes it: c + M (d − c).
+            // Where the version's shear about c takes it: c + M rel.
             let mm = m_minus_one(*g);
-            let rel = [d0[0] - c[0], d0[1] - c[1]];
             let start = [
-                d0[0] + mm[0][0] * rel[0] + mm[0][1] * rel[1],
-                d0[1] + mm[1][0] * rel[0] + mm[1][1] * rel[1],
+                c[0] + rel[0] + mm[0][0] * rel[0] + mm[0][1] * rel[1],
+                c[1] + rel[1] + mm[1][0] * rel[0] + mm[1][1] * rel[1],
             ];
             let mut img = self.version_of(&t, c, *g);
             if let Some((tn, cr)) = &noise {
@@ -538,15 +537,7 @@ pub fn neighbour_peak(img: &Image, x: f64, y: f64, radius: f64, sigma: f64) -> b
             if v <= floor {
                 continue;
             }
-            // Strictly above the neighbours before it in raster order, at
-            // least as high as those after: one pixel per flat top.
-            let local = (-1..=1).all(|b: i64| {
-                (-1..=1).all(|a: i64| {
-                    let n = at(i + a, j + b);
-                    (a == 0 && b == 0) || if (b, a) < (0, 0) { v > n } else { v >= n }
-                })
-            });
-            if local {
+            if crate::segment::is_local_max(img, (j * w + i) as usize) {
                 peaks.push((dx * dx + dy * dy, i as f64, j as f64));
             }
         }

@@ -99,7 +99,9 @@ pub fn detect(
     out
 }
 
-fn is_local_max(img: &Image, p: usize) -> bool {
+/// Whether pixel `p` of `img` is a local maximum of its 3 × 3
+/// neighbourhood (on a plateau, the first pixel in memory order).
+pub(crate) fn is_local_max(img: &Image, p: usize) -> bool {
     let (w, h) = (img.width, img.height);
     let (x, y) = ((p % w) as i64, (p / w) as i64);
     let v = img.data[p];
