@@ -34,6 +34,7 @@ use crate::model::psf::{Psf, PsfError, PsfFileImage, PsfModel, PsfSpec, Telescop
 use crate::model::render::{Accuracy, Renderer};
 use crate::model::wcs::{Geometry, TanWcs};
 use crate::run::config::{ConfigError, Invalid, RawConfig, RawPsf, RawPsfModel, Source, draw_seed};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 use stepsim_contract::io::IoError;
@@ -102,6 +103,9 @@ pub struct Dataset {
     pub g2: f64,
 }
 
+/// A SkyMaker list as read: its objects and its file's bytes.
+type ListRead = (Arc<Vec<ListObject>>, Arc<Vec<u8>>);
+
 /// An input file of a run (a SkyMaker list, the image of a `fits` PSF) as
 /// the plan read it: the run keeps a copy in `RUN/private/` under `name`
 /// ([`Plan::run_inputs`]).
@@ -137,7 +141,7 @@ pub struct Plan {
     datasets: Vec<Dataset>,
     seed_origin: SeedOrigin,
     /// One list per base field (`skymaker_list` sources only).
-    lists: Option<Arc<Vec<Vec<ListObject>>>>,
+    lists: Option<Arc<Vec<Arc<Vec<ListObject>>>>>,
     /// What each PSF is built from, in config order (with the file's image
     /// for `fits` models).
     specs: Arc<Vec<PsfSpec>>,
@@ -168,19 +172,30 @@ impl Plan {
         let lists = match &config.population.source {
             Source::Stuff => None,
             Source::SkymakerList { path } => {
+                // A file named by several fields (a path without `{field}`)
+                // is read and parsed once, its objects and bytes shared.
+                let mut seen: HashMap<PathBuf, ListRead> = HashMap::new();
                 let mut read = Vec::new();
                 for field in 0..config.image.n_images {
                     let file = list_path(source, path, field);
-                    let (objects, bytes) =
-                        read_list_and_bytes(&file).map_err(|e| PlanError::List {
-                            config: source.into(),
-                            source: e,
-                        })?;
+                    let (objects, bytes) = match seen.get(&file) {
+                        Some(done) => done.clone(),
+                        None => {
+                            let (objects, bytes) =
+                                read_list_and_bytes(&file).map_err(|e| PlanError::List {
+                                    config: source.into(),
+                                    source: e,
+                                })?;
+                            let done = (Arc::new(objects), Arc::new(bytes));
+                            seen.insert(file.clone(), done.clone());
+                            done
+                        }
+                    };
                     read.push(objects);
                     inputs.push(RunInput {
                         name: run_list_pattern().replace("{field}", &field.to_string()),
                         source: file,
-                        bytes: Arc::new(bytes),
+                        bytes,
                     });
                 }
                 Some(Arc::new(read))
@@ -593,7 +608,7 @@ impl Plan {
         self.lists
             .as_ref()
             .and_then(|l| l.get(field as usize))
-            .map(Vec::as_slice)
+            .map(|l| l.as_slice())
     }
 }
 
@@ -786,6 +801,45 @@ mod tests {
         assert_eq!(plan.datasets()[7].psf, 1);
         assert_eq!(plan.datasets()[7].shear, 2);
         assert_eq!(plan.datasets()[7].g1, 0.01);
+    }
+
+    #[test]
+    fn a_list_named_by_every_field_is_read_once_and_shared() {
+        let tmp = tempfile::tempdir().unwrap();
+        let one = "100 10.0 20.0 21.5\n200 30.0 40.0 23.0 0.2 0.5 0.8 10 1.0 0.6 10\n";
+        std::fs::write(tmp.path().join("all.list"), one).unwrap();
+        std::fs::write(tmp.path().join("f0.list"), one).unwrap();
+        std::fs::write(tmp.path().join("f1.list"), "100 5.0 6.0 22.0\n").unwrap();
+        let config = tmp.path().join("c.json");
+        let plan_of = |pattern: &str| {
+            let source = format!(r#"population.source={{"skymaker_list":{{"path":"{pattern}"}}}}"#);
+            Plan::from_json("{}", &config, &[&source, "image.n_images=3"]).unwrap()
+        };
+        // One file for every field: parsed once, the same objects and bytes.
+        let plan = plan_of("all.list");
+        let lists = plan.lists.as_ref().unwrap();
+        assert_eq!(lists.len(), 3);
+        assert!(Arc::ptr_eq(&lists[0], &lists[1]) && Arc::ptr_eq(&lists[0], &lists[2]));
+        assert_eq!(plan.skymaker_list(2).unwrap().len(), 2);
+        let inputs = plan.run_inputs();
+        assert_eq!(inputs.len(), 3);
+        assert!(
+            inputs
+                .iter()
+                .all(|i| Arc::ptr_eq(&i.bytes, &inputs[0].bytes))
+        );
+        assert_ne!(inputs[0].name, inputs[1].name);
+        // A file per field: each its own.
+        std::fs::write(tmp.path().join("f2.list"), "100 7.0 8.0 22.0\n").unwrap();
+        let plan = plan_of("f{field}.list");
+        let lists = plan.lists.as_ref().unwrap();
+        assert!(!Arc::ptr_eq(&lists[0], &lists[1]));
+        assert_eq!(
+            (0..3)
+                .map(|f| plan.skymaker_list(f).unwrap().len())
+                .collect::<Vec<_>>(),
+            [2, 1, 1]
+        );
     }
 
     #[test]

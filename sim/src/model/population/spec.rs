@@ -46,8 +46,9 @@ pub struct PopulationSpec {
     /// for each.
     pub shears: Vec<(f64, f64)>,
     /// One list per base field when the objects come from SkyMaker lists
-    /// (`None`: drawn from the models).
-    pub lists: Option<Arc<Vec<Vec<ListObject>>>>,
+    /// (`None`: drawn from the models); fields that name the same file
+    /// share its one copy.
+    pub lists: Option<Arc<Vec<Arc<Vec<ListObject>>>>>,
 }
 
 impl PopulationSpec {
@@ -62,7 +63,7 @@ impl PopulationSpec {
         self.lists
             .as_ref()
             .and_then(|l| l.get(field as usize))
-            .map(Vec::as_slice)
+            .map(|l| l.as_slice())
     }
 }
 

@@ -18,6 +18,7 @@
 
 pub mod atmosphere;
 mod calibrate;
+mod czt;
 mod fft2;
 pub mod fits_psf;
 mod gaussian;

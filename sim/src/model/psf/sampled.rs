@@ -11,8 +11,10 @@
 //! grid's Nyquist frequency 1/(2s) on either axis (the samples say nothing
 //! about higher frequencies). [`SampledPsf::transfer_at`] is the obvious
 //! direct sum; [`Psf::transfer`] evaluates the same sum separably (rows,
-//! then columns) for every cell of a stamp grid and caches the result.
+//! then columns, each as chirp-z transforms) for every cell of a stamp grid
+//! and caches the result.
 
+use super::czt::Czt;
 use super::{Psf, StampGrid};
 use num_complex::{Complex32, Complex64};
 use std::collections::HashMap;
@@ -150,82 +152,76 @@ impl SampledPsf {
         (cols, rows)
     }
 
-    /// T on a stamp grid by the separable sum; zero beyond the band.
+    /// T on a stamp grid; zero beyond the band.
     ///
-    /// Step 1, A[j][c] = Σ_i w_ij e^{−2πi u_c x_i}, and step 2,
-    /// T[r][c] = Σ_j e^{−2πi v_r y_j} A[j][c], each summed over i (or j) in
-    /// order, with the products of `Complex64`, exactly as
-    /// [`Self::compute_transfer_slow`] does cell by cell. Here the
-    /// loops are turned inside out: all columns c are summed together, one
-    /// term at a time, over plain arrays of real and imaginary parts, so
-    /// each sum is an independent lane the compiler vectorises instead of
-    /// one long chain of dependent additions. Same bits (tested). Where the
-    /// CPU runs AVX2 the same code runs built for it (same bits,
-    /// `stepsim_numerics::simd`).
+    /// The same separable sum as [`Self::compute_transfer_slow`], step 1,
+    /// A[j][c] = Σ_i w_ij e^{−2πi u_c x_i}, then step 2,
+    /// T[r][c] = Σ_j e^{−2πi v_r y_j} A[j][c], but each step as chirp-z
+    /// transforms ([`Czt`]): the grid's frequencies are multiples of its
+    /// step dk and the samples' positions multiples of their spacing s (less
+    /// the offset), so each sum is a Fourier sum at spacing α = dk s, times
+    /// a phase per frequency for the grid's origin. For the 1 350-pixel tile
+    /// of a 4096² image and the optical PSFs' 416² samples that is about 20
+    /// times fewer operations than the sums term by term. It agrees with the
+    /// twin to the f32 rounding of the result (tested).
     fn compute_transfer(&self, grid: StampGrid) -> Vec<Complex32> {
-        #[cfg(target_arch = "x86_64")]
-        if stepsim_numerics::simd::has_avx2() {
-            // SAFETY: the CPU runs AVX2 (checked just above).
-            return unsafe { self.compute_transfer_avx2(grid) };
-        }
-        self.compute_transfer_body(grid)
-    }
-
-    /// [`Self::compute_transfer_body`] built for AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn compute_transfer_avx2(&self, grid: StampGrid) -> Vec<Complex32> {
-        self.compute_transfer_body(grid)
-    }
-
-    /// The body of [`Self::compute_transfer`], in whichever build its
-    /// caller has.
-    #[inline(always)]
-    fn compute_transfer_body(&self, grid: StampGrid) -> Vec<Complex32> {
         let (n, nc) = (grid.n, grid.n_cols());
-        let (cols, rows) = self.band_cells(grid);
-        let xs = self.sample_positions(self.offset.0);
-        let ys = self.sample_positions(self.offset.1);
-        let (m, k) = (self.n, cols.len());
-        // e^{−2πi u_c x_i} as [i][c].
-        let (mut tw_re, mut tw_im) = (vec![0.0; m * k], vec![0.0; m * k]);
-        for (ci, &c) in cols.iter().enumerate() {
-            let u = grid.frequency(0, c).0;
-            for (i, x) in xs.iter().enumerate() {
-                let t = Complex64::from_polar(1.0, -TAU * u * x);
-                (tw_re[i * k + ci], tw_im[i * k + ci]) = (t.re, t.im);
-            }
-        }
-        // Step 1: A as [j][c].
-        let (mut a_re, mut a_im) = (vec![0.0; m * k], vec![0.0; m * k]);
-        for j in 0..m {
-            let row = &self.values[j * m..(j + 1) * m];
-            let (sr, si) = (&mut a_re[j * k..(j + 1) * k], &mut a_im[j * k..(j + 1) * k]);
-            for (i, &w) in row.iter().enumerate() {
-                let (tr, ti) = (&tw_re[i * k..(i + 1) * k], &tw_im[i * k..(i + 1) * k]);
-                for c in 0..k {
-                    sr[c] += tr[c] * w;
-                    si[c] += ti[c] * w;
-                }
-            }
-        }
-        // Step 2.
         let mut out = vec![Complex32::new(0.0, 0.0); n * nc];
-        let (mut sr, mut si) = (vec![0.0; k], vec![0.0; k]);
-        for &r in &rows {
-            let v = grid.frequency(r, 0).1;
-            sr.fill(0.0);
-            si.fill(0.0);
-            for (j, y) in ys.iter().enumerate() {
-                let t = Complex64::from_polar(1.0, -TAU * v * y);
-                let (ar, ai) = (&a_re[j * k..(j + 1) * k], &a_im[j * k..(j + 1) * k]);
-                for c in 0..k {
-                    sr[c] += t.re * ar[c] - t.im * ai[c];
-                    si[c] += t.re * ai[c] + t.im * ar[c];
-                }
+        let (cols, rows) = self.band_cells(grid);
+        if cols.is_empty() || rows.is_empty() {
+            return out;
+        }
+        let m = self.n;
+        let dk = grid.dk();
+        let alpha = dk * self.spacing_arcsec;
+        // The sample grid's first position along each axis, as the phase
+        // e^{−2πi q dk x_0} of frequency q dk (x_0 = −(m/2) s − offset).
+        let origin = |x0: f64, q: i64| {
+            let turns = (q as f64 * dk * x0).rem_euclid(1.0);
+            Complex64::from_polar(1.0, -TAU * turns)
+        };
+        let (x0, y0) = (
+            -((m / 2) as f64) * self.spacing_arcsec - self.offset.0,
+            -((m / 2) as f64) * self.spacing_arcsec - self.offset.1,
+        );
+        // Columns are u = c dk for c = 0 … k − 1 (the band's columns are
+        // those from 0 up); rows are v = q dk for the band's q, a range
+        // around 0 that rows r ≤ n/2 (q = r) and r > n/2 (q = r − n) make.
+        let k = cols.len();
+        debug_assert!(cols.iter().enumerate().all(|(i, &c)| i == c));
+        let q_of = |r: usize| {
+            if r <= n / 2 {
+                r as i64
+            } else {
+                r as i64 - n as i64
             }
-            for (ci, &c) in cols.iter().enumerate() {
-                out[r * nc + c] = Complex32::new(sr[ci] as f32, si[ci] as f32);
+        };
+        let q_lo = rows.iter().map(|&r| q_of(r)).min().expect("rows");
+        let q_hi = rows.iter().map(|&r| q_of(r)).max().expect("rows");
+        let kr = (q_hi - q_lo + 1) as usize;
+        // Step 1: A as [j][c].
+        let along_x = Czt::new(m, alpha, 0, k);
+        let shift_x: Vec<Complex64> = (0..k as i64).map(|c| origin(x0, c)).collect();
+        let mut a = vec![Complex64::new(0.0, 0.0); m * k];
+        let mut work = vec![Complex64::new(0.0, 0.0); along_x.work_len()];
+        for (j, a_row) in a.chunks_exact_mut(k).enumerate() {
+            let w = &self.values[j * m..(j + 1) * m];
+            along_x.apply(|i| Complex64::new(w[i], 0.0), a_row, &mut work);
+            for (v, s) in a_row.iter_mut().zip(&shift_x) {
+                *v *= s;
+            }
+        }
+        // Step 2, column by column.
+        let along_y = Czt::new(m, alpha, q_lo, kr);
+        let shift_y: Vec<Complex64> = (q_lo..=q_hi).map(|q| origin(y0, q)).collect();
+        let mut work = vec![Complex64::new(0.0, 0.0); along_y.work_len()];
+        let mut t = vec![Complex64::new(0.0, 0.0); kr];
+        for c in 0..k {
+            along_y.apply(|j| a[j * k + c], &mut t, &mut work);
+            for &r in &rows {
+                let i = (q_of(r) - q_lo) as usize;
+                let v = t[i] * shift_y[i];
+                out[r * nc + c] = Complex32::new(v.re as f32, v.im as f32);
             }
         }
         out
@@ -354,7 +350,7 @@ mod tests {
     }
 
     #[test]
-    fn transfer_in_lanes_equals_the_cell_by_cell_sums_bit_for_bit() {
+    fn chirp_z_transfer_equals_the_term_by_term_sums() {
         let p = blob();
         // Grids inside the band and grids the band cuts (|u| > 5 beyond
         // 1/(2·0.1)), of even sides from 2 up.
@@ -365,22 +361,34 @@ mod tests {
             (36, 0.4),
             (64, 0.206),
             (90, 0.03),
+            (1350, 0.206),
         ] {
             let grid = StampGrid::new(n, scale);
-            // As dispatched (the AVX2 build where the CPU has it), the
-            // plain build, and the twin.
             let fast = p.compute_transfer(grid);
-            let plain = p.compute_transfer_body(grid);
             let slow = p.compute_transfer_slow(grid);
-            assert_eq!((fast.len(), plain.len()), (slow.len(), slow.len()));
-            for (k, ((a, q), b)) in fast.iter().zip(&plain).zip(&slow).enumerate() {
-                let same = |x: &Complex32| {
-                    x.re.to_bits() == b.re.to_bits() && x.im.to_bits() == b.im.to_bits()
-                };
-                assert!(same(a) && same(q), "n {n}, cell {k}: {a} and {q} vs {b}");
+            assert_eq!(fast.len(), slow.len());
+            let mut same = 0;
+            for (k, (a, b)) in fast.iter().zip(&slow).enumerate() {
+                // Both are f64 sums rounded to f32: the same value or one
+                // f32 rounding step (6e-8 of T(0) = 1) apart.
+                let (dr, di) = ((a.re - b.re).abs(), (a.im - b.im).abs());
+                assert!(dr <= 6e-8 && di <= 6e-8, "n {n}, cell {k}: {a} vs {b}");
+                // Zero exactly where the twin is (beyond the band).
+                assert_eq!(
+                    a == &Complex32::new(0.0, 0.0),
+                    b == &Complex32::new(0.0, 0.0)
+                );
+                same += usize::from(a == b);
             }
-            let cut = fast.iter().filter(|t| t.re == 0.0 && t.im == 0.0).count();
-            eprintln!("n {n}, scale {scale}: {} cells, {cut} zero", fast.len());
+            eprintln!(
+                "n {n}, scale {scale}: {} cells, {same} the same bits",
+                fast.len()
+            );
+            assert!(
+                same * 2 > fast.len(),
+                "n {n}: only {same} of {} the same",
+                fast.len()
+            );
         }
     }
 

@@ -38,6 +38,7 @@ use stamp::{FftCache, Fill, StampEngine};
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 use stepsim_contract::truth::TruthRow;
+use stepsim_numerics::fft_size::{fft_friendly, fft_friendly_below};
 
 /// A truth row the renderer refuses.
 pub type RenderError = RowError;
@@ -230,7 +231,7 @@ impl Renderer {
         let cap = self.accuracy.max_stamp_px.max(32);
         // `as usize` saturates (NaN → 0), so a degenerate PSF cannot overflow.
         let want = if want.is_finite() { want as usize } else { cap };
-        let n = stamp::fft_friendly(want.min(cap) + 8).clamp(32, stamp::fft_friendly(cap));
+        let n = fft_friendly(want.min(cap) + 8).clamp(32, fft_friendly(cap));
         let row = TruthRow {
             kind: stepsim_contract::truth::KIND_STAR,
             flux_e: 1.0,
@@ -293,8 +294,8 @@ impl Renderer {
             }
         }
         let want = (2.0 * radius / p).ceil().min(1e6) as usize + 4;
-        let max = stamp::fft_friendly_below(acc.max_stamp_px.max(acc.min_stamp_px));
-        Ok(stamp::fft_friendly(want.max(acc.min_stamp_px)).min(max))
+        let max = fft_friendly_below(acc.max_stamp_px.max(acc.min_stamp_px));
+        Ok(fft_friendly(want.max(acc.min_stamp_px)).min(max))
     }
 
     /// Draws one object (electrons, noise-free). A row that fails

@@ -34,13 +34,13 @@
 //! still 4.6e-3 (render/stamp.rs).
 
 use super::convolve::Convolver;
-use super::stamp::fft_friendly;
 use super::{Accuracy, Method, Renderer};
 use crate::model::psf::{GaussianPsf, Psf, StampGrid};
 use num_complex::Complex32;
 use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::sync::{Arc, Mutex};
+use stepsim_numerics::fft_size::fft_friendly;
 
 /// Largest σ of the per-stamp Gaussian L, in pixels. Wider L would smooth
 /// the stamps more but make them larger; one pixel adds 0.7″ to a stamp's

@@ -27,35 +27,6 @@ use std::time::Instant;
 
 use super::StageTimes;
 
-/// The smallest even n ≥ `m` of the form 2^a 3^b 5^c (a ≥ 1).
-pub fn fft_friendly(m: usize) -> usize {
-    let mut n = m.max(2);
-    n += n % 2;
-    while !is_friendly(n) {
-        n += 2;
-    }
-    n
-}
-
-/// The largest even n ≤ `m` of the form 2^a 3^b 5^c (at least 2).
-pub fn fft_friendly_below(m: usize) -> usize {
-    let mut n = m.max(2);
-    n -= n % 2;
-    while n > 2 && !is_friendly(n) {
-        n -= 2;
-    }
-    n
-}
-
-fn is_friendly(mut n: usize) -> bool {
-    for f in [2, 3, 5] {
-        while n % f == 0 {
-            n /= f;
-        }
-    }
-    n == 1
-}
-
 /// What one stamp holds: geometry and the object.
 #[derive(Debug, Clone)]
 pub struct Fill {
@@ -507,11 +478,14 @@ impl Spectrum<'_> {
     fn at(&self, mu: i64, mv: i64) -> (f64, f64) {
         let n = self.fill.n as i64;
         let nc = (n / 2 + 1) as usize;
+        // |m| ≤ n/2 here, so the wrapped row is m or m + n (no division).
         let row = |m: i64| -> usize {
             if m == -n / 2 {
                 (n / 2) as usize
+            } else if m < 0 {
+                (m + n) as usize
             } else {
-                m.rem_euclid(n) as usize
+                m as usize
             }
         };
         let (t_re, t_im) = if mu >= 0 {
@@ -584,22 +558,6 @@ mod tests {
                 (c - a.cos()).abs() < 1e-12 && (s - a.sin()).abs() < 1e-12,
                 "{m}"
             );
-        }
-    }
-
-    #[test]
-    fn friendly_sizes() {
-        assert_eq!(fft_friendly(1), 2);
-        assert_eq!(fft_friendly(31), 32);
-        assert_eq!(fft_friendly(33), 36);
-        assert_eq!(fft_friendly(98), 100);
-        assert_eq!(fft_friendly(101), 108);
-        assert_eq!(fft_friendly_below(1023), 1000);
-        assert_eq!(fft_friendly_below(1024), 1024);
-        for n in 2..400 {
-            let f = fft_friendly(n);
-            assert!(f >= n && f % 2 == 0 && is_friendly(f));
-            assert!((n..f).all(|m| m % 2 == 1 || !is_friendly(m)));
         }
     }
 }
