@@ -15,7 +15,8 @@
 //! planner that picks AVX or SSE code by CPU: those give other roundings,
 //! and a PSF's transfer, hence the images, must be the same bytes on any
 //! x86-64 machine (docs/config.md, "Vector instructions"). At the sizes
-//! used here the scalar FFTs cost about 0.04 s per PSF.
+//! used here (a 4096² image's tile grid) the whole transfer costs about
+//! 0.05 s per PSF.
 
 use num_complex::Complex64;
 use rustfft::{Fft, FftPlannerScalar};

@@ -160,10 +160,10 @@ impl SampledPsf {
     /// transforms ([`Czt`]): the grid's frequencies are multiples of its
     /// step dk and the samples' positions multiples of their spacing s (less
     /// the offset), so each sum is a Fourier sum at spacing α = dk s, times
-    /// a phase per frequency for the grid's origin. For the 1 350-pixel tile
-    /// of a 4096² image and the optical PSFs' 416² samples that is about 20
-    /// times fewer operations than the sums term by term. It agrees with the
-    /// twin to the f32 rounding of the result (tested).
+    /// a phase per frequency for the grid's origin. O((m + k) log(m + k))
+    /// per row or column instead of O(m k); for the 1 350-pixel tile of a
+    /// 4096² image and the coma PSF about 0.05 s instead of 0.17 s. It
+    /// agrees with the twin to the f32 rounding of the result (tested).
     fn compute_transfer(&self, grid: StampGrid) -> Vec<Complex32> {
         let (n, nc) = (grid.n, grid.n_cols());
         let mut out = vec![Complex32::new(0.0, 0.0); n * nc];
