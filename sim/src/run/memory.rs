@@ -6,10 +6,10 @@
 //! peak (docs/config.md, "Memory"):
 //!
 //! * **images in flight**: one per worker thread. An image's peak is the
-//!   larger of (canvas with the split method's margin + the convolved
-//!   model) and (model + noisy pixels + an integer or model copy), all f32,
-//!   plus the thread's convolution scratch (one FFT tile) and one band of
-//!   output blocks;
+//!   larger of (canvas with the split method's margin; the convolved model
+//!   is written into the canvas's own buffer) and (model + noisy pixels +
+//!   an integer or model copy), all f32, plus the thread's convolution
+//!   scratch (one FFT tile) and one band of output blocks;
 //! * **population**: the expected objects of a base field (configured
 //!   densities × placement area) as truth rows, held as the base field, its
 //!   rotated twin and one sheared copy per image in flight, plus a batch of
@@ -200,7 +200,11 @@ pub fn image_bytes(plan: &Plan) -> f64 {
         2.0 + f64::from(u8::from(
             out.format == SampleFormat::Int32 || out.compression == Compression::Rice,
         )) + f64::from(u8::from(out.write_model));
-    let drawing = canvas + f32_bytes(px);
+    // The convolution writes the model into the canvas's buffer
+    // (`Convolver::apply`), so drawing holds the canvas alone; finishing
+    // keeps that buffer (its capacity is the canvas's, at most 1.56 × px
+    // with the largest margin), within the two image-sized copies counted.
+    let drawing = canvas;
     let finishing = copies * f32_bytes(px);
     let scratch = if m > 0.0 {
         let n = tile_px(m, w.max(h));
@@ -416,17 +420,15 @@ mod tests {
 
     #[test]
     fn image_bytes_follow_the_documented_formula() {
-        // 4096² with the default 512-px margin: drawing = canvas 5120² + model
-        // 4096², both f32; finishing = 2 × 4096² f32 (float output); the tile
-        // is min(8 m, 4096 + 2 m) = 4096 → 4096 × 2049 complex f32, plus a
-        // band of (4096 − 1024) × 4096 f32.
+        // 4096² with the default 512-px margin: drawing = canvas 5120² f32
+        // (the model is written into it); finishing = 2 × 4096² f32 (float
+        // output), the larger; the tile is min(8 m, 4096 + 2 m) = 4096 →
+        // 4096 × 2049 complex f32, plus a band of (4096 − 1024) × 4096 f32.
         let p = plan(&[]);
-        let want = 4.0 * (5120.0 * 5120.0 + 4096.0 * 4096.0)
-            + 8.0 * 4096.0 * 2049.0
-            + 4.0 * 3072.0 * 4096.0;
+        let want = 4.0 * 2.0 * 4096.0 * 4096.0 + 8.0 * 4096.0 * 2049.0 + 4.0 * 3072.0 * 4096.0;
         assert_eq!(image_bytes(&p), want);
-        // int32 output adds one image-sized copy to the finishing step, which
-        // is then the larger: 3 × 4096² f32 instead of canvas + model.
+        // int32 output adds one image-sized copy to the finishing step:
+        // 3 × 4096² f32.
         let q = plan(&["output.format=\"int32\""]);
         let scratch = 8.0 * 4096.0 * 2049.0 + 4.0 * 3072.0 * 4096.0;
         assert_eq!(image_bytes(&q), 3.0 * 4.0 * 4096.0 * 4096.0 + scratch);
@@ -444,7 +446,8 @@ mod tests {
         ]);
         let one = generate_estimate(&p, 1).total_bytes();
         let two = generate_estimate(&p, 2).total_bytes();
-        // One 65536² image needs more than 2 × 16 GiB (canvas + model).
+        // One 65536² image needs more than 2 × 16 GiB (model and noisy
+        // pixels, plus the convolution's scratch).
         assert!(one > 32 << 30, "{}", human(one));
         assert!(two > one + (32 << 30), "{} vs {}", human(two), human(one));
         let err = check(

@@ -95,8 +95,20 @@ impl Convolver {
     }
 
     /// Convolves a canvas of `(width + 2m) × (height + 2m)` pixels
-    /// (row-major) and returns the `width × height` output.
-    pub fn apply(&self, canvas: &[f32], width: usize, height: usize) -> Vec<f32> {
+    /// (row-major) and returns the `width × height` output, in the canvas's
+    /// own buffer.
+    ///
+    /// One band of output rows per row of blocks, band after band; the
+    /// blocks of a band are computed in parallel into a band buffer, each
+    /// thread with its own FFT buffers (kept from one call to the next, so a
+    /// long run allocates them once per thread). A finished band is copied
+    /// into the canvas's buffer at its place in the `width × height` output
+    /// (rows of `width`, not of the canvas's `width + 2m`): output row y
+    /// ends before canvas row y + 1 begins, and every band after it reads
+    /// canvas rows from its own first output row on, so nothing a later
+    /// band reads is overwritten. The output needs no image-sized buffer of
+    /// its own: about 50 MB of fresh pages fewer for a 4096² image.
+    pub fn apply(&self, mut canvas: Vec<f32>, width: usize, height: usize) -> Vec<f32> {
         let m = self.margin;
         let cw = width + 2 * m;
         assert_eq!(
@@ -108,41 +120,35 @@ impl Convolver {
             return Vec::new();
         }
         let b = self.block();
-        // One band of output rows per row of blocks; each band's rows are cut
-        // at the block edges and the blocks of a band are computed in
-        // parallel, each straight into its part of the output. Every output
-        // pixel is written by its block, so the output is not zero-filled
-        // first (`vec!` of zeros takes fresh zero pages from the system, and
-        // they are first touched here, in parallel). The FFT buffers are
-        // each thread's own and kept from one call to the next, so a long run
-        // allocates them once per thread, not once per block.
-        let mut out = vec![0.0f32; width * height];
-        out.par_chunks_mut(b * width)
-            .enumerate()
-            .for_each(|(by, band)| {
-                let y0 = by * b;
-                let mut blocks: Vec<Vec<&mut [f32]>> =
-                    (0..width.div_ceil(b)).map(|_| Vec::new()).collect();
-                for row in band.chunks_mut(width) {
-                    let mut rest = row;
-                    for block in &mut blocks {
-                        let (part, tail) = rest.split_at_mut(b.min(rest.len()));
-                        block.push(part);
-                        rest = tail;
-                    }
+        let mut band = vec![0.0f32; b.min(height) * width];
+        for y0 in (0..height).step_by(b) {
+            let rows_here = b.min(height - y0);
+            let band = &mut band[..rows_here * width];
+            let mut blocks: Vec<Vec<&mut [f32]>> =
+                (0..width.div_ceil(b)).map(|_| Vec::new()).collect();
+            for row in band.chunks_mut(width) {
+                let mut rest = row;
+                for block in &mut blocks {
+                    let (part, tail) = rest.split_at_mut(b.min(rest.len()));
+                    block.push(part);
+                    rest = tail;
                 }
-                blocks.into_par_iter().enumerate().for_each(|(bx, rows)| {
-                    SCRATCH.with(|cell| {
-                        let mut kept = cell.borrow_mut();
-                        let scratch = match &mut *kept {
-                            Some(s) if s.fits(self) => s,
-                            other => other.insert(Scratch::new(self)),
-                        };
-                        self.block_into(canvas, width, bx * b, y0, rows, scratch);
-                    });
+            }
+            let input = &canvas[..];
+            blocks.into_par_iter().enumerate().for_each(|(bx, rows)| {
+                SCRATCH.with(|cell| {
+                    let mut kept = cell.borrow_mut();
+                    let scratch = match &mut *kept {
+                        Some(s) if s.fits(self) => s,
+                        other => other.insert(Scratch::new(self)),
+                    };
+                    self.block_into(input, width, bx * b, y0, rows, scratch);
                 });
             });
-        out
+            canvas[y0 * width..(y0 + rows_here) * width].copy_from_slice(band);
+        }
+        canvas.truncate(width * height);
+        canvas
     }
 
     /// Writes the output block whose first pixel is image pixel (x0, y0)
@@ -327,7 +333,7 @@ mod tests {
             .collect();
         let n = 24; // block 14: 4 × 3 blocks, the last ones partial
         let conv = Convolver::new(n, m, &transfer_of(&kernel, m, n));
-        let fast = conv.apply(&canvas, w, h);
+        let fast = conv.apply(canvas.clone(), w, h);
         let slow = convolve_slow(&canvas, w, h, &kernel, m);
         let peak = slow.iter().copied().fold(0.0, f64::max);
         let worst = fast
@@ -342,12 +348,12 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| conv.apply(&canvas, w, h))
+                .install(|| conv.apply(canvas.clone(), w, h))
         };
         assert_eq!(run(1), fast);
         assert_eq!(run(4), fast);
         // An empty image is empty, not a panic.
-        assert!(conv.apply(&vec![0.0; (2 * m) * (2 * m)], 0, 0).is_empty());
+        assert!(conv.apply(vec![0.0; (2 * m) * (2 * m)], 0, 0).is_empty());
     }
 
     #[test]
@@ -365,7 +371,7 @@ mod tests {
         // Canvas (0, m + 4): image pixel (−m, 4).
         canvas[(m + 4) * cw] = 8.0;
         let conv = Convolver::new(16, m, &transfer_of(&kernel, m, 16));
-        let out = conv.apply(&canvas, w, h);
+        let out = conv.apply(canvas, w, h);
         // out(x) = Σ_d kernel(d) in(x − d): offset d = +m carries the light
         // at x = −m to image pixel (0, 4), which receives 0.25 · 8; the
         // centre's 0.75 stays outside the image.

@@ -121,7 +121,7 @@ impl<'a> Canvas<'a> {
         match self.renderer.split() {
             Some(s) => {
                 s.convolver(self.width, self.height)
-                    .apply(&self.data, self.width, self.height)
+                    .apply(self.data, self.width, self.height)
             }
             None => self.data,
         }
