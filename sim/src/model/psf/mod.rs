@@ -83,12 +83,16 @@ impl StampGrid {
     /// (u, v) in cycles per arcsec of half-plane cell (`row`, `col`).
     pub fn frequency(&self, row: usize, col: usize) -> (f64, f64) {
         let dk = self.dk();
-        let j = if row <= self.n / 2 {
-            row as f64
+        (col as f64 * dk, self.row_index(row) as f64 * dk)
+    }
+    /// The signed frequency index of `row` (v = index × dk): `row` for rows
+    /// up to n/2, `row − n` above.
+    pub fn row_index(&self, row: usize) -> i64 {
+        if row <= self.n / 2 {
+            row as i64
         } else {
-            row as f64 - self.n as f64
-        };
-        (col as f64 * dk, j * dk)
+            row as i64 - self.n as i64
+        }
     }
 }
 

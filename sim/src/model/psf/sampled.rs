@@ -181,21 +181,15 @@ impl SampledPsf {
             Complex64::from_polar(1.0, -TAU * turns)
         };
         let (x0, y0) = (
-            -((m / 2) as f64) * self.spacing_arcsec - self.offset.0,
-            -((m / 2) as f64) * self.spacing_arcsec - self.offset.1,
+            self.sample_positions(self.offset.0)[0],
+            self.sample_positions(self.offset.1)[0],
         );
         // Columns are u = c dk for c = 0 … k − 1 (the band's columns are
         // those from 0 up); rows are v = q dk for the band's q, a range
         // around 0 that rows r ≤ n/2 (q = r) and r > n/2 (q = r − n) make.
         let k = cols.len();
         debug_assert!(cols.iter().enumerate().all(|(i, &c)| i == c));
-        let q_of = |r: usize| {
-            if r <= n / 2 {
-                r as i64
-            } else {
-                r as i64 - n as i64
-            }
-        };
+        let q_of = |r: usize| grid.row_index(r);
         let q_lo = rows.iter().map(|&r| q_of(r)).min().expect("rows");
         let q_hi = rows.iter().map(|&r| q_of(r)).max().expect("rows");
         let kr = (q_hi - q_lo + 1) as usize;
