@@ -356,6 +356,7 @@ const PUBLIC_MODULES: &[(&str, &str, &str)] = &[
         "the models, knowing no files or config (a layer)",
     ),
     ("sim", "run", "plan, generate and the estimates (a layer)"),
+    ("numerics", "fft", "`fft::BatchFft`"),
     ("numerics", "fft_size", "`fft_size::fft_friendly`"),
     ("numerics", "fit", "`fit::fit_clipped`"),
     ("numerics", "linalg", "`linalg::solve_spd`"),

@@ -12,6 +12,7 @@
 //! | [`robust`] | MAD-σ (1.4826 × median absolute deviation) | the counting median |
 //! | [`linalg`] | symmetric positive-definite solve and inverse (Cholesky) | Cramer's rule with cofactor determinants |
 //! | [`fit`] | linear least squares with κσ clipping (one rule) | the same rule written plainly with the slow twins |
+//! | [`fft`] | FFTs of eight sequences at once, complex and real, the same bits on every CPU | the direct sum in f64 |
 //! | [`fft_size`] | FFT lengths with no prime factor above 5 | trial division |
 //! | [`simd`] | whether the CPU runs the AVX2 build of a hot loop | (each loop's own twin) |
 //!
@@ -20,6 +21,7 @@
 //! linking one another.
 #![deny(missing_docs)]
 
+pub mod fft;
 pub mod fft_size;
 pub mod fit;
 pub mod linalg;

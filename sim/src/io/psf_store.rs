@@ -62,7 +62,7 @@ use stepsim_contract::io::{IoError, write_bytes_atomically};
 
 /// Version of the file format and of what it holds: bump it whenever the
 /// solved PSF or this layout changes, so that older files are rebuilt.
-pub const FORMAT: u32 = 1;
+pub const FORMAT: u32 = 2;
 
 /// How a PSF of a process came to be.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -390,7 +390,7 @@ fn unframe<'a>(
 /// given PSF (its drawing, its report, the FITS writer), so that older
 /// files are drawn again. A test pins one file's bytes
 /// (`the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`).
-pub const FILE_FORMAT: u32 = 2;
+pub const FILE_FORMAT: u32 = 3;
 
 /// Hex SHA-256 naming the drawn file of the PSF of `spec_digest`
 /// ([`spec_digest`]) at `side_px` pixels with `oversample`.
@@ -538,7 +538,8 @@ mod tests {
         bad[last] ^= 1;
         let why = parse(&bad, &d).unwrap_err();
         assert!(why.contains("does not match its SHA-256"), "{why}");
-        let other = String::from_utf8_lossy(&bytes[..20]).replace("store 1", "store 9");
+        let other =
+            String::from_utf8_lossy(&bytes[..20]).replace(&format!("store {FORMAT}"), "store 9");
         let mut old = other.into_bytes();
         old.extend_from_slice(&bytes[20..]);
         let why = parse(&old, &d).unwrap_err();
@@ -574,7 +575,7 @@ mod tests {
         let content = sha256_hex(&file[at + 2..]);
         assert_eq!(
             (FORMAT, content.as_str()),
-            (1, PINNED_CONTENT_SHA256),
+            (2, PINNED_CONTENT_SHA256),
             "the solved PSF changed: bump FORMAT and record the new hash"
         );
     }
@@ -599,7 +600,7 @@ mod tests {
         assert_eq!(first, draw("b.fits"), "drawn twice, different bytes");
         assert_eq!(
             (FILE_FORMAT, first.as_str()),
-            (2, PINNED_FILE_SHA256),
+            (3, PINNED_FILE_SHA256),
             "the drawn PSF file changed: bump FILE_FORMAT and record the new hash"
         );
     }
@@ -607,7 +608,7 @@ mod tests {
     /// SHA-256 of the 64-pixel file of the coma PSF of
     /// `the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`.
     const PINNED_FILE_SHA256: &str =
-        "7ca3f3423d260298e22bce26327199ee0c1cd8fa4e3ac53b6e6b306c22425b2e";
+        "a671de53d2d35ccbcf1d83641671a874e2f19d2c3c65f3421941c20298aa8953";
 
     #[test]
     fn a_drawn_file_is_kept_in_the_users_store_and_copied_from_it() {
@@ -655,9 +656,10 @@ mod tests {
     }
 
     /// SHA-256 of the content of the coma PSF of `spec(0.04)` at `small()`
-    /// accuracy, as FORMAT 1 solves it.
+    /// accuracy, as FORMAT 2 solves it (FFTs with the same bits on every CPU since
+    /// 2026-12-05; FORMAT 1 used its FFTs by CPU).
     const PINNED_CONTENT_SHA256: &str =
-        "c7eed9249f8a82f705dc55c9ae5d0b9e818424d22baec3a43327ff0240cb7bf8";
+        "5d8077a383a9f06cac95311212703e54b1e09f2117711a6be782801edfcf6b31";
 
     #[test]
     #[cfg(unix)]

@@ -10,7 +10,7 @@ use super::optical::sinc;
 use super::{Psf, PsfError, StampGrid};
 use crate::model::moments;
 use num_complex::Complex64;
-use rustfft::{FftDirection, FftPlanner};
+use rustfft::{FftDirection, FftPlannerScalar};
 use serde::{Deserialize, Serialize};
 
 /// The pixel-convolved PSF (square pixel of side `pixel_scale_arcsec`)
@@ -41,9 +41,10 @@ pub fn image(psf: &dyn Psf, n: usize, pixel_scale_arcsec: f64, oversample: usize
 
 /// Inverse 2-D FFT (no 1/n² factor) of a half-plane array (n rows of
 /// n/2 + 1 columns) of a real image's transform; returns the real image.
+/// rustfft's scalar FFTs, the same bits on every CPU (as `fft2`).
 pub fn inverse_half_plane(half: &[Complex64], n: usize) -> Vec<f64> {
     let nc = n / 2 + 1;
-    let mut planner = FftPlanner::new();
+    let mut planner = FftPlannerScalar::new();
     let fft = planner.plan_fft(n, FftDirection::Inverse);
     // Columns: inverse along v.
     let mut cols = vec![Complex64::new(0.0, 0.0); nc * n];

@@ -20,22 +20,21 @@
 
 use num_complex::Complex32;
 use rayon::prelude::*;
-use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
-use rustfft::{Fft, FftPlanner};
 use std::cell::RefCell;
-use std::sync::Arc;
+use stepsim_numerics::fft::{BatchFft, LANES, Lanes, RealFft, transpose};
 
 /// Overlap-save convolver for one kernel and one tile size.
 pub struct Convolver {
     n: usize,
     margin: usize,
-    /// The kernel's transfer on the n-grid, column-major half plane
-    /// (`[u][v]`, u = 0..=n/2, each column of n values), scaled by 1/n².
-    transfer_uv: Vec<Complex32>,
-    row_fwd: Arc<dyn RealToComplex<f32>>,
-    row_inv: Arc<dyn ComplexToReal<f32>>,
-    col_fwd: Arc<dyn Fft<f32>>,
-    col_inv: Arc<dyn Fft<f32>>,
+    /// The kernel's transfer on the n-grid's half plane, scaled by 1/n²,
+    /// eight columns to a [`Lanes`] value: entry `g * n + v`, lane l holds
+    /// column u = 8g + l at row v (zero past u = n/2).
+    transfer: Vec<Lanes<f32>>,
+    row_fwd: RealFft<f32>,
+    row_inv: RealFft<f32>,
+    col_fwd: BatchFft<f32>,
+    col_inv: BatchFft<f32>,
 }
 
 impl std::fmt::Debug for Convolver {
@@ -60,22 +59,22 @@ impl Convolver {
         let nc = n / 2 + 1;
         assert_eq!(transfer.len(), n * nc, "transfer of the wrong grid");
         let scale = 1.0 / (n as f32 * n as f32);
-        let mut transfer_uv = vec![Complex32::new(0.0, 0.0); nc * n];
+        let mut lanes = vec![Lanes::zero(); nc.div_ceil(LANES) * n];
         for v in 0..n {
             for u in 0..nc {
-                transfer_uv[u * n + v] = transfer[v * nc + u] * scale;
+                let t = transfer[v * nc + u] * scale;
+                let e = &mut lanes[(u / LANES) * n + v];
+                (e.re[u % LANES], e.im[u % LANES]) = (t.re, t.im);
             }
         }
-        let mut real = RealFftPlanner::<f32>::new();
-        let mut complex = FftPlanner::<f32>::new();
         Self {
             n,
             margin,
-            transfer_uv,
-            row_fwd: real.plan_fft_forward(n),
-            row_inv: real.plan_fft_inverse(n),
-            col_fwd: complex.plan_fft_forward(n),
-            col_inv: complex.plan_fft_inverse(n),
+            transfer: lanes,
+            row_fwd: RealFft::new(n, false),
+            row_inv: RealFft::new(n, true),
+            col_fwd: BatchFft::new(n, false),
+            col_inv: BatchFft::new(n, true),
         }
     }
 
@@ -154,6 +153,10 @@ impl Convolver {
     /// Writes the output block whose first pixel is image pixel (x0, y0)
     /// into `rows`: its `min(b, height − y0)` rows, each of
     /// `min(b, width − x0)` pixels.
+    ///
+    /// Where the CPU runs AVX2 the same code runs built for it, with the
+    /// 8 × 8 transposes by AVX shuffles (moves only: the same bits,
+    /// `stepsim_numerics::simd`).
     fn block_into(
         &self,
         canvas: &[f32],
@@ -163,51 +166,146 @@ impl Convolver {
         rows: Vec<&mut [f32]>,
         s: &mut Scratch,
     ) {
+        #[cfg(target_arch = "x86_64")]
+        if stepsim_numerics::simd::has_avx2() {
+            // SAFETY: the CPU runs AVX2 (checked just above).
+            return unsafe { self.block_avx2(canvas, width, x0, y0, rows, s) };
+        }
+        self.block_body::<false>(canvas, width, x0, y0, rows, s);
+    }
+
+    /// [`Self::block_body`] built for AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn block_avx2(
+        &self,
+        canvas: &[f32],
+        width: usize,
+        x0: usize,
+        y0: usize,
+        rows: Vec<&mut [f32]>,
+        s: &mut Scratch,
+    ) {
+        self.block_body::<true>(canvas, width, x0, y0, rows, s);
+    }
+
+    /// The body of [`Self::block_into`]; `AVX`: built for AVX2 (its
+    /// caller checked the CPU).
+    #[inline(always)]
+    fn block_body<const AVX: bool>(
+        &self,
+        canvas: &[f32],
+        width: usize,
+        x0: usize,
+        y0: usize,
+        mut rows: Vec<&mut [f32]>,
+        s: &mut Scratch,
+    ) {
+        let transpose = tr::<AVX>;
         let (n, m) = (self.n, self.margin);
-        let nc = n / 2 + 1;
+        let (h, nc) = (n / 2, n / 2 + 1);
         let cw = width + 2 * m;
         let ch = canvas.len() / cw;
-        // Forward: each row of the window (zero beyond the canvas), then the
-        // columns.
-        let zero = Complex32::new(0.0, 0.0);
+        let (np, colp) = (s.np, s.colp);
+        // Forward: eight rows of the window at a time (zero beyond the
+        // canvas) into lanes, by 8 × 8 blocks of even and of odd samples;
+        // their frequencies go into s.uv by 8 × 8 blocks (eight columns to
+        // an entry); then the columns, eight at a time.
         let xs = cw.min(x0 + n) - x0;
-        for r in 0..n {
-            let cy = y0 + r;
-            if cy >= ch {
-                for u in 0..nc {
-                    s.uv[u * n + r] = zero;
+        for r0 in (0..n).step_by(LANES) {
+            for (l, line) in s.lines.chunks_exact_mut(np).enumerate() {
+                let cy = y0 + r0 + l;
+                let len = if r0 + l < n && cy < ch { xs } else { 0 };
+                if len > 0 {
+                    line[..len].copy_from_slice(&canvas[cy * cw + x0..][..len]);
                 }
-                continue;
+                line[len..].fill(0.0);
             }
-            s.real[..xs].copy_from_slice(&canvas[cy * cw + x0..cy * cw + x0 + xs]);
-            s.real[xs..].fill(0.0);
+            // Samples c0..c0 + 8 of the eight rows, transposed: entry i is
+            // sample c0 + i of every row, the real (even sample) or the
+            // imaginary part (odd) of entry (c0 + i)/2.
+            for c0 in (0..np).step_by(LANES) {
+                let t = transpose(&std::array::from_fn(|l| {
+                    s.lines[l * np + c0..][..LANES]
+                        .try_into()
+                        .expect("8 samples")
+                }));
+                for (i, v) in t.into_iter().enumerate() {
+                    let e = &mut s.half[(c0 + i) / 2];
+                    if i % 2 == 0 {
+                        e.re = v;
+                    } else {
+                        e.im = v;
+                    }
+                }
+            }
             self.row_fwd
-                .process_with_scratch(&mut s.real, &mut s.row, &mut s.scratch)
-                .expect("lengths match the plan");
-            for (u, &c) in s.row.iter().enumerate() {
-                s.uv[u * n + r] = c;
+                .forward(&mut s.half[..h], &mut s.freq[..nc], &mut s.scratch);
+            for (g, freq) in s.freq.chunks_exact(LANES).enumerate() {
+                let re = transpose(&std::array::from_fn(|u| freq[u].re));
+                let im = transpose(&std::array::from_fn(|u| freq[u].im));
+                let col = &mut s.uv[g * colp + r0..][..LANES];
+                for (l, e) in col.iter_mut().enumerate() {
+                    (e.re, e.im) = (re[l], im[l]);
+                }
             }
         }
-        self.col_fwd.process_with_scratch(&mut s.uv, &mut s.scratch);
-        for (a, t) in s.uv.iter_mut().zip(&self.transfer_uv) {
-            *a *= t;
-        }
-        self.col_inv.process_with_scratch(&mut s.uv, &mut s.scratch);
-        // Inverse along rows, only for the rows kept.
-        for (j, dst) in rows.into_iter().enumerate() {
-            let r = j + m;
-            for u in 0..nc {
-                s.row[u] = s.uv[u * n + r];
+        for (col, t) in
+            s.uv.chunks_exact_mut(colp)
+                .zip(self.transfer.chunks_exact(n))
+        {
+            let col = &mut col[..n];
+            self.col_fwd.process(col, &mut s.scratch);
+            for (a, t) in col.iter_mut().zip(t) {
+                for l in 0..LANES {
+                    let (ar, ai) = (a.re[l], a.im[l]);
+                    a.re[l] = ar * t.re[l] - ai * t.im[l];
+                    a.im[l] = ar * t.im[l] + ai * t.re[l];
+                }
             }
-            s.row[0].im = 0.0;
-            s.row[nc - 1].im = 0.0;
+            self.col_inv.process(col, &mut s.scratch);
+        }
+        // Inverse along rows, eight of the rows kept at a time.
+        for (j0, dsts) in rows.chunks_mut(LANES).enumerate() {
+            let r0 = m + j0 * LANES;
+            for (g, freq) in s.freq.chunks_exact_mut(LANES).enumerate() {
+                let col = &s.uv[g * colp + r0..][..LANES];
+                let re = transpose(&std::array::from_fn(|l| col[l].re));
+                let im = transpose(&std::array::from_fn(|l| col[l].im));
+                for (u, f) in freq.iter_mut().enumerate() {
+                    (f.re, f.im) = (re[u], im[u]);
+                }
+            }
             self.row_inv
-                .process_with_scratch(&mut s.row, &mut s.real, &mut s.scratch)
-                .expect("lengths match the plan");
-            let bw = dst.len();
-            dst.copy_from_slice(&s.real[m..m + bw]);
+                .inverse(&s.freq[..nc], &mut s.half[..h], &mut s.scratch);
+            for c0 in (0..np).step_by(LANES) {
+                let t = transpose(&std::array::from_fn(|i| {
+                    let e = &s.half[(c0 + i) / 2];
+                    if i % 2 == 0 { e.re } else { e.im }
+                }));
+                for (l, v) in t.iter().enumerate() {
+                    s.lines[l * np + c0..][..LANES].copy_from_slice(v);
+                }
+            }
+            for (l, dst) in dsts.iter_mut().enumerate() {
+                let bw = dst.len();
+                dst.copy_from_slice(&s.lines[l * np + m..][..bw]);
+            }
         }
     }
+}
+
+/// An 8 × 8 block transposed, by AVX shuffles when `AVX` (the caller is
+/// built for AVX2 and the CPU runs it).
+#[inline(always)]
+fn tr<const AVX: bool>(a: &[[f32; LANES]; LANES]) -> [[f32; LANES]; LANES] {
+    #[cfg(target_arch = "x86_64")]
+    if AVX {
+        // SAFETY: AVX is only set in code built for AVX2 and run after
+        // `has_avx2` (Convolver::block_into).
+        return unsafe { stepsim_numerics::fft::transpose_avx2(a) };
+    }
+    transpose(a)
 }
 
 thread_local! {
@@ -216,38 +314,47 @@ thread_local! {
     static SCRATCH: RefCell<Option<Scratch>> = const { RefCell::new(None) };
 }
 
-/// Per-thread buffers of [`Convolver::block_into`].
+/// Per-thread buffers of [`Convolver::block_into`], padded to whole
+/// 8 × 8 blocks (the padding's lanes are never read out).
 struct Scratch {
     n: usize,
-    real: Vec<f32>,
-    row: Vec<Complex32>,
-    uv: Vec<Complex32>,
-    scratch: Vec<Complex32>,
+    /// Samples of a padded row: 2 · (entries of `half`).
+    np: usize,
+    /// Entries of one column group of `uv`: n rounded up to eight.
+    colp: usize,
+    /// Eight rows of samples, `np` each.
+    lines: Vec<f32>,
+    /// Eight real rows (samples 2k and 2k + 1 in entry k).
+    half: Vec<Lanes<f32>>,
+    /// Eight rows' frequencies u = 0..=n/2.
+    freq: Vec<Lanes<f32>>,
+    /// The tile's half plane, eight columns to an entry: group g's rows at
+    /// `g * colp ..`.
+    uv: Vec<Lanes<f32>>,
+    scratch: Vec<Lanes<f32>>,
 }
 
 impl Scratch {
-    fn scratch_len(c: &Convolver) -> usize {
-        c.row_fwd
-            .get_scratch_len()
-            .max(c.row_inv.get_scratch_len())
-            .max(c.col_fwd.get_inplace_scratch_len())
-            .max(c.col_inv.get_inplace_scratch_len())
-    }
-
     fn new(c: &Convolver) -> Self {
         let n = c.n;
+        let nc = n / 2 + 1;
+        let half = (n / 2).div_ceil(LANES) * LANES;
+        let colp = n.div_ceil(LANES) * LANES;
         Self {
             n,
-            real: vec![0.0; n],
-            row: vec![Complex32::new(0.0, 0.0); n / 2 + 1],
-            uv: vec![Complex32::new(0.0, 0.0); (n / 2 + 1) * n],
-            scratch: vec![Complex32::new(0.0, 0.0); Self::scratch_len(c)],
+            np: 2 * half,
+            colp,
+            lines: vec![0.0; LANES * 2 * half],
+            half: vec![Lanes::zero(); half],
+            freq: vec![Lanes::zero(); nc.div_ceil(LANES) * LANES],
+            uv: vec![Lanes::zero(); nc.div_ceil(LANES) * colp],
+            scratch: vec![Lanes::zero(); n],
         }
     }
 
-    /// Whether these buffers serve `c` (same tile side, scratch long enough).
+    /// Whether these buffers serve `c` (same tile side).
     fn fits(&self, c: &Convolver) -> bool {
-        self.n == c.n && self.scratch.len() >= Self::scratch_len(c)
+        self.n == c.n
     }
 }
 

@@ -17,13 +17,13 @@
 
 use crate::model::profile::{Component, DeVaucouleurs, Exponential, ProfileKind};
 use num_complex::Complex32;
+use realfft::FftNum;
 use realfft::num_complex::Complex;
-use realfft::{ComplexToReal, FftNum, RealFftPlanner};
-use rustfft::{Fft, FftPlanner};
 use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
+use stepsim_numerics::fft::{BatchFft, LANES, Lanes, Real, RealFft};
 
 use super::StageTimes;
 
@@ -51,13 +51,15 @@ pub struct Fill {
 }
 
 /// The two FFT plans of one stamp side.
-struct Plans<T: FftNum> {
-    columns: Arc<dyn Fft<T>>,
-    rows: Arc<dyn ComplexToReal<T>>,
+struct Plans<T> {
+    /// Inverse complex FFTs of length n along v, eight columns at a time.
+    columns: BatchFft<T>,
+    /// Inverse real FFTs of length n along u, eight rows at a time.
+    rows: RealFft<T>,
 }
 
 /// FFT plans and per-side tables, shared by all threads.
-pub struct FftCache<T: FftNum> {
+pub struct FftCache<T> {
     plans: Mutex<HashMap<usize, Arc<Plans<T>>>>,
     sincs: Mutex<HashMap<usize, Arc<Vec<f64>>>>,
 }
@@ -77,14 +79,14 @@ impl<T: FftNum> std::fmt::Debug for FftCache<T> {
     }
 }
 
-impl<T: FftNum> FftCache<T> {
+impl<T: FftNum + Real> FftCache<T> {
     fn plans(&self, n: usize) -> Arc<Plans<T>> {
         let mut map = self.plans.lock().expect("fft plan cache");
         map.entry(n)
             .or_insert_with(|| {
                 Arc::new(Plans {
-                    columns: FftPlanner::<T>::new().plan_fft_inverse(n),
-                    rows: RealFftPlanner::<T>::new().plan_fft_inverse(n),
+                    columns: BatchFft::new(n, true),
+                    rows: RealFft::new(n, true),
                 })
             })
             .clone()
@@ -149,11 +151,11 @@ fn phases(count: usize, n: usize, d: f64) -> Vec<(f64, f64)> {
 
 /// Renders [`Fill`]s in precision `T`.
 #[derive(Debug)]
-pub struct StampEngine<T: FftNum> {
+pub struct StampEngine<T: FftNum + Real> {
     cache: FftCache<T>,
 }
 
-impl<T: FftNum> StampEngine<T> {
+impl<T: FftNum + Real> StampEngine<T> {
     /// An engine with the given cache.
     pub fn new(cache: FftCache<T>) -> Self {
         Self { cache }
@@ -175,43 +177,69 @@ impl<T: FftNum> StampEngine<T> {
         fill_kspace(fill, transfer, &sinc, &mut buf);
         let t1 = t0.map(|_| Instant::now());
 
-        let plans = self.cache.plans(n);
-        let mut scratch = vec![
-            Complex::<T>::new(T::zero(), T::zero());
-            plans
-                .columns
-                .get_inplace_scratch_len()
-                .max(plans.rows.get_scratch_len())
-        ];
-        let s = plans.columns.get_inplace_scratch_len();
-        plans
-            .columns
-            .process_with_scratch(&mut buf, &mut scratch[..s]);
-        let mut out = vec![T::zero(); n * n];
-        let mut row = vec![Complex::<T>::new(T::zero(), T::zero()); nc];
-        let scale = T::from_f64(1.0 / (n as f64 * n as f64)).expect("float");
-        let s = plans.rows.get_scratch_len();
-        for (y, out_row) in out.chunks_exact_mut(n).enumerate() {
-            for (i, r) in row.iter_mut().enumerate() {
-                *r = buf[i * n + y];
-            }
-            // Hermitian symmetry makes these real; clear the rounding.
-            row[0].im = T::zero();
-            row[nc - 1].im = T::zero();
-            plans
-                .rows
-                .process_with_scratch(&mut row, out_row, &mut scratch[..s])
-                .expect("lengths match the plan");
-            for v in out_row.iter_mut() {
-                *v = *v * scale;
-            }
-        }
+        let out = inverse_2d(&self.cache.plans(n), &buf, n);
         if let (Some(times), Some(t0), Some(t1)) = (times, t0, t1) {
             times.kspace_ns += (t1 - t0).as_nanos() as u64;
             times.fft_ns += t1.elapsed().as_nanos() as u64;
         }
         out
     }
+}
+
+/// The n × n image (row-major, scaled by 1/n²) of the half-plane grid
+/// `buf` (`[u][v]`, n/2 + 1 columns of n).
+///
+/// Eight columns at a time go through the inverse FFT along v, and are
+/// written, an 8 × 8 block at a time, into the layout of the row pass,
+/// where eight image rows at a time go through the inverse real FFT along
+/// u. Lanes past the last column or row hold zeros and are not read out.
+/// The imaginary parts of the columns u = 0 and n/2 of each row are not
+/// used (Hermitian symmetry makes them 0 up to rounding).
+fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) -> Vec<T> {
+    let nc = n / 2 + 1;
+    let groups = n.div_ceil(LANES);
+    let mut col = vec![Lanes::<T>::zero(); n];
+    let mut scratch = vec![Lanes::<T>::zero(); n];
+    // rows[h * nc + u], lane l: row 8h + l's value at column u.
+    let mut rows = vec![Lanes::<T>::zero(); groups * nc];
+    for g in 0..nc.div_ceil(LANES) {
+        let width = LANES.min(nc - g * LANES);
+        for (v, c) in col.iter_mut().enumerate() {
+            for l in 0..LANES {
+                (c.re[l], c.im[l]) = if l < width {
+                    let z = buf[(g * LANES + l) * n + v];
+                    (z.re, z.im)
+                } else {
+                    (T::zero(), T::zero())
+                };
+            }
+        }
+        plans.columns.process(&mut col, &mut scratch);
+        for (v, c) in col.iter().enumerate() {
+            let (h, lane) = (v / LANES, v % LANES);
+            for l in 0..width {
+                let r = &mut rows[h * nc + g * LANES + l];
+                r.re[lane] = c.re[l];
+                r.im[lane] = c.im[l];
+            }
+        }
+    }
+    let scale = <T as Real>::from_f64_rounded(1.0 / (n as f64 * n as f64));
+    let mut out = vec![T::zero(); n * n];
+    let half = &mut col[..n / 2];
+    for h in 0..groups {
+        plans
+            .rows
+            .inverse(&rows[h * nc..(h + 1) * nc], half, &mut scratch);
+        for l in 0..LANES.min(n - h * LANES) {
+            let out_row = &mut out[(h * LANES + l) * n..(h * LANES + l + 1) * n];
+            for (pair, z) in out_row.chunks_exact_mut(2).zip(half.iter()) {
+                pair[0] = z.re[l] * scale;
+                pair[1] = z.im[l] * scale;
+            }
+        }
+    }
+    out
 }
 
 /// What both fills of one stamp derive from its [`Fill`] before their loops.
