@@ -608,7 +608,7 @@ mod tests {
     /// SHA-256 of the 64-pixel file of the coma PSF of
     /// `the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`.
     const PINNED_FILE_SHA256: &str =
-        "a671de53d2d35ccbcf1d83641671a874e2f19d2c3c65f3421941c20298aa8953";
+        "229b012b44fb6d00dad5a82106294efc58b9e3a708c0e282c5c8b8163e9eec23";
 
     #[test]
     fn a_drawn_file_is_kept_in_the_users_store_and_copied_from_it() {
@@ -659,7 +659,7 @@ mod tests {
     /// accuracy, as FORMAT 2 solves it (FFTs with the same bits on every CPU since
     /// 2026-12-05; FORMAT 1 used its FFTs by CPU).
     const PINNED_CONTENT_SHA256: &str =
-        "5d8077a383a9f06cac95311212703e54b1e09f2117711a6be782801edfcf6b31";
+        "7562b30fadbd630818b085b401cc510a809216f20c39388268e15bb190d3067f";
 
     #[test]
     #[cfg(unix)]

@@ -3,48 +3,32 @@
 //! Forward: X[k] = Σ x[j] e^{−2πi jk/n} per axis; inverse without the 1/n
 //! factor (callers normalise).
 //!
-//! rustfft's scalar FFTs (`FftPlannerScalar`) and stepsim's own
-//! (`stepsim_numerics::fft`), not rustfft's planner by CPU: its AVX and
+//! stepsim's own FFTs (`stepsim_numerics::fft`), or rustfft's scalar ones
+//! (`FftPlannerScalar`) for a side with a prime factor above 5, not
+//! rustfft's planner by CPU: its AVX and
 //! SSE code round differently, and the optical PSF (and so every image
 //! drawn with it) must have the same bits on every CPU.
 
 use num_complex::Complex64;
 use rustfft::{FftDirection, FftPlannerScalar};
-use stepsim_numerics::fft::{BatchFft, LANES, Lanes};
 use stepsim_numerics::fft_size::is_friendly;
 
-/// In-place 2-D FFT of an `n × n` row-major array: rustfft along the rows
-/// (contiguous), then the columns eight at a time in the lanes of
-/// `stepsim_numerics::fft` (eight neighbouring columns are contiguous in
-/// each row, so no transpose); a side with a prime factor above 5 goes
-/// through transposes and rustfft instead.
+/// In-place 2-D FFT of an `n × n` row-major array: `stepsim_numerics::fft`
+/// (eight rows, then eight columns, at a time in vector lanes) where n has
+/// no prime factor above 5, else rustfft's scalar FFTs along the rows, a
+/// transpose, the rows again and a transpose back.
 pub(crate) fn fft2(data: &mut [Complex64], n: usize, direction: FftDirection) {
     assert_eq!(data.len(), n * n, "fft2: data is not n×n");
+    if is_friendly(n) {
+        stepsim_numerics::fft::fft2(data, n, direction == FftDirection::Inverse);
+        return;
+    }
     let mut planner = FftPlannerScalar::new();
     let fft = planner.plan_fft(n, direction);
     fft.process(data);
-    if n == 0 || !is_friendly(n) {
-        transpose(data, n);
-        fft.process(data);
-        transpose(data, n);
-        return;
-    }
-    let columns = BatchFft::<f64>::new(n, direction == FftDirection::Inverse);
-    let (mut col, mut scratch) = (vec![Lanes::zero(); n], vec![Lanes::zero(); n]);
-    for c0 in (0..n).step_by(LANES) {
-        let width = LANES.min(n - c0);
-        for (v, e) in col.iter_mut().enumerate() {
-            for (l, z) in data[v * n + c0..][..width].iter().enumerate() {
-                (e.re[l], e.im[l]) = (z.re, z.im);
-            }
-        }
-        columns.process(&mut col, &mut scratch);
-        for (v, e) in col.iter().enumerate() {
-            for (l, z) in data[v * n + c0..][..width].iter_mut().enumerate() {
-                *z = Complex64::new(e.re[l], e.im[l]);
-            }
-        }
-    }
+    transpose(data, n);
+    fft.process(data);
+    transpose(data, n);
 }
 
 /// In-place transpose, by 16 × 16 blocks so that the rows touched stay in
