@@ -141,7 +141,13 @@ impl Convolver {
                         Some(s) if s.fits(self) => s,
                         other => other.insert(Scratch::new(self)),
                     };
-                    self.block_into(input, width, bx * b, y0, rows, scratch);
+                    let at = BlockAt {
+                        canvas: input,
+                        width,
+                        x0: bx * b,
+                        y0,
+                    };
+                    self.block_into(at, rows, scratch);
                 });
             });
             canvas[y0 * width..(y0 + rows_here) * width].copy_from_slice(band);
@@ -157,36 +163,20 @@ impl Convolver {
     /// Where the CPU runs AVX2 the same code runs built for it, with the
     /// 8 × 8 transposes by AVX shuffles (moves only: the same bits,
     /// `stepsim_numerics::simd`).
-    fn block_into(
-        &self,
-        canvas: &[f32],
-        width: usize,
-        x0: usize,
-        y0: usize,
-        rows: Vec<&mut [f32]>,
-        s: &mut Scratch,
-    ) {
+    fn block_into(&self, at: BlockAt<'_>, rows: Vec<&mut [f32]>, s: &mut Scratch) {
         #[cfg(target_arch = "x86_64")]
         if stepsim_numerics::simd::has_avx2() {
             // SAFETY: the CPU runs AVX2 (checked just above).
-            return unsafe { self.block_avx2(canvas, width, x0, y0, rows, s) };
+            return unsafe { self.block_avx2(at, rows, s) };
         }
-        self.block_body::<false>(canvas, width, x0, y0, rows, s);
+        self.block_body::<false>(at, rows, s);
     }
 
     /// [`Self::block_body`] built for AVX2.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn block_avx2(
-        &self,
-        canvas: &[f32],
-        width: usize,
-        x0: usize,
-        y0: usize,
-        rows: Vec<&mut [f32]>,
-        s: &mut Scratch,
-    ) {
-        self.block_body::<true>(canvas, width, x0, y0, rows, s);
+    fn block_avx2(&self, at: BlockAt<'_>, rows: Vec<&mut [f32]>, s: &mut Scratch) {
+        self.block_body::<true>(at, rows, s);
     }
 
     /// The body of [`Self::block_into`]; `AVX`: built for AVX2 (its
@@ -194,14 +184,17 @@ impl Convolver {
     #[inline(always)]
     fn block_body<const AVX: bool>(
         &self,
-        canvas: &[f32],
-        width: usize,
-        x0: usize,
-        y0: usize,
+        at: BlockAt<'_>,
         mut rows: Vec<&mut [f32]>,
         s: &mut Scratch,
     ) {
         let transpose = tr::<AVX>;
+        let BlockAt {
+            canvas,
+            width,
+            x0,
+            y0,
+        } = at;
         let (n, m) = (self.n, self.margin);
         let (h, nc) = (n / 2, n / 2 + 1);
         let cw = width + 2 * m;
@@ -293,6 +286,16 @@ impl Convolver {
             }
         }
     }
+}
+
+/// Where an output block lies: the canvas of an image `width` wide and the
+/// block's first pixel (x0, y0) in the image.
+#[derive(Clone, Copy)]
+struct BlockAt<'a> {
+    canvas: &'a [f32],
+    width: usize,
+    x0: usize,
+    y0: usize,
 }
 
 /// An 8 × 8 block transposed, by AVX shuffles when `AVX` (the caller is
