@@ -624,7 +624,11 @@ fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
     let one_store = store("one");
     assert_eq!(one_store.len(), 1, "{one_store:?}");
     let stored = std::fs::read(&one_store[0]).unwrap();
-    assert!(stored.starts_with(b"stepsim psf store 1\nspec-sha256 "));
+    let header = format!(
+        "stepsim psf store {}\nspec-sha256 ",
+        stepsim_sim::io::psf_store::FORMAT
+    );
+    assert!(stored.starts_with(header.as_bytes()));
     // Two shards: the first builds and stores, the second reuses.
     let o = generate(d, "two", &["--shard", "1/2"]);
     assert!(
@@ -658,7 +662,7 @@ fn generate_reuses_stored_psfs_across_shards_byte_for_byte() {
     // rebuilt with one line saying why, rewritten, and the run is the same.
     let file = store("two")[0].clone();
     let mut foreign = stored.clone();
-    let at = b"stepsim psf store 1\nspec-sha256 ".len();
+    let at = header.len();
     foreign[at] = if foreign[at] == b'0' { b'1' } else { b'0' };
     for (bad, why) in [
         (stored[..stored.len() - 100].to_vec(), "is truncated"),

@@ -14,7 +14,7 @@
 //! File `<spec digest>.bin`: a text header, then the content.
 //!
 //! ```text
-//! stepsim psf store 1            format version (FORMAT)
+//! stepsim psf store 2            format version (FORMAT)
 //! spec-sha256 <64 hex>           spec_digest: everything the PSF's bytes depend on
 //! content-sha256 <64 hex>        SHA-256 of the content bytes
 //! content-bytes <n>
