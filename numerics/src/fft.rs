@@ -26,10 +26,14 @@
 //! non-negative frequencies and back, by a complex transform of length n/2
 //! (the even samples as real parts, the odd ones as imaginary parts).
 //!
+//! [`fft2`] transforms an n × n array, eight rows and then eight columns
+//! at a time; [`transpose`] (and [`transpose_avx2`], the same moves by AVX
+//! shuffles) turns eight rows of an array into lanes and back.
+//!
 //! Conventions are rustfft's and realfft's: forward e^{−2πi jk/n},
 //! inverse e^{+2πi jk/n}, neither normalised (forward then inverse
-//! multiplies by n). The slow twins are the direct sums [`dft_slow`] and
-//! [`real_dft_slow`], in f64.
+//! multiplies by n). The slow twins are the direct sums [`dft_slow`],
+//! [`real_dft_slow`] and [`fft2_slow`], in f64.
 
 use std::f64::consts::PI;
 use std::ops::{Add, Mul, Neg, Sub};
@@ -53,8 +57,6 @@ pub trait Real:
 {
     /// The value nearest to `x`.
     fn from_f64_rounded(x: f64) -> Self;
-    /// The value as f64 (exact).
-    fn to_f64_exact(self) -> f64;
 }
 
 impl Real for f32 {
@@ -62,20 +64,12 @@ impl Real for f32 {
     fn from_f64_rounded(x: f64) -> Self {
         x as f32
     }
-    #[inline(always)]
-    fn to_f64_exact(self) -> f64 {
-        f64::from(self)
-    }
 }
 
 impl Real for f64 {
     #[inline(always)]
     fn from_f64_rounded(x: f64) -> Self {
         x
-    }
-    #[inline(always)]
-    fn to_f64_exact(self) -> f64 {
-        self
     }
 }
 
@@ -273,7 +267,7 @@ impl<T: Real> BatchFft<T> {
 
     /// The body of [`Self::process`], in whichever build its caller has.
     #[inline(always)]
-    pub fn process_body(&self, data: &mut [Lanes<T>], scratch: &mut [Lanes<T>]) {
+    fn process_body(&self, data: &mut [Lanes<T>], scratch: &mut [Lanes<T>]) {
         let mut in_data = true;
         for st in &self.stages {
             let (x, y): (&[Lanes<T>], &mut [Lanes<T>]) = if in_data {
