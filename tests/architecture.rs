@@ -238,6 +238,66 @@ fn only_the_contract_spells_the_paths_of_a_run() {
     );
 }
 
+/// Names of FFT planners that choose their code by CPU (rustfft's AVX and
+/// SSE code round differently from its scalar code).
+const PLANNERS_BY_CPU: &[&str] = &[
+    "FftPlanner::",
+    "FftPlanner<",
+    "RealFftPlanner",
+    "FftPlannerAvx",
+    "FftPlannerSse",
+];
+
+/// Lines of `code` (up to its first `#[cfg(test)]`, comments left out)
+/// that name a planner of [`PLANNERS_BY_CPU`]: (line number, line).
+fn planners_by_cpu(code: &str) -> Vec<(usize, String)> {
+    let library = code.split("#[cfg(test)]").next().unwrap_or("");
+    library
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim_start().starts_with("//"))
+        .filter(|(_, l)| PLANNERS_BY_CPU.iter().any(|p| l.contains(p)))
+        .map(|(i, l)| (i + 1, l.trim().to_string()))
+        .collect()
+}
+
+#[test]
+fn the_planner_reader_finds_planners_by_cpu_only() {
+    let code = "use rustfft::{FftPlanner, FftPlannerScalar};\nlet p = FftPlannerScalar::new();\n\
+                let q = FftPlanner::new();\n// FftPlanner::new() in a comment\n\
+                let r = RealFftPlanner::<f32>::new();\n#[cfg(test)]\nmod t { fn f() { FftPlanner::<f64>::new(); } }\n";
+    let lines: Vec<usize> = planners_by_cpu(code).iter().map(|l| l.0).collect();
+    assert_eq!(lines, [3, 5]);
+}
+
+#[test]
+fn the_simulator_plans_no_fft_by_cpu() {
+    // Issue #25's rule: the same config and seed give the same bytes with
+    // and without vector instructions. `STEPSIM_SIMD=0` cannot switch
+    // rustfft's planner by CPU, so the golden test comparing the two
+    // builds would not see one: this test does (docs/config.md, "Vector
+    // instructions").
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    rust_files(&root.join("sim/src"), &mut files);
+    rust_files(&root.join("numerics/src"), &mut files);
+    files.sort();
+    assert!(files.len() > 40, "only {} files read", files.len());
+    let mut found = Vec::new();
+    for file in &files {
+        let code = std::fs::read_to_string(file).unwrap();
+        for (n, line) in planners_by_cpu(&code) {
+            let rel = file.strip_prefix(root).unwrap().display().to_string();
+            found.push(format!("{rel}:{n}: {line}"));
+        }
+    }
+    assert!(
+        found.is_empty(),
+        "the simulator plans FFTs by CPU (use stepsim_numerics::fft, or rustfft's FftPlannerScalar):\n{}",
+        found.join("\n")
+    );
+}
+
 /// Suffixes the slow twins had before they took one name, `f_slow`
 /// (ARCHITECTURE.md, "Every fast routine has a slow twin").
 const OLD_TWIN_SUFFIXES: &[&str] = &[
