@@ -238,6 +238,24 @@ fn only_the_contract_spells_the_paths_of_a_run() {
     );
 }
 
+/// `read(code)`'s findings in each of `files`, as `path:line: text` with
+/// the path relative to `root`.
+fn findings(
+    root: &Path,
+    files: &[std::path::PathBuf],
+    read: impl Fn(&str) -> Vec<(usize, String)>,
+) -> Vec<String> {
+    let mut found = Vec::new();
+    for file in files {
+        let code = std::fs::read_to_string(file).unwrap();
+        let rel = file.strip_prefix(root).unwrap().display().to_string();
+        for (n, text) in read(&code) {
+            found.push(format!("{rel}:{n}: {text}"));
+        }
+    }
+    found
+}
+
 /// Names of FFT planners that choose their code by CPU (rustfft's AVX and
 /// SSE code round differently from its scalar code).
 const PLANNERS_BY_CPU: &[&str] = &[
@@ -283,14 +301,7 @@ fn the_simulator_plans_no_fft_by_cpu() {
     rust_files(&root.join("numerics/src"), &mut files);
     files.sort();
     assert!(files.len() > 40, "only {} files read", files.len());
-    let mut found = Vec::new();
-    for file in &files {
-        let code = std::fs::read_to_string(file).unwrap();
-        for (n, line) in planners_by_cpu(&code) {
-            let rel = file.strip_prefix(root).unwrap().display().to_string();
-            found.push(format!("{rel}:{n}: {line}"));
-        }
-    }
+    let found = findings(root, &files, planners_by_cpu);
     assert!(
         found.is_empty(),
         "the simulator plans FFTs by CPU (use stepsim_numerics::fft, or rustfft's FftPlannerScalar):\n{}",
@@ -361,17 +372,13 @@ fn slow_twins_have_one_name() {
         rust_files(&root.join(dir), &mut files);
     }
     files.sort();
-    let mut found = Vec::new();
-    for file in files
-        .iter()
-        .filter(|f| f.file_name().is_none_or(|n| n != "tests.rs"))
-    {
-        let code = std::fs::read_to_string(file).unwrap();
-        for (n, name) in twins_named_otherwise(&code) {
-            let rel = file.strip_prefix(root).unwrap().display().to_string();
-            found.push(format!("{rel}:{n}: fn {name}"));
-        }
-    }
+    files.retain(|f| f.file_name().is_none_or(|n| n != "tests.rs"));
+    let found = findings(root, &files, |code| {
+        twins_named_otherwise(code)
+            .into_iter()
+            .map(|(n, name)| (n, format!("fn {name}")))
+            .collect()
+    });
     assert!(
         found.is_empty(),
         "a slow twin is named `<fast>_slow` (ARCHITECTURE.md); these functions end as the old \
