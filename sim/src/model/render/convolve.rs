@@ -201,9 +201,9 @@ impl Convolver {
         let ch = canvas.len() / cw;
         let (np, colp) = (s.np, s.colp);
         // Forward: eight rows of the window at a time (zero beyond the
-        // canvas) into lanes, by 8 × 8 blocks of even and of odd samples;
-        // their frequencies go into s.uv by 8 × 8 blocks (eight columns to
-        // an entry); then the columns, eight at a time.
+        // canvas) into lanes, by 8 × 8 blocks of samples; their frequencies
+        // go into s.uv by 8 × 8 blocks (eight columns to an entry); then the
+        // columns, eight at a time.
         let xs = cw.min(x0 + n) - x0;
         for r0 in (0..n).step_by(LANES) {
             for (l, line) in s.lines.chunks_exact_mut(np).enumerate() {
