@@ -17,14 +17,22 @@
 //!
 //! Reproducibility: the image is cut into blocks of [`BLOCK_ROWS`] rows; block
 //! `b` draws from its own generator keyed by [`block_key`]`(key, b)`, so the
-//! bytes never depend on the number of threads. [`realise_slow`] is the
-//! slow, obvious sequential twin (one pixel at a time, a fresh distribution
-//! per pixel) that the fast [`realise`] is tested against, bit for bit.
+//! bytes never depend on the number of threads. Within a block, four
+//! generators seeded from it (the lanes, `draws`) serve the pixels in turn:
+//! pixel p of the block draws from lane p mod 4, so that four neighbouring
+//! pixels are drawn side by side (`noisy_group`). What one pixel draws is
+//! `noisy_pixel`; [`realise_slow`] is the slow, obvious sequential twin
+//! (one pixel at a time) that the fast [`realise`] is tested against, bit
+//! for bit.
 //!
 //! Measured statistics are in `docs/noise.md`.
 
-use rand::RngExt;
-use rand_distr::{Distribution, Exp1, Normal, Poisson, StandardNormal};
+#[cfg(target_arch = "x86_64")]
+mod avx2;
+mod draws;
+
+use draws::{LANES, Lanes, Source};
+use rand_distr::Poisson;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -175,101 +183,177 @@ pub fn realise_in_place(pixels: &mut [f32], width: usize, det: &Detector, noise:
         });
 }
 
-/// Fast path of one block: the same draws as [`realise_slow`] (a
-/// Poisson of the pixel's mean, then read noise as σ × a standard normal)
-/// without its fresh `Normal` per pixel. No Poisson distribution is kept
-/// from pixel to pixel: galaxy light covers a STEP1 image, so the mean
-/// almost never repeats, and keeping the last one cost 7 % of the stage.
-fn noisy_block(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
+/// One noise block: its lanes from the block's keyed generator, then the
+/// pixels four at a time ([`noisy_group`]), the last few one at a time.
+fn noisy_block(values: &mut [f32], det: &Detector, block: &mut SimRng) {
+    let mut lanes = Lanes::from_block(block);
     #[cfg(target_arch = "x86_64")]
     if stepsim_numerics::simd::has_avx2() {
         // SAFETY: the CPU runs AVX2 (checked just above).
-        return unsafe { noisy_block_avx2(values, det, rng) };
+        return unsafe { avx2::noisy_block(values, det, &mut lanes) };
     }
-    noisy_block_body(values, det, rng);
-}
-
-/// [`noisy_block_body`] built for AVX2, where `floor` is one instruction
-/// instead of a library call (same bits; `stepsim_numerics::simd`).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn noisy_block_avx2(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
-    noisy_block_body(values, det, rng);
+    noisy_block_body(values, det, &mut lanes);
 }
 
 #[inline(always)]
-fn noisy_block_body(values: &mut [f32], det: &Detector, rng: &mut SimRng) {
+fn noisy_block_body(values: &mut [f32], det: &Detector, lanes: &mut Lanes) {
+    let mut groups = values.chunks_exact_mut(LANES);
+    for group in &mut groups {
+        noisy_group(group.try_into().expect("LANES values"), det, lanes);
+    }
+    for (l, v) in groups.into_remainder().iter_mut().enumerate() {
+        *v = noisy_pixel(*v, det, &mut lanes.lane(l));
+    }
+}
+
+/// Four neighbouring pixels, pixel l drawing from lane l: the same draws and
+/// bits as [`noisy_pixel`] on each lane, with the common path (a normal from
+/// the ziggurat's inner rectangles, steps I and S of PD, the read noise) done
+/// for the four lanes at once. A lane that leaves the common path (a
+/// ziggurat's wedge or tail, PD's steps F and E) finishes its draw alone,
+/// from its own generator, so every lane sees the order of [`noisy_pixel`].
+#[inline(always)]
+fn noisy_group(v: &mut [f32; LANES], det: &Detector, lanes: &mut Lanes) {
+    let lam: [f64; LANES] = std::array::from_fn(|l| expected_e(v[l], det.sky_e_per_px));
+    if !lam.iter().all(|&x| (PD_MIN..=MAX_LAMBDA).contains(&x)) {
+        for (l, x) in v.iter_mut().enumerate() {
+            *x = noisy_pixel(*x, det, &mut lanes.lane(l));
+        }
+        return;
+    }
+    let z = group_normal(lanes);
+    let mut s = [0.0; LANES];
+    let mut g = [0.0; LANES];
+    let mut k = [0.0; LANES];
+    let mut take = [false; LANES];
+    let mut need_u = [false; LANES];
+    for l in 0..LANES {
+        s[l] = lam[l].sqrt();
+        g[l] = lam[l] + s[l] * z[l];
+        k[l] = g[l].floor();
+        take[l] = g[l] >= 0.0 && step_i(lam[l], k[l]);
+        need_u[l] = g[l] >= 0.0 && !take[l];
+    }
+    let mut e = k;
+    if !take.iter().all(|&t| t) {
+        let bits = lanes.next_where(need_u);
+        for l in 0..LANES {
+            if take[l] {
+                continue;
+            }
+            let candidate = need_u[l].then(|| (k[l], draws::uniform_of(bits[l])));
+            e[l] = match candidate {
+                Some((k, u)) if step_s(lam[l], k, u) => k,
+                _ => pd_tail(lam[l], s[l], candidate, &mut lanes.lane(l)),
+            };
+        }
+    }
     let ron = det.read_noise_e;
-    for d in values.iter_mut() {
-        let lambda = expected_e(*d, det.sky_e_per_px);
-        let mut e = if lambda > 0.0 {
-            poisson_count(lambda, rng)
-        } else {
-            0.0
-        };
-        if ron > 0.0 {
-            let n: f64 = rng.sample(StandardNormal);
-            e += ron * n;
+    if ron > 0.0 {
+        let r = group_normal(lanes);
+        for l in 0..LANES {
+            e[l] += ron * r[l];
         }
-        *d = to_adu(e, det);
+    }
+    for l in 0..LANES {
+        v[l] = to_adu(e[l], det);
     }
 }
 
-fn poisson(lambda: f64) -> Poisson<f64> {
-    // λ is finite and > 0 here; beyond MAX_LAMBDA (1.8e19 e⁻, far above any
-    // saturation level) the count is clipped anyway.
-    Poisson::new(lambda.min(Poisson::<f64>::MAX_LAMBDA)).expect("0 < λ ≤ MAX_LAMBDA")
-}
-
-/// A Poisson(λ) count, λ > 0: the same draws and the same bits as
-/// `rng.sample(Poisson::new(λ))` of rand_distr 0.6, at about 0.6 of its
-/// cost (docs/noise.md, "Speed").
-///
-/// For λ ≥ 12 rand_distr uses the method of Ahrens & Dieter (1982, ACM TOMS
-/// 8, 163), "PD": a normal deviate g ~ N(λ, λ) gives the candidate ⌊g⌋,
-/// which is accepted at once when it is not below ⌊λ − 1.1484⌋ (step I, about
-/// half the draws) or after one uniform u when 6λ² u ≥ (λ − k)³ (step S,
-/// nearly all the rest at the sky's λ ≈ 80 000); only the few left over need
-/// the comparison with the Poisson probabilities (steps F and E). Building a
-/// `Poisson` sets up all of these steps for every pixel's λ, about ten
-/// divisions, square roots and products, although the first two steps use
-/// only √λ, ⌊λ − 1.1484⌋ and 6λ². Here those are all that is computed before
-/// the first two steps; the rest ([`pd_tail`]) is set up only when reached.
-/// Every operation is the one rand_distr does, in its order, so the results
-/// are bit for bit its results (tested, [`realise_slow`] keeps using
-/// rand_distr itself). Below λ = 12 rand_distr's own sampler is used.
+/// A standard normal on each lane ([`draws::normal`], four at once).
 #[inline(always)]
-fn poisson_count(lambda: f64, rng: &mut SimRng) -> f64 {
-    if !(12.0..=Poisson::<f64>::MAX_LAMBDA).contains(&lambda) {
-        return rng.sample(poisson(lambda));
+fn group_normal(lanes: &mut Lanes) -> [f64; LANES] {
+    let table = draws::ziggurat();
+    let bits = lanes.next_all();
+    let mut z = [0.0; LANES];
+    let mut inside = [false; LANES];
+    for l in 0..LANES {
+        let (i, negative, u) = draws::split(bits[l]);
+        let x = u * table.x[i];
+        inside[l] = x < table.x[i + 1];
+        z[l] = draws::signed(x, negative);
     }
-    let s = lambda.sqrt();
-    // Step N: g = λ + s z, as `Normal::new(λ, s)` draws it.
-    let z: f64 = rng.sample(StandardNormal);
-    let g = lambda + s * z;
-    let mut u = None;
-    if g >= 0.0 {
-        let k = g.floor();
-        // Step I.
-        if k >= (lambda - 1.1484).floor() {
-            return k;
+    if !inside.iter().all(|&t| t) {
+        for l in 0..LANES {
+            if !inside[l] {
+                z[l] = draws::finish_normal(bits[l], &mut lanes.lane(l));
+            }
         }
-        // Step S.
-        let uniform: f64 = rng.random();
-        if 6.0 * lambda.powi(2) * uniform >= (lambda - k).powi(3) {
-            return k;
-        }
-        u = Some((k, uniform));
     }
-    pd_tail(lambda, s, u, rng)
+    z
+}
+
+/// Smallest mean drawn by PD; below it [`draws::small_poisson`].
+const PD_MIN: f64 = 12.0;
+
+/// Means above this are drawn as this (1.8e19 e⁻, far above any saturation
+/// level; rand_distr's bound for its Poisson).
+const MAX_LAMBDA: f64 = Poisson::<f64>::MAX_LAMBDA;
+
+/// PD's step I: the candidate ⌊g⌋ is taken at once.
+#[inline(always)]
+fn step_i(lambda: f64, k: f64) -> bool {
+    k >= (lambda - 1.1484).floor()
+}
+
+/// PD's step S: the candidate is taken after its uniform `u`.
+#[inline(always)]
+fn step_s(lambda: f64, k: f64, u: f64) -> bool {
+    let d = lambda - k;
+    6.0 * (lambda * lambda) * u >= d * d * d
+}
+
+/// One pixel of model value `m` from generator `src`: what every pixel
+/// draws (output version 6), written one step at a time.
+///
+/// - λ = max(m + sky, 0); λ ≤ 0 gives 0 e⁻ and no draw.
+/// - 0 < λ < 12: Knuth's product of uniforms ([`draws::small_poisson`]).
+/// - λ ≥ 12 (at most [`MAX_LAMBDA`]): Ahrens & Dieter's method PD (1982,
+///   ACM TOMS 8, 163): a standard normal z ([`draws::normal`]) gives
+///   g = λ + √λ z; when g ≥ 0 the candidate k = ⌊g⌋ is taken if
+///   k ≥ ⌊λ − 1.1484⌋ (step I, about half the draws), else after one
+///   uniform u if 6λ² u ≥ (λ − k)³ (step S); the rest go through steps F
+///   and E ([`pd_tail`]).
+/// - Read noise: `read_noise_e` × a standard normal, when it is > 0.
+/// - ADU: min(e / gain, saturation).
+fn noisy_pixel(m: f32, det: &Detector, src: &mut impl Source) -> f32 {
+    let lambda = expected_e(m, det.sky_e_per_px);
+    let mut e = if lambda <= 0.0 {
+        0.0
+    } else if lambda < PD_MIN {
+        draws::small_poisson(lambda, src)
+    } else {
+        let lambda = lambda.min(MAX_LAMBDA);
+        let s = lambda.sqrt();
+        let g = lambda + s * draws::normal(src);
+        if g >= 0.0 {
+            let k = g.floor();
+            if step_i(lambda, k) {
+                k
+            } else {
+                let u = draws::uniform(src);
+                if step_s(lambda, k, u) {
+                    k
+                } else {
+                    pd_tail(lambda, s, Some((k, u)), src)
+                }
+            }
+        } else {
+            pd_tail(lambda, s, None, src)
+        }
+    };
+    if det.read_noise_e > 0.0 {
+        e += det.read_noise_e * draws::normal(src);
+    }
+    to_adu(e, det)
 }
 
 /// Steps F (for the candidate `k` of step N and its uniform, when there is
 /// one) and E of Ahrens & Dieter's PD for λ ≥ 12, with √λ = `s`: what
-/// [`poisson_count`] leaves to the rare pixels that get past steps I and S.
+/// [`noisy_pixel`] leaves to the rare pixels that get past steps I and S.
 #[cold]
 #[inline(never)]
-fn pd_tail(lambda: f64, s: f64, candidate: Option<(f64, f64)>, rng: &mut SimRng) -> f64 {
+fn pd_tail(lambda: f64, s: f64, candidate: Option<(f64, f64)>, src: &mut impl Source) -> f64 {
     #[cfg(test)]
     tests::PD_TAILS.with(|n| n.set(n.get() + 1));
     let pd = PdTail::new(lambda, s);
@@ -280,8 +364,8 @@ fn pd_tail(lambda: f64, s: f64, candidate: Option<(f64, f64)>, rng: &mut SimRng)
         }
     }
     loop {
-        let e: f64 = rng.sample(Exp1);
-        let u: f64 = rng.random::<f64>() * 2.0 - 1.0;
+        let e = draws::exponential(src);
+        let u = draws::uniform(src) * 2.0 - 1.0;
         let t = 1.8 + e * u.signum();
         if t > -0.6744 {
             let k = (lambda + s * t).floor();
@@ -370,9 +454,10 @@ impl PdTail {
     }
 }
 
-/// The slow, obvious twin of [`realise`]: one thread, blocks in order, pixels
-/// in order, a fresh Poisson and Normal distribution for every pixel. Kept as
-/// the reference that [`realise`] must match bit for bit.
+/// The slow, obvious twin of [`realise`]: one thread, blocks in order,
+/// pixels in order, each drawn by `noisy_pixel` from its lane (pixel p of
+/// a block from lane p mod 4). Kept as the reference that [`realise`] must
+/// match bit for bit.
 pub fn realise_slow(
     model_e: &[f32],
     width: usize,
@@ -381,26 +466,12 @@ pub fn realise_slow(
 ) -> Vec<f32> {
     let mut out = Vec::with_capacity(model_e.len());
     for (block, src) in model_e.chunks(BLOCK_ROWS * width).enumerate() {
-        let mut rng = noise.map(|k| block_key(k, block).rng());
-        for &m in src {
-            let lambda = (f64::from(m) + det.sky_e_per_px).max(0.0);
-            let e = match rng.as_mut() {
-                None => lambda,
-                Some(rng) => {
-                    let photons = if lambda > 0.0 {
-                        Poisson::new(lambda).unwrap().sample(rng)
-                    } else {
-                        0.0
-                    };
-                    let read = if det.read_noise_e > 0.0 {
-                        Normal::new(0.0, det.read_noise_e).unwrap().sample(rng)
-                    } else {
-                        0.0
-                    };
-                    photons + read
-                }
-            };
-            out.push((e / det.gain_e_per_adu).min(det.saturation_adu) as f32);
+        let mut lanes = noise.map(|k| Lanes::from_block(&mut block_key(k, block).rng()));
+        for (p, &m) in src.iter().enumerate() {
+            out.push(match lanes.as_mut() {
+                None => to_adu(expected_e(m, det.sky_e_per_px), det),
+                Some(lanes) => noisy_pixel(m, det, &mut lanes.lane(p % LANES)),
+            });
         }
     }
     out
@@ -541,32 +612,93 @@ mod tests {
         pub(super) static PD_TAILS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
     }
 
-    #[test]
-    fn poisson_count_draws_what_rand_distr_draws_bit_for_bit() {
-        // From below the switch at λ = 12 (where steps F and E run for a
-        // large share of the draws) through the sky's λ ≈ 80 000 to λ far
-        // above saturation and beyond rand_distr's MAX_LAMBDA.
-        let mut lambdas = vec![0.3, 11.999, 12.0, 1e25];
-        lambdas.extend((0..400).map(|i| 12.0 + 0.0731 * f64::from(i)));
-        lambdas.extend((0..50).map(|i| 80_174.6 + 3.7 * f64::from(i)));
-        lambdas.extend([1e6, 3.3e9, 1e15]);
-        let before = PD_TAILS.with(std::cell::Cell::get);
-        let mut rng_a = key().rng();
-        let mut rng_b = key().rng();
-        let mut draws = 0;
-        for &lambda in &lambdas {
-            for _ in 0..200 {
-                let want: f64 = rng_a.sample(poisson(lambda));
-                let got = poisson_count(lambda, &mut rng_b);
-                assert_eq!(got.to_bits(), want.to_bits(), "λ = {lambda}");
-                draws += 1;
+    /// χ² of `n` counts of mean `lambda` drawn by `draw` against the
+    /// Poisson probabilities, over the bins expecting ≥ 20 counts (the tails
+    /// pooled into the outermost bins); returns (χ², degrees of freedom).
+    fn poisson_chi2(lambda: f64, n: usize, mut draw: impl FnMut() -> f64) -> (f64, usize) {
+        let centre = lambda.floor() as i64;
+        let width = (12.0 * lambda.sqrt()).ceil() as i64 + 12;
+        let lo = (centre - width).max(0);
+        let mut counts = vec![0u64; (2 * width + 1) as usize];
+        for _ in 0..n {
+            let k = draw();
+            assert!(k >= 0.0 && k.fract() == 0.0, "λ {lambda}: count {k}");
+            let i = (k as i64 - lo).clamp(0, counts.len() as i64 - 1);
+            counts[i as usize] += 1;
+        }
+        // ln P(k) by Stirling's series for ln k! (exact enough at k ≥ 10)
+        // and by the product below it.
+        let ln_fact = |k: i64| -> f64 {
+            if k < 10 {
+                (1..=k).map(|j| (j as f64).ln()).sum()
+            } else {
+                let x = k as f64;
+                x * x.ln() - x + 0.5 * (2.0 * PI * x).ln() + 1.0 / (12.0 * x)
+                    - 1.0 / (360.0 * x.powi(3))
+            }
+        };
+        let p = |k: i64| (k as f64 * lambda.ln() - lambda - ln_fact(k)).exp();
+        // Neighbouring counts pooled until a bin expects ≥ 20; what is left
+        // at the top joins the last bin.
+        let mut bins: Vec<(f64, u64)> = Vec::new();
+        let mut open = (0.0, 0u64);
+        for (i, &c) in counts.iter().enumerate() {
+            open = (open.0 + n as f64 * p(lo + i as i64), open.1 + c);
+            if open.0 >= 20.0 {
+                bins.push(open);
+                open = (0.0, 0);
             }
         }
-        // The two generators are still in step.
-        assert_eq!(rng_a.random::<u64>(), rng_b.random::<u64>());
+        if let Some(last) = bins.last_mut() {
+            *last = (last.0 + open.0, last.1 + open.1);
+        }
+        let chi2 = bins.iter().map(|&(e, c)| (c as f64 - e).powi(2) / e).sum();
+        let dof = bins.len();
+        (chi2, dof.saturating_sub(1))
+    }
+
+    #[test]
+    fn pd_counts_follow_the_poisson_probabilities() {
+        // From the switch at λ = 12 (where steps F and E run for a large
+        // share of the draws) through the sky's λ ≈ 80 000, and the small-λ
+        // method just below the switch.
+        let before = PD_TAILS.with(std::cell::Cell::get);
+        let mut g = Lanes::from_block(&mut key().rng());
+        let zero_sky = Detector {
+            saturation_adu: 1e30,
+            ..det(0.0, 1.0, 0.0)
+        };
+        for (lambda, n) in [
+            (0.4, 200_000),
+            (11.99, 200_000),
+            (12.0, 200_000),
+            (15.3, 200_000),
+            (80_174.6, 400_000),
+            (1e6, 200_000),
+        ] {
+            let mut i = 0;
+            let (chi2, dof) = poisson_chi2(lambda, n, || {
+                i += 1;
+                f64::from(noisy_pixel(
+                    lambda as f32,
+                    &zero_sky,
+                    &mut g.lane(i % LANES),
+                ))
+            });
+            eprintln!("λ {lambda}: χ² {chi2:.1} for {dof} degrees of freedom");
+            assert!(dof >= 3, "λ {lambda}: {dof} bins");
+            let bound = dof as f64 + 5.0 * (2.0 * dof as f64).sqrt();
+            assert!(
+                chi2 < bound,
+                "λ {lambda}: χ² {chi2:.1} for {dof} degrees of freedom"
+            );
+        }
         let tails = PD_TAILS.with(std::cell::Cell::get) - before;
-        eprintln!("{draws} draws, {tails} through steps F/E");
+        eprintln!("{tails} draws through steps F/E");
         assert!(tails > 1000, "only {tails} draws reached steps F and E");
+        // Means beyond the bound are drawn at the bound.
+        let huge = noisy_pixel(1e30, &zero_sky, &mut g.lane(0));
+        assert!((f64::from(huge) / MAX_LAMBDA - 1.0).abs() < 1e-6, "{huge}");
     }
 
     #[test]
@@ -607,17 +739,47 @@ mod tests {
                 );
             }
         }
-        // The plain build of a block (the dispatched one above is the AVX2
-        // build where the CPU has it).
-        let mut plain = model[..BLOCK_ROWS * w].to_vec();
-        noisy_block_body(&mut plain, &d, &mut block_key(key(), 0).rng());
-        let want = realise_slow(&model, w, &d, Some(key()));
-        assert!(
-            plain
-                .iter()
-                .zip(&want)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        );
+        // Blocks whose groups of four lie wholly in PD's range (the AVX2
+        // build's vector path), near its lower end (steps S, F and E often),
+        // at the sky's level with and without read noise, and mixed with
+        // means below 12; each by the plain build of a block and by the
+        // dispatched one (the AVX2 build where the CPU has it).
+        let (rw, rh) = (37, BLOCK_ROWS + 5);
+        let ramp: Vec<f32> = (0..rw * rh).map(|i| (i % 101) as f32 * 0.37).collect();
+        for dr in [
+            det(12.0, 1.0, 0.0),
+            det(13.5, 2.0, 3.0),
+            det(80_174.6, 4.0, 5.0),
+            det(80_174.6, 4.0, 0.0),
+            det(8.0, 1.5, 2.0),
+        ] {
+            let want = realise_slow(&ramp, rw, &dr, Some(key()));
+            let got = realise(&ramp, rw, &dr, Some(key()));
+            assert!(
+                got.iter()
+                    .zip(&want)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "dispatched build, sky {}",
+                dr.sky_e_per_px
+            );
+            for (block, values) in ramp.chunks(BLOCK_ROWS * rw).enumerate() {
+                let mut plain = values.to_vec();
+                noisy_block_body(
+                    &mut plain,
+                    &dr,
+                    &mut Lanes::from_block(&mut block_key(key(), block).rng()),
+                );
+                let first = block * BLOCK_ROWS * rw;
+                assert!(
+                    plain
+                        .iter()
+                        .zip(&want[first..])
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "plain build, sky {}, block {block}",
+                    dr.sky_e_per_px
+                );
+            }
+        }
         // A different image key gives different noise.
         let a = realise(&model, w, &d, Some(key()));
         let b = realise(&model, w, &d, Some(key().with_index(1)));
