@@ -400,39 +400,19 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
     let mut ts = vec![0.0; n];
     for i in 0..nc {
         let col = &mut buf[i * n..(i + 1) * n];
+        let u = i as f64 * g.dk;
+        column_amplitudes(&g, fill, u, &mut amp, &mut ts);
         if i == n / 2 {
             for (j, c) in col.iter_mut().enumerate() {
-                *c = cell(nyquist_cell(&at, i, j));
+                *c = cell(nyquist_cell(&at, i, j, Some(&amp)));
             }
             continue;
         }
-        let u = i as f64 * g.dk;
         let su = sinc[i];
         for j in 0..n {
             let tr = transfer[j * nc + i];
             let ts = su * sinc[j];
             (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
-        }
-        if is_star {
-            amp.fill(fill.star_flux_e);
-        } else {
-            amp.fill(0.0);
-            for &(kind, flux, [a, b, c]) in &g.comps {
-                let t = |v: f64| a * u * u + 2.0 * b * u * v + c * v * v;
-                match kind {
-                    ProfileKind::Exponential => {
-                        for (f, &v) in amp.iter_mut().zip(&g.vs) {
-                            *f += flux * Exponential::transform_k2(t(v));
-                        }
-                    }
-                    ProfileKind::DeVaucouleurs => {
-                        for (tk, &v) in ts.iter_mut().zip(&g.vs) {
-                            *tk = t(v);
-                        }
-                        DeVaucouleurs::add_transforms_k2(flux, &ts, &mut amp);
-                    }
-                }
-            }
         }
         // Every cell computed, then the cut ones set to zero (no branch in
         // the loop, so that it runs in vector registers; the same values).
@@ -446,7 +426,35 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
                 value
             };
         }
-        col[n / 2] = cell(nyquist_cell(&at, i, n / 2));
+        col[n / 2] = cell(nyquist_cell(&at, i, n / 2, Some(&amp)));
+    }
+}
+
+/// The object's amplitude (the sum of its components' transforms times
+/// their fluxes; a star's flux) at frequency `u` in every row of the
+/// column, in the order [`Spectrum::at`] sums them.
+#[inline(always)]
+fn column_amplitudes(g: &Setup, fill: &Fill, u: f64, amp: &mut [f64], ts: &mut [f64]) {
+    if fill.components.is_empty() {
+        amp.fill(fill.star_flux_e);
+        return;
+    }
+    amp.fill(0.0);
+    for &(kind, flux, [a, b, c]) in &g.comps {
+        let t = |v: f64| a * u * u + 2.0 * b * u * v + c * v * v;
+        match kind {
+            ProfileKind::Exponential => {
+                for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                    *f += flux * Exponential::transform_k2(t(v));
+                }
+            }
+            ProfileKind::DeVaucouleurs => {
+                for (tk, &v) in ts.iter_mut().zip(&g.vs) {
+                    *tk = t(v);
+                }
+                DeVaucouleurs::add_transforms_k2(flux, ts, amp);
+            }
+        }
     }
 }
 
@@ -465,7 +473,7 @@ pub(crate) fn fill_kspace_slow<T: FftNum>(
     for i in 0..nc {
         for j in 0..n {
             buf[i * n + j] = if i == n / 2 || j == n / 2 {
-                cell(nyquist_cell(&at, i, j))
+                cell(nyquist_cell(&at, i, j, None))
             } else {
                 let (u, v) = (i as f64 * g.dk, g.vs[j]);
                 let tr = transfer[j * nc + i];
@@ -513,6 +521,12 @@ impl Spectrum<'_> {
     /// Gaussian L of the split method) and otherwise an error bounded by
     /// |T| at Nyquist (≲ 1e-6 for the PSFs the renderer is meant for).
     fn at(&self, mu: i64, mv: i64) -> (f64, f64) {
+        self.at_with(mu, mv, || self.amplitude(mu, mv))
+    }
+
+    /// [`Self::at`] with the object's amplitude at (mu, mv) from `amplitude`
+    /// (called only for a galaxy cell the cut keeps).
+    fn at_with(&self, mu: i64, mv: i64, amplitude: impl FnOnce() -> f64) -> (f64, f64) {
         let n = self.fill.n as i64;
         let nc = (n / 2 + 1) as usize;
         // |m| ≤ n/2 here, so the wrapped row is m or m + n (no division).
@@ -540,19 +554,25 @@ impl Spectrum<'_> {
             if tre.abs() + tim.abs() < self.fill.cut {
                 return (0.0, 0.0);
             }
-            let (u, v) = (mu as f64 * self.dk, mv as f64 * self.dk);
-            self.comps
-                .iter()
-                .map(|&(kind, flux, [a, b, c])| {
-                    flux * kind.transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
-                })
-                .sum()
+            amplitude()
         };
         let signed = |table: &[(f64, f64)], m: i64| {
             let (c, s) = table[m.unsigned_abs() as usize];
             if m >= 0 { (c, s) } else { (c, -s) }
         };
         shifted(amp, (tre, tim), signed(self.px, mu), signed(self.py, mv))
+    }
+
+    /// The galaxy's amplitude at (mu, mv): each component's transform
+    /// times its flux, summed.
+    fn amplitude(&self, mu: i64, mv: i64) -> f64 {
+        let (u, v) = (mu as f64 * self.dk, mv as f64 * self.dk);
+        self.comps
+            .iter()
+            .map(|&(kind, flux, [a, b, c])| {
+                flux * kind.transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
+            })
+            .sum()
     }
 }
 
@@ -563,7 +583,13 @@ impl Spectrum<'_> {
 /// leaving the cell zero instead removes a pattern of alternating sign over
 /// the whole stamp, which the image convolution of the split method turns
 /// into lobes at the stamp's edges.
-fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize) -> (f64, f64) {
+///
+/// `column`, when given, holds the object's amplitudes of column `i` (at
+/// u = i, rows −n/2 < v ≤ n/2, as [`column_amplitudes`] computes them);
+/// they are used where they apply, the amplitude at (−u, v) being the one
+/// at (u, −v) (the quadratic form is even: the same bits). Without it every
+/// amplitude is evaluated here, as the slow twin does.
+fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize, column: Option<&[f64]>) -> (f64, f64) {
     let n = at.fill.n;
     let half = (n / 2) as i64;
     let mu = i as i64; // columns are u ≥ 0
@@ -573,7 +599,14 @@ fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize) -> (f64, f64) {
     let mut sum = (0.0, 0.0);
     for &u in us {
         for &v in vs {
-            let (re, im) = at.at(u, v);
+            let v_in_column = if u == mu { v } else { -v };
+            let known = column
+                .filter(|_| v_in_column > -half)
+                .map(|amp| amp[v_in_column.rem_euclid(n as i64) as usize]);
+            let (re, im) = match known {
+                Some(a) => at.at_with(u, v, || a),
+                None => at.at(u, v),
+            };
             sum.0 += re;
             sum.1 += im;
         }
