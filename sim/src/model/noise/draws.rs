@@ -62,26 +62,10 @@ impl Lanes {
         Self { s }
     }
 
-    /// One step of every lane: its output (Xoshiro256++: rotl(s₀ + s₃, 23)
-    /// + s₀) and the state's transition.
+    /// One step of every lane.
     #[inline(always)]
     pub(crate) fn next_all(&mut self) -> [u64; LANES] {
-        let [s0, s1, s2, s3] = &mut self.s;
-        let mut out = [0; LANES];
-        for l in 0..LANES {
-            out[l] = s0[l]
-                .wrapping_add(s3[l])
-                .rotate_left(23)
-                .wrapping_add(s0[l]);
-            let t = s1[l] << 17;
-            s2[l] ^= s0[l];
-            s3[l] ^= s1[l];
-            s1[l] ^= s2[l];
-            s0[l] ^= s3[l];
-            s2[l] ^= t;
-            s3[l] = s3[l].rotate_left(45);
-        }
-        out
+        std::array::from_fn(|l| step(&mut self.s, l))
     }
 
     /// One step of the lanes where `step` holds, the others unchanged; the
@@ -127,21 +111,27 @@ pub(crate) struct Lane<'a> {
 impl Source for Lane<'_> {
     #[inline]
     fn next_u64(&mut self) -> u64 {
-        let l = self.l;
-        let [s0, s1, s2, s3] = &mut self.lanes.s;
-        let out = s0[l]
-            .wrapping_add(s3[l])
-            .rotate_left(23)
-            .wrapping_add(s0[l]);
-        let t = s1[l] << 17;
-        s2[l] ^= s0[l];
-        s3[l] ^= s1[l];
-        s1[l] ^= s2[l];
-        s0[l] ^= s3[l];
-        s2[l] ^= t;
-        s3[l] = s3[l].rotate_left(45);
-        out
+        step(&mut self.lanes.s, self.l)
     }
+}
+
+/// One step of lane `l` of the word-major states `s`: its output
+/// (Xoshiro256++: rotl(s₀ + s₃, 23) + s₀) and the state's transition.
+#[inline(always)]
+fn step(s: &mut [[u64; LANES]; 4], l: usize) -> u64 {
+    let [s0, s1, s2, s3] = s;
+    let out = s0[l]
+        .wrapping_add(s3[l])
+        .rotate_left(23)
+        .wrapping_add(s0[l]);
+    let t = s1[l] << 17;
+    s2[l] ^= s0[l];
+    s3[l] ^= s1[l];
+    s1[l] ^= s2[l];
+    s0[l] ^= s3[l];
+    s2[l] ^= t;
+    s3[l] = s3[l].rotate_left(45);
+    out
 }
 
 /// The ziggurat's layers: `x[i]` the right edge of layer i (x₀ = v / f(r)
