@@ -204,7 +204,12 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
     let mut rows = vec![Lanes::<T>::zero(); groups * nc];
     for g in 0..nc.div_ceil(LANES) {
         let width = LANES.min(nc - g * LANES);
-        for (v, c) in col.iter_mut().enumerate() {
+        let done = if width == LANES {
+            layout::gather(buf, g, n, &mut col)
+        } else {
+            0
+        };
+        for (v, c) in col.iter_mut().enumerate().skip(done) {
             for l in 0..LANES {
                 (c.re[l], c.im[l]) = if l < width {
                     let z = buf[(g * LANES + l) * n + v];
@@ -215,7 +220,12 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
             }
         }
         plans.columns.process(&mut col, &mut scratch);
-        for (v, c) in col.iter().enumerate() {
+        let done = if width == LANES {
+            layout::scatter(&col, g, nc, &mut rows)
+        } else {
+            0
+        };
+        for (v, c) in col.iter().enumerate().skip(done) {
             let (h, lane) = (v / LANES, v % LANES);
             for l in 0..width {
                 let r = &mut rows[h * nc + g * LANES + l];
@@ -231,15 +241,169 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
         plans
             .rows
             .inverse(&rows[h * nc..(h + 1) * nc], half, &mut scratch);
-        for l in 0..LANES.min(n - h * LANES) {
+        let rows_here = LANES.min(n - h * LANES);
+        let done = if rows_here == LANES {
+            layout::write_rows(half, scale, &mut out[h * LANES * n..(h + 1) * LANES * n])
+        } else {
+            0
+        };
+        for l in 0..rows_here {
             let out_row = &mut out[(h * LANES + l) * n..(h * LANES + l + 1) * n];
-            for (pair, z) in out_row.chunks_exact_mut(2).zip(half.iter()) {
+            for (pair, z) in out_row.chunks_exact_mut(2).zip(half.iter()).skip(done) {
                 pair[0] = z.re[l] * scale;
                 pair[1] = z.im[l] * scale;
             }
         }
     }
     out
+}
+
+/// The moves of [`inverse_2d`] between its three layouts as 8 × 8 block
+/// transposes by AVX shuffles, for f32 where the CPU runs AVX2 (moves and,
+/// in [`write_rows`], the same product by the scale: the same bits). Each
+/// returns how many leading elements it handled (0 for another `T`, or
+/// without AVX2); [`inverse_2d`]'s own loops do the rest.
+mod layout {
+    use super::{Complex, LANES, Lanes, Real};
+    use std::any::TypeId;
+
+    fn is_f32<T: 'static>() -> bool {
+        cfg!(target_arch = "x86_64")
+            && TypeId::of::<T>() == TypeId::of::<f32>()
+            && stepsim_numerics::simd::has_avx2()
+    }
+
+    /// Columns g·8 … g·8 + 7 of `buf` (`[u][v]`, n per column) into
+    /// `col` (element v: the eight columns' values at v), four v at a time.
+    pub(super) fn gather<T: Real>(
+        buf: &[Complex<T>],
+        g: usize,
+        n: usize,
+        col: &mut [Lanes<T>],
+    ) -> usize {
+        if !is_f32::<T>() {
+            return 0;
+        }
+        // SAFETY: T is f32 (checked), so the slices have the same layout.
+        let (buf, col) = unsafe {
+            (
+                &*(buf as *const [Complex<T>] as *const [Complex<f32>]),
+                &mut *(col as *mut [Lanes<T>] as *mut [Lanes<f32>]),
+            )
+        };
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU runs AVX2 (checked).
+        return unsafe { gather_avx2(buf, g, n, col) };
+        #[cfg(not(target_arch = "x86_64"))]
+        0
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn gather_avx2(buf: &[Complex<f32>], g: usize, n: usize, col: &mut [Lanes<f32>]) -> usize {
+        let whole = n / 4 * 4;
+        for v0 in (0..whole).step_by(4) {
+            let block: [[f32; LANES]; LANES] = std::array::from_fn(|l| {
+                let z = &buf[(g * LANES + l) * n + v0..][..4];
+                [
+                    z[0].re, z[0].im, z[1].re, z[1].im, z[2].re, z[2].im, z[3].re, z[3].im,
+                ]
+            });
+            let t = stepsim_numerics::fft::transpose_avx2(&block);
+            for k in 0..4 {
+                col[v0 + k].re = t[2 * k];
+                col[v0 + k].im = t[2 * k + 1];
+            }
+        }
+        whole
+    }
+
+    /// The column pass's `col` (group g) into the row pass's `rows`
+    /// (`rows[h·nc + u]`, lane l: row 8h + l at column u), eight v at a time.
+    pub(super) fn scatter<T: Real>(
+        col: &[Lanes<T>],
+        g: usize,
+        nc: usize,
+        rows: &mut [Lanes<T>],
+    ) -> usize {
+        if !is_f32::<T>() {
+            return 0;
+        }
+        // SAFETY: T is f32 (checked).
+        let (col, rows) = unsafe {
+            (
+                &*(col as *const [Lanes<T>] as *const [Lanes<f32>]),
+                &mut *(rows as *mut [Lanes<T>] as *mut [Lanes<f32>]),
+            )
+        };
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU runs AVX2 (checked).
+        return unsafe { scatter_avx2(col, g, nc, rows) };
+        #[cfg(not(target_arch = "x86_64"))]
+        0
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn scatter_avx2(col: &[Lanes<f32>], g: usize, nc: usize, rows: &mut [Lanes<f32>]) -> usize {
+        let whole = col.len() / LANES * LANES;
+        for h in 0..whole / LANES {
+            let re: [[f32; LANES]; LANES] = std::array::from_fn(|lane| col[h * LANES + lane].re);
+            let im: [[f32; LANES]; LANES] = std::array::from_fn(|lane| col[h * LANES + lane].im);
+            let (re, im) = (
+                stepsim_numerics::fft::transpose_avx2(&re),
+                stepsim_numerics::fft::transpose_avx2(&im),
+            );
+            for l in 0..LANES {
+                let r = &mut rows[h * nc + g * LANES + l];
+                r.re = re[l];
+                r.im = im[l];
+            }
+        }
+        whole
+    }
+
+    /// Eight image rows from the row pass's `half` (element k: the rows'
+    /// pixels 2k and 2k + 1 as re and im), times `scale`, into `out` (the
+    /// eight rows, n each), four k at a time.
+    pub(super) fn write_rows<T: Real>(half: &[Lanes<T>], scale: T, out: &mut [T]) -> usize {
+        if !is_f32::<T>() {
+            return 0;
+        }
+        // SAFETY: T is f32 (checked).
+        let (half, out, scale) = unsafe {
+            (
+                &*(half as *const [Lanes<T>] as *const [Lanes<f32>]),
+                &mut *(out as *mut [T] as *mut [f32]),
+                *(&scale as *const T as *const f32),
+            )
+        };
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU runs AVX2 (checked).
+        return unsafe { write_rows_avx2(half, scale, out) };
+        #[cfg(not(target_arch = "x86_64"))]
+        0
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn write_rows_avx2(half: &[Lanes<f32>], scale: f32, out: &mut [f32]) -> usize {
+        let n = out.len() / LANES;
+        let whole = half.len() / 4 * 4;
+        for k0 in (0..whole).step_by(4) {
+            let block: [[f32; LANES]; LANES] = std::array::from_fn(|j| {
+                let z = &half[k0 + j / 2];
+                if j % 2 == 0 { z.re } else { z.im }
+            });
+            let t = stepsim_numerics::fft::transpose_avx2(&block);
+            for (l, row) in t.iter().enumerate() {
+                for (o, &x) in out[l * n + 2 * k0..][..LANES].iter_mut().zip(row) {
+                    *o = x * scale;
+                }
+            }
+        }
+        whole
+    }
 }
 
 /// What both fills of one stamp derive from its [`Fill`] before their loops.
