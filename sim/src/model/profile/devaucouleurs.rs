@@ -98,9 +98,7 @@ impl Table {
             let s = _mm256_sqrt_pd(_mm256_sqrt_pd(_mm256_sqrt_pd(tv)));
             let x = _mm256_mul_pd(s, _mm256_set1_pd(1.0 / DS));
             if _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_LT_OQ>(x, _mm256_set1_pd(last))) != 0b1111 {
-                for (f, &t) in fg.iter_mut().zip(tg) {
-                    *f += flux * DeVaucouleurs::transform_k2(t);
-                }
+                DeVaucouleurs::add_plain(flux, tg, fg);
                 continue;
             }
             let i = _mm256_cvttpd_epi32(x);
@@ -130,10 +128,7 @@ impl Table {
                 _mm256_storeu_pd(fg.as_mut_ptr(), sum);
             }
         }
-        let rest = groups_f.into_remainder();
-        for (f, &t) in rest.iter_mut().zip(groups_t.remainder()) {
-            *f += flux * DeVaucouleurs::transform_k2(t);
-        }
+        DeVaucouleurs::add_plain(flux, groups_t.remainder(), groups_f.into_remainder());
     }
 
     #[inline]
@@ -228,6 +223,11 @@ impl DeVaucouleurs {
             // SAFETY: the CPU runs AVX2 (checked just above).
             return unsafe { table().add_avx2(flux, t, amp) };
         }
+        Self::add_plain(flux, t, amp);
+    }
+
+    /// [`Self::add_transforms_k2`] one value at a time.
+    fn add_plain(flux: f64, t: &[f64], amp: &mut [f64]) {
         for (f, &t) in amp.iter_mut().zip(t) {
             *f += flux * Self::transform_k2(t);
         }

@@ -262,15 +262,31 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
 /// transposes by AVX shuffles, for f32 where the CPU runs AVX2 (moves and,
 /// in [`write_rows`], the same product by the scale: the same bits). Each
 /// returns how many leading elements it handled (0 for another `T`, or
-/// without AVX2); [`inverse_2d`]'s own loops do the rest.
+/// without AVX2); [`inverse_2d`]'s own loops do the rest. The slices are
+/// seen as f32 ones only where `T` is f32 ([`same`], by type id).
 mod layout {
     use super::{Complex, LANES, Lanes, Real};
     use std::any::TypeId;
 
-    fn is_f32<T: 'static>() -> bool {
-        cfg!(target_arch = "x86_64")
-            && TypeId::of::<T>() == TypeId::of::<f32>()
-            && stepsim_numerics::simd::has_avx2()
+    /// Whether the f32 moves run: the CPU runs AVX2 (x86-64 only).
+    fn vector() -> bool {
+        cfg!(target_arch = "x86_64") && stepsim_numerics::simd::has_avx2()
+    }
+
+    /// `x` as a slice of `B` when `A` is `B` (`S<T>` and `S<f32>` with T =
+    /// f32), else `None`.
+    fn same<A: 'static, B: 'static>(x: &[A]) -> Option<&[B]> {
+        // SAFETY: A and B are the same type (checked), so the slice is one
+        // of B.
+        (TypeId::of::<A>() == TypeId::of::<B>())
+            .then(|| unsafe { std::slice::from_raw_parts(x.as_ptr().cast::<B>(), x.len()) })
+    }
+
+    /// [`same`] for a slice to be written.
+    fn same_mut<A: 'static, B: 'static>(x: &mut [A]) -> Option<&mut [B]> {
+        // SAFETY: as in `same`.
+        (TypeId::of::<A>() == TypeId::of::<B>())
+            .then(|| unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr().cast::<B>(), x.len()) })
     }
 
     /// Columns g·8 … g·8 + 7 of `buf` (`[u][v]`, n per column) into
@@ -281,21 +297,12 @@ mod layout {
         n: usize,
         col: &mut [Lanes<T>],
     ) -> usize {
-        if !is_f32::<T>() {
-            return 0;
+        match (vector(), same(buf), same_mut(col)) {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU runs AVX2 (checked).
+            (true, Some(buf), Some(col)) => unsafe { gather_avx2(buf, g, n, col) },
+            _ => 0,
         }
-        // SAFETY: T is f32 (checked), so the slices have the same layout.
-        let (buf, col) = unsafe {
-            (
-                &*(buf as *const [Complex<T>] as *const [Complex<f32>]),
-                &mut *(col as *mut [Lanes<T>] as *mut [Lanes<f32>]),
-            )
-        };
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the CPU runs AVX2 (checked).
-        return unsafe { gather_avx2(buf, g, n, col) };
-        #[cfg(not(target_arch = "x86_64"))]
-        0
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -326,21 +333,12 @@ mod layout {
         nc: usize,
         rows: &mut [Lanes<T>],
     ) -> usize {
-        if !is_f32::<T>() {
-            return 0;
+        match (vector(), same(col), same_mut(rows)) {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU runs AVX2 (checked).
+            (true, Some(col), Some(rows)) => unsafe { scatter_avx2(col, g, nc, rows) },
+            _ => 0,
         }
-        // SAFETY: T is f32 (checked).
-        let (col, rows) = unsafe {
-            (
-                &*(col as *const [Lanes<T>] as *const [Lanes<f32>]),
-                &mut *(rows as *mut [Lanes<T>] as *mut [Lanes<f32>]),
-            )
-        };
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the CPU runs AVX2 (checked).
-        return unsafe { scatter_avx2(col, g, nc, rows) };
-        #[cfg(not(target_arch = "x86_64"))]
-        0
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -367,22 +365,15 @@ mod layout {
     /// pixels 2k and 2k + 1 as re and im), times `scale`, into `out` (the
     /// eight rows, n each), four k at a time.
     pub(super) fn write_rows<T: Real>(half: &[Lanes<T>], scale: T, out: &mut [T]) -> usize {
-        if !is_f32::<T>() {
-            return 0;
+        let scale = same::<T, f32>(std::slice::from_ref(&scale));
+        match (vector(), same(half), scale, same_mut(out)) {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: the CPU runs AVX2 (checked).
+            (true, Some(half), Some(&[scale]), Some(out)) => unsafe {
+                write_rows_avx2(half, scale, out)
+            },
+            _ => 0,
         }
-        // SAFETY: T is f32 (checked).
-        let (half, out, scale) = unsafe {
-            (
-                &*(half as *const [Lanes<T>] as *const [Lanes<f32>]),
-                &mut *(out as *mut [T] as *mut [f32]),
-                *(&scale as *const T as *const f32),
-            )
-        };
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: the CPU runs AVX2 (checked).
-        return unsafe { write_rows_avx2(half, scale, out) };
-        #[cfg(not(target_arch = "x86_64"))]
-        0
     }
 
     #[cfg(target_arch = "x86_64")]
