@@ -1,24 +1,31 @@
-//! Large allocations backed by transparent huge pages (Linux).
+//! Large allocations backed by transparent huge pages (Linux), when asked.
 //!
 //! A 4096² image passes through several 67 MB buffers (the canvas, the
 //! convolved model, the FITS bytes), each fresh from the kernel and faulted
 //! in 4 kB pages: about 16 000 page faults, each zeroing its page, per
-//! buffer. With two images in flight that was ≈ 0.3 s of system time per
-//! image (BENCHMARKS.md, "Speed, fourth pass"). [`HugePageAlloc`] is the
-//! system allocator plus one request: for every allocation of
-//! [`MIN_ADVISED_BYTES`] or more it asks the kernel (`madvise`,
-//! `MADV_HUGEPAGE`) to back the 2 MB-aligned inside of the block with 2 MB
-//! pages, which takes 512 times fewer faults. The kernel honours it when
-//! its transparent-huge-page mode is `madvise` (Debian's default) or
-//! `always`, and ignores it under `never`; nothing else changes, so the
-//! bytes written are the same. `STEPSIM_HUGE_PAGES=0` turns it off (for a
-//! node where compaction stalls would hurt more than the faults).
+//! buffer. [`HugePageAlloc`] is the system allocator plus one request: when
+//! turned on, for every allocation of [`MIN_ADVISED_BYTES`] or more it asks
+//! the kernel (`madvise`, `MADV_HUGEPAGE`) to back the 2 MB-aligned inside
+//! of the block with 2 MB pages, which takes 512 times fewer faults. The
+//! kernel honours it when its transparent-huge-page mode is `madvise`
+//! (Debian's default) or `always`, and ignores it under `never`; nothing
+//! else changes, so the bytes written are the same.
+//!
+//! It is **off by default** since 2026-12-05; `STEPSIM_HUGE_PAGES=1` turns
+//! it on. With two images in flight and more buffers per image it once
+//! saved ≈ 0.3 s of system time per image (BENCHMARKS.md, "Speed, fourth
+//! pass"). Since then an image holds fewer such buffers, and on the
+//! project's machines (virtual machines that hand free memory back to the
+//! host in 8 MiB blocks, `page_reporting.page_reporting_order=11`) a huge
+//! page comes from memory the host must map again, where 4 kB pages come
+//! from memory it still maps: a user's first image took up to 1.25× the
+//! CPU with the advice than without, `measure` 1.04× (BENCHMARKS.md,
+//! "Huge pages off by default").
 //!
 //! glibc's tunable `GLIBC_TUNABLES=glibc.malloc.hugetlb=1` does the like for
 //! every `malloc` of the process, C libraries included, but only if it is
 //! set before the process starts; this allocator does it from inside, for
-//! the Rust allocations (which hold the image buffers). Measured side by
-//! side, the tunable removed somewhat more system time (BENCHMARKS.md).
+//! the Rust allocations (which hold the image buffers).
 //!
 //! In `measure` the allocator also keeps large freed blocks for the next
 //! request of the same size ([`crate::block_cache`], [`keep_large_blocks`]),
@@ -36,7 +43,9 @@ const HUGE_PAGE: usize = 2 << 20;
 /// can the aligned inside of a block hold a whole huge page).
 pub const MIN_ADVISED_BYTES: usize = HUGE_PAGE;
 
-static ENABLED: AtomicBool = AtomicBool::new(true);
+/// Whether large blocks are advised (off unless `STEPSIM_HUGE_PAGES` turns
+/// it on).
+static ENABLED: AtomicBool = AtomicBool::new(false);
 
 /// Large freed blocks kept for reuse, whether they are (only in the
 /// commands that ask, [`keep_large_blocks`]), and whether the environment
@@ -45,17 +54,22 @@ static CACHE: BlockCache = BlockCache::new();
 static CACHING: AtomicBool = AtomicBool::new(false);
 static CACHE_ALLOWED: AtomicBool = AtomicBool::new(true);
 
-/// Reads `STEPSIM_HUGE_PAGES` and `STEPSIM_BLOCK_CACHE` (`0`, `off` or
-/// `false` turn the advice, or the cache of large blocks, off). Called once
-/// at the start of `main`.
+/// Reads `STEPSIM_HUGE_PAGES` (`1`, `on` or `true` turn the advice on) and
+/// `STEPSIM_BLOCK_CACHE` (`0`, `off` or `false` turn the cache of large
+/// blocks off). Called once at the start of `main`.
 pub fn configure() {
-    let off = |name: &str| {
-        std::env::var(name)
-            .map(|v| matches!(v.trim(), "0" | "off" | "false"))
-            .unwrap_or(false)
-    };
-    ENABLED.store(!off("STEPSIM_HUGE_PAGES"), Ordering::Relaxed);
-    CACHE_ALLOWED.store(!off("STEPSIM_BLOCK_CACHE"), Ordering::Relaxed);
+    let (advise, cache) = settings(|name| std::env::var(name).ok());
+    ENABLED.store(advise, Ordering::Relaxed);
+    CACHE_ALLOWED.store(cache, Ordering::Relaxed);
+}
+
+/// (huge-page advice on, block cache allowed) from the environment `var`.
+fn settings(var: impl Fn(&str) -> Option<String>) -> (bool, bool) {
+    let is = |name: &str, values: [&str; 3]| var(name).is_some_and(|v| values.contains(&v.trim()));
+    (
+        is("STEPSIM_HUGE_PAGES", ["1", "on", "true"]),
+        !is("STEPSIM_BLOCK_CACHE", ["0", "off", "false"]),
+    )
 }
 
 /// From now on, keeps large freed blocks for reuse ([`crate::block_cache`])
@@ -160,6 +174,29 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_advice_is_off_and_the_cache_allowed_unless_the_environment_says() {
+        fn env(pairs: &[(&str, &str)]) -> (bool, bool) {
+            settings(|name| {
+                pairs
+                    .iter()
+                    .find(|(k, _)| *k == name)
+                    .map(|(_, v)| v.to_string())
+            })
+        }
+        assert_eq!(env(&[]), (false, true));
+        for on in ["1", "on", " true "] {
+            assert_eq!(env(&[("STEPSIM_HUGE_PAGES", on)]), (true, true));
+        }
+        for other in ["0", "off", "yes", ""] {
+            assert_eq!(env(&[("STEPSIM_HUGE_PAGES", other)]), (false, true));
+        }
+        for off in ["0", "off", "false"] {
+            assert_eq!(env(&[("STEPSIM_BLOCK_CACHE", off)]), (false, false));
+        }
+        assert_eq!(env(&[("STEPSIM_BLOCK_CACHE", "1")]), (false, true));
+    }
+
+    #[test]
     fn only_the_aligned_inside_of_large_blocks_is_advised() {
         const M: usize = 1 << 20;
         assert_eq!(advised_range(0x1000, MIN_ADVISED_BYTES - 1), None);
@@ -211,7 +248,9 @@ mod tests {
             eprintln!("skipped: transparent huge pages are off here ({mode:?})");
             return;
         }
-        // This test binary allocates through HugePageAlloc (main.rs).
+        // This test binary allocates through HugePageAlloc (main.rs), with
+        // the advice on as STEPSIM_HUGE_PAGES=1 turns it.
+        ENABLED.store(true, Ordering::Relaxed);
         let mut v = vec![0u8; 64 << 20];
         for b in v.iter_mut().step_by(4096) {
             *b = 1;

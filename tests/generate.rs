@@ -822,7 +822,8 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
 #[test]
 fn huge_pages_and_the_block_cache_on_and_off_write_identical_bytes() {
     // 2048² images: the canvas, model and FITS buffers are 16 MiB, so the
-    // allocator advises them (src/huge_pages.rs), and `measure` keeps them
+    // allocator advises them when asked (src/huge_pages.rs; "1" here), and
+    // `measure` keeps them
     // for the next image (src/block_cache.rs); the bytes must not care.
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
