@@ -86,11 +86,7 @@ impl Component {
 
     /// Transform at (u, v) cycles per arcsec, centred, in electrons.
     pub fn transform(&self, u: f64, v: f64) -> f64 {
-        let [a, b, c] = self.map.gram();
-        self.flux_e
-            * self
-                .kind
-                .transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
+        self.flux_e * self.kind.transform_k2(gram_k2(self.map.gram(), u, v))
     }
 
     /// Surface brightness (electrons per arcsec²) at offset (dx, dy) arcsec
@@ -275,6 +271,14 @@ pub fn check_row(row: &TruthRow) -> Result<(), RowError> {
         return bad("g1", row.g1.hypot(row.g2), "|g| must be < 1");
     }
     Ok(())
+}
+
+/// The squared radial frequency a u² + 2 b u v + c v² that a component's
+/// profile sees at (u, v), from the Gram matrix [a, b, c] of its map
+/// ([`LinearMap::gram`]); the renderer's fills evaluate it in this order.
+#[inline(always)]
+pub(crate) fn gram_k2([a, b, c]: [f64; 3], u: f64, v: f64) -> f64 {
+    a * u * u + 2.0 * b * u * v + c * v * v
 }
 
 #[cfg(test)]

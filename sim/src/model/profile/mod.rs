@@ -21,6 +21,7 @@ mod transform;
 pub(crate) use devaucouleurs::GL8;
 pub use devaucouleurs::{DeVaucouleurs, hankel_slow};
 pub use exponential::Exponential;
+pub(crate) use galaxy::gram_k2;
 pub use galaxy::{Component, Galaxy, ProfileKind, RowError, check_row};
 pub use transform::{LinearMap, ellipticity_of_moments, shear_ellipticity, shear_matrix};
 

@@ -15,7 +15,7 @@
 //! aliasing of the PSF-convolved profile): the comparison with the
 //! real-space reference measures what this leaves out.
 
-use crate::model::profile::{Component, DeVaucouleurs, Exponential, ProfileKind};
+use crate::model::profile::{Component, DeVaucouleurs, Exponential, ProfileKind, gram_k2};
 use num_complex::Complex32;
 use realfft::FftNum;
 use realfft::num_complex::Complex;
@@ -595,8 +595,8 @@ fn column_amplitudes(g: &Setup, fill: &Fill, u: f64, amp: &mut [f64], ts: &mut [
         return;
     }
     amp.fill(0.0);
-    for &(kind, flux, [a, b, c]) in &g.comps {
-        let t = |v: f64| a * u * u + 2.0 * b * u * v + c * v * v;
+    for &(kind, flux, gram) in &g.comps {
+        let t = |v: f64| gram_k2(gram, u, v);
         match kind {
             ProfileKind::Exponential => {
                 for (f, &v) in amp.iter_mut().zip(&g.vs) {
@@ -724,9 +724,7 @@ impl Spectrum<'_> {
         let (u, v) = (mu as f64 * self.dk, mv as f64 * self.dk);
         self.comps
             .iter()
-            .map(|&(kind, flux, [a, b, c])| {
-                flux * kind.transform_k2(a * u * u + 2.0 * b * u * v + c * v * v)
-            })
+            .map(|&(kind, flux, gram)| flux * kind.transform_k2(gram_k2(gram, u, v)))
             .sum()
     }
 }
