@@ -28,7 +28,7 @@ mod reference;
 pub mod split;
 pub mod stamp;
 
-pub use image::{Canvas, draw_image, try_draw_image};
+pub use image::{Canvas, draw_image, drawing_order, try_draw_image};
 pub use reference::ReferenceRenderer;
 
 use crate::model::profile::{Galaxy, ProfileKind, RadialProfile, RowError, check_row};

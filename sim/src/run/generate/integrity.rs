@@ -19,7 +19,7 @@ use stepsim_contract::io::IoError;
 /// Version of what `generate` writes: bumped whenever the bytes of a run's
 /// files change on purpose, so that a rerun refuses the files of an older
 /// stepsim instead of mixing them with new ones.
-pub const OUTPUT_VERSION: u32 = 6;
+pub const OUTPUT_VERSION: u32 = 7;
 
 /// Refuses, naming it, the first file or directory (in sorted order) that
 /// does not belong to the run of `all`.

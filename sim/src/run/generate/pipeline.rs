@@ -123,10 +123,11 @@ pub fn dataset_rows(plan: &Plan, job: &Job, base: &[TruthRow]) -> Vec<TruthRow> 
     }
 }
 
-/// The noise-free model of `rows` in electrons: the leading galaxies, then
-/// the rest (stars), then the image-level convolution of the split method.
-/// Stamps are added in row order whatever the split, so the bytes equal
-/// those of [`crate::model::render::try_draw_image`].
+/// The noise-free model of `rows` in electrons: the galaxies, then the
+/// stars, then the image-level convolution of the split method. Stamps are
+/// added in the drawing order ([`crate::model::render::drawing_order`]:
+/// galaxies first) whatever the split, so the bytes equal those of
+/// [`crate::model::render::try_draw_image`].
 pub fn draw_model(
     renderer: &Renderer,
     rows: &[TruthRow],
@@ -135,16 +136,12 @@ pub fn draw_model(
     lap: &mut Lap,
     t: &mut StageTimes,
 ) -> Result<Vec<f32>, RenderError> {
-    let first_star = rows
-        .iter()
-        .position(TruthRow::is_star)
-        .unwrap_or(rows.len());
     t.n_galaxies = rows.iter().filter(|r| !r.is_star()).count();
     t.n_stars = rows.len() - t.n_galaxies;
     let mut canvas = Canvas::new(renderer, width, height);
-    canvas.try_add(&rows[..first_star])?;
+    canvas.try_add_only(rows, false)?;
     (t.galaxies_s, t.galaxies_cpu_s) = lap.lap();
-    canvas.try_add(&rows[first_star..])?;
+    canvas.try_add_only(rows, true)?;
     t.stars_s = lap.lap().0;
     let model = canvas.finish();
     (t.convolve_s, t.convolve_cpu_s) = lap.lap();
