@@ -256,6 +256,16 @@ impl Renderer {
     /// clamped to [`Accuracy::min_stamp_px`, `Accuracy::max_stamp_px`].
     pub fn stamp_side(&self, row: &TruthRow) -> Result<usize, RenderError> {
         check_row(row)?;
+        let galaxy = match row.is_star() {
+            true => None,
+            false => Some(Galaxy::from_row(row)?),
+        };
+        Ok(self.side_of(row, galaxy.as_ref()))
+    }
+
+    /// [`Self::stamp_side`] of a checked row and its galaxy (`None` for a
+    /// star).
+    fn side_of(&self, row: &TruthRow, galaxy: Option<&Galaxy>) -> usize {
         let p = self.pixel_scale_arcsec;
         let acc = &self.accuracy;
         let edge_e = acc.edge_sky_sigma * self.sky_sigma_e;
@@ -265,8 +275,7 @@ impl Renderer {
             let level = edge_e / (2.0 * flux * self.psf_peak_fraction);
             radius = radius.max(self.psf.radius_below(level));
         }
-        if !row.is_star() {
-            let g = Galaxy::from_row(row)?;
+        if let Some(g) = galaxy {
             let n_comp = g.components.len() as f64;
             for c in &g.components {
                 // Share the galaxy's half of the folding budget equally
@@ -295,7 +304,7 @@ impl Renderer {
         }
         let want = (2.0 * radius / p).ceil().min(1e6) as usize + 4;
         let max = fft_friendly_below(acc.max_stamp_px.max(acc.min_stamp_px));
-        Ok(fft_friendly(want.max(acc.min_stamp_px)).min(max))
+        fft_friendly(want.max(acc.min_stamp_px)).min(max)
     }
 
     /// Draws one object (electrons, noise-free). A row that fails
@@ -343,18 +352,29 @@ impl Renderer {
 
     fn fill_for(&self, row: &TruthRow, n: usize) -> Result<Fill, RenderError> {
         check_row(row)?;
-        let n = n.max(2) + n % 2;
-        let components = if row.is_star() {
-            Vec::new()
-        } else {
-            Galaxy::from_row(row)?.components
+        let components = match row.is_star() {
+            true => None,
+            false => Some(Galaxy::from_row(row)?.components),
         };
+        Ok(self.fill_of(row, n, components))
+    }
+
+    /// The [`Fill`] of a checked row on a stamp of side `n` (made even),
+    /// with its galaxy's components (`None` for a star).
+    fn fill_of(
+        &self,
+        row: &TruthRow,
+        n: usize,
+        components: Option<Vec<crate::model::profile::Component>>,
+    ) -> Fill {
+        let n = n.max(2) + n % 2;
+        let components = components.unwrap_or_default();
         // Nearest pixel to the centre sits at stamp index n/2.
         let ix = (row.x + 0.5).floor() as i64; // FITS pixel
         let iy = (row.y + 0.5).floor() as i64;
         let x0 = ix - 1 - (n / 2) as i64;
         let y0 = iy - 1 - (n / 2) as i64;
-        Ok(Fill {
+        Fill {
             n,
             pixel_scale_arcsec: self.pixel_scale_arcsec,
             dx_px: row.x - (x0 + 1) as f64,
@@ -368,7 +388,7 @@ impl Renderer {
             },
             x0,
             y0,
-        })
+        }
     }
 
     fn draw_inner(
@@ -378,11 +398,16 @@ impl Renderer {
         timed: bool,
     ) -> Result<(Stamp, StageTimes), RenderError> {
         let t0 = timed.then(Instant::now);
+        check_row(row)?;
+        let galaxy = match row.is_star() {
+            true => None,
+            false => Some(Galaxy::from_row(row)?),
+        };
         let n = match side {
             Some(n) => n,
-            None => self.stamp_side(row)?,
+            None => self.side_of(row, galaxy.as_ref()),
         };
-        let fill = self.fill_for(row, n)?;
+        let fill = self.fill_of(row, n, galaxy.map(|g| g.components));
         let grid = StampGrid::new(fill.n, self.pixel_scale_arcsec);
         let t = self.psf.transfer(grid);
         let mut times = StageTimes::default();

@@ -127,14 +127,23 @@ fn wrap(j: usize, n: usize) -> i64 {
 /// e^{−2πi m d / n} for m = 0..count, by complex recurrence from
 /// e^{−2πi d / n}, re-anchored with an exact `sin_cos` every 32 steps
 /// (error < 1e-14).
+#[cfg(test)]
 fn phases(count: usize, n: usize, d: f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::new();
+    phases_into(&mut out, count, n, d);
+    out
+}
+
+/// [`phases`] into `out` (its old contents dropped).
+fn phases_into(out: &mut Vec<(f64, f64)>, count: usize, n: usize, d: f64) {
     let exact = |m: usize| {
         let a = -2.0 * PI * ((m as f64 * d) / n as f64).rem_euclid(1.0);
         let (s, c) = a.sin_cos();
         (c, s)
     };
     let step = exact(1);
-    let mut out = Vec::with_capacity(count);
+    out.clear();
+    out.reserve(count);
     let mut cur = (1.0, 0.0);
     for m in 0..count {
         if m % 32 == 0 {
@@ -146,19 +155,66 @@ fn phases(count: usize, n: usize, d: f64) -> Vec<(f64, f64)> {
             cur.0 * step.1 + cur.1 * step.0,
         );
     }
-    out
 }
 
 /// Renders [`Fill`]s in precision `T`.
-#[derive(Debug)]
 pub struct StampEngine<T: FftNum + Real> {
     cache: FftCache<T>,
+    /// Buffers of finished stamps, for the next ones (at most one per
+    /// thread drawing at once is ever out of the pool).
+    pool: Mutex<Vec<Scratch<T>>>,
+}
+
+impl<T: FftNum + Real> std::fmt::Debug for StampEngine<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StampEngine").finish_non_exhaustive()
+    }
+}
+
+/// The working buffers of one stamp's rendering, kept between stamps so
+/// that an image's tens of thousands of stamps do not each allocate (and
+/// zero) them anew. Their contents never carry over: the fill writes every
+/// cell of the grid, the FFTs' columns are written before they are
+/// transformed and the scratch is written before it is read, and the row
+/// pass's lanes past the stamp's last row are zeroed (or never written,
+/// when the side is a multiple of eight).
+struct Scratch<T> {
+    grid: Vec<Complex<T>>,
+    fill: FillScratch,
+    col: Vec<Lanes<T>>,
+    fft: Vec<Lanes<T>>,
+    rows: Vec<Lanes<T>>,
+}
+
+impl<T: FftNum> Default for Scratch<T> {
+    fn default() -> Self {
+        Self {
+            grid: Vec::new(),
+            fill: FillScratch::default(),
+            col: Vec::new(),
+            fft: Vec::new(),
+            rows: Vec::new(),
+        }
+    }
+}
+
+/// The per-column arrays of [`fill_kspace`] (each as long as a column).
+#[derive(Debug, Default)]
+pub(crate) struct FillScratch {
+    tre: Vec<f64>,
+    tim: Vec<f64>,
+    amp: Vec<f64>,
+    ts: Vec<f64>,
+    setup: SetupArrays,
 }
 
 impl<T: FftNum + Real> StampEngine<T> {
     /// An engine with the given cache.
     pub fn new(cache: FftCache<T>) -> Self {
-        Self { cache }
+        Self {
+            cache,
+            pool: Mutex::new(Vec::new()),
+        }
     }
 
     /// Renders one stamp: row-major n × n pixels in electrons.
@@ -173,11 +229,19 @@ impl<T: FftNum + Real> StampEngine<T> {
         let n = fill.n;
         let nc = n / 2 + 1;
         let sinc = self.cache.sinc(n);
-        let mut buf = vec![Complex::<T>::new(T::zero(), T::zero()); nc * n];
-        fill_kspace(fill, transfer, &sinc, &mut buf);
+        let mut s = self
+            .pool
+            .lock()
+            .expect("stamp scratch pool")
+            .pop()
+            .unwrap_or_default();
+        // Every cell is written by the fill: old values need no clearing.
+        s.grid.resize(nc * n, Complex::new(T::zero(), T::zero()));
+        fill_kspace_in(fill, transfer, &sinc, &mut s.grid, &mut s.fill);
         let t1 = t0.map(|_| Instant::now());
 
-        let out = inverse_2d(&self.cache.plans(n), &buf, n);
+        let out = inverse_2d(&self.cache.plans(n), &mut s, n);
+        self.pool.lock().expect("stamp scratch pool").push(s);
         if let (Some(times), Some(t0), Some(t1)) = (times, t0, t1) {
             times.kspace_ns += (t1 - t0).as_nanos() as u64;
             times.fft_ns += t1.elapsed().as_nanos() as u64;
@@ -187,7 +251,8 @@ impl<T: FftNum + Real> StampEngine<T> {
 }
 
 /// The n × n image (row-major, scaled by 1/n²) of the half-plane grid
-/// `buf` (`[u][v]`, n/2 + 1 columns of n).
+/// `s.grid` (`[u][v]`, n/2 + 1 columns of n), with `s`'s other buffers
+/// as working space.
 ///
 /// Eight columns at a time go through the inverse FFT along v, and are
 /// written, an 8 × 8 block at a time, into the layout of the row pass,
@@ -195,17 +260,25 @@ impl<T: FftNum + Real> StampEngine<T> {
 /// u. Lanes past the last column or row hold zeros and are not read out.
 /// The imaginary parts of the columns u = 0 and n/2 of each row are not
 /// used (Hermitian symmetry makes them 0 up to rounding).
-fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) -> Vec<T> {
+fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, s: &mut Scratch<T>, n: usize) -> Vec<T> {
     let nc = n / 2 + 1;
     let groups = n.div_ceil(LANES);
-    let mut col = vec![Lanes::<T>::zero(); n];
-    let mut scratch = vec![Lanes::<T>::zero(); n];
-    // rows[h * nc + u], lane l: row 8h + l's value at column u.
-    let mut rows = vec![Lanes::<T>::zero(); groups * nc];
+    let buf = &s.grid[..nc * n];
+    let (col, scratch, rows) = (&mut s.col, &mut s.fft, &mut s.rows);
+    col.resize(n, Lanes::zero());
+    scratch.resize(n, Lanes::zero());
+    // rows[h * nc + u], lane l: row 8h + l's value at column u. Every lane
+    // of a row below n is written by the column pass; the lanes past the
+    // last row must hold zeros.
+    if n % LANES != 0 {
+        rows.clear();
+    }
+    rows.resize(groups * nc, Lanes::zero());
+    let (col, scratch, rows) = (&mut col[..n], &mut scratch[..n], &mut rows[..groups * nc]);
     for g in 0..nc.div_ceil(LANES) {
         let width = LANES.min(nc - g * LANES);
         let done = if width == LANES {
-            layout::gather(buf, g, n, &mut col)
+            layout::gather(buf, g, n, col)
         } else {
             0
         };
@@ -219,9 +292,9 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
                 };
             }
         }
-        plans.columns.process(&mut col, &mut scratch);
+        plans.columns.process(col, scratch);
         let done = if width == LANES {
-            layout::scatter(&col, g, nc, &mut rows)
+            layout::scatter(col, g, nc, rows)
         } else {
             0
         };
@@ -240,7 +313,7 @@ fn inverse_2d<T: FftNum + Real>(plans: &Plans<T>, buf: &[Complex<T>], n: usize) 
     for h in 0..groups {
         plans
             .rows
-            .inverse(&rows[h * nc..(h + 1) * nc], half, &mut scratch);
+            .inverse(&rows[h * nc..(h + 1) * nc], half, scratch);
         let rows_here = LANES.min(n - h * LANES);
         let done = if rows_here == LANES {
             layout::write_rows(half, scale, &mut out[h * LANES * n..(h + 1) * LANES * n])
@@ -397,71 +470,91 @@ mod layout {
     }
 }
 
-/// What both fills of one stamp derive from its [`Fill`] before their loops.
-struct Setup {
+/// What both fills of one stamp derive from its [`Fill`] before their loops
+/// (its arrays held in a [`SetupArrays`]).
+struct Setup<'a> {
     n: usize,
     nc: usize,
     /// Frequency step, cycles per arcsec.
     dk: f64,
     /// Shift phases e^{−2πi m d / n} along x for m = 0..=n/2.
-    px: Vec<(f64, f64)>,
+    px: &'a [(f64, f64)],
     /// The same along y.
-    pos_y: Vec<(f64, f64)>,
+    pos_y: &'a [(f64, f64)],
     /// The phase of each row j: rows 0..=n/2 are m = j; rows above are
     /// m = j − n, the conjugates of rows n − j.
-    py: Vec<(f64, f64)>,
+    py: &'a [(f64, f64)],
     /// Frequency v of each row j.
-    vs: Vec<f64>,
+    vs: &'a [f64],
     /// (law, flux, Gram matrix of the map) of each galaxy component.
+    comps: &'a [(ProfileKind, f64, [f64; 3])],
+}
+
+/// The arrays of a [`Setup`], kept from stamp to stamp (each rewritten
+/// whole by [`Setup::new`]).
+#[derive(Debug, Default)]
+pub(crate) struct SetupArrays {
+    px: Vec<(f64, f64)>,
+    pos_y: Vec<(f64, f64)>,
+    py: Vec<(f64, f64)>,
+    vs: Vec<f64>,
     comps: Vec<(ProfileKind, f64, [f64; 3])>,
 }
 
-impl Setup {
-    fn new(fill: &Fill, transfer: &[Complex32]) -> Self {
+impl<'a> Setup<'a> {
+    fn new(fill: &Fill, transfer: &[Complex32], a: &'a mut SetupArrays) -> Self {
         let n = fill.n;
         let nc = n / 2 + 1;
         assert_eq!(transfer.len(), n * nc, "PSF transfer of the wrong grid");
         let dk = 1.0 / (n as f64 * fill.pixel_scale_arcsec);
-        let pos_y = phases(n / 2 + 1, n, fill.dy_px);
-        let py = (0..n)
-            .map(|j| {
-                if j <= n / 2 {
-                    pos_y[j]
-                } else {
-                    let (c, s) = pos_y[n - j];
-                    (c, -s)
-                }
-            })
-            .collect();
+        phases_into(&mut a.pos_y, n / 2 + 1, n, fill.dy_px);
+        a.py.clear();
+        a.py.extend((0..n).map(|j| {
+            if j <= n / 2 {
+                a.pos_y[j]
+            } else {
+                let (c, s) = a.pos_y[n - j];
+                (c, -s)
+            }
+        }));
+        phases_into(&mut a.px, nc, n, fill.dx_px);
+        a.vs.clear();
+        a.vs.extend((0..n).map(|j| wrap(j, n) as f64 * dk));
+        a.comps.clear();
+        a.comps.extend(
+            fill.components
+                .iter()
+                .map(|c| (c.kind, c.flux_e, c.map.gram())),
+        );
+        let a: &'a SetupArrays = a;
         Self {
             n,
             nc,
             dk,
-            px: phases(nc, n, fill.dx_px),
-            pos_y,
-            py,
-            vs: (0..n).map(|j| wrap(j, n) as f64 * dk).collect(),
-            comps: fill
-                .components
-                .iter()
-                .map(|c| (c.kind, c.flux_e, c.map.gram()))
-                .collect(),
+            px: &a.px,
+            pos_y: &a.pos_y,
+            py: &a.py,
+            vs: &a.vs,
+            comps: &a.comps,
         }
     }
 
-    fn spectrum<'a>(
-        &'a self,
-        fill: &'a Fill,
-        transfer: &'a [Complex32],
-        sinc: &'a [f64],
-    ) -> Spectrum<'a> {
+    fn spectrum<'b>(
+        &self,
+        fill: &'b Fill,
+        transfer: &'b [Complex32],
+        sinc: &'b [f64],
+    ) -> Spectrum<'b>
+    where
+        'a: 'b,
+    {
         Spectrum {
             fill,
             transfer,
             sinc,
-            px: &self.px,
-            py: &self.pos_y,
-            comps: &self.comps,
+            px: self.px,
+            py: self.pos_y,
+            comps: self.comps,
             dk: self.dk,
         }
     }
@@ -513,18 +606,31 @@ fn cell<T: FftNum>((re, im): (f64, f64)) -> Complex<T> {
 ///
 /// Where the CPU runs AVX2 the same code runs built for it (four f64 lanes
 /// instead of two; same bits, `stepsim_numerics::simd`).
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn fill_kspace<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
     sinc: &[f64],
     buf: &mut [Complex<T>],
 ) {
+    fill_kspace_in(fill, transfer, sinc, buf, &mut FillScratch::default());
+}
+
+/// [`fill_kspace`] with its per-column arrays in `s` (any length and
+/// contents: each is sized and written before it is read).
+pub(crate) fn fill_kspace_in<T: FftNum>(
+    fill: &Fill,
+    transfer: &[Complex32],
+    sinc: &[f64],
+    buf: &mut [Complex<T>],
+    s: &mut FillScratch,
+) {
     #[cfg(target_arch = "x86_64")]
     if stepsim_numerics::simd::has_avx2() {
         // SAFETY: the CPU runs AVX2 (checked just above).
-        return unsafe { fill_kspace_avx2(fill, transfer, sinc, buf) };
+        return unsafe { fill_kspace_avx2(fill, transfer, sinc, buf, s) };
     }
-    fill_kspace_body(fill, transfer, sinc, buf);
+    fill_kspace_body(fill, transfer, sinc, buf, s);
 }
 
 /// [`fill_kspace_body`] built for AVX2.
@@ -535,8 +641,9 @@ fn fill_kspace_avx2<T: FftNum>(
     transfer: &[Complex32],
     sinc: &[f64],
     buf: &mut [Complex<T>],
+    s: &mut FillScratch,
 ) {
-    fill_kspace_body(fill, transfer, sinc, buf);
+    fill_kspace_body(fill, transfer, sinc, buf, s);
 }
 
 /// The body of [`fill_kspace`], in whichever build its caller has.
@@ -546,20 +653,24 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
     transfer: &[Complex32],
     sinc: &[f64],
     buf: &mut [Complex<T>],
+    s: &mut FillScratch,
 ) {
-    let g = Setup::new(fill, transfer);
+    let g = Setup::new(fill, transfer, &mut s.setup);
     let (n, nc) = (g.n, g.nc);
     let at = g.spectrum(fill, transfer, sinc);
     let is_star = fill.components.is_empty();
-    let (mut tre, mut tim, mut amp) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-    let mut ts = vec![0.0; n];
+    for v in [&mut s.tre, &mut s.tim, &mut s.amp, &mut s.ts] {
+        v.resize(n, 0.0);
+    }
+    let (tre, tim) = (&mut s.tre[..n], &mut s.tim[..n]);
+    let (amp, ts) = (&mut s.amp[..n], &mut s.ts[..n]);
     for i in 0..nc {
         let col = &mut buf[i * n..(i + 1) * n];
         let u = i as f64 * g.dk;
-        column_amplitudes(&g, fill, u, &mut amp, &mut ts);
+        column_amplitudes(&g, fill, u, amp, ts);
         if i == n / 2 {
             for (j, c) in col.iter_mut().enumerate() {
-                *c = cell(nyquist_cell(&at, i, j, Some(&amp)));
+                *c = cell(nyquist_cell(&at, i, j, Some(amp)));
             }
             continue;
         }
@@ -581,7 +692,7 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
                 value
             };
         }
-        col[n / 2] = cell(nyquist_cell(&at, i, n / 2, Some(&amp)));
+        col[n / 2] = cell(nyquist_cell(&at, i, n / 2, Some(amp)));
     }
 }
 
@@ -589,22 +700,22 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
 /// their fluxes; a star's flux) at frequency `u` in every row of the
 /// column, in the order [`Spectrum::at`] sums them.
 #[inline(always)]
-fn column_amplitudes(g: &Setup, fill: &Fill, u: f64, amp: &mut [f64], ts: &mut [f64]) {
+fn column_amplitudes(g: &Setup<'_>, fill: &Fill, u: f64, amp: &mut [f64], ts: &mut [f64]) {
     if fill.components.is_empty() {
         amp.fill(fill.star_flux_e);
         return;
     }
     amp.fill(0.0);
-    for &(kind, flux, gram) in &g.comps {
+    for &(kind, flux, gram) in g.comps {
         let t = |v: f64| gram_k2(gram, u, v);
         match kind {
             ProfileKind::Exponential => {
-                for (f, &v) in amp.iter_mut().zip(&g.vs) {
+                for (f, &v) in amp.iter_mut().zip(g.vs) {
                     *f += flux * Exponential::transform_k2(t(v));
                 }
             }
             ProfileKind::DeVaucouleurs => {
-                for (tk, &v) in ts.iter_mut().zip(&g.vs) {
+                for (tk, &v) in ts.iter_mut().zip(g.vs) {
                     *tk = t(v);
                 }
                 DeVaucouleurs::add_transforms_k2(flux, ts, amp);
@@ -622,7 +733,8 @@ pub(crate) fn fill_kspace_slow<T: FftNum>(
     sinc: &[f64],
     buf: &mut [Complex<T>],
 ) {
-    let g = Setup::new(fill, transfer);
+    let mut arrays = SetupArrays::default();
+    let g = Setup::new(fill, transfer, &mut arrays);
     let (n, nc) = (g.n, g.nc);
     let at = g.spectrum(fill, transfer, sinc);
     for i in 0..nc {
@@ -640,7 +752,7 @@ pub(crate) fn fill_kspace_slow<T: FftNum>(
                     Complex::new(T::zero(), T::zero())
                 } else {
                     let mut amp = 0.0;
-                    for &(kind, flux, [a, b, c]) in &g.comps {
+                    for &(kind, flux, [a, b, c]) in g.comps {
                         let t = a * u * u + 2.0 * b * u * v + c * v * v;
                         amp += flux * kind.transform_k2(t);
                     }
