@@ -4,17 +4,21 @@
 //! target FWHM and χ, then the transfer function on the final grid); every
 //! process of a run — a resumed one, each shard, `--finish` — would pay it
 //! again. The first process that builds one stores what was expensive: the
-//! solved [`Calibration`] and the band-limited transfer function before
-//! [`OpticalPsf::new`] recentres and samples it. A later process loads it
-//! when the file checks, and gets the very same PSF (the recentring and
-//! sampling are rerun on the loaded values, so the bytes of every image
-//! are those of a process that built it: test
-//! `generate_reuses_stored_psfs_across_shards_byte_for_byte`).
+//! solved [`Calibration`] and the band-limited transfer function as
+//! [`OpticalPsf::new`] has recentred it (since format 3; before, the band
+//! before the recentring, which every load then did again: three inverse
+//! FFTs and phase ramps of the band, 2 % of a user's first image). A later
+//! process loads it when the file checks and only samples it
+//! ([`OpticalPsf::recentred`]), and gets the very same PSF (the sampling is
+//! rerun on the loaded values, so the bytes of every image are those of a
+//! process that built it: tests
+//! `generate_reuses_stored_psfs_across_shards_byte_for_byte` and
+//! `load_or_build_stores_reuses_and_rebuilds_the_same_psf`).
 //!
 //! File `<spec digest>.bin`: a text header, then the content.
 //!
 //! ```text
-//! stepsim psf store 2            format version (FORMAT)
+//! stepsim psf store 3            format version (FORMAT)
 //! spec-sha256 <64 hex>           spec_digest: everything the PSF's bytes depend on
 //! content-sha256 <64 hex>        SHA-256 of the content bytes
 //! content-bytes <n>
@@ -22,10 +26,11 @@
 //! <n content bytes, little-endian>
 //! ```
 //!
-//! Content: seeing FWHM, λ/r0, amplitude, FWHM, |χ|, centroid shift x, y
-//! (7 × f64), the amplitude unit (u8: 0 waves, 1 arcsec), the aberration's
-//! name (u32 length + UTF-8), the grid side nc (u64), the frequency spacing
-//! (f64) and the nc² complex values (re, im as f64), FFT order.
+//! Content: seeing FWHM, λ/r0, amplitude, FWHM, |χ|, the recentring's
+//! centroid shift x, y (7 × f64), the amplitude unit (u8: 0 waves, 1
+//! arcsec), the aberration's name (u32 length + UTF-8), the grid side nc
+//! (u64), the frequency spacing (f64) and the recentred band's nc² complex
+//! values (re, im as f64), FFT order.
 //!
 //! A file is used only when its version, spec digest and content hash all
 //! check and the content parses to exactly its length; anything else (a
@@ -62,7 +67,7 @@ use stepsim_contract::io::{IoError, write_bytes_atomically};
 
 /// Version of the file format and of what it holds: bump it whenever the
 /// solved PSF or this layout changes, so that older files are rebuilt.
-pub const FORMAT: u32 = 2;
+pub const FORMAT: u32 = 3;
 
 /// How a PSF of a process came to be.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -259,7 +264,7 @@ pub fn load_or_build_shared(
     let file = dir.join(&name);
     let why = match read_stored(&file, &digest) {
         Some(Ok((_, band, cal))) => {
-            let psf = Arc::new(OpticalPsf::new(band, cal));
+            let psf = Arc::new(OpticalPsf::recentred(band, cal));
             return Ok((psf, Origin::Reused { file }));
         }
         Some(Err(why)) => Some(why),
@@ -270,19 +275,20 @@ pub fn load_or_build_shared(
         && let Some(Ok((bytes, band, cal))) = read_stored(from, &digest)
     {
         write_bytes_atomically(&file, &bytes)?;
-        let psf = Arc::new(OpticalPsf::new(band, cal));
+        let psf = Arc::new(OpticalPsf::recentred(band, cal));
         let from = from.clone();
         return Ok((psf, Origin::Copied { file, from }));
     }
     let (band, cal) = crate::model::psf::solve_optical(&request, accuracy)?;
-    let bytes = encode(&band, &cal, &digest);
+    let psf = OpticalPsf::new(band, cal);
+    let bytes = encode(psf.band(), psf.calibration_ref(), &digest);
     write_bytes_atomically(&file, &bytes)?;
     if let Some(from) = &shared {
         // A cache: a store that cannot be written costs the next run its
         // PSF build, nothing else.
         let _ = write_private(from, &bytes);
     }
-    let psf = Arc::new(OpticalPsf::new(band, cal));
+    let psf = Arc::new(psf);
     let origin = match why {
         None => Origin::Stored { file },
         Some(why) => Origin::Rebuilt { file, why },
@@ -570,12 +576,13 @@ mod tests {
         let (s, acc) = (spec(0.04), small());
         let request = OpticalRequest::of(&s).unwrap();
         let (band, cal) = crate::model::psf::solve_optical(&request, &acc).unwrap();
-        let file = encode(&band, &cal, &spec_digest(&s, &acc));
+        let psf = OpticalPsf::new(band, cal);
+        let file = encode(psf.band(), psf.calibration_ref(), &spec_digest(&s, &acc));
         let at = file.windows(2).position(|w| w == b"\n\n").unwrap();
         let content = sha256_hex(&file[at + 2..]);
         assert_eq!(
             (FORMAT, content.as_str()),
-            (2, PINNED_CONTENT_SHA256),
+            (3, PINNED_CONTENT_SHA256),
             "the solved PSF changed: bump FORMAT and record the new hash"
         );
     }
@@ -656,10 +663,11 @@ mod tests {
     }
 
     /// SHA-256 of the content of the coma PSF of `spec(0.04)` at `small()`
-    /// accuracy, as FORMAT 2 solves it (FFTs with the same bits on every CPU since
-    /// 2026-12-05; FORMAT 1 used its FFTs by CPU).
+    /// accuracy, as FORMAT 3 keeps it (the band recentred; FORMAT 2 kept it
+    /// before the recentring, content 7562b30f…; FFTs with the same bits on
+    /// every CPU since 2026-12-05; FORMAT 1 used its FFTs by CPU).
     const PINNED_CONTENT_SHA256: &str =
-        "7562b30fadbd630818b085b401cc510a809216f20c39388268e15bb190d3067f";
+        "cb38ac9e55832e52f9ed745fbb178cab74430d7e3ffbee3f7cc93955fb878c21";
 
     #[test]
     #[cfg(unix)]

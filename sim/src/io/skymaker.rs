@@ -73,9 +73,10 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             field,
             message,
         };
-        let words: Vec<&str> = content.split_whitespace().collect();
-        let mut vals = Vec::with_capacity(words.len());
-        for (j, w) in words.iter().enumerate() {
+        // The first 13 fields (the most a line may have) are kept; all are
+        // checked, and counted.
+        let (mut words, mut vals, mut count) = ([""; 13], [0.0f64; 13], 0);
+        for (j, w) in content.split_whitespace().enumerate() {
             let field = GALAXY_FIELDS.get(j).copied().unwrap_or("extra");
             let v: f64 = w
                 .parse()
@@ -83,17 +84,17 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             if !v.is_finite() {
                 return Err(err(field, format!("`{w}` is not finite")));
             }
-            vals.push(v);
+            if j < vals.len() {
+                (words[j], vals[j]) = (w, v);
+            }
+            count = j + 1;
         }
         let code = vals[0];
         if code == 100.0 {
-            if vals.len() != 4 {
+            if count != 4 {
                 return Err(err(
                     "code",
-                    format!(
-                        "a star line has 4 fields (100 x y mag), found {}",
-                        vals.len()
-                    ),
+                    format!("a star line has 4 fields (100 x y mag), found {count}"),
                 ));
             }
             out.push(ListObject::Star {
@@ -102,13 +103,12 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
                 mag: vals[3],
             });
         } else if code == 200.0 {
-            if !(11..=13).contains(&vals.len()) {
+            if !(11..=13).contains(&count) {
                 return Err(err(
                     "code",
                     format!(
                         "a galaxy line has 11 to 13 fields (200 x y mag B/T bulge_re \
-                             bulge_q bulge_pa disk_h disk_q disk_pa [z] [type]), found {}",
-                        vals.len()
+                             bulge_q bulge_pa disk_h disk_q disk_pa [z] [type]), found {count}"
                     ),
                 ));
             }
@@ -130,7 +130,7 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
             let bulge_q = check(6, 0.0, 1.0, true)?;
             let disk_h = check(8, 0.0, 3600.0, false)?;
             let disk_q = check(9, 0.0, 1.0, true)?;
-            let z = if vals.len() > 11 {
+            let z = if count > 11 {
                 Some(check(11, 0.0, 100.0, false)?)
             } else {
                 None
@@ -164,7 +164,7 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
                 disk_ba: disk_q,
                 disk_pa_deg: dpa,
                 z,
-                t_type: vals.get(12).copied(),
+                t_type: (count > 12).then_some(vals[12]),
             });
         } else {
             return Err(err(
@@ -302,6 +302,18 @@ mod tests {
             ("200 1 2 nan 0.5 0.4 0.8 30 0.5 0.6 30", "line 2", "mag"),
             ("200 1 2 22 0.5 0 0.8 30 0.5 0.6 30", "line 2", "bulge_re"),
             ("100 1 2 3e999", "line 2", "mag"),
+            // Past the 13 fields a line may have: still counted and checked.
+            ("100 1 2 3 4", "line 2", "found 5"),
+            (
+                "200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 30 1 4 9 9 9",
+                "line 2",
+                "found 16",
+            ),
+            (
+                "200 1 2 22 0.5 0.4 0.8 30 0.5 0.6 30 1 4 9 9 x",
+                "line 2",
+                "`extra`",
+            ),
         ];
         for (bad, line, field) in cases {
             let text = format!("{good}\n{bad}\n{good}\n");

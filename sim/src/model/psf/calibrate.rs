@@ -311,6 +311,16 @@ impl OpticalPsf {
         }
         let mut calibration = calibration;
         calibration.centroid_shift_arcsec = total;
+        Self::recentred(band, calibration)
+    }
+
+    /// The PSF of a band that [`OpticalPsf::new`] has recentred already
+    /// (its [`OpticalPsf::band`], with the calibration that records the
+    /// shift): only sampled, so the very same PSF as the one `new` made
+    /// (what the PSF store keeps, [`crate::io::psf_store`]).
+    pub fn recentred(band: BandTransfer, calibration: Calibration) -> Self {
+        let nc = band.nc;
+        let s = 1.0 / (nc as f64 * band.du);
         let img = band.image(nc, None);
         let sampled = SampledPsf::new(img, nc, s, (0.0, 0.0)).expect("optical PSF has flux");
         Self {
@@ -318,6 +328,11 @@ impl OpticalPsf {
             band,
             calibration,
         }
+    }
+
+    /// The calibration, with the recentring's shift.
+    pub fn calibration_ref(&self) -> &Calibration {
+        &self.calibration
     }
 
     /// The band-limited transfer function (recentred).
