@@ -750,12 +750,20 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
         err.contains("stepsim: built PSF 1/1 (coma), stored in "),
         "{err}"
     );
-    // It keeps the solved PSF and the drawn PSF file (`.fits.bin`).
-    let (drawn, shared): (Vec<PathBuf>, Vec<PathBuf>) = std::fs::read_dir(&user)
+    // It keeps the solved PSF, the drawn PSF file (`.fits.bin`) and the
+    // PSF's transfers on the image convolution's tile grids (`.t.bin`).
+    let (drawn, rest): (Vec<PathBuf>, Vec<PathBuf>) = std::fs::read_dir(&user)
         .unwrap()
         .map(|e| e.unwrap().path())
         .partition(|p| p.to_string_lossy().ends_with(".fits.bin"));
+    let (transfers, shared): (Vec<PathBuf>, Vec<PathBuf>) = rest
+        .into_iter()
+        .partition(|p| p.to_string_lossy().ends_with(".t.bin"));
     assert_eq!((shared.len(), drawn.len()), (1, 1), "{shared:?} {drawn:?}");
+    assert!(
+        (1..=3).contains(&transfers.len()),
+        "{transfers:?}: a transfer per tile grid"
+    );
     let run_copy = d
         .join("first/private/psf/cache")
         .join(shared[0].file_name().unwrap());
@@ -810,7 +818,10 @@ fn a_new_run_copies_the_psf_another_run_built_from_the_users_store() {
         stderr(&o)
     );
     assert!(!stderr(&o).contains("user's store"), "{}", stderr(&o));
-    assert_eq!(std::fs::read_dir(&user).unwrap().count(), 2);
+    assert_eq!(
+        std::fs::read_dir(&user).unwrap().count(),
+        2 + transfers.len()
+    );
     assert_eq!(
         std::fs::metadata(&shared[0]).unwrap().modified().unwrap(),
         before

@@ -59,7 +59,7 @@ use crate::model::psf::optical::BandTransfer;
 use crate::model::psf::{
     Calibration, OpticalPsf, OpticalRequest, Psf, PsfAccuracy, PsfError, PsfSpec,
 };
-use num_complex::Complex64;
+use num_complex::{Complex32, Complex64};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use stepsim_contract::digest::sha256_hex;
@@ -389,6 +389,79 @@ fn unframe<'a>(
         return Err("has content that does not match its SHA-256 (damaged or edited)".into());
     }
     Ok(content)
+}
+
+/// Version of the transfer files kept in the user's store
+/// ([`provide_transfers`]): bump it whenever a PSF's transfer on a grid
+/// changes for a given spec (the chirp-z transform, the sampling, FORMAT's
+/// PSF itself), so that older files are computed again.
+pub const TRANSFER_FORMAT: u32 = 1;
+
+/// Hex SHA-256 naming the transfer file of the PSF of `spec_digest`
+/// ([`spec_digest`]) on an `n`-pixel grid.
+pub fn transfer_digest(spec_digest: &str, n: usize) -> String {
+    sha256_hex(
+        format!("stepsim psf transfer {TRANSFER_FORMAT}\npsf {spec_digest}\nn {n}\n").as_bytes(),
+    )
+}
+
+/// Hands `psf` (of spec `spec` at `accuracy`) its transfer on each of
+/// `grids` from the user's store `user` when a file there checks
+/// (`<transfer digest>.t.bin`: the frame the other store files have, then n · (n/2 + 1)
+/// complex values as little-endian f32 pairs, the grid's row-major order);
+/// any other grid's is computed here and kept there (a cache: a failure to
+/// keep it is ignored). Only optical PSFs, whose transfer on a large grid
+/// is a chirp-z transform of their samples (about 0.03 s on the 1350-pixel
+/// tile of a 4096² image); the run's own store does not keep them (each
+/// process computes what the user's store lacks). Returns how many came
+/// from the store.
+pub fn provide_transfers(
+    psf: &dyn Psf,
+    spec: &PsfSpec,
+    accuracy: &PsfAccuracy,
+    grids: &[crate::model::psf::StampGrid],
+    user: Option<&Path>,
+) -> usize {
+    let (Some(user), Some(_)) = (user, OpticalRequest::of(spec)) else {
+        return 0;
+    };
+    let spec = spec_digest(spec, accuracy);
+    let version = format!("stepsim psf transfer {TRANSFER_FORMAT}");
+    let mut found = 0;
+    for &grid in grids {
+        let digest = transfer_digest(&spec, grid.n);
+        let file = user.join(format!("{digest}.t.bin"));
+        let len = grid.n * grid.n_cols();
+        let stored = std::fs::read(&file).ok().and_then(|bytes| {
+            let content = unframe(&bytes, &version, TRANSFER_FORMAT, &digest).ok()?;
+            (content.len() == len * 8).then(|| {
+                content
+                    .chunks_exact(8)
+                    .map(|z| {
+                        let re = f32::from_le_bytes(z[..4].try_into().expect("4 bytes"));
+                        let im = f32::from_le_bytes(z[4..].try_into().expect("4 bytes"));
+                        Complex32::new(re, im)
+                    })
+                    .collect::<Vec<_>>()
+            })
+        });
+        match stored {
+            Some(t) => {
+                psf.provide_transfer(grid, Arc::new(t));
+                found += 1;
+            }
+            None => {
+                let t = psf.transfer(grid);
+                let mut content = Vec::with_capacity(t.len() * 8);
+                for z in t.iter() {
+                    content.extend_from_slice(&z.re.to_le_bytes());
+                    content.extend_from_slice(&z.im.to_le_bytes());
+                }
+                let _ = write_private(&file, &frame(&version, &digest, &content));
+            }
+        }
+    }
+    found
 }
 
 /// Version of the drawn PSF files (`RUN/private/psf/<name>.fits`) kept in
@@ -773,6 +846,70 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let (_, o5) = load_or_build_shared(&s, &acc, d.path(), Some(&blocked.join("sub"))).unwrap();
         assert!(matches!(o5, Origin::Stored { .. }), "{o5:?}");
+    }
+
+    #[test]
+    fn transfers_are_kept_in_the_users_store_and_handed_back_the_same() {
+        let (s, acc) = (spec(0.04), small());
+        let (dir, user) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+        let u = user.path().join("store");
+        let grids = [
+            crate::model::psf::StampGrid::new(64, 0.206),
+            crate::model::psf::StampGrid::new(90, 0.206),
+        ];
+        let fresh = || load_or_build(&s, &acc, dir.path()).unwrap().0;
+        // Computed and kept the first time; handed back the next.
+        let first = fresh();
+        assert_eq!(
+            provide_transfers(first.as_ref(), &s, &acc, &grids, Some(&u)),
+            0
+        );
+        let second = fresh();
+        assert_eq!(
+            provide_transfers(second.as_ref(), &s, &acc, &grids, Some(&u)),
+            2
+        );
+        let third = fresh();
+        for g in grids {
+            // `second` holds the stored copies, `third` computes its own.
+            assert_eq!(*second.transfer(g), *third.transfer(g));
+            assert_eq!(*second.transfer(g), *first.transfer(g));
+        }
+        // A damaged file is not used (and is written again); no store, a
+        // model that is not optical: nothing read or written.
+        let file = u.join(format!(
+            "{}.t.bin",
+            transfer_digest(&spec_digest(&s, &acc), 90)
+        ));
+        let good = std::fs::read(&file).unwrap();
+        let mut bad = good.clone();
+        let last = bad.len() - 5;
+        bad[last] ^= 4;
+        std::fs::write(&file, &bad).unwrap();
+        let fourth = fresh();
+        assert_eq!(
+            provide_transfers(fourth.as_ref(), &s, &acc, &grids, Some(&u)),
+            1
+        );
+        assert_eq!(std::fs::read(&file).unwrap(), good);
+        assert_eq!(*fourth.transfer(grids[1]), *third.transfer(grids[1]));
+        assert_eq!(
+            provide_transfers(fresh().as_ref(), &s, &acc, &grids, None),
+            0
+        );
+        let gaussian = PsfModel::Gaussian { e1: 0.0, e2: 0.0 };
+        let g = PsfSpec::new("g", 0.9, gaussian, Telescope::default(), 0.206);
+        let other = tempfile::tempdir().unwrap();
+        let gpsf = crate::model::psf::build_with(&g, &acc).unwrap();
+        assert_eq!(
+            provide_transfers(gpsf.as_ref(), &g, &acc, &grids, Some(other.path())),
+            0
+        );
+        assert_eq!(std::fs::read_dir(other.path()).unwrap().count(), 0);
+        // A transfer of the wrong length is not taken.
+        let psf = fresh();
+        psf.provide_transfer(grids[0], Arc::new(vec![Complex32::new(9.0, 9.0); 3]));
+        assert_eq!(*psf.transfer(grids[0]), *third.transfer(grids[0]));
     }
 
     #[test]

@@ -576,12 +576,25 @@ impl Plan {
         }
         let accuracy = crate::model::psf::PsfAccuracy::default();
         let user = crate::io::psf_store::user_store_dir();
-        let (built, origin) = crate::io::psf_store::load_or_build_shared(
-            &self.psf_spec(index),
+        let spec = self.psf_spec(index);
+        let (built, origin) =
+            crate::io::psf_store::load_or_build_shared(&spec, &accuracy, dir, user.as_deref())?;
+        // The transfers the first image's renderer will ask for, from the
+        // user's store when it has them.
+        let geometry = self.geometry();
+        let grids = crate::model::render::split::transfer_grids(
+            built.as_ref(),
+            self.pixel_scale_arcsec(),
+            &self.accuracy(),
+            geometry.width_px.max(geometry.height_px) as usize,
+        );
+        crate::io::psf_store::provide_transfers(
+            built.as_ref(),
+            &spec,
             &accuracy,
-            dir,
+            &grids,
             user.as_deref(),
-        )?;
+        );
         Ok((slot.get_or_init(|| built).clone(), Some(origin)))
     }
 

@@ -359,4 +359,7 @@ impl Psf for OpticalPsf {
     fn calibration(&self) -> Option<Calibration> {
         Some(self.calibration.clone())
     }
+    fn provide_transfer(&self, grid: StampGrid, t: Arc<Vec<Complex32>>) {
+        self.sampled.provide_transfer(grid, t);
+    }
 }

@@ -118,6 +118,15 @@ pub trait Psf: Send + Sync + std::fmt::Debug {
     fn calibration(&self) -> Option<Calibration> {
         None
     }
+
+    /// Hands the PSF its transfer on `grid`, computed earlier by
+    /// [`Psf::transfer`] (a PSF store's copy), so that the first call for
+    /// that grid does not compute it; ignored when the PSF computes its
+    /// transfers cheaply or already holds that grid's. The caller answers
+    /// for `t` being exactly what `transfer(grid)` gives.
+    fn provide_transfer(&self, grid: StampGrid, t: Arc<Vec<Complex32>>) {
+        let _ = (grid, t);
+    }
 }
 
 /// The result of calibrating an optical PSF (SPEC §3).

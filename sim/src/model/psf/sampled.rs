@@ -280,6 +280,20 @@ impl Psf for SampledPsf {
             .clone()
     }
 
+    fn provide_transfer(&self, grid: StampGrid, t: Arc<Vec<Complex32>>) {
+        if t.len() != grid.n * grid.n_cols() {
+            return;
+        }
+        let cell = self
+            .cache
+            .lock()
+            .expect("psf cache lock")
+            .entry(grid)
+            .or_default()
+            .clone();
+        let _ = cell.set(t);
+    }
+
     fn radius_enclosing(&self, fraction: f64) -> f64 {
         let mut s = 0.0;
         for &(r, v) in &self.by_radius {

@@ -137,6 +137,36 @@ impl Split {
     }
 }
 
+/// The grids on which a split renderer of `psf` asks for its transfer when
+/// it draws images of longest side `image_side`: the smallest and the
+/// largest tile (the prefilter's bound, [`Split::new`]) and the image's
+/// tile ([`Split::convolver`]); none for the stamp method, whose stamps ask
+/// for many small grids instead. What a PSF store keeps for the first
+/// image of a process (the largest grid's chirp-z transform was 3 % of a
+/// user's first image).
+pub fn transfer_grids(
+    psf: &dyn Psf,
+    pixel_scale_arcsec: f64,
+    accuracy: &Accuracy,
+    image_side: usize,
+) -> Vec<StampGrid> {
+    if accuracy.method != Method::Split {
+        return Vec::new();
+    }
+    let margin = kernel_margin_px(psf, pixel_scale_arcsec, accuracy.max_stamp_px);
+    let mut sides = vec![
+        tile_side(margin, 0),
+        tile_side(margin, usize::MAX),
+        tile_side(margin, image_side),
+    ];
+    sides.sort_unstable();
+    sides.dedup();
+    sides
+        .into_iter()
+        .map(|n| StampGrid::new(n, pixel_scale_arcsec))
+        .collect()
+}
+
 /// How far (pixels) the image kernel reaches from every object: the radius
 /// beyond which `psf` is below [`MARGIN_LEVEL`] of its peak or that holds all
 /// but 1e-5 of its flux, whichever is larger, plus 2 pixels, capped at half
