@@ -18,9 +18,9 @@
 //! File `<spec digest>.bin`: a text header, then the content.
 //!
 //! ```text
-//! stepsim psf store 3            format version (FORMAT)
+//! stepsim psf store 4            format version (FORMAT)
 //! spec-sha256 <64 hex>           spec_digest: everything the PSF's bytes depend on
-//! content-sha256 <64 hex>        SHA-256 of the content bytes
+//! content-crc32 <8 hex>          CRC-32 (IEEE) of the content bytes
 //! content-bytes <n>
 //! <empty line>
 //! <n content bytes, little-endian>
@@ -32,7 +32,7 @@
 //! (u64), the frequency spacing (f64) and the recentred band's nc² complex
 //! values (re, im as f64), FFT order.
 //!
-//! A file is used only when its version, spec digest and content hash all
+//! A file is used only when its version, spec digest and content CRC all
 //! check and the content parses to exactly its length; anything else (a
 //! stale, truncated, tampered or foreign file) is rebuilt, never trusted,
 //! and the file is rewritten atomically. Only optical PSFs are stored: the
@@ -51,7 +51,7 @@
 //! part of every digest and must be bumped whenever the solution of a PSF
 //! changes: a test pins the solved PSF of one spec
 //! (`the_solved_psf_is_pinned_so_a_solver_change_bumps_the_format`). The
-//! checks (digest, content hash) find damage, not forgery: the store is
+//! checks (digest, content CRC) find damage, not forgery: the store is
 //! trusted like the binary, so it is made private to the user (0700) and
 //! must not be a directory others can write.
 
@@ -67,7 +67,7 @@ use stepsim_contract::io::{IoError, write_bytes_atomically};
 
 /// Version of the file format and of what it holds: bump it whenever the
 /// solved PSF or this layout changes, so that older files are rebuilt.
-pub const FORMAT: u32 = 3;
+pub const FORMAT: u32 = 4;
 
 /// How a PSF of a process came to be.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -323,11 +323,16 @@ pub fn encode(band: &BandTransfer, cal: &Calibration, spec_digest: &str) -> Vec<
 }
 
 /// A store file: the header (`version` line, the spec digest, the
-/// content's SHA-256 and length, an empty line), then `content`.
+/// content's CRC-32 and length, an empty line), then `content`.
+///
+/// A CRC-32, not a SHA-256 (since store format 4, drawn-file format 4 and
+/// transfer format 2, 2026-12-05): the check is for damage, not forgery
+/// (the store is the user's, trusted like the binary), and checking a
+/// first image's 23 MB of store files took 2 % of its CPU with SHA-256.
 fn frame(version: &str, spec_digest: &str, content: &[u8]) -> Vec<u8> {
     let mut out = format!(
-        "{version}\nspec-sha256 {spec_digest}\ncontent-sha256 {}\ncontent-bytes {}\n\n",
-        sha256_hex(content),
+        "{version}\nspec-sha256 {spec_digest}\ncontent-crc32 {:08x}\ncontent-bytes {}\n\n",
+        crc32fast::hash(content),
         content.len()
     )
     .into_bytes();
@@ -385,8 +390,10 @@ fn unframe<'a>(
             content.len()
         ));
     }
-    if sha.strip_prefix("content-sha256 ") != Some(sha256_hex(content).as_str()) {
-        return Err("has content that does not match its SHA-256 (damaged or edited)".into());
+    if sha.strip_prefix("content-crc32 ")
+        != Some(format!("{:08x}", crc32fast::hash(content)).as_str())
+    {
+        return Err("has content that does not match its CRC-32 (damaged or edited)".into());
     }
     Ok(content)
 }
@@ -395,7 +402,7 @@ fn unframe<'a>(
 /// ([`provide_transfers`]): bump it whenever a PSF's transfer on a grid
 /// changes for a given spec (the chirp-z transform, the sampling, FORMAT's
 /// PSF itself), so that older files are computed again.
-pub const TRANSFER_FORMAT: u32 = 1;
+pub const TRANSFER_FORMAT: u32 = 2;
 
 /// Hex SHA-256 naming the transfer file of the PSF of `spec_digest`
 /// ([`spec_digest`]) on an `n`-pixel grid.
@@ -469,7 +476,7 @@ pub fn provide_transfers(
 /// given PSF (its drawing, its report, the FITS writer), so that older
 /// files are drawn again. A test pins one file's bytes
 /// (`the_drawn_psf_file_is_pinned_so_a_change_bumps_its_format`).
-pub const FILE_FORMAT: u32 = 3;
+pub const FILE_FORMAT: u32 = 4;
 
 /// Hex SHA-256 naming the drawn file of the PSF of `spec_digest`
 /// ([`spec_digest`]) at `side_px` pixels with `oversample`.
@@ -616,7 +623,7 @@ mod tests {
         let last = bad.len() - 3;
         bad[last] ^= 1;
         let why = parse(&bad, &d).unwrap_err();
-        assert!(why.contains("does not match its SHA-256"), "{why}");
+        assert!(why.contains("does not match its CRC-32"), "{why}");
         let other =
             String::from_utf8_lossy(&bytes[..20]).replace(&format!("store {FORMAT}"), "store 9");
         let mut old = other.into_bytes();
@@ -655,7 +662,7 @@ mod tests {
         let content = sha256_hex(&file[at + 2..]);
         assert_eq!(
             (FORMAT, content.as_str()),
-            (3, PINNED_CONTENT_SHA256),
+            (4, PINNED_CONTENT_SHA256),
             "the solved PSF changed: bump FORMAT and record the new hash"
         );
     }
@@ -680,7 +687,7 @@ mod tests {
         assert_eq!(first, draw("b.fits"), "drawn twice, different bytes");
         assert_eq!(
             (FILE_FORMAT, first.as_str()),
-            (3, PINNED_FILE_SHA256),
+            (4, PINNED_FILE_SHA256),
             "the drawn PSF file changed: bump FILE_FORMAT and record the new hash"
         );
     }
@@ -736,9 +743,10 @@ mod tests {
     }
 
     /// SHA-256 of the content of the coma PSF of `spec(0.04)` at `small()`
-    /// accuracy, as FORMAT 3 keeps it (the band recentred; FORMAT 2 kept it
-    /// before the recentring, content 7562b30f…; FFTs with the same bits on
-    /// every CPU since 2026-12-05; FORMAT 1 used its FFTs by CPU).
+    /// accuracy, as FORMATs 3 and 4 keep it (the band recentred; 4 checks it
+    /// by a CRC-32 instead of a SHA-256; FORMAT 2 kept it before the
+    /// recentring, content 7562b30f…; FFTs with the same bits on every CPU
+    /// since 2026-12-05; FORMAT 1 used its FFTs by CPU).
     const PINNED_CONTENT_SHA256: &str =
         "cb38ac9e55832e52f9ed745fbb178cab74430d7e3ffbee3f7cc93955fb878c21";
 
