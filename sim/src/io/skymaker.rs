@@ -76,7 +76,7 @@ pub fn parse_list(text: &str, path: &Path) -> Result<Vec<ListObject>, ListError>
         // The first 13 fields (the most a line may have) are kept; all are
         // checked, and counted.
         let (mut words, mut vals, mut count) = ([""; 13], [0.0f64; 13], 0);
-        for (j, w) in content.split_whitespace().enumerate() {
+        for (j, w) in content.split_ascii_whitespace().enumerate() {
             let field = GALAXY_FIELDS.get(j).copied().unwrap_or("extra");
             let v: f64 = w
                 .parse()
@@ -302,6 +302,8 @@ mod tests {
             ("200 1 2 nan 0.5 0.4 0.8 30 0.5 0.6 30", "line 2", "mag"),
             ("200 1 2 22 0.5 0 0.8 30 0.5 0.6 30", "line 2", "bulge_re"),
             ("100 1 2 3e999", "line 2", "mag"),
+            // A Unicode space does not separate fields.
+            ("100 1 2\u{a0}3", "line 2", "`y`"),
             // Past the 13 fields a line may have: still counted and checked.
             ("100 1 2 3 4", "line 2", "found 5"),
             (
