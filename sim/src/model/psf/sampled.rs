@@ -24,6 +24,47 @@ use std::sync::{Arc, Mutex, OnceLock};
 /// The transfer on one stamp grid, computed by the first thread to ask.
 type TransferCell = OnceLock<Arc<Vec<Complex32>>>;
 
+/// `pairs` in order of increasing radius (the first value, ≥ 0), pairs of
+/// equal radius in their given order: what a stable sort gives
+/// ([`sort_by_radius_slow`]), by a least-significant-digit radix sort of
+/// the radii's bits (for non-negative floats their order is the numbers'),
+/// 16 bits a pass, passes where every radius has the same digit skipped.
+/// A 4096² preset image's optical PSF has 173 000 samples; the comparison
+/// sort took about 1 % of a user's first image.
+fn sort_by_radius(mut pairs: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    debug_assert!(pairs.iter().all(|p| p.0 >= 0.0));
+    let mut spare = vec![(0.0, 0.0); pairs.len()];
+    let mut count = vec![0usize; 1 << 16];
+    for shift in (0..64).step_by(16) {
+        let digit = |p: &(f64, f64)| ((p.0.to_bits() >> shift) & 0xffff) as usize;
+        count.fill(0);
+        for p in &pairs {
+            count[digit(p)] += 1;
+        }
+        if count.contains(&pairs.len()) {
+            continue;
+        }
+        let mut at = 0;
+        for c in count.iter_mut() {
+            (*c, at) = (at, at + *c);
+        }
+        for p in &pairs {
+            let d = digit(p);
+            spare[count[d]] = *p;
+            count[d] += 1;
+        }
+        std::mem::swap(&mut pairs, &mut spare);
+    }
+    pairs
+}
+
+/// [`sort_by_radius`]'s slow, obvious twin: the standard stable sort.
+#[cfg_attr(not(test), allow(dead_code))]
+fn sort_by_radius_slow(mut pairs: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    pairs
+}
+
 /// A sampled PSF.
 #[derive(Debug)]
 pub struct SampledPsf {
@@ -60,7 +101,7 @@ impl SampledPsf {
         }
         let values: Vec<f64> = values.iter().map(|v| v / sum).collect();
         let c = (n / 2) as f64;
-        let mut by_radius: Vec<(f64, f64)> = values
+        let by_radius: Vec<(f64, f64)> = values
             .iter()
             .enumerate()
             .map(|(k, &v)| {
@@ -69,7 +110,7 @@ impl SampledPsf {
                 (x.hypot(y), v)
             })
             .collect();
-        by_radius.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let by_radius = sort_by_radius(by_radius);
         let peak = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         Some(Self {
             n,
@@ -318,6 +359,54 @@ impl Psf for SampledPsf {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_radix_sort_orders_as_the_stable_sort() {
+        // A grid's radii (many equal: the grid's symmetries), off-centre
+        // and centred, and random radii over many octaves with repeats.
+        let grid = |n: usize, off: f64| -> Vec<(f64, f64)> {
+            (0..n * n)
+                .map(|k| {
+                    let x = (k % n) as f64 - (n / 2) as f64 - off;
+                    let y = (k / n) as f64 - (n / 2) as f64;
+                    (x.hypot(y) * 0.05, k as f64)
+                })
+                .collect()
+        };
+        let mut state = 7u64;
+        let random: Vec<(f64, f64)> = (0..50_000)
+            .map(|k| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+                let r = if k % 7 == 0 {
+                    0.25
+                } else {
+                    (40.0 * u - 20.0).exp2()
+                };
+                (if k % 11 == 0 { 0.0 } else { r }, k as f64)
+            })
+            .collect();
+        for pairs in [
+            grid(64, 0.0),
+            grid(65, 0.3),
+            random,
+            vec![(1.0, 0.0)],
+            vec![],
+        ] {
+            let (fast, slow) = (
+                sort_by_radius(pairs.clone()),
+                sort_by_radius_slow(pairs.clone()),
+            );
+            assert_eq!(fast.len(), pairs.len());
+            assert!(
+                fast.iter()
+                    .zip(&slow)
+                    .all(|(a, b)| a.0.to_bits() == b.0.to_bits() && a.1 == b.1)
+            );
+        }
+    }
 
     fn blob() -> SampledPsf {
         // A lopsided blob, off-centre, so the test sees phases too.
