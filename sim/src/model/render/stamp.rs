@@ -171,6 +171,11 @@ impl<T: FftNum + Real> std::fmt::Debug for StampEngine<T> {
     }
 }
 
+/// The largest stamp side whose buffers the engine keeps for the next
+/// stamp: nearly all of a STEP1 image's stamps are smaller; the few larger
+/// ones allocate theirs, as every stamp did before.
+const KEPT_SIDE: usize = 256;
+
 /// The working buffers of one stamp's rendering, kept between stamps so
 /// that an image's tens of thousands of stamps do not each allocate (and
 /// zero) them anew. Their contents never carry over: the fill writes every
@@ -241,7 +246,12 @@ impl<T: FftNum + Real> StampEngine<T> {
         let t1 = t0.map(|_| Instant::now());
 
         let out = inverse_2d(&self.cache.plans(n), &mut s, n);
-        self.pool.lock().expect("stamp scratch pool").push(s);
+        // Only small stamps' buffers are kept: a pooled set never grows
+        // past [`KEPT_SIDE`], so the pool holds at most ~0.6 MB a thread (a
+        // bright star's stamp of 2048 px would keep 34 MB).
+        if n <= KEPT_SIDE {
+            self.pool.lock().expect("stamp scratch pool").push(s);
+        }
         if let (Some(times), Some(t0), Some(t1)) = (times, t0, t1) {
             times.kspace_ns += (t1 - t0).as_nanos() as u64;
             times.fft_ns += t1.elapsed().as_nanos() as u64;
