@@ -308,31 +308,29 @@ impl SampledPsf {
     }
 }
 
-impl Psf for SampledPsf {
-    fn transfer(&self, grid: StampGrid) -> Arc<Vec<Complex32>> {
-        let cell = self
-            .cache
+impl SampledPsf {
+    /// The cache's cell of `grid` (made empty if new).
+    fn cell(&self, grid: StampGrid) -> Arc<TransferCell> {
+        self.cache
             .lock()
             .expect("psf cache lock")
             .entry(grid)
             .or_default()
-            .clone();
-        cell.get_or_init(|| Arc::new(self.compute_transfer(grid)))
+            .clone()
+    }
+}
+
+impl Psf for SampledPsf {
+    fn transfer(&self, grid: StampGrid) -> Arc<Vec<Complex32>> {
+        self.cell(grid)
+            .get_or_init(|| Arc::new(self.compute_transfer(grid)))
             .clone()
     }
 
     fn provide_transfer(&self, grid: StampGrid, t: Arc<Vec<Complex32>>) {
-        if t.len() != grid.n * grid.n_cols() {
-            return;
+        if t.len() == grid.n * grid.n_cols() {
+            let _ = self.cell(grid).set(t);
         }
-        let cell = self
-            .cache
-            .lock()
-            .expect("psf cache lock")
-            .entry(grid)
-            .or_default()
-            .clone();
-        let _ = cell.set(t);
     }
 
     fn radius_enclosing(&self, fraction: f64) -> f64 {
