@@ -368,7 +368,7 @@ fn unframe<'a>(
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "has a header that is not text")?;
     let content = &bytes[end + 2..];
     let lines: Vec<&str> = header.lines().collect();
-    let [_, spec, sha, len] = lines[..] else {
+    let [_, spec, crc, len] = lines[..] else {
         return Err("has a header of the wrong shape (not a PSF store file)".into());
     };
     if lines[0] != version {
@@ -390,7 +390,7 @@ fn unframe<'a>(
             content.len()
         ));
     }
-    if sha.strip_prefix("content-crc32 ")
+    if crc.strip_prefix("content-crc32 ")
         != Some(format!("{:08x}", crc32fast::hash(content)).as_str())
     {
         return Err("has content that does not match its CRC-32 (damaged or edited)".into());

@@ -360,6 +360,8 @@ mod tests {
 
     #[test]
     fn the_radix_sort_orders_as_the_stable_sort() {
+        use rand::{RngExt, SeedableRng};
+        use stepsim_contract::seed::SimRng;
         // A grid's radii (many equal: the grid's symmetries), off-centre
         // and centred, and random radii over many octaves with repeats.
         let grid = |n: usize, off: f64| -> Vec<(f64, f64)> {
@@ -371,13 +373,10 @@ mod tests {
                 })
                 .collect()
         };
-        let mut state = 7u64;
+        let mut rng = SimRng::seed_from_u64(7);
         let random: Vec<(f64, f64)> = (0..50_000)
             .map(|k| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+                let u: f64 = rng.random();
                 let r = if k % 7 == 0 {
                     0.25
                 } else {

@@ -255,12 +255,7 @@ impl Renderer {
     /// wings of the whole flux, e.g. diffraction spikes of bright stars);
     /// clamped to [`Accuracy::min_stamp_px`, `Accuracy::max_stamp_px`].
     pub fn stamp_side(&self, row: &TruthRow) -> Result<usize, RenderError> {
-        check_row(row)?;
-        let galaxy = match row.is_star() {
-            true => None,
-            false => Some(Galaxy::from_row(row)?),
-        };
-        Ok(self.side_of(row, galaxy.as_ref()))
+        Ok(self.side_of(row, galaxy_of(row)?.as_ref()))
     }
 
     /// [`Self::stamp_side`] of a checked row and its galaxy (`None` for a
@@ -351,11 +346,7 @@ impl Renderer {
     }
 
     fn fill_for(&self, row: &TruthRow, n: usize) -> Result<Fill, RenderError> {
-        check_row(row)?;
-        let components = match row.is_star() {
-            true => None,
-            false => Some(Galaxy::from_row(row)?.components),
-        };
+        let components = galaxy_of(row)?.map(|g| g.components);
         Ok(self.fill_of(row, n, components))
     }
 
@@ -398,11 +389,7 @@ impl Renderer {
         timed: bool,
     ) -> Result<(Stamp, StageTimes), RenderError> {
         let t0 = timed.then(Instant::now);
-        check_row(row)?;
-        let galaxy = match row.is_star() {
-            true => None,
-            false => Some(Galaxy::from_row(row)?),
-        };
+        let galaxy = galaxy_of(row)?;
         let n = match side {
             Some(n) => n,
             None => self.side_of(row, galaxy.as_ref()),
@@ -426,6 +413,17 @@ impl Renderer {
             times,
         ))
     }
+}
+
+/// The galaxy of a row that passes [`check_row`] (`None` for a star), or
+/// why the row cannot be drawn ([`Galaxy::from_row`] checks the row
+/// itself).
+fn galaxy_of(row: &TruthRow) -> Result<Option<Galaxy>, RenderError> {
+    if row.is_star() {
+        check_row(row)?;
+        return Ok(None);
+    }
+    Ok(Some(Galaxy::from_row(row)?))
 }
 
 /// Unit-profile radius outside which a fraction `outside` of the flux lies

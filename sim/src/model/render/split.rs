@@ -297,6 +297,8 @@ fn divide_by_gaussian(t: &[Complex32], grid: StampGrid, l: &GaussianPsf) -> Vec<
 mod tests {
     use super::*;
     use crate::model::psf::{PsfAccuracy, PsfModel, PsfSpec, Telescope};
+    use rand::{RngExt, SeedableRng};
+    use stepsim_contract::seed::SimRng;
 
     #[test]
     fn the_prefilter_bound_passes_over_cells_and_gives_the_same_bits() {
@@ -336,14 +338,11 @@ mod tests {
         // Noise-like transfers (a bound set anywhere, often), and one that
         // reaches 1 (bound 0).
         let grid = StampGrid::new(96, 0.206);
-        let mut state = 12345u64;
+        let mut rng = SimRng::seed_from_u64(12345);
         for round in 0..20 {
             let t: Vec<Complex32> = (0..grid.n * grid.n_cols())
                 .map(|_| {
-                    state = state
-                        .wrapping_mul(6364136223846793005)
-                        .wrapping_add(1442695040888963407);
-                    let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+                    let u: f64 = rng.random();
                     Complex32::new((u.powi(round % 5 + 1) * 0.9) as f32, 0.0)
                 })
                 .collect();
