@@ -15,9 +15,10 @@
 //! assume; the renderer's stamp size bounds how much of it is folded (see
 //! `docs/rendering.md`).
 //!
-//! The transform is tabulated once per process on a uniform grid in
-//! s = k^{1/4} (0 ≤ s ≤ 10, step 0.002) and read with a natural cubic
-//! spline. Table values come from
+//! The transform is tabulated on a uniform grid in s = k^{1/4}
+//! (0 ≤ s ≤ 10, step 0.002) and read with a natural cubic spline. The
+//! table's values are kept in the source (`devaucouleurs_table.bin`,
+//! recomputed bit for bit by a test); they come from
 //! * k < 0.3: the integral above by Gauss–Legendre panels that follow the
 //!   oscillation of J₀ ([`DeVaucouleurs::transform_slow`]);
 //! * k ≥ 0.3: the expansion about the cusp at r = 0. Writing
@@ -37,10 +38,12 @@ use std::sync::OnceLock;
 /// Number of terms j of the cusp series.
 const N_TERMS: usize = 96;
 /// k below which the table comes from the direct integral.
+#[cfg_attr(not(test), allow(dead_code))]
 const K_SWITCH: f64 = 0.3;
 /// Table step in s = k^{1/4}.
 const DS: f64 = 0.002;
 /// Last table abscissa in s.
+#[cfg_attr(not(test), allow(dead_code))]
 const S_MAX: f64 = 10.0;
 
 /// The de Vaucouleurs profile (unit half-light radius, unit flux).
@@ -57,13 +60,32 @@ struct Table {
     series: Vec<(f64, f64)>,
 }
 
+/// The table's values f̃(s = i · DS) as [`Table::computed`] gives them, as
+/// little-endian f64: kept in the source because computing them took a
+/// process ~25 ms (2.5 % of a user's first 4096² image), most of it the
+/// direct integral's Bessel functions. A test recomputes them bit for bit
+/// and, under `STEPSIM_BLESS=1`, rewrites the file.
+const STORED_VALUES: &[u8] = include_bytes!("devaucouleurs_table.bin");
+
 fn table() -> &'static Table {
     static TABLE: OnceLock<Table> = OnceLock::new();
-    TABLE.get_or_init(Table::build)
+    TABLE.get_or_init(Table::stored)
 }
 
 impl Table {
-    fn build() -> Self {
+    /// The table from [`STORED_VALUES`].
+    fn stored() -> Self {
+        let y = STORED_VALUES
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+            .collect();
+        Self::from_values(y)
+    }
+
+    /// The table computed: the direct integral below [`K_SWITCH`], the
+    /// cusp series above (the slow twin of [`Table::stored`]).
+    #[cfg_attr(not(test), allow(dead_code))]
+    fn computed() -> Self {
         let series = series_coefficients();
         let n = (S_MAX / DS).round() as usize + 1;
         let y: Vec<f64> = (0..n)
@@ -77,8 +99,17 @@ impl Table {
                 }
             })
             .collect();
+        Self::from_values(y)
+    }
+
+    /// The spline through the values `y` and the series coefficients.
+    fn from_values(y: Vec<f64>) -> Self {
         let m = natural_spline_second_derivatives(&y, DS);
-        Self { y, m, series }
+        Self {
+            y,
+            m,
+            series: series_coefficients(),
+        }
     }
 
     /// [`DeVaucouleurs::add_transforms_k2`] with AVX2.
@@ -336,6 +367,7 @@ impl RadialProfile for DeVaucouleurs {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
 
     #[test]
     fn the_batch_transform_is_the_scalar_one_bit_for_bit() {
@@ -352,6 +384,32 @@ mod tests {
             let want = amp0[j] + 1.7 * DeVaucouleurs::transform_k2(t);
             assert_eq!(g.to_bits(), want.to_bits(), "t = {t}");
         }
+    }
+
+    #[test]
+    fn the_stored_table_is_the_computed_one_bit_for_bit() {
+        let computed = Table::computed();
+        let path =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("src/model/profile/devaucouleurs_table.bin");
+        if std::env::var_os("STEPSIM_BLESS").is_some() {
+            let bytes: Vec<u8> = computed.y.iter().flat_map(|v| v.to_le_bytes()).collect();
+            std::fs::write(&path, bytes).unwrap();
+            eprintln!("blessed {}", path.display());
+            return;
+        }
+        let stored = Table::stored();
+        assert_eq!(stored.y.len(), (S_MAX / DS).round() as usize + 1);
+        for (i, (a, b)) in stored.y.iter().zip(&computed.y).enumerate() {
+            assert_eq!(
+                a.to_bits(),
+                b.to_bits(),
+                "value {i} of {} differs from its computation; if the change is deliberate, \
+                 rewrite it with STEPSIM_BLESS=1 and bump the output version",
+                path.display()
+            );
+        }
+        assert_eq!(stored.m, computed.m);
+        assert_eq!(stored.series, computed.series);
     }
 
     #[test]
