@@ -88,11 +88,18 @@ impl StampGrid {
     /// The signed frequency index of `row` (v = index × dk): `row` for rows
     /// up to n/2, `row − n` above.
     pub fn row_index(&self, row: usize) -> i64 {
-        if row <= self.n / 2 {
-            row as i64
-        } else {
-            row as i64 - self.n as i64
-        }
+        row_index(row, self.n)
+    }
+}
+
+/// The signed frequency index of row `row` of an `n`-point grid: `row` up
+/// to n/2, `row − n` above (the Nyquist row is +n/2; [`fft2::signed`]
+/// makes it −n/2).
+pub(crate) fn row_index(row: usize, n: usize) -> i64 {
+    if row <= n / 2 {
+        row as i64
+    } else {
+        row as i64 - n as i64
     }
 }
 

@@ -16,6 +16,7 @@
 //! real-space reference measures what this leaves out.
 
 use crate::model::profile::{Component, DeVaucouleurs, Exponential, ProfileKind, gram_k2};
+use crate::model::psf::row_index;
 use num_complex::Complex32;
 use realfft::FftNum;
 use realfft::num_complex::Complex;
@@ -100,7 +101,7 @@ impl<T: FftNum + Real> FftCache<T> {
                 Arc::new(
                     (0..n)
                         .map(|j| {
-                            let m = wrap(j, n) as f64 / n as f64;
+                            let m = row_index(j, n) as f64 / n as f64;
                             if m == 0.0 {
                                 1.0
                             } else {
@@ -111,16 +112,6 @@ impl<T: FftNum + Real> FftCache<T> {
                 )
             })
             .clone()
-    }
-}
-
-/// Wrapped frequency index of row `j` of an n-point grid.
-#[inline]
-fn wrap(j: usize, n: usize) -> i64 {
-    if j <= n / 2 {
-        j as i64
-    } else {
-        j as i64 - n as i64
     }
 }
 
@@ -540,7 +531,7 @@ impl<'a> Setup<'a> {
         }));
         phases_into(&mut a.px, nc, n, fill.dx_px);
         a.vs.clear();
-        a.vs.extend((0..n).map(|j| wrap(j, n) as f64 * dk));
+        a.vs.extend((0..n).map(|j| row_index(j, n) as f64 * dk));
         a.us.clear();
         a.us.extend((0..nc).map(|i| i as f64 * dk));
         a.comps.clear();
@@ -996,7 +987,7 @@ fn nyquist_cell(at: &Spectrum<'_>, i: usize, j: usize, column: Option<&[f64]>) -
     let n = at.fill.n;
     let half = (n / 2) as i64;
     let mu = i as i64; // columns are u ≥ 0
-    let mv = wrap(j, n);
+    let mv = row_index(j, n);
     let us: &[i64] = if i == n / 2 { &[half, -half] } else { &[mu] };
     let vs: &[i64] = if j == n / 2 { &[half, -half] } else { &[mv] };
     let mut sum = (0.0, 0.0);
