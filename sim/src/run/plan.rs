@@ -618,10 +618,7 @@ impl Plan {
     /// [`Plan::new`]; `None` when the population is drawn (`source = stuff`)
     /// or `field` is not a base field of the plan.
     pub fn skymaker_list(&self, field: u32) -> Option<&[ListObject]> {
-        self.lists
-            .as_ref()
-            .and_then(|l| l.get(field as usize))
-            .map(|l| l.as_slice())
+        crate::model::population::list_of(self.lists.as_deref().map(Vec::as_slice), field)
     }
 }
 

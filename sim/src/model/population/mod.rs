@@ -20,6 +20,7 @@ mod spec;
 pub mod stars;
 pub mod stuff;
 
+pub(crate) use spec::list_of;
 pub use spec::{
     Cosmology, Flattening, GalaxySpec, GalaxyType, InclinationLaw, ListObject, Placement,
     PopulationSpec, Sizes, StarSpec,

@@ -60,11 +60,14 @@ impl PopulationSpec {
     /// The objects of base field `field`'s list (`None`: no lists, or no
     /// such field).
     pub fn skymaker_list(&self, field: u32) -> Option<&[ListObject]> {
-        self.lists
-            .as_ref()
-            .and_then(|l| l.get(field as usize))
-            .map(|l| l.as_slice())
+        list_of(self.lists.as_deref().map(Vec::as_slice), field)
     }
+}
+
+/// Base field `field`'s list among `lists` (one per base field), `None`
+/// without lists or past the last field.
+pub(crate) fn list_of(lists: Option<&[Arc<Vec<ListObject>>]>, field: u32) -> Option<&[ListObject]> {
+    lists?.get(field as usize).map(|l| l.as_slice())
 }
 
 /// Where objects are placed: the image plus its margin.
