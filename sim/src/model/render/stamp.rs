@@ -154,6 +154,42 @@ pub struct StampEngine<T: FftNum + Real> {
     /// Buffers of finished stamps, for the next ones (at most one per
     /// thread drawing at once is ever out of the pool).
     pool: Mutex<Vec<Scratch<T>>>,
+    /// For each stamp side up to [`KEPT_SIDE`], the last transfer seen
+    /// and its [`Columns`].
+    columns: Mutex<HashMap<usize, KeptColumns>>,
+}
+
+/// A transfer and its [`Columns`].
+type KeptColumns = (Arc<Vec<Complex32>>, Arc<Columns>);
+
+/// A stamp grid's PSF transfer times the pixel response, in f64, column by
+/// column (entry i · n + j: column u = i, row j), as [`fill_kspace`]
+/// computes it for each column: kept by the engine for each side, so that
+/// a stamp reads its columns instead of gathering them from the row-major
+/// transfer (a strided loop that was a fifth of the fill's time).
+#[derive(Debug)]
+pub(crate) struct Columns {
+    re: Vec<f64>,
+    im: Vec<f64>,
+}
+
+impl Columns {
+    /// The columns of `transfer` (row-major `[v][u]`, n/2 + 1 columns of
+    /// `n`), times `sinc[u] · sinc[v]`.
+    pub(crate) fn new(transfer: &[Complex32], sinc: &[f64], n: usize) -> Self {
+        let nc = n / 2 + 1;
+        let (mut re, mut im) = (Vec::with_capacity(n * nc), Vec::with_capacity(n * nc));
+        for i in 0..nc {
+            let su = sinc[i];
+            for j in 0..n {
+                let tr = transfer[j * nc + i];
+                let ts = su * sinc[j];
+                re.push(f64::from(tr.re) * ts);
+                im.push(f64::from(tr.im) * ts);
+            }
+        }
+        Self { re, im }
+    }
 }
 
 impl<T: FftNum + Real> std::fmt::Debug for StampEngine<T> {
@@ -218,7 +254,31 @@ impl<T: FftNum + Real> StampEngine<T> {
         Self {
             cache,
             pool: Mutex::new(Vec::new()),
+            columns: Mutex::new(HashMap::new()),
         }
+    }
+
+    /// The [`Columns`] of `transfer` on a grid of side `n` (`None` past
+    /// [`KEPT_SIDE`]): the kept ones while the same transfer comes back
+    /// (a PSF hands out one transfer per grid), else made and kept.
+    fn columns(
+        &self,
+        n: usize,
+        transfer: &Arc<Vec<Complex32>>,
+        sinc: &[f64],
+    ) -> Option<Arc<Columns>> {
+        if n > KEPT_SIDE {
+            return None;
+        }
+        let mut map = self.columns.lock().expect("stamp columns");
+        if let Some((t, c)) = map.get(&n) {
+            if Arc::ptr_eq(t, transfer) {
+                return Some(c.clone());
+            }
+        }
+        let c = Arc::new(Columns::new(transfer, sinc, n));
+        map.insert(n, (transfer.clone(), c.clone()));
+        Some(c)
     }
 
     /// Renders one stamp: row-major n × n pixels in electrons.
@@ -226,13 +286,14 @@ impl<T: FftNum + Real> StampEngine<T> {
     pub fn render(
         &self,
         fill: &Fill,
-        transfer: &[Complex32],
+        transfer: &Arc<Vec<Complex32>>,
         times: Option<&mut StageTimes>,
     ) -> Vec<T> {
         let t0 = times.as_ref().map(|_| Instant::now());
         let n = fill.n;
         let nc = n / 2 + 1;
         let sinc = self.cache.sinc(n);
+        let columns = self.columns(n, transfer, &sinc);
         let mut s = self
             .pool
             .lock()
@@ -241,7 +302,8 @@ impl<T: FftNum + Real> StampEngine<T> {
             .unwrap_or_default();
         // Every cell is written by the fill: old values need no clearing.
         s.grid.resize(nc * n, Complex::new(T::zero(), T::zero()));
-        fill_kspace_in(fill, transfer, &sinc, &mut s.grid, &mut s.fill);
+        let cols = columns.as_deref();
+        fill_kspace_in(fill, transfer, cols, &sinc, &mut s.grid, &mut s.fill);
         let t1 = t0.map(|_| Instant::now());
 
         let out = inverse_2d(&self.cache.plans(n), &mut s, n);
@@ -632,14 +694,18 @@ pub(crate) fn fill_kspace<T: FftNum>(
     sinc: &[f64],
     buf: &mut [Complex<T>],
 ) {
-    fill_kspace_in(fill, transfer, sinc, buf, &mut FillScratch::default());
+    fill_kspace_in(fill, transfer, None, sinc, buf, &mut FillScratch::default());
 }
 
 /// [`fill_kspace`] with its per-column arrays in `s` (any length and
-/// contents: each is sized and written before it is read).
+/// contents: each is sized and written before it is read), and the
+/// transfer's columns times the pixel response from `cols` when given
+/// ([`Columns::new`] of `transfer` and `sinc`; computed column by column
+/// otherwise).
 pub(crate) fn fill_kspace_in<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
+    cols: Option<&Columns>,
     sinc: &[f64],
     buf: &mut [Complex<T>],
     s: &mut FillScratch,
@@ -647,9 +713,9 @@ pub(crate) fn fill_kspace_in<T: FftNum>(
     #[cfg(target_arch = "x86_64")]
     if stepsim_numerics::simd::has_avx2() {
         // SAFETY: the CPU runs AVX2 (checked just above).
-        return unsafe { fill_kspace_avx2(fill, transfer, sinc, buf, s) };
+        return unsafe { fill_kspace_avx2(fill, transfer, cols, sinc, buf, s) };
     }
-    fill_kspace_body(fill, transfer, sinc, buf, s);
+    fill_kspace_body(fill, transfer, cols, sinc, buf, s);
 }
 
 /// [`fill_kspace_body`] built for AVX2.
@@ -658,11 +724,12 @@ pub(crate) fn fill_kspace_in<T: FftNum>(
 fn fill_kspace_avx2<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
+    cols: Option<&Columns>,
     sinc: &[f64],
     buf: &mut [Complex<T>],
     s: &mut FillScratch,
 ) {
-    fill_kspace_body(fill, transfer, sinc, buf, s);
+    fill_kspace_body(fill, transfer, cols, sinc, buf, s);
 }
 
 /// The body of [`fill_kspace`], in whichever build its caller has.
@@ -670,6 +737,7 @@ fn fill_kspace_avx2<T: FftNum>(
 pub(crate) fn fill_kspace_body<T: FftNum>(
     fill: &Fill,
     transfer: &[Complex32],
+    cols: Option<&Columns>,
     sinc: &[f64],
     buf: &mut [Complex<T>],
     s: &mut FillScratch,
@@ -691,7 +759,6 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
     ] {
         v.resize(n, 0.0);
     }
-    let (tre, tim) = (&mut s.tre[..n], &mut s.tim[..n]);
     let (amp, ts) = (&mut s.amp[..n], &mut s.ts[..n]);
     // Every cell computed, then the cut ones set to zero (no branch in the
     // loops, so that they run in vector registers; the same values).
@@ -703,11 +770,18 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
         amplitudes_along(&g, fill, g.vs, |gram, v| gram_k2(gram, u, v), amp, ts);
         amp_high[i] = amp[n / 2];
         let su = sinc[i];
-        for j in 0..n {
-            let tr = transfer[j * nc + i];
-            let ts = su * sinc[j];
-            (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
-        }
+        let (tre, tim): (&[f64], &[f64]) = match cols {
+            Some(c) => (&c.re[i * n..(i + 1) * n], &c.im[i * n..(i + 1) * n]),
+            None => {
+                let (tre, tim) = (&mut s.tre[..n], &mut s.tim[..n]);
+                for j in 0..n {
+                    let tr = transfer[j * nc + i];
+                    let ts = su * sinc[j];
+                    (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
+                }
+                (tre, tim)
+            }
+        };
         if i == n / 2 {
             let mirror = (
                 &mut s.tre_mirror[..n],
