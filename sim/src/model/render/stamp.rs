@@ -154,10 +154,15 @@ pub struct StampEngine<T: FftNum + Real> {
     /// Buffers of finished stamps, for the next ones (at most one per
     /// thread drawing at once is ever out of the pool).
     pool: Mutex<Vec<Scratch<T>>>,
-    /// For each stamp side up to [`KEPT_SIDE`], the last transfer seen
+    /// For each stamp side up to [`COLUMNS_SIDE`], the last transfer seen
     /// and its [`Columns`].
     columns: Mutex<HashMap<usize, KeptColumns>>,
 }
+
+/// The largest stamp side whose [`Columns`] the engine keeps (133 kB for
+/// a side of 128; up to 256 px the galaxy stage ran no faster, and the
+/// larger sides are few and each costs 4× as much).
+const COLUMNS_SIDE: usize = 128;
 
 /// A transfer and its [`Columns`].
 type KeptColumns = (Arc<Vec<Complex32>>, Arc<Columns>);
@@ -259,7 +264,7 @@ impl<T: FftNum + Real> StampEngine<T> {
     }
 
     /// The [`Columns`] of `transfer` on a grid of side `n` (`None` past
-    /// [`KEPT_SIDE`]): the kept ones while the same transfer comes back
+    /// [`COLUMNS_SIDE`]): the kept ones while the same transfer comes back
     /// (a PSF hands out one transfer per grid), else made and kept.
     fn columns(
         &self,
@@ -267,7 +272,7 @@ impl<T: FftNum + Real> StampEngine<T> {
         transfer: &Arc<Vec<Complex32>>,
         sinc: &[f64],
     ) -> Option<Arc<Columns>> {
-        if n > KEPT_SIDE {
+        if n > COLUMNS_SIDE {
             return None;
         }
         let mut map = self.columns.lock().expect("stamp columns");
