@@ -64,7 +64,11 @@ struct Table {
 /// little-endian f64: kept in the source because computing them took a
 /// process ~25 ms (2.5 % of a user's first 4096² image), most of it the
 /// direct integral's Bessel functions. A test recomputes them bit for bit
-/// and, under `STEPSIM_BLESS=1`, rewrites the file.
+/// and, under `STEPSIM_BLESS=1`, rewrites the file. They were computed on
+/// x86-64 Linux (the series takes `exp` and `powf` from the C library); a
+/// platform whose library rounds otherwise fails that test, and draws the
+/// same images as this one, where computing them per process it drew
+/// others.
 const STORED_VALUES: &[u8] = include_bytes!("devaucouleurs_table.bin");
 
 fn table() -> &'static Table {

@@ -684,11 +684,11 @@ fn cell<T: FftNum>((re, im): (f64, f64)) -> Complex<T> {
 /// such passes, at u = +ν_N and −ν_N ([`nyquist_column`]); the Nyquist row
 /// one pass along it, after the amplitudes at v = −ν_N ([`nyquist_row`]);
 /// only the corner goes through [`nyquist_cell`] (the three were 4.6 % of
-/// a user's first image's CPU when every Nyquist cell did). Each cell gets the same
-/// operations in the same order as in [`fill_kspace_slow`], so the same
-/// bits; the transform is also evaluated where the cut then zeroes the
-/// cell (at the STEP1 settings 0.85 % of a preset image's galaxy cells
-/// are cut, near the grids' corners).
+/// a user's first image's CPU when every Nyquist cell did). Each cell gets
+/// the same operations in the same order as in [`fill_kspace_slow`], so
+/// the same bits; the transform is also evaluated where the cut then
+/// zeroes the cell (at the STEP1 settings 0.85 % of a preset image's
+/// galaxy cells are cut, near the grids' corners).
 ///
 /// Where the CPU runs AVX2 the same code runs built for it (four f64 lanes
 /// instead of two; same bits, `stepsim_numerics::simd`).
@@ -851,11 +851,12 @@ fn nyquist_row<T: FftNum>(
 
 /// The Nyquist column u = n/2 of [`fill_kspace_body`] but its corner (row
 /// n/2): each cell is the sum of [`Spectrum::at`] at u = +ν_N and −ν_N, as
-/// [`nyquist_cell`] adds them, in two passes over the rows. `column` holds
-/// the transfer × pixel and the amplitudes of the column at u = +ν_N (as
-/// the other columns have them); the terms at −ν_N take the transfer's
-/// conjugate and the amplitude of the mirrored row −v, and the phase's
-/// conjugate along x.
+/// [`nyquist_cell`] adds them, in two passes over the rows. `tre`, `tim`
+/// and `amp` hold the transfer × pixel and the amplitudes of the column at
+/// u = +ν_N (as the other columns have them); the terms at −ν_N take the
+/// transfer's conjugate and the amplitude of the mirrored row −v (written
+/// into `tre_m`, `tim_m`, `amp_m` first), and the phase's conjugate
+/// along x.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn nyquist_column<T: FftNum>(
