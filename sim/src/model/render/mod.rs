@@ -339,7 +339,7 @@ impl Renderer {
         n: usize,
     ) -> Result<(i64, i64, Vec<f64>), RenderError> {
         let fill = self.fill_for(row, n)?;
-        let grid = StampGrid::new(n, self.pixel_scale_arcsec);
+        let grid = StampGrid::new(fill.n, self.pixel_scale_arcsec);
         let t = self.psf.transfer(grid);
         let data = self.engine64.render(&fill, &t, None);
         Ok((fill.x0, fill.y0, data))

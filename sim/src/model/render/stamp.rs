@@ -235,7 +235,9 @@ impl<T: FftNum> Default for Scratch<T> {
     }
 }
 
-/// The per-column arrays of [`fill_kspace`] (each as long as a column).
+/// The per-column arrays of [`fill_kspace`] (each as long as a column)
+/// and the Nyquist row's (`amp_high`, `amp_low`: n/2 + 1 of their values
+/// used).
 #[derive(Debug, Default)]
 pub(crate) struct FillScratch {
     tre: Vec<f64>,
@@ -272,16 +274,22 @@ impl<T: FftNum + Real> StampEngine<T> {
         transfer: &Arc<Vec<Complex32>>,
         sinc: &[f64],
     ) -> Option<Arc<Columns>> {
-        if n > COLUMNS_SIDE {
+        // A transfer of another grid is left to the fill, which refuses it.
+        if n > COLUMNS_SIDE || transfer.len() != n * (n / 2 + 1) || sinc.len() != n {
             return None;
         }
-        let mut map = self.columns.lock().expect("stamp columns");
-        if let Some((t, c)) = map.get(&n) {
-            if Arc::ptr_eq(t, transfer) {
-                return Some(c.clone());
+        {
+            let map = self.columns.lock().expect("stamp columns");
+            if let Some((t, c)) = map.get(&n) {
+                if Arc::ptr_eq(t, transfer) {
+                    return Some(c.clone());
+                }
             }
         }
+        // Made outside the lock (a PSF that hands out a new transfer for
+        // every stamp makes them every time, but holds up no other thread).
         let c = Arc::new(Columns::new(transfer, sinc, n));
+        let mut map = self.columns.lock().expect("stamp columns");
         map.insert(n, (transfer.clone(), c.clone()));
         Some(c)
     }

@@ -896,15 +896,34 @@ fn column_passes_fill_kspace_exactly_as_the_cell_by_cell_twin() {
         kvalue_threshold: 0.0,
         ..Accuracy::default()
     });
+    // A narrow, elliptical and displaced PSF: a complex transfer whose
+    // size differs between rows v and −v, large enough at Nyquist for
+    // thresholds to cut one term of a Nyquist cell and keep the other.
+    let asymmetric = |threshold| {
+        let psf = ShiftedPsf {
+            inner: GaussianPsf::elliptical(0.35, 0.2, -0.15),
+            dx: 0.05,
+            dy: -0.08,
+        };
+        let acc = Accuracy {
+            kvalue_threshold: threshold,
+            ..Accuracy::default()
+        };
+        Renderer::new(Arc::new(psf), P, acc, SKY_SIGMA)
+    };
+    let asymmetric: Vec<Renderer> = [0.0, 1e-3, 1e-2, 0.05].map(asymmetric).into();
     let mut compared = 0;
     // Working arrays kept from stamp to stamp, as the engine keeps them
     // (stale values of other sides; the grids start as NaN, so a cell the
     // fill did not write would show).
     let (mut kept_fast, mut kept_plain) =
         (stamp::FillScratch::default(), stamp::FillScratch::default());
-    for rr in [&r, &cut_renderer, &uncut_renderer] {
+    let renderers = [&r, &cut_renderer, &uncut_renderer]
+        .into_iter()
+        .chain(&asymmetric);
+    for rr in renderers {
         for row in &rows {
-            for n in [64, 16, 34] {
+            for n in [64, 16, 34, 4, 2] {
                 let fill = rr.fill_for(row, n).unwrap();
                 let grid = StampGrid::new(fill.n, P);
                 let t = rr.psf.transfer(grid);
