@@ -83,7 +83,7 @@ impl Table {
             .chunks_exact(8)
             .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
             .collect();
-        Self::from_values(y)
+        Self::from_values(y, series_coefficients())
     }
 
     /// The table computed: the direct integral below [`K_SWITCH`], the
@@ -103,17 +103,13 @@ impl Table {
                 }
             })
             .collect();
-        Self::from_values(y)
+        Self::from_values(y, series)
     }
 
-    /// The spline through the values `y` and the series coefficients.
-    fn from_values(y: Vec<f64>) -> Self {
+    /// The spline through the values `y`, with the series coefficients.
+    fn from_values(y: Vec<f64>, series: Vec<(f64, f64)>) -> Self {
         let m = natural_spline_second_derivatives(&y, DS);
-        Self {
-            y,
-            m,
-            series: series_coefficients(),
-        }
+        Self { y, m, series }
     }
 
     /// [`DeVaucouleurs::add_transforms_k2`] with AVX2.

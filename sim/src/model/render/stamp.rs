@@ -183,17 +183,35 @@ impl Columns {
     /// `n`), times `sinc[u] · sinc[v]`.
     pub(crate) fn new(transfer: &[Complex32], sinc: &[f64], n: usize) -> Self {
         let nc = n / 2 + 1;
-        let (mut re, mut im) = (Vec::with_capacity(n * nc), Vec::with_capacity(n * nc));
-        for i in 0..nc {
-            let su = sinc[i];
-            for j in 0..n {
-                let tr = transfer[j * nc + i];
-                let ts = su * sinc[j];
-                re.push(f64::from(tr.re) * ts);
-                im.push(f64::from(tr.im) * ts);
-            }
+        let (mut re, mut im) = (vec![0.0; n * nc], vec![0.0; n * nc]);
+        for (i, (re, im)) in re
+            .chunks_exact_mut(n)
+            .zip(im.chunks_exact_mut(n))
+            .enumerate()
+        {
+            transfer_column(transfer, sinc, n, i, re, im);
         }
         Self { re, im }
+    }
+}
+
+/// Column `i` of `transfer` (row-major `[v][u]`, n/2 + 1 columns of `n`)
+/// times `sinc[i] · sinc[j]`, row j into `re[j]`, `im[j]`.
+#[inline(always)]
+fn transfer_column(
+    transfer: &[Complex32],
+    sinc: &[f64],
+    n: usize,
+    i: usize,
+    re: &mut [f64],
+    im: &mut [f64],
+) {
+    let nc = n / 2 + 1;
+    let su = sinc[i];
+    for j in 0..n {
+        let tr = transfer[j * nc + i];
+        let ts = su * sinc[j];
+        (re[j], im[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
     }
 }
 
@@ -787,11 +805,7 @@ pub(crate) fn fill_kspace_body<T: FftNum>(
             Some(c) => (&c.re[i * n..(i + 1) * n], &c.im[i * n..(i + 1) * n]),
             None => {
                 let (tre, tim) = (&mut s.tre[..n], &mut s.tim[..n]);
-                for j in 0..n {
-                    let tr = transfer[j * nc + i];
-                    let ts = su * sinc[j];
-                    (tre[j], tim[j]) = (f64::from(tr.re) * ts, f64::from(tr.im) * ts);
-                }
+                transfer_column(transfer, sinc, n, i, tre, tim);
                 (tre, tim)
             }
         };
