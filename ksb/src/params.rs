@@ -26,9 +26,12 @@ pub enum SizeCut {
     /// STEP1 preset it adds about +0.03 to m (docs/baseline.md).
     Windowed,
     /// The r_g of the round object of the same PSF-corrected area
-    /// (`psf_corrected_size` in shear.rs), which a shear keeps: the
-    /// selection no longer depends on the shear, and the estimator's own
-    /// bias shows (docs/baseline.md).
+    /// (`psf_corrected_size` in shear.rs: the PSF taken out as a tensor,
+    /// with the stars' own e* fitted across the field), which neither a
+    /// shear nor the PSF's anisotropy moves for Gaussian profiles; on the
+    /// preset's isolated galaxies the cut's selection is −0.014 … +0.006
+    /// in m against +0.033 … +0.043 for r_g (docs/baseline.md, "Isolated
+    /// galaxies on a grid").
     PsfCorrected,
 }
 

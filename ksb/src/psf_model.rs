@@ -185,6 +185,49 @@ impl PsfModel {
     }
 }
 
+/// The stars' own windowed ellipticity e* across the field (each star
+/// measured with its own r_g, as the stellar locus sizes them): what the
+/// PSF-corrected size cut takes out as the PSF's tensor
+/// ([`crate::shear::psf_corrected_size`]). e₁* and e₂* are fitted as p and
+/// R are ([`PsfModel::build`]): one polynomial each, joint κσ clipping, the
+/// order lowered to what the stars support.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StarShape {
+    fits: Vec<Poly2>,
+}
+
+impl StarShape {
+    /// Fits the stars `(x, y, e*)` (array coordinates) of an image of
+    /// `width` × `height`; `None` with fewer than `psf_min_stars`.
+    pub fn fit(
+        stars: &[(f64, f64, [f64; 2])],
+        width: usize,
+        height: usize,
+        params: &KsbParams,
+    ) -> Option<Self> {
+        let xy: Vec<(f64, f64)> = stars.iter().map(|s| (s.0, s.1)).collect();
+        let vals = vec![
+            stars.iter().map(|s| s.2[0]).collect(),
+            stars.iter().map(|s| s.2[1]).collect(),
+        ];
+        let (fits, _) = fit_clipped(
+            FieldFrame::of_image(width, height),
+            &xy,
+            &vals,
+            params.psf_order,
+            params.psf_clip_sigma,
+            params.psf_stars_per_term,
+            params.psf_min_stars,
+        )?;
+        Some(Self { fits })
+    }
+
+    /// e* at (x, y).
+    pub fn at(&self, x: f64, y: f64) -> [f64; 2] {
+        [self.fits[0].eval(x, y), self.fits[1].eval(x, y)]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -42,8 +42,9 @@ pub enum SizeCutArg {
     /// The windowed r_g, which follows the shear to first order in g·e,
     /// so the cut selects on the shear (docs/baseline.md).
     Windowed,
-    /// The r_g of the round object of the same PSF-corrected area, which
-    /// a shear keeps.
+    /// The r_g of the round object of the same PSF-corrected area (the
+    /// PSF's second moments, from the stars' r_g* and e*, taken out as a
+    /// tensor), which a shear keeps.
     PsfCorrected,
 }
 
