@@ -133,15 +133,7 @@ impl PsfModel {
                     m.iter().map(|s| s.p[1]).collect(),
                     m.iter().map(|s| s.ratio).collect(),
                 ];
-                let (fits, keep) = fit_clipped(
-                    frame,
-                    &xy,
-                    &vals,
-                    params.psf_order,
-                    params.psf_clip_sigma,
-                    params.psf_stars_per_term,
-                    params.psf_min_stars,
-                )?;
+                let (fits, keep) = fit_stars(frame, &xy, &vals, params)?;
                 Some(ScaleModel {
                     rg,
                     fits,
@@ -185,6 +177,26 @@ impl PsfModel {
     }
 }
 
+/// Polynomials across the field of the stars' `values` at `xy`, with the
+/// PSF model's order, clipping and star counts (`psf_order`,
+/// `psf_clip_sigma`, `psf_stars_per_term`, `psf_min_stars`).
+fn fit_stars(
+    frame: FieldFrame,
+    xy: &[(f64, f64)],
+    values: &[Vec<f64>],
+    params: &KsbParams,
+) -> Option<(Vec<Poly2>, Vec<bool>)> {
+    fit_clipped(
+        frame,
+        xy,
+        values,
+        params.psf_order,
+        params.psf_clip_sigma,
+        params.psf_stars_per_term,
+        params.psf_min_stars,
+    )
+}
+
 /// The stars' own windowed ellipticity e* across the field (each star
 /// measured with its own r_g, as the stellar locus sizes them): what the
 /// PSF-corrected size cut takes out as the PSF's tensor
@@ -210,15 +222,7 @@ impl StarShape {
             stars.iter().map(|s| s.2[0]).collect(),
             stars.iter().map(|s| s.2[1]).collect(),
         ];
-        let (fits, _) = fit_clipped(
-            FieldFrame::of_image(width, height),
-            &xy,
-            &vals,
-            params.psf_order,
-            params.psf_clip_sigma,
-            params.psf_stars_per_term,
-            params.psf_min_stars,
-        )?;
+        let (fits, _) = fit_stars(FieldFrame::of_image(width, height), &xy, &vals, params)?;
         Some(Self { fits })
     }
 
