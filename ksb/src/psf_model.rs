@@ -239,6 +239,29 @@ mod tests {
     use crate::scene::{covariance, draw_gaussian_sampled};
 
     #[test]
+    fn the_star_shapes_follow_a_linear_field() {
+        // 40 stars whose e* changes linearly across a 2000 × 1000 image
+        // (e₁* with x, e₂* with y): the fit gives it back at other places,
+        // so x and y are not swapped and the frame is the image's.
+        let truth = |x: f64, y: f64| [0.01 + 2e-5 * x, -0.02 + 3e-5 * y];
+        let stars: Vec<(f64, f64, [f64; 2])> = (0..40)
+            .map(|k| {
+                let (x, y) = (37.0 + (k % 8) as f64 * 250.0, 61.0 + (k / 8) as f64 * 210.0);
+                (x, y, truth(x, y))
+            })
+            .collect();
+        let fit = StarShape::fit(&stars, 2000, 1000, &KsbParams::default()).unwrap();
+        for (x, y) in [(100.0, 900.0), (1900.0, 50.0), (1000.0, 500.0)] {
+            let (got, want) = (fit.at(x, y), truth(x, y));
+            assert!(
+                (got[0] - want[0]).abs() < 1e-9 && (got[1] - want[1]).abs() < 1e-9,
+                "({x}, {y}): {got:?} against {want:?}"
+            );
+        }
+        assert!(StarShape::fit(&stars[..2], 2000, 1000, &KsbParams::default()).is_none());
+    }
+
+    #[test]
     fn uniform_gaussian_psf_model_matches_the_analytic_star() {
         // 20 identical Gaussian stars on a 250² image: the model at every
         // position equals the analytic p and R of that Gaussian at the

@@ -86,20 +86,25 @@ pub fn weight(sigma_gamma: f64, sigma_int: f64) -> f64 {
 /// 2 r_g² (1 + e²)/(1 − e²), determinant r_g⁴). The star's (r_g*, e*) give
 /// the PSF's tensor P the same way, and the galaxy's own moments are M − P,
 /// whose determinant a shear (determinant 1) keeps. An elliptical PSF must
-/// be taken out as the tensor it is: with e* left out, a galaxy aligned with
-/// the PSF's anisotropy keeps more of its area than one across it, and the
-/// cut selects on the PSF's direction (c₁ −0.006 with the jitter PSF on
+/// be taken out as the tensor it is: with e* left out, a galaxy lying across
+/// the PSF's anisotropy keeps more of its area than one aligned with it, and
+/// the cut selects on the PSF's direction (c₁ −0.006 with the jitter PSF on
 /// isolated galaxies, docs/baseline.md). The result is √(√det(M − P) +
-/// r_g*²): r_g itself for a round object through a round PSF. An object
-/// whose det is not positive (or |e| ≥ 1) gets r_g*, below any cut; a NaN
-/// input gives NaN.
+/// r_g*²): r_g itself for a round object of r_g ≥ r_g* through a round PSF.
+/// An object whose M − P is not positive definite (smaller than the PSF
+/// along some axis), or with |e| ≥ 1, or a PSF with |e*| ≥ 1, gets r_g*,
+/// below any cut; a NaN input gives NaN.
 pub fn psf_corrected_size(rg: f64, e: [f64; 2], rg_star: f64, e_star: [f64; 2]) -> f64 {
     let (Some(m), Some(p)) = (moment_tensor(rg, e), moment_tensor(rg_star, e_star)) else {
         return f64::NAN;
     };
     let p2 = rg_star * rg_star;
     let det = match (m, p) {
-        (Some(m), Some(p)) => (m[0] - p[0]) * (m[1] - p[1]) - (m[2] - p[2]).powi(2),
+        (Some(m), Some(p)) => {
+            let det = (m[0] - p[0]) * (m[1] - p[1]) - (m[2] - p[2]).powi(2);
+            // Positive definite: a positive determinant and diagonal.
+            if m[0] - p[0] > 0.0 { det } else { 0.0 }
+        }
         _ => 0.0,
     };
     (det.max(0.0).sqrt() + p2).sqrt()
@@ -294,44 +299,50 @@ mod tests {
         assert!(psf_corrected_size(f64::NAN, round, 1.9, round).is_nan());
         assert!(psf_corrected_size(2.7, [f64::NAN, 0.0], 1.9, round).is_nan());
         assert!(psf_corrected_size(2.7, round, 1.9, [0.1, f64::NAN]).is_nan());
+        // Smaller than the PSF: r_g* (M − P negative definite has a
+        // positive determinant too).
+        assert_eq!(psf_corrected_size(0.8, round, 1.86, round), 1.86);
+        assert_eq!(psf_corrected_size(1.8, [0.3, 0.0], 1.86, round), 1.86);
     }
 
     #[test]
     fn the_psf_corrected_size_takes_out_an_elliptical_psf() {
         // One elliptical Gaussian galaxy (σ 1.5 px, |e_s| 0.3, eq. 1) turned
         // to eight position angles and drawn through an elliptical Gaussian
-        // PSF (FWHM 4.37 px, e 0.08 along x):
-        // its own area does not depend on how it lies against the PSF, so
-        // the PSF-corrected size with the star's e* must not either, and
-        // must be the galaxy's own √(√det C + r_g*²); with e* taken as 0 it
-        // follows the angle (the SMALL cut's additive selection).
-        let psf = covariance(4.37 / 2.3548, [0.08, 0.0]);
-        let star = measure(&psf, None);
-        let (rg_star, e_star) = (star.sigma_w, star.e);
-        assert!(e_star[0] > 0.03 && e_star[1].abs() < 1e-6, "{e_star:?}");
-        let mut with_e = Vec::new();
-        let mut without = Vec::new();
-        for k in 0..8 {
-            let th = std::f64::consts::PI * k as f64 / 8.0;
-            let e = [0.3 * (2.0 * th).cos(), 0.3 * (2.0 * th).sin()];
-            let galaxy = covariance(1.5, e);
-            let s = measure(&convolve(&galaxy, &psf), None);
-            with_e.push(psf_corrected_size(s.sigma_w, s.e, rg_star, e_star));
-            without.push(psf_corrected_size(s.sigma_w, s.e, rg_star, [0.0; 2]));
-        }
-        let spread = |v: &[f64]| {
-            let (lo, hi) = v
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
-            (hi - lo) / lo
-        };
-        // Measured: 6.7 % without e*, 3.4e-6 with it; the galaxy's own
-        // size to 2.5e-5.
-        assert!(spread(&without) > 0.02, "without e*: {without:?}");
-        assert!(spread(&with_e) < 2e-5, "with e*: {with_e:?}");
-        let own = (1.5_f64.powi(2) + rg_star * rg_star).sqrt();
-        for v in &with_e {
-            assert!((v / own - 1.0).abs() < 1e-4, "{v} against {own}");
+        // PSF (FWHM 4.37 px, e 0.08 along x, then at 45°): its own area does
+        // not depend on how it lies against the PSF, so the PSF-corrected
+        // size with the star's e* must not either, and must be the galaxy's
+        // own √(√det C + r_g*²); with e* taken as 0 it follows the angle
+        // (the SMALL cut's additive selection).
+        for psf_e in [[0.08, 0.0], [0.0, 0.08]] {
+            let psf = covariance(4.37 / 2.3548, psf_e);
+            let star = measure(&psf, None);
+            let (rg_star, e_star) = (star.sigma_w, star.e);
+            assert!(e_star[0].hypot(e_star[1]) > 0.03, "{e_star:?}");
+            let mut with_e = Vec::new();
+            let mut without = Vec::new();
+            for k in 0..8 {
+                let th = std::f64::consts::PI * k as f64 / 8.0;
+                let e = [0.3 * (2.0 * th).cos(), 0.3 * (2.0 * th).sin()];
+                let galaxy = covariance(1.5, e);
+                let s = measure(&convolve(&galaxy, &psf), None);
+                with_e.push(psf_corrected_size(s.sigma_w, s.e, rg_star, e_star));
+                without.push(psf_corrected_size(s.sigma_w, s.e, rg_star, [0.0; 2]));
+            }
+            let spread = |v: &[f64]| {
+                let (lo, hi) = v
+                    .iter()
+                    .fold((f64::MAX, f64::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+                (hi - lo) / lo
+            };
+            // Measured: 6.7 % without e*, 3.4e-6 with it; the galaxy's own
+            // size to 2.5e-5.
+            assert!(spread(&without) > 0.02, "without e*: {without:?}");
+            assert!(spread(&with_e) < 2e-5, "with e*: {with_e:?}");
+            let own = (1.5_f64.powi(2) + rg_star * rg_star).sqrt();
+            for v in &with_e {
+                assert!((v / own - 1.0).abs() < 1e-4, "{v} against {own}");
+            }
         }
     }
 

@@ -21,9 +21,10 @@ truth galaxy within 1 arcsec and prints, for all rows and by size and
 magnitude bins, three slopes against g1 fitted per base field over its
 shears (the rotated twin pooled with its field, so shape noise cancels),
 mean +- standard error over fields: m of the kept rows (weighted mean e1,
-minus 1), the selection (plain mean of the true intrinsic e1_int of the kept
-rows: what the cuts add to m) and the estimator (weighted mean of e1 -
-e1_int, minus 1: the bias on the same rows, paired). With `c` it prints the
+minus 1), the selection (weighted mean of the true intrinsic e1_int of the
+kept rows: what the cuts and the weights add to m) and the estimator
+(weighted mean of e1 - e1_int, minus 1: the bias on the same rows, paired);
+the two add up to m. With `c` it prints the
 intercepts instead (c1 and its two parts). Size bins are by a crude
 half-light radius, (1 - B/T) 1.678 h + B/T r_e (arcsec).
 
@@ -83,6 +84,8 @@ def matched(run, catalogue):
     out = []
     for path in sorted(glob.glob(f"{run}/private/truth/*.fits")):
         image = path.split("/")[-1][: -len(".fits")]
+        if image not in rows:
+            continue
         hdus = fits.open(path)
         header = {}
         for h in hdus:
@@ -124,7 +127,6 @@ def table(run, catalogue, coefficient):
             return "—"
         return f"{s.mean() - minus:+.4f} ± {s.std(ddof=1) / np.sqrt(len(s)):.4f}"
 
-    one = np.ones_like(weight)
     bins = [("all", np.ones(len(weight), bool))]
     bins += [(f"hlr {lo:.2f}-{hi:.2f}\"", (hlr >= lo) & (hlr < hi))
              for lo, hi in [(0, 0.3), (0.3, 0.45), (0.45, 0.7), (0.7, 99)]]
@@ -136,7 +138,7 @@ def table(run, catalogue, coefficient):
     for name, b in bins:
         s = b & kept
         print(f"{name:16s} {int(b.sum()):8d} {int(s.sum()):7d} "
-              f"{fit(s, e1, weight, unit):>17s} {fit(s, e1_int, one):>15s} "
+              f"{fit(s, e1, weight, unit):>17s} {fit(s, e1_int, weight):>15s} "
               f"{fit(s, e1 - e1_int, weight, unit):>15s}")
 
 
