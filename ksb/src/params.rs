@@ -30,8 +30,8 @@ pub enum SizeCut {
     /// with the stars' own e* fitted across the field), which neither a
     /// shear nor the PSF's anisotropy moves for Gaussian profiles; on the
     /// preset's isolated galaxies at low noise the cut's selection is
-    /// −0.014 … +0.006 in m against +0.033 … +0.043 for r_g, at STEP1's
-    /// noise −0.005 … −0.036 against +0.014 … +0.024 (docs/baseline.md,
+    /// −0.014 … +0.006 in m against +0.032 … +0.043 for r_g, at STEP1's
+    /// noise −0.005 … −0.036 against +0.013 … +0.023 (docs/baseline.md,
     /// "Isolated galaxies on a grid").
     PsfCorrected,
 }
