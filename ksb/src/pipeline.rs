@@ -304,21 +304,20 @@ impl Detections {
             .iter()
             .map(|o| selection.is_some_and(|s| s.is_star(o, params)))
             .collect();
-        let psf_stars: Vec<(f64, f64)> = cands
+        let psf_cands: Vec<&Candidate> = cands
             .iter()
             .zip(&sizemag)
             .filter(|(_, o)| selection.is_some_and(|s| s.is_psf_star(o, params)))
-            .map(|(c, _)| (c.x, c.y))
+            .map(|(c, _)| c)
             .collect();
+        let psf_stars: Vec<(f64, f64)> = psf_cands.iter().map(|c| (c.x, c.y)).collect();
         // The stars' own e* across the field, for the size cut that takes
         // the PSF out as a tensor (none found: taken as round).
         let star_shape = (params.size_cut == SizeCut::PsfCorrected)
             .then(|| {
-                let shapes: Vec<(f64, f64, [f64; 2])> = cands
+                let shapes: Vec<(f64, f64, [f64; 2])> = psf_cands
                     .iter()
-                    .zip(&sizemag)
-                    .filter(|(_, o)| selection.is_some_and(|s| s.is_psf_star(o, params)))
-                    .filter_map(|(c, _)| c.shape.map(|s| (c.x, c.y, s.e)))
+                    .filter_map(|c| c.shape.map(|s| (c.x, c.y, s.e)))
                     .collect();
                 crate::psf_model::StarShape::fit(&shapes, width, height, params)
             })
