@@ -30,13 +30,13 @@ half-light radius, (1 - B/T) 1.678 h + B/T r_e (arcsec).
 
 Needs numpy, scipy and astropy; not run by CI.
 """
-import glob
 import random
 import sys
 
 import numpy as np
-from astropy.io import fits
 from scipy.spatial import cKDTree
+
+from selection_slopes import read_catalogue, truth_tables
 
 PIXEL_SCALE = 0.206
 STEP_PX = 64
@@ -75,22 +75,9 @@ def lists(catalog_dir, out_dir, n_fields):
 
 def matched(run, catalogue):
     """(field, g1, e1_int, e1, weight, hlr, mag) of each matched galaxy."""
-    rows = {}
-    for line in open(catalogue):
-        if line.startswith("#"):
-            continue
-        w = line.split()
-        rows.setdefault(w[0], []).append([float(v) for v in w[1:6]])
+    rows = read_catalogue(catalogue)
     out = []
-    for path in sorted(glob.glob(f"{run}/private/truth/*.fits")):
-        image = path.split("/")[-1][: -len(".fits")]
-        if image not in rows:
-            continue
-        hdus = fits.open(path)
-        header = {}
-        for h in hdus:
-            header.update(dict(h.header))
-        t = hdus[1].data
+    for image, key, t in truth_tables(run, rows):
         c = np.array(rows[image])
         gal = np.nonzero(t["kind"] == 1)[0]
         tree = cKDTree(np.column_stack([t["x"][gal], t["y"][gal]]))
@@ -100,7 +87,7 @@ def matched(run, catalogue):
         bt = t["bt"][g]
         hlr = (1 - bt) * 1.678 * t["disk_h_arcsec"][g] + bt * t["bulge_re_arcsec"][g]
         out.append(np.column_stack([
-            np.full(len(g), int(header["FIELD"])), np.full(len(g), header["G1"]),
+            np.full(len(g), int(key("FIELD"))), np.full(len(g), key("G1")),
             t["e1_int"][g], c[:, 2], c[:, 4], hlr, t["mag"][g]]))
     return np.vstack(out).T
 

@@ -44,17 +44,22 @@ def read_catalogue(path):
     return rows
 
 
-def matched_isolated(run, rows):
-    """(field, g1, e1_int, e1, weight, flags) of each matched isolated galaxy."""
-    out = []
+def truth_tables(run, rows):
+    """(image, key, table) of each truth file of RUN whose image has rows;
+    key(k) is the first header value of keyword k."""
     for path in sorted(glob.glob(f"{run}/private/truth/*.fits")):
         image = path.split("/")[-1][: -len(".fits")]
         if image not in rows:
             continue
         hdus = fits.open(path)
-        key = lambda k: next(h.header[k] for h in hdus if k in h.header)
+        yield image, lambda k, h=hdus: next(x.header[k] for x in h if k in x.header), hdus[1].data
+
+
+def matched_isolated(run, rows):
+    """(field, g1, e1_int, e1, weight, flags) of each matched isolated galaxy."""
+    out = []
+    for image, key, t in truth_tables(run, rows):
         field = 2 * int(key("FIELD")) + int(key("ROTATED"))
-        t = hdus[1].data
         xy = np.column_stack([t["x"], t["y"]])
         flux = t["flux_e"]
         pairs = cKDTree(xy).query_pairs(3.0 / PIXEL_SCALE, output_type="ndarray")
