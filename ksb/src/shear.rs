@@ -95,11 +95,13 @@ pub fn weight(sigma_gamma: f64, sigma_int: f64) -> f64 {
 /// along some axis), or with |e| ≥ 1, or a PSF with |e*| ≥ 1, gets r_g*,
 /// below any cut; a NaN input gives NaN.
 pub fn psf_corrected_size(rg: f64, e: [f64; 2], rg_star: f64, e_star: [f64; 2]) -> f64 {
-    let (Some(m), Some(p)) = (moment_tensor(rg, e), moment_tensor(rg_star, e_star)) else {
+    if [rg, e[0], e[1], rg_star, e_star[0], e_star[1]]
+        .iter()
+        .any(|v| v.is_nan())
+    {
         return f64::NAN;
-    };
-    let p2 = rg_star * rg_star;
-    let det = match (m, p) {
+    }
+    let det = match (moment_tensor(rg, e), moment_tensor(rg_star, e_star)) {
         (Some(m), Some(p)) => {
             let det = (m[0] - p[0]) * (m[1] - p[1]) - (m[2] - p[2]).powi(2);
             // Positive definite: a positive determinant and diagonal.
@@ -107,26 +109,22 @@ pub fn psf_corrected_size(rg: f64, e: [f64; 2], rg_star: f64, e_star: [f64; 2]) 
         }
         _ => 0.0,
     };
-    (det.max(0.0).sqrt() + p2).sqrt()
+    (det.max(0.0).sqrt() + rg_star * rg_star).sqrt()
 }
 
 /// (M₁₁, M₂₂, M₁₂) of the Gaussian whose windowed r_g and e these are
-/// ([`psf_corrected_size`]); `Some(None)` for |e| ≥ 1 (a line), `None` for a
-/// NaN input.
-fn moment_tensor(rg: f64, e: [f64; 2]) -> Option<Option<[f64; 3]>> {
+/// ([`psf_corrected_size`]); `None` for |e| ≥ 1 (a line).
+fn moment_tensor(rg: f64, e: [f64; 2]) -> Option<[f64; 3]> {
     let e2 = e[0] * e[0] + e[1] * e[1];
-    if rg.is_nan() || e2.is_nan() {
+    if e2 >= 1.0 {
         return None;
     }
-    if e2 >= 1.0 {
-        return Some(None);
-    }
     let s = rg * rg / (1.0 - e2);
-    Some(Some([
+    Some([
         s * (1.0 + e2 + 2.0 * e[0]),
         s * (1.0 + e2 - 2.0 * e[0]),
         s * 2.0 * e[1],
-    ]))
+    ])
 }
 
 /// A fit of P^γ against t = ln(r_g / r_g*).
