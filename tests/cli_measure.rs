@@ -359,3 +359,78 @@ fn the_size_cut_option_changes_only_the_small_flags() {
     );
     assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));
 }
+
+#[test]
+fn details_are_written_beside_the_submission_and_refused_where_they_cannot_be() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let (plain, sub, table) = (
+        dir.path().join("plain.txt"),
+        dir.path().join("sub.txt"),
+        dir.path().join("sub.details"),
+    );
+    ok(measure(&run, &plain, "2"));
+    let with = |out: &Path, details: &Path, extra: &[&str]| {
+        run_with(
+            stepsim()
+                .args(["measure", "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(out)
+                .arg("--details")
+                .arg(details)
+                .args(extra),
+        )
+    };
+    ok(with(&sub, &table, &["--threads", "1"]));
+    // The submission is the same bytes; the table holds its lines in its
+    // order, each with eight more columns.
+    let text = std::fs::read_to_string(&sub).unwrap();
+    assert_eq!(text, std::fs::read_to_string(&plain).unwrap());
+    let details = std::fs::read_to_string(&table).unwrap();
+    let mut lines = details.lines();
+    assert_eq!(
+        lines.next(),
+        Some("# image x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma")
+    );
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), text.lines().count() - 1);
+    for (d, s) in rows.iter().zip(text.lines().skip(1)) {
+        let cols: Vec<&str> = d.split(' ').collect();
+        assert_eq!((cols.len(), cols[..7].join(" ")), (15, s.to_string()));
+    }
+    // Metacal rows have no KSB+ parts: `nan`, their r_g and ν kept.
+    let (mc, mc_table) = (dir.path().join("mc.txt"), dir.path().join("mc.details"));
+    ok(with(&mc, &mc_table, &["--method", "metacal"]));
+    let mc_rows = std::fs::read_to_string(&mc_table).unwrap();
+    let weighted: Vec<Vec<&str>> = mc_rows
+        .lines()
+        .skip(1)
+        .map(|l| l.split(' ').collect::<Vec<_>>())
+        .filter(|c| c[5] != "0.000000")
+        .collect();
+    assert!(weighted.len() > 20, "{}", weighted.len());
+    for c in &weighted {
+        assert_eq!(c[10..], ["nan"; 5], "{c:?}");
+        assert!(c[7].parse::<f64>().unwrap() > 1.0 && c[8].parse::<f64>().unwrap() >= 10.0);
+    }
+    // The table's own file, a directory, and shards: refused before
+    // measuring.
+    let o = with(&dir.path().join("s3.txt"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
+    assert!(!dir.path().join("s3.txt").exists());
+    let o = with(&sub, &sub, &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("is the submission --out itself"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(std::fs::read_to_string(&sub).unwrap(), text);
+    let o = with(&dir.path().join("s2.txt"), &table, &["--shard", "1/2"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--details"), "{}", stderr(&o));
+    assert!(!dir.path().join("s2.txt.shards").exists());
+}

@@ -105,6 +105,47 @@ pub fn push_row(s: &mut String, image: &str, o: &MeasuredObject) {
     );
 }
 
+/// Column header line of the details table (`stepsim measure --details`):
+/// the submission's columns, then the pipeline's own quantities.
+pub const DETAILS_HEADER: &str =
+    "# image x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma";
+
+/// Appends the details line of `o` (docs/ksb.md, "The details table"):
+/// its submission line's seven columns, then r_g (pixels), ν, the
+/// magnitude, ½Tr P^γ as used (k included), the calibration's k, e_cor
+/// and σ_γ; `nan` where the pipeline did not compute one (KSB+'s parts
+/// under metacal, no PSF model, no moments).
+pub fn push_details_row(s: &mut String, image: &str, o: &MeasuredObject) {
+    let (e_cor, k, sigma) = o.ksb.map_or(([f64::NAN; 2], f64::NAN, f64::NAN), |d| {
+        (d.e_cor, d.k, d.sigma_gamma)
+    });
+    let nan = |v: f64, digits: usize| {
+        if v.is_finite() {
+            format!("{v:.digits$}")
+        } else {
+            "nan".to_string()
+        }
+    };
+    let _ = writeln!(
+        s,
+        "{image} {:.3} {:.3} {:.6} {:.6} {:.6} {} {} {} {} {} {} {} {} {}",
+        o.x,
+        o.y,
+        o.e1,
+        o.e2,
+        o.weight,
+        o.flags,
+        nan(o.rg_px, 4),
+        nan(o.sn, 2),
+        nan(o.mag, 3),
+        nan(o.pgamma, 6),
+        nan(k, 6),
+        nan(e_cor[0], 6),
+        nan(e_cor[1], 6),
+        nan(sigma, 6),
+    );
+}
+
 /// Writes a submission atomically (for the tests: a run writes its rows
 /// by [`push_row`]).
 #[cfg(test)]
@@ -190,6 +231,7 @@ mod tests {
             mag: 22.0,
             pgamma: 0.5,
             metacal: None,
+            ksb: None,
         };
         let s = format_submission([
             ("img1", &o),

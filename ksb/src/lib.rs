@@ -86,7 +86,8 @@ pub use image::Image;
 pub use io::{read_manifest, write_fits_image};
 pub use linalg::Mat2;
 pub use params::{KsbParams, Method, PgammaMode, SizeCut};
-pub use pipeline::{ImageInfo, ImageMeasurement, MeasuredObject, measure_image};
+pub use pipeline::{ImageInfo, ImageMeasurement, KsbDetails, MeasuredObject, measure_image};
 pub use run::{
-    ImageSummary, Progress, join_parts, measure_run, measure_shard, part_path, parts_count,
+    ImageSummary, Progress, join_parts, measure_run, measure_run_with_details, measure_shard,
+    part_path, parts_count,
 };

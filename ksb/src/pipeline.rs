@@ -54,6 +54,21 @@ pub struct MeasuredObject {
     /// `weight` are set from the dataset's response by
     /// `apply_response` (`metacal.rs`).
     pub metacal: Option<(crate::metacal::McMeasure, [bool; 5])>,
+    /// With KSB+: the estimate's parts (`None` where no estimate was made,
+    /// and with metacalibration).
+    pub ksb: Option<KsbDetails>,
+}
+
+/// The parts of a KSB+ estimate γ̂ = e_cor / P^γ that a row does not carry
+/// (`stepsim measure --details`, docs/ksb.md).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KsbDetails {
+    /// The PSF-anisotropy-corrected ellipticity e − P^sm p.
+    pub e_cor: [f64; 2],
+    /// The calibration's factor k in P^γ (1 without a calibration).
+    pub k: f64,
+    /// The pixel-noise σ of γ̂ per component.
+    pub sigma_gamma: f64,
 }
 
 /// Everything measured on one image.
@@ -392,6 +407,7 @@ impl Detections {
                     mag,
                     pgamma: f64::NAN,
                     metacal: None,
+                    ksb: None,
                 };
                 match (&model, c.shape) {
                     (Some(m), Some(s)) => (obj, Some((s, m.at(c.x, c.y, s.sigma_w)))),
@@ -500,6 +516,11 @@ impl Detections {
                         None => estimate_with(s, c, pgamma(s, c) * k),
                     };
                     o.pgamma = est.pgamma;
+                    o.ksb = Some(KsbDetails {
+                        e_cor: est.e_cor,
+                        k,
+                        sigma_gamma: est.sigma_gamma,
+                    });
                     if est.pgamma.is_nan() || est.pgamma < params.min_pgamma {
                         o.flags |= flags::PGAMMA;
                     }
@@ -646,6 +667,7 @@ mod tests {
             mag: 22.0,
             pgamma: 0.5,
             metacal: None,
+            ksb: None,
         };
         let mut o = blank;
         set_shear(&mut o, [-1_074_421.584263, -813_513.174783], 1.0);

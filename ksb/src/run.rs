@@ -20,7 +20,9 @@
 //! nothing, each image falls back to its own.
 
 use crate::error::KsbError;
-use crate::io::{SUBMISSION_HEADER, push_row, read_fits_image, read_manifest};
+use crate::io::{
+    DETAILS_HEADER, SUBMISSION_HEADER, push_details_row, push_row, read_fits_image, read_manifest,
+};
 use crate::params::KsbParams;
 use crate::pipeline::{Detections, ImageInfo, ImageMeasurement, detect_image};
 use crate::stars::{StarSelection, select_stars};
@@ -64,8 +66,32 @@ pub fn measure_run(
     params: &KsbParams,
     progress: Progress,
 ) -> Result<Vec<ImageSummary>, KsbError> {
-    let measured = measure_datasets(public_dir, out, threads, params, |_| true, progress)?;
-    measured.write(out, &[])
+    let measured = measure_datasets(public_dir, out, None, threads, params, |_| true, progress)?;
+    measured.write(out, &[], None)
+}
+
+/// [`measure_run`], also writing the details table to `details`: the
+/// submission's rows in its order, each followed by the pipeline's own
+/// quantities (docs/ksb.md, "The details table"). The table is written
+/// before the submission, so a submission written means its table is too.
+pub fn measure_run_with_details(
+    public_dir: &Path,
+    out: &Path,
+    details: &Path,
+    threads: usize,
+    params: &KsbParams,
+    progress: Progress,
+) -> Result<Vec<ImageSummary>, KsbError> {
+    let measured = measure_datasets(
+        public_dir,
+        out,
+        Some(details),
+        threads,
+        params,
+        |_| true,
+        progress,
+    )?;
+    measured.write(out, &[], Some(details))
 }
 
 /// The datasets of shard `k` of `n` (1-based): the dataset ids of the
@@ -113,13 +139,14 @@ pub fn measure_shard(
     let measured = measure_datasets(
         public_dir,
         &path,
+        None,
         threads,
         params,
         |d| mine.iter().any(|m| m == d),
         progress,
     )?;
     let sha = manifest_sha256(&manifest_path)?;
-    measured.write(&path, &[format!("{MANIFEST_LINE}{sha}")])
+    measured.write(&path, &[format!("{MANIFEST_LINE}{sha}")], None)
 }
 
 const MANIFEST_LINE: &str = "# manifest-sha256 ";
@@ -292,17 +319,36 @@ impl Drop for Spill {
     }
 }
 
-/// What [`measure_datasets`] made: each image's summary, and its rows.
+/// What [`measure_datasets`] made: each image's summary, its rows, and
+/// their details lines when asked for.
 struct Measured {
     summaries: Vec<ImageSummary>,
     rows: Spill,
+    details: Option<Spill>,
 }
 
 impl Measured {
     /// Writes the submission `sub` atomically: the header, the `extra`
     /// lines, then the rows of every image in image-id order (each image's
-    /// sorted by y, then x).
-    fn write(mut self, sub: &Path, extra: &[String]) -> Result<Vec<ImageSummary>, KsbError> {
+    /// sorted by y, then x); first the details table to `details`, the
+    /// same way, when it was kept.
+    fn write(
+        mut self,
+        sub: &Path,
+        extra: &[String],
+        details: Option<&Path>,
+    ) -> Result<Vec<ImageSummary>, KsbError> {
+        if let (Some(spill), Some(path)) = (self.details.as_mut(), details) {
+            write_atomically(path, |tmp| -> Result<(), KsbError> {
+                let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
+                let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
+                w.write_all(format!("{DETAILS_HEADER}\n").as_bytes())
+                    .map_err(|e| IoError::os(tmp, e))?;
+                spill.copy_in_order(&mut w, tmp)?;
+                w.flush().map_err(|e| IoError::os(tmp, e))?;
+                Ok(())
+            })?;
+        }
         write_atomically(sub, |tmp| -> Result<(), KsbError> {
             let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
             let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
@@ -323,10 +369,12 @@ impl Measured {
 
 /// Measures the images of the datasets `keep` accepts (in image-id order),
 /// pooling star candidates per dataset (two passes), keeping their rows
-/// beside the submission `sub` ([`Spill`]).
+/// beside the submission `sub` ([`Spill`]), and their details lines beside
+/// `details` when given.
 fn measure_datasets(
     public_dir: &Path,
     sub: &Path,
+    details: Option<&Path>,
     threads: usize,
     params: &KsbParams,
     keep: impl Fn(&str) -> bool,
@@ -378,6 +426,9 @@ fn measure_datasets(
     // pooled candidates, and pass 2 finishes every image with it.
     const GROUP_IMAGES: usize = 64;
     let mut rows = Spill::beside(sub, images.len())?;
+    let mut details = details
+        .map(|d| Spill::beside(d, images.len()))
+        .transpose()?;
     let mut by_dataset: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
     for (i, im) in images.iter().enumerate() {
         by_dataset.entry(im.dataset.as_str()).or_default().push(i);
@@ -414,6 +465,13 @@ fn measure_datasets(
                 push_row(&mut text, &images[i].image, o);
             }
             rows.put(i, &text)?;
+            if let Some(d) = details.as_mut() {
+                text.clear();
+                for o in &m.objects {
+                    push_details_row(&mut text, &images[i].image, o);
+                }
+                d.put(i, &text)?;
+            }
             slots[i] = Some(summary(&images[i], &m));
         }
         n_done += group.len();
@@ -424,7 +482,11 @@ fn measure_datasets(
         .into_iter()
         .map(|m| m.expect("every image is in one group"))
         .collect();
-    Ok(Measured { summaries, rows })
+    Ok(Measured {
+        summaries,
+        rows,
+        details,
+    })
 }
 
 /// Measures the images `group` (indices into `images`, ascending; whole
@@ -492,6 +554,65 @@ mod tests {
             star_flux_e: (1e5, 3e6),
             ..SceneSpec::step_like([0.0, 0.0], [0.04, 0.01], seed)
         }
+    }
+
+    #[test]
+    fn the_details_table_is_the_submission_with_the_estimate_s_parts() {
+        // Two images of one dataset: the table has the submission's lines
+        // (its first seven columns) in its order, and every weighted row's
+        // γ̂ is its e_cor / P^γ (P^γ with the calibration's k in it, k near
+        // 1) and its weight 1 / (σ_int² + σ_γ²), as written to six decimals;
+        // the table does not change the submission.
+        let dir = tempfile::tempdir().unwrap();
+        let scenes: Vec<(&str, &str, Image)> = [("ia", 11), ("ib", 12)]
+            .into_iter()
+            .map(|(id, seed)| ("d0", id, synthetic_scene(&spec(80, seed)).1))
+            .collect();
+        let refs: Vec<(&str, &str, &Image)> =
+            scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
+        write_public_run(dir.path(), &refs).unwrap();
+        let (plain, out, details) = (
+            dir.path().join("plain.txt"),
+            dir.path().join("sub.txt"),
+            dir.path().join("sub.details"),
+        );
+        let params = KsbParams::default();
+        measure_run(dir.path(), &plain, 2, &params, &|_, _| {}).unwrap();
+        measure_run_with_details(dir.path(), &out, &details, 1, &params, &|_, _| {}).unwrap();
+        let sub = std::fs::read_to_string(&out).unwrap();
+        assert_eq!(sub, std::fs::read_to_string(&plain).unwrap());
+        let table = std::fs::read_to_string(&details).unwrap();
+        let mut lines = table.lines();
+        assert_eq!(lines.next(), Some(DETAILS_HEADER));
+        let (mut weighted, mut n) = (0, 0);
+        for (d, s) in lines.zip(sub.lines().skip(1)) {
+            n += 1;
+            let cols: Vec<&str> = d.split(' ').collect();
+            assert_eq!(cols.len(), 15, "{d}");
+            assert_eq!(cols[..7].join(" "), s);
+            let v = |i: usize| cols[i].parse::<f64>().unwrap();
+            if v(5) > 0.0 {
+                weighted += 1;
+                let (pg, e1, e2, sg) = (v(10), v(12), v(13), v(14));
+                assert!(
+                    v(7) > 1.0 && v(8) >= params.ksb_min_sn && v(9) > 15.0,
+                    "{d}"
+                );
+                assert!((0.5..1.5).contains(&v(11)), "{d}");
+                assert!(
+                    (v(3) - e1 / pg).abs() < 2e-5 * (1.0 + v(3).abs()) / pg,
+                    "{d}"
+                );
+                assert!(
+                    (v(4) - e2 / pg).abs() < 2e-5 * (1.0 + v(4).abs()) / pg,
+                    "{d}"
+                );
+                let w = 1.0 / (params.sigma_int.powi(2) + sg * sg);
+                assert!((v(5) / w - 1.0).abs() < 1e-4, "{d}");
+            }
+        }
+        assert_eq!(n, sub.lines().count() - 1);
+        assert!(weighted > 50, "{weighted}");
     }
 
     #[test]

@@ -79,6 +79,11 @@ pub struct Args {
     /// effect on metacal).
     #[arg(long, value_enum, default_value_t = SizeCutArg::Windowed)]
     size_cut: SizeCutArg,
+    /// Also write a details table: the submission's rows in its order, each
+    /// followed by r_g, ν, the magnitude, P^γ, the calibration's k, e_cor
+    /// and σ_γ (docs/ksb.md, "The details table"). Not with --shard.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["shard", "finish"])]
+    details: Option<PathBuf>,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
     /// parts into FILE.
@@ -116,6 +121,27 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..KsbParams::default()
     };
     let threads = super::threads(args.threads);
+    if let Some(details) = &args.details {
+        let same = |a: &std::path::Path, b: &std::path::Path| {
+            a == b
+                || matches!(
+                    (std::path::absolute(a), std::path::absolute(b)),
+                    (Ok(x), Ok(y)) if x == y
+                )
+        };
+        if details.is_dir() {
+            anyhow::bail!(
+                "--details {} is a directory; give the table a file name",
+                details.display()
+            );
+        }
+        if same(details, &args.out) {
+            anyhow::bail!(
+                "--details {} is the submission --out itself; give the table its own file",
+                details.display()
+            );
+        }
+    }
     if args.finish {
         let n = stepsim_ksb::parts_count(&args.out)?;
         let (parts, images) = stepsim_ksb::join_parts(&args.run, &args.out, n)?;
@@ -155,7 +181,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             stepsim_ksb::part_path(&args.out, sh.k, sh.n),
         ),
         _ => (
-            stepsim_ksb::measure_run(&args.run, &args.out, threads, &params, &progress)?,
+            match &args.details {
+                Some(details) => stepsim_ksb::measure_run_with_details(
+                    &args.run, &args.out, details, threads, &params, &progress,
+                )?,
+                None => {
+                    stepsim_ksb::measure_run(&args.run, &args.out, threads, &params, &progress)?
+                }
+            },
             args.out.clone(),
         ),
     };

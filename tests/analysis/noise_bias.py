@@ -1,0 +1,173 @@
+#!/usr/bin/env python3
+"""Where KSB+'s noise bias sits: the same galaxies at two noise levels.
+
+    python3 tests/analysis/noise_bias.py LOW_RUN LOW_DETAILS RUN DETAILS
+
+RUN and LOW_RUN are two runs of the same galaxies (the same SkyMaker lists,
+shears and seed; docs/baseline.md, "Isolated galaxies on a grid") at the
+noise under study and at much less noise; DETAILS and LOW_DETAILS the
+tables `stepsim measure --details` wrote for their public halves (`image x
+y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma`). Each
+row is matched to the nearest truth galaxy within 1 arcsec, and the two
+runs' rows are paired by galaxy (base field, twin, shear, truth row). On
+RUN's kept rows (weight > 0) whose galaxy LOW_RUN measured with a P^gamma
+(kept or not), with RUN's weights, it prints per magnitude bin:
+
+- the estimator's m (slope against g1 of the weighted mean of
+  gamma1 - e1_int, fitted per base field with its twin pooled, mean +-
+  standard error over fields, minus 1) for gamma1 = e_cor1 / P^gamma with
+  both parts from RUN (as measured), the numerator from RUN and P^gamma
+  from LOW_RUN, the numerator from LOW_RUN and P^gamma from RUN, and both
+  from LOW_RUN: which part's noise moves m; and as measured on the rows
+  LOW_RUN keeps too (without those RUN's noise let through);
+- the numerator's shrinkage (the slope of RUN's e_cor on LOW_RUN's, both
+  components) and P^gamma's shift (mean P/P_low - 1), on the kept rows and
+  on all rows with a P^gamma in both, with that shift at equal r_g (the
+  intercept of a quadratic fit of P/P_low - 1 against r_g/r_g,low - 1);
+- for each cut, the rows LOW_RUN keeps that RUN flags with that cut alone
+  (how many, and their shifts of P^gamma and r_g), and the rows RUN keeps
+  that LOW_RUN flags with that cut alone (the same, and their m).
+
+Measured numbers: docs/baseline.md, "Where the noise bias sits".
+Needs numpy, scipy and astropy; not run by CI.
+"""
+import sys
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from selection_slopes import FLAGS, truth_tables
+
+PIXEL_SCALE = 0.206
+COLUMNS = "x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma".split()
+
+
+def read_details(path):
+    """{image: array of the numeric columns}, rows in file order."""
+    rows = {}
+    for line in open(path):
+        if line.startswith("#") or not line.strip():
+            continue
+        w = line.split()
+        rows.setdefault(w[0], []).append([float(v) for v in w[1:]])
+    return {k: np.array(v) for k, v in rows.items()}
+
+
+def by_galaxy(run, details):
+    """{(field, twin, g1, truth row): (details row, truth e1_int, truth mag)}."""
+    rows = read_details(details)
+    out = {}
+    for image, key, t in truth_tables(run, rows):
+        c = rows[image]
+        gal = np.nonzero(t["kind"] == 1)[0]
+        tree = cKDTree(np.column_stack([t["x"][gal], t["y"][gal]]))
+        d, k = tree.query(c[:, :2], distance_upper_bound=1.0 / PIXEL_SCALE)
+        head = (int(key("FIELD")), int(key("ROTATED")), round(float(key("G1")), 6))
+        # One row per galaxy, the nearest.
+        for r in np.argsort(d):
+            if not np.isfinite(d[r]):
+                break
+            g = int(gal[k[r]])
+            out.setdefault(head + (g,), (c[r], t["e1_int"][g], t["mag"][g]))
+    return out
+
+
+def main():
+    if len(sys.argv) != 5:
+        sys.exit(__doc__)
+    low = by_galaxy(sys.argv[1], sys.argv[2])
+    high = by_galaxy(sys.argv[3], sys.argv[4])
+    col = {c: i for i, c in enumerate(COLUMNS)}
+    # Every galaxy LOW_RUN measured (kept or not), so that RUN's rows its
+    # noise let through are counted too.
+    keys = [k for k in high if k in low and np.isfinite(low[k][0][col["pgamma"]])
+            and low[k][0][col["pgamma"]] > 0]
+    if not keys:
+        sys.exit("no galaxy is in both runs: are they the same lists and shears?")
+    h = np.array([high[k][0] for k in keys])
+    lo = np.array([low[k][0] for k in keys])
+    e1_int = np.array([high[k][1] for k in keys])
+    mag = np.array([high[k][2] for k in keys])
+    field = np.array([k[0] for k in keys])
+    g1 = np.array([k[2] for k in keys])
+    w = h[:, col["weight"]]
+    kept = w > 0
+    flags = h[:, col["flags"]].astype(int)
+    low_kept = lo[:, col["flags"]] == 0
+    p, p_low = h[:, col["pgamma"]], lo[:, col["pgamma"]]
+    e, e_low = h[:, col["e_cor1"]], lo[:, col["e_cor1"]]
+    e2, e2_low = h[:, col["e_cor2"]], lo[:, col["e_cor2"]]
+    rg, rg_low = h[:, col["r_g"]], lo[:, col["r_g"]]
+    both_p = np.isfinite(p) & np.isfinite(p_low) & (p_low > 0) & (p != 0)
+
+    def m(sel, value):
+        per_field = []
+        for f in np.unique(field):
+            xs, ys = [], []
+            for g in np.unique(g1):
+                s = sel & (field == f) & (g1 == g)
+                if w[s].sum() > 0:
+                    xs.append(g)
+                    ys.append(np.sum(w[s] * value[s]) / np.sum(w[s]))
+            if len(xs) >= 3:
+                per_field.append(np.polyfit(xs, ys, 1)[0] - 1.0)
+        s = np.array(per_field)
+        if len(s) < 2:
+            return "—"
+        return f"{s.mean():+.4f} ± {s.std(ddof=1) / np.sqrt(len(s)):.4f}"
+
+    bins = [("all", np.ones(len(keys), bool))]
+    bins += [(f"I {a}-{b}", (mag >= a) & (mag < b)) for a, b in [(17, 22), (22, 23), (23, 24)]]
+    print(f"{len(keys)} galaxies in both runs, {int(kept.sum())} kept in RUN")
+    print("estimator m, e_cor / P^gamma from:")
+    print(f"{'rows':10s} {'kept':>6s} {'both RUN':>16s} {'e RUN, P low':>16s} "
+          f"{'e low, P RUN':>16s} {'both low':>16s} {'both RUN, kept':>16s}")
+    for name, b in bins:
+        s = b & kept
+        if s.sum() == 0:
+            continue
+        print(f"{name:10s} {int(s.sum()):6d} {m(s, e / p - e1_int):>16s} "
+              f"{m(s, e / p_low - e1_int):>16s} {m(s, e_low / p - e1_int):>16s} "
+              f"{m(s, e_low / p_low - e1_int):>16s} {m(s & low_kept, e / p - e1_int):>16s}")
+
+    print("numerator and P^gamma, RUN against LOW_RUN:")
+    print(f"{'rows':10s} {'e_cor slope':>11s} {'P/P_low-1 kept':>15s} {'at equal r_g':>12s} "
+          f"{'all with P':>10s} {'at equal r_g':>12s} {'r_g/r_g,low-1 all':>17s}")
+
+    def at_equal_rg(s):
+        dr = rg[s] / rg_low[s] - 1.0
+        a = np.column_stack([np.ones(s.sum()), dr, dr * dr])
+        return np.linalg.lstsq(a, p[s] / p_low[s] - 1.0, rcond=None)[0][0]
+
+    for name, b in bins:
+        s, a = b & kept & both_p, b & both_p
+        if s.sum() < 10:
+            continue
+        slope = np.polyfit(np.r_[e_low[s], e2_low[s]], np.r_[e[s], e2[s]], 1)[0]
+        print(f"{name:10s} {slope:11.4f} {np.mean(p[s] / p_low[s] - 1):+15.4f} "
+              f"{at_equal_rg(s):+12.4f} {np.mean(p[a] / p_low[a] - 1):+10.4f} "
+              f"{at_equal_rg(a):+12.4f} {np.mean(rg[a] / rg_low[a] - 1):+17.4f}")
+
+    print("rows LOW_RUN keeps that one cut alone removes in RUN:")
+    for name, b in bins:
+        for flag, bit in FLAGS.items():
+            s = b & both_p & low_kept & (flags == bit)
+            if s.sum() < 10:
+                continue
+            print(f"{name:10s} {flag:10s} {int(s.sum()):6d} rows, P/P_low - 1 "
+                  f"{np.mean(p[s] / p_low[s] - 1):+.4f}, r_g/r_g,low - 1 "
+                  f"{np.mean(rg[s] / rg_low[s] - 1):+.4f}")
+    print("rows RUN keeps that one cut alone removes in LOW_RUN:")
+    low_flags = lo[:, col["flags"]].astype(int)
+    for name, b in bins:
+        for flag, bit in FLAGS.items():
+            s = b & both_p & kept & (low_flags == bit)
+            if s.sum() < 10:
+                continue
+            print(f"{name:10s} {flag:10s} {int(s.sum()):6d} rows, P/P_low - 1 "
+                  f"{np.mean(p[s] / p_low[s] - 1):+.4f}, r_g/r_g,low - 1 "
+                  f"{np.mean(rg[s] / rg_low[s] - 1):+.4f}, m {m(s, e / p - e1_int)}")
+
+
+if __name__ == "__main__":
+    main()
