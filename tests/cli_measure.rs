@@ -392,7 +392,7 @@ fn details_are_written_beside_the_submission_and_refused_where_they_cannot_be() 
     let mut lines = details.lines();
     assert_eq!(
         lines.next(),
-        Some("# image x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma")
+        Some("# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma")
     );
     let rows: Vec<&str> = lines.collect();
     assert_eq!(rows.len(), text.lines().count() - 1);
@@ -421,14 +421,38 @@ fn details_are_written_beside_the_submission_and_refused_where_they_cannot_be() 
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("is a directory"), "{}", stderr(&o));
     assert!(!dir.path().join("s3.txt").exists());
-    let o = with(&sub, &sub, &[]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(
-        stderr(&o).contains("is the submission --out itself"),
-        "{}",
-        stderr(&o)
-    );
+    // Nothing else is left beside the outputs.
+    let tmp: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(tmp.is_empty(), "{tmp:?}");
+    // Any spelling of a shared file: the same path, through `..`, the
+    // submission's rows file, or the table's rows file as the submission.
+    let d = dir.path();
+    for (out, table) in [
+        (sub.clone(), sub.clone()),
+        (sub.clone(), d.join("none/yet/../../sub.txt")),
+        (sub.clone(), d.join("sub.txt.rows.tmp")),
+        (d.join("t.rows.tmp"), d.join("t")),
+    ] {
+        let o = with(&out, &table, &[]);
+        assert_eq!(o.status.code(), Some(1), "{out:?} {table:?}");
+        assert!(
+            stderr(&o).contains("shares a file with the submission"),
+            "{}",
+            stderr(&o)
+        );
+    }
     assert_eq!(std::fs::read_to_string(&sub).unwrap(), text);
+    assert!(!d.join("t").exists() && !d.join("none").exists());
+    let o = with(&d.join("new/"), &table, &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--out") && stderr(&o).contains("is a directory"));
+    let o = with(&d.join("s4.txt"), &d.join("new/"), &[]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!d.join("new").exists() && !d.join("s4.txt").exists());
     let o = with(&dir.path().join("s2.txt"), &table, &["--shard", "1/2"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--details"), "{}", stderr(&o));

@@ -108,7 +108,7 @@ pub fn push_row(s: &mut String, image: &str, o: &MeasuredObject) {
 /// Column header line of the details table (`stepsim measure --details`):
 /// the submission's columns, then the pipeline's own quantities.
 pub const DETAILS_HEADER: &str =
-    "# image x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma";
+    "# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma";
 
 /// Appends the details line of `o` (docs/ksb.md, "The details table"):
 /// its submission line's seven columns, then r_g (pixels), ν, the

@@ -265,11 +265,17 @@ struct Spill {
     blocks: Vec<(u64, usize)>,
 }
 
+/// The file where a run's rows wait until they are written to `out`:
+/// `<OUT>.rows.tmp`, removed when `measure` ends.
+pub fn rows_path(out: &Path) -> PathBuf {
+    let mut name = out.as_os_str().to_owned();
+    name.push(".rows.tmp");
+    PathBuf::from(name)
+}
+
 impl Spill {
     fn beside(sub: &Path, n_images: usize) -> Result<Self, KsbError> {
-        let mut name = sub.as_os_str().to_owned();
-        name.push(".rows.tmp");
-        let path = PathBuf::from(name);
+        let path = rows_path(sub);
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
         }
@@ -331,7 +337,9 @@ impl Measured {
     /// Writes the submission `sub` atomically: the header, the `extra`
     /// lines, then the rows of every image in image-id order (each image's
     /// sorted by y, then x); first the details table to `details`, the
-    /// same way, when it was kept.
+    /// same way, when it was kept, removed again if the submission cannot
+    /// be written (so that a table is never left beside another run's
+    /// submission, or none).
     fn write(
         mut self,
         sub: &Path,
@@ -349,7 +357,7 @@ impl Measured {
                 Ok(())
             })?;
         }
-        write_atomically(sub, |tmp| -> Result<(), KsbError> {
+        let written = write_atomically(sub, |tmp| -> Result<(), KsbError> {
             let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
             let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
             let mut head = format!("{SUBMISSION_HEADER}\n");
@@ -362,7 +370,11 @@ impl Measured {
             self.rows.copy_in_order(&mut w, tmp)?;
             w.flush().map_err(|e| IoError::os(tmp, e))?;
             Ok(())
-        })?;
+        });
+        if let (Err(_), Some(path)) = (&written, details) {
+            let _ = std::fs::remove_file(path);
+        }
+        written?;
         Ok(self.summaries)
     }
 }
@@ -562,7 +574,9 @@ mod tests {
         // (its first seven columns) in its order, and every weighted row's
         // γ̂ is its e_cor / P^γ (P^γ with the calibration's k in it, k near
         // 1) and its weight 1 / (σ_int² + σ_γ²), as written to six decimals;
-        // the table does not change the submission.
+        // the table does not change the submission. Without the
+        // calibration k is 1, P^γ is the calibrated one over k and e_cor is
+        // the same.
         let dir = tempfile::tempdir().unwrap();
         let scenes: Vec<(&str, &str, Image)> = [("ia", 11), ("ib", 12)]
             .into_iter()
@@ -613,6 +627,54 @@ mod tests {
         }
         assert_eq!(n, sub.lines().count() - 1);
         assert!(weighted > 50, "{weighted}");
+        let rows = |text: &str| -> Vec<Vec<String>> {
+            text.lines()
+                .skip(1)
+                .map(|l| l.split(' ').map(str::to_string).collect())
+                .collect()
+        };
+        let cal = rows(&table);
+        let num = |c: &[String], i: usize| c[i].parse::<f64>().unwrap();
+        // ν is the column LOW_SN compares (rows with no moments have 0).
+        for c in cal.iter().filter(|c| (num(c, 8) - 20.0).abs() > 0.01) {
+            let low_sn = num(c, 6) as u32 & crate::flags::LOW_SN != 0;
+            assert_eq!(low_sn, num(c, 8) < params.ksb_min_sn, "{c:?}");
+        }
+        // The calibration is on (k ≠ 1 somewhere), and P^γ is k times the
+        // uncalibrated one, e_cor the same, row by row.
+        let k_off = cal
+            .iter()
+            .filter(|c| num(c, 5) > 0.0 && (num(c, 11) - 1.0).abs() > 1e-3)
+            .count();
+        assert!(k_off > 10, "{k_off}");
+        let none = dir.path().join("none.details");
+        let uncal = KsbParams {
+            calibration: None,
+            ..params
+        };
+        let none_sub = dir.path().join("none.txt");
+        measure_run_with_details(dir.path(), &none_sub, &none, 2, &uncal, &|_, _| {}).unwrap();
+        let uncal_rows = rows(&std::fs::read_to_string(&none).unwrap());
+        assert_eq!(uncal_rows.len(), cal.len());
+        let mut compared = 0;
+        for (c, u) in cal.iter().zip(&uncal_rows) {
+            assert_eq!((&c[..3], &c[12..14]), (&u[..3], &u[12..14]));
+            if c[10] != "nan" {
+                assert_eq!(u[11], "1.000000");
+                let (pc, pu, k) = (num(c, 10), num(u, 10), num(c, 11));
+                assert!((pc - k * pu).abs() < 2e-6 * (1.0 + k), "{c:?} {u:?}");
+                compared += 1;
+            }
+        }
+        assert!(compared > 50, "{compared}");
+        // Nothing is left beside the outputs but the outputs.
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".tmp"))
+            .collect();
+        left.sort();
+        assert!(left.is_empty(), "{left:?}");
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! `stepsim measure`: the KSB+ reference shear pipeline on a public run.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use stepsim_contract::run_dir::PublicDir;
 use stepsim_ksb::{CalibrationProfile, KsbParams, Method, PgammaMode, SizeCut};
 
@@ -82,7 +82,7 @@ pub struct Args {
     /// Also write a details table: the submission's rows in its order, each
     /// followed by r_g, ν, the magnitude, P^γ, the calibration's k, e_cor
     /// and σ_γ (docs/ksb.md, "The details table"). Not with --shard.
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["shard", "finish"])]
+    #[arg(long, value_name = "TABLE", conflicts_with_all = ["shard", "finish"])]
     details: Option<PathBuf>,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
@@ -121,24 +121,21 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ..KsbParams::default()
     };
     let threads = super::threads(args.threads);
+    if !args.finish {
+        file_not_directory("--out", &args.out)?;
+    }
     if let Some(details) = &args.details {
-        let same = |a: &std::path::Path, b: &std::path::Path| {
-            a == b
-                || matches!(
-                    (std::path::absolute(a), std::path::absolute(b)),
-                    (Ok(x), Ok(y)) if x == y
-                )
-        };
-        if details.is_dir() {
+        file_not_directory("--details", details)?;
+        let files = |p: &Path| [resolved(p), resolved(&stepsim_ksb::rows_path(p))];
+        let (sub, table) = (files(&args.out), files(details));
+        if sub.iter().any(|f| table.contains(f)) {
             anyhow::bail!(
-                "--details {} is a directory; give the table a file name",
-                details.display()
-            );
-        }
-        if same(details, &args.out) {
-            anyhow::bail!(
-                "--details {} is the submission --out itself; give the table its own file",
-                details.display()
+                "--details {} shares a file with the submission --out {} (the two, and \
+                 their rows files {} and {}, must all differ); give the table its own file",
+                details.display(),
+                args.out.display(),
+                stepsim_ksb::rows_path(details).display(),
+                stepsim_ksb::rows_path(&args.out).display()
             );
         }
     }
@@ -217,5 +214,52 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         written.display(),
         summary.len()
     );
+    if let Some(details) = &args.details {
+        eprintln!("stepsim: wrote the details table {}", details.display());
+    }
     Ok(())
+}
+
+/// Refuses an output `path` (given as `option`) that is a directory or ends
+/// in a separator: it is found out before anything is measured, not when
+/// the file is renamed into place at the end.
+fn file_not_directory(option: &str, path: &Path) -> anyhow::Result<()> {
+    let ends_in_separator = path
+        .as_os_str()
+        .as_encoded_bytes()
+        .last()
+        .is_some_and(|&b| std::path::is_separator(b as char));
+    if path.is_dir() || ends_in_separator {
+        anyhow::bail!(
+            "{option} {} is a directory; give a file name",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// `path` made absolute, its longest existing ancestor with symbolic links
+/// and `..` resolved, the rest normalised by its names: two paths to one
+/// file come out equal (`d/x/../sub.txt` and `d/sub.txt`, a linked
+/// directory and its target), whether the file exists yet or not.
+fn resolved(path: &Path) -> PathBuf {
+    use std::path::Component;
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let parts: Vec<Component> = abs.components().collect();
+    for cut in (0..=parts.len()).rev() {
+        let head: PathBuf = parts[..cut].iter().collect();
+        if let Ok(mut out) = head.canonicalize() {
+            for part in &parts[cut..] {
+                match part {
+                    Component::ParentDir => {
+                        out.pop();
+                    }
+                    Component::CurDir => {}
+                    other => out.push(other),
+                }
+            }
+            return out;
+        }
+    }
+    abs
 }

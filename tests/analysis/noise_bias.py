@@ -7,23 +7,24 @@ RUN and LOW_RUN are two runs of the same galaxies (the same SkyMaker lists,
 shears and seed; docs/baseline.md, "Isolated galaxies on a grid") at the
 noise under study and at much less noise; DETAILS and LOW_DETAILS the
 tables `stepsim measure --details` wrote for their public halves (`image x
-y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma`). Each
+y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma`). Each
 row is matched to the nearest truth galaxy within 1 arcsec, and the two
 runs' rows are paired by galaxy (base field, twin, shear, truth row). On
 RUN's kept rows (weight > 0) whose galaxy LOW_RUN measured with a P^gamma
 (kept or not), with RUN's weights, it prints per magnitude bin:
 
-- the estimator's m (slope against g1 of the weighted mean of
+- the estimator's m as measured (slope against g1 of the weighted mean of
   gamma1 - e1_int, fitted per base field with its twin pooled, mean +-
-  standard error over fields, minus 1) for gamma1 = e_cor1 / P^gamma with
-  both parts from RUN (as measured), the numerator from RUN and P^gamma
-  from LOW_RUN, the numerator from LOW_RUN and P^gamma from RUN, and both
-  from LOW_RUN: which part's noise moves m; and as measured on the rows
-  LOW_RUN keeps too (without those RUN's noise let through);
+  standard error over fields, minus 1; gamma1 = e_cor1 / P^gamma), and
+  how it shifts, paired by field, when e_cor, P^gamma or both are taken
+  from LOW_RUN (RUN's weights kept), and without the rows LOW_RUN cuts
+  (those RUN's noise let through): which part's noise moves m;
 - the numerator's shrinkage (the slope of RUN's e_cor on LOW_RUN's, both
-  components) and P^gamma's shift (mean P/P_low - 1), on the kept rows and
-  on all rows with a P^gamma in both, with that shift at equal r_g (the
-  intercept of a quadratic fit of P/P_low - 1 against r_g/r_g,low - 1);
+  components), the calibration's k and P^gamma's shift (mean of
+  P/P_low - 1 where LOW_RUN's passes the P^gamma cut), on the kept rows and on
+  all rows, with a and b of a quadratic fit of P/P_low - 1 against
+  r_g/r_g,low - 1 (a: the shift at equal r_g; b: how P^gamma follows r_g),
+  and r_g's shift;
 - for each cut, the rows LOW_RUN keeps that RUN flags with that cut alone
   (how many, and their shifts of P^gamma and r_g), and the rows RUN keeps
   that LOW_RUN flags with that cut alone (the same, and their m).
@@ -39,7 +40,8 @@ from scipy.spatial import cKDTree
 from selection_slopes import FLAGS, truth_tables
 
 PIXEL_SCALE = 0.206
-COLUMNS = "x y e1 e2 weight flags r_g nu mag pgamma k e_cor1 e_cor2 sigma_gamma".split()
+MIN_PGAMMA = 0.1  # KSB+'s P^gamma cut (docs/ksb.md)
+COLUMNS = "x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma".split()
 
 
 def read_details(path):
@@ -97,11 +99,15 @@ def main():
     p, p_low = h[:, col["pgamma"]], lo[:, col["pgamma"]]
     e, e_low = h[:, col["e_cor1"]], lo[:, col["e_cor1"]]
     e2, e2_low = h[:, col["e_cor2"]], lo[:, col["e_cor2"]]
-    rg, rg_low = h[:, col["r_g"]], lo[:, col["r_g"]]
-    both_p = np.isfinite(p) & np.isfinite(p_low) & (p_low > 0) & (p != 0)
+    rg, rg_low = h[:, col["r_g_px"]], lo[:, col["r_g_px"]]
+    k, k_low = h[:, col["k"]], lo[:, col["k"]]
+    # P^gamma's shifts only where LOW_RUN's passes the P^gamma cut, so that
+    # a few near-zero P^gamma_low do not dominate a mean of ratios (RUN's
+    # is not cut: that would select on its noise).
+    both_p = np.isfinite(p) & (p_low >= MIN_PGAMMA)
 
-    def m(sel, value):
-        per_field = []
+    def per_field(sel, value):
+        out = []
         for f in np.unique(field):
             xs, ys = [], []
             for g in np.unique(g1):
@@ -109,44 +115,58 @@ def main():
                 if w[s].sum() > 0:
                     xs.append(g)
                     ys.append(np.sum(w[s] * value[s]) / np.sum(w[s]))
-            if len(xs) >= 3:
-                per_field.append(np.polyfit(xs, ys, 1)[0] - 1.0)
-        s = np.array(per_field)
-        if len(s) < 2:
+            out.append(np.polyfit(xs, ys, 1)[0] - 1.0 if len(xs) >= 3 else np.nan)
+        return np.array(out)
+
+    def fmt(v):
+        v = v[np.isfinite(v)]
+        if len(v) < 2:
             return "—"
-        return f"{s.mean():+.4f} ± {s.std(ddof=1) / np.sqrt(len(s)):.4f}"
+        return f"{v.mean():+.4f} ± {v.std(ddof=1) / np.sqrt(len(v)):.4f}"
+
+    def m(sel, value):
+        return fmt(per_field(sel, value))
 
     bins = [("all", np.ones(len(keys), bool))]
     bins += [(f"I {a}-{b}", (mag >= a) & (mag < b)) for a, b in [(17, 22), (22, 23), (23, 24)]]
-    print(f"{len(keys)} galaxies in both runs, {int(kept.sum())} kept in RUN")
-    print("estimator m, e_cor / P^gamma from:")
-    print(f"{'rows':10s} {'kept':>6s} {'both RUN':>16s} {'e RUN, P low':>16s} "
-          f"{'e low, P RUN':>16s} {'both low':>16s} {'both RUN, kept':>16s}")
+    print(f"{len(keys)} galaxies in both runs, {int(kept.sum())} kept in RUN, "
+          f"{int((kept & ~low_kept).sum())} of them cut in LOW_RUN, "
+          f"{int((kept & (p_low < MIN_PGAMMA)).sum())} with P^gamma_low < {MIN_PGAMMA}")
+    print("estimator m as measured, and its shifts (paired by field) when e_cor, "
+          "P^gamma or both are taken from LOW_RUN, and without the rows LOW_RUN cuts:")
+    print(f"{'rows':10s} {'kept':>6s} {'m':>16s} {'e_cor low':>16s} "
+          f"{'P^gamma low':>16s} {'both low':>16s} {'kept in both':>16s}")
     for name, b in bins:
         s = b & kept
         if s.sum() == 0:
             continue
-        print(f"{name:10s} {int(s.sum()):6d} {m(s, e / p - e1_int):>16s} "
-              f"{m(s, e / p_low - e1_int):>16s} {m(s, e_low / p - e1_int):>16s} "
-              f"{m(s, e_low / p_low - e1_int):>16s} {m(s & low_kept, e / p - e1_int):>16s}")
+        base = per_field(s, e / p - e1_int)
+        print(f"{name:10s} {int(s.sum()):6d} {fmt(base):>16s} "
+              f"{fmt(per_field(s, e_low / p - e1_int) - base):>16s} "
+              f"{fmt(per_field(s, e / p_low - e1_int) - base):>16s} "
+              f"{fmt(per_field(s, e_low / p_low - e1_int) - base):>16s} "
+              f"{fmt(per_field(s & low_kept, e / p - e1_int) - base):>16s}")
 
-    print("numerator and P^gamma, RUN against LOW_RUN:")
-    print(f"{'rows':10s} {'e_cor slope':>11s} {'P/P_low-1 kept':>15s} {'at equal r_g':>12s} "
-          f"{'all with P':>10s} {'at equal r_g':>12s} {'r_g/r_g,low-1 all':>17s}")
+    print("numerator and P^gamma, RUN against LOW_RUN (P^gamma/P^gamma_low - 1 "
+          "= a + b (r_g/r_g,low - 1) + c (...)^2 fitted: a is the shift at equal r_g):")
+    print(f"{'rows':10s} {'e_cor slope':>11s} {'k/k_low-1':>9s} {'P shift kept':>12s} "
+          f"{'a':>7s} {'b':>5s} {'P shift all':>11s} {'a':>7s} {'b':>5s} {'r_g shift all':>13s}")
 
     def at_equal_rg(s):
         dr = rg[s] / rg_low[s] - 1.0
         a = np.column_stack([np.ones(s.sum()), dr, dr * dr])
-        return np.linalg.lstsq(a, p[s] / p_low[s] - 1.0, rcond=None)[0][0]
+        return np.linalg.lstsq(a, p[s] / p_low[s] - 1.0, rcond=None)[0][:2]
 
     for name, b in bins:
         s, a = b & kept & both_p, b & both_p
         if s.sum() < 10:
             continue
         slope = np.polyfit(np.r_[e_low[s], e2_low[s]], np.r_[e[s], e2[s]], 1)[0]
-        print(f"{name:10s} {slope:11.4f} {np.mean(p[s] / p_low[s] - 1):+15.4f} "
-              f"{at_equal_rg(s):+12.4f} {np.mean(p[a] / p_low[a] - 1):+10.4f} "
-              f"{at_equal_rg(a):+12.4f} {np.mean(rg[a] / rg_low[a] - 1):+17.4f}")
+        (a_s, b_s), (a_a, b_a) = at_equal_rg(s), at_equal_rg(a)
+        print(f"{name:10s} {slope:11.4f} {np.mean(k[s] / k_low[s] - 1):+9.4f} "
+              f"{np.mean(p[s] / p_low[s] - 1):+12.4f} {a_s:+7.4f} {b_s:5.2f} "
+              f"{np.mean(p[a] / p_low[a] - 1):+11.4f} {a_a:+7.4f} {b_a:5.2f} "
+              f"{np.mean(rg[a] / rg_low[a] - 1):+13.4f}")
 
     print("rows LOW_RUN keeps that one cut alone removes in RUN:")
     for name, b in bins:
