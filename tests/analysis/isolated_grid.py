@@ -92,6 +92,22 @@ def matched(run, catalogue):
     return np.vstack(out).T
 
 
+def field_slopes(field, g1, keep, value, w, coefficient=0):
+    """Per base field (ascending), the slope (coefficient 0) or the
+    intercept (1) against g1 of the weighted mean of `value` over the `keep`
+    rows of each shear; NaN for a field with fewer than three shears."""
+    out = []
+    for f in np.unique(field):
+        xs, ys = [], []
+        for g in np.unique(g1):
+            m = keep & (field == f) & (g1 == g)
+            if w[m].sum() > 0:
+                xs.append(g)
+                ys.append(np.sum(w[m] * value[m]) / np.sum(w[m]))
+        out.append(np.polyfit(xs, ys, 1)[coefficient] if len(xs) >= 3 else np.nan)
+    return np.array(out)
+
+
 def table(run, catalogue, coefficient):
     field, g1, e1_int, e1, weight, hlr, mag = matched(run, catalogue)
     kept = weight > 0
@@ -99,17 +115,8 @@ def table(run, catalogue, coefficient):
     unit = 1.0 if coefficient == 0 else 0.0
 
     def fit(keep, value, w, minus=0.0):
-        per_field = []
-        for f in np.unique(field):
-            xs, ys = [], []
-            for g in np.unique(g1):
-                m = keep & (field == f) & (g1 == g)
-                if w[m].sum() > 0:
-                    xs.append(g)
-                    ys.append(np.sum(w[m] * value[m]) / np.sum(w[m]))
-            if len(xs) >= 3:
-                per_field.append(np.polyfit(xs, ys, 1)[coefficient])
-        s = np.array(per_field)
+        s = field_slopes(field, g1, keep, value, w, coefficient)
+        s = s[np.isfinite(s)]
         if len(s) < 2:
             return "—"
         return f"{s.mean() - minus:+.4f} ± {s.std(ddof=1) / np.sqrt(len(s)):.4f}"

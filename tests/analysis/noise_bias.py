@@ -37,6 +37,7 @@ import sys
 import numpy as np
 from scipy.spatial import cKDTree
 
+from isolated_grid import field_slopes
 from selection_slopes import FLAGS, truth_tables
 
 PIXEL_SCALE = 0.206
@@ -107,16 +108,7 @@ def main():
     both_p = np.isfinite(p) & (p_low >= MIN_PGAMMA)
 
     def per_field(sel, value):
-        out = []
-        for f in np.unique(field):
-            xs, ys = [], []
-            for g in np.unique(g1):
-                s = sel & (field == f) & (g1 == g)
-                if w[s].sum() > 0:
-                    xs.append(g)
-                    ys.append(np.sum(w[s] * value[s]) / np.sum(w[s]))
-            out.append(np.polyfit(xs, ys, 1)[0] - 1.0 if len(xs) >= 3 else np.nan)
-        return np.array(out)
+        return field_slopes(field, g1, sel, value, w) - 1.0
 
     def fmt(v):
         v = v[np.isfinite(v)]
@@ -168,25 +160,20 @@ def main():
               f"{np.mean(p[a] / p_low[a] - 1):+11.4f} {a_a:+7.4f} {b_a:5.2f} "
               f"{np.mean(rg[a] / rg_low[a] - 1):+13.4f}")
 
-    print("rows LOW_RUN keeps that one cut alone removes in RUN:")
-    for name, b in bins:
-        for flag, bit in FLAGS.items():
-            s = b & both_p & low_kept & (flags == bit)
-            if s.sum() < 10:
-                continue
-            print(f"{name:10s} {flag:10s} {int(s.sum()):6d} rows, P/P_low - 1 "
-                  f"{np.mean(p[s] / p_low[s] - 1):+.4f}, r_g/r_g,low - 1 "
-                  f"{np.mean(rg[s] / rg_low[s] - 1):+.4f}")
-    print("rows RUN keeps that one cut alone removes in LOW_RUN:")
     low_flags = lo[:, col["flags"]].astype(int)
-    for name, b in bins:
-        for flag, bit in FLAGS.items():
-            s = b & both_p & kept & (low_flags == bit)
-            if s.sum() < 10:
-                continue
-            print(f"{name:10s} {flag:10s} {int(s.sum()):6d} rows, P/P_low - 1 "
-                  f"{np.mean(p[s] / p_low[s] - 1):+.4f}, r_g/r_g,low - 1 "
-                  f"{np.mean(rg[s] / rg_low[s] - 1):+.4f}, m {m(s, e / p - e1_int)}")
+    for title, rows, alone, with_m in [
+            ("rows LOW_RUN keeps that one cut alone removes in RUN:", low_kept, flags, False),
+            ("rows RUN keeps that one cut alone removes in LOW_RUN:", kept, low_flags, True)]:
+        print(title)
+        for name, b in bins:
+            for flag, bit in FLAGS.items():
+                s = b & both_p & rows & (alone == bit)
+                if s.sum() < 10:
+                    continue
+                print(f"{name:10s} {flag:10s} {int(s.sum()):6d} rows, P/P_low - 1 "
+                      f"{np.mean(p[s] / p_low[s] - 1):+.4f}, r_g/r_g,low - 1 "
+                      f"{np.mean(rg[s] / rg_low[s] - 1):+.4f}"
+                      + (f", m {m(s, e / p - e1_int)}" if with_m else ""))
 
 
 if __name__ == "__main__":
