@@ -347,36 +347,34 @@ impl Measured {
         details: Option<&Path>,
     ) -> Result<Vec<ImageSummary>, KsbError> {
         if let (Some(spill), Some(path)) = (self.details.as_mut(), details) {
-            write_atomically(path, |tmp| -> Result<(), KsbError> {
-                let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
-                let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
-                w.write_all(format!("{DETAILS_HEADER}\n").as_bytes())
-                    .map_err(|e| IoError::os(tmp, e))?;
-                spill.copy_in_order(&mut w, tmp)?;
-                w.flush().map_err(|e| IoError::os(tmp, e))?;
-                Ok(())
-            })?;
+            write_in_order(path, &format!("{DETAILS_HEADER}\n"), spill)?;
         }
-        let written = write_atomically(sub, |tmp| -> Result<(), KsbError> {
-            let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
-            let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
-            let mut head = format!("{SUBMISSION_HEADER}\n");
-            for line in extra {
-                head.push_str(line);
-                head.push('\n');
-            }
-            w.write_all(head.as_bytes())
-                .map_err(|e| IoError::os(tmp, e))?;
-            self.rows.copy_in_order(&mut w, tmp)?;
-            w.flush().map_err(|e| IoError::os(tmp, e))?;
-            Ok(())
-        });
+        let mut head = format!("{SUBMISSION_HEADER}\n");
+        for line in extra {
+            head.push_str(line);
+            head.push('\n');
+        }
+        let written = write_in_order(sub, &head, &mut self.rows);
         if let (Err(_), Some(path)) = (&written, details) {
             let _ = std::fs::remove_file(path);
         }
         written?;
         Ok(self.summaries)
     }
+}
+
+/// Writes `head`, then every image's rows kept in `spill` in image-id
+/// order, to `path` atomically.
+fn write_in_order(path: &Path, head: &str, spill: &mut Spill) -> Result<(), KsbError> {
+    write_atomically(path, |tmp| -> Result<(), KsbError> {
+        let file = std::fs::File::create(tmp).map_err(|e| IoError::os(tmp, e))?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
+        w.write_all(head.as_bytes())
+            .map_err(|e| IoError::os(tmp, e))?;
+        spill.copy_in_order(&mut w, tmp)?;
+        w.flush().map_err(|e| IoError::os(tmp, e))?;
+        Ok(())
+    })
 }
 
 /// Measures the images of the datasets `keep` accepts (in image-id order),
