@@ -907,15 +907,17 @@ mod tests {
     #[test]
     fn metacal_recovers_the_shear_where_ksb_is_biased_by_a_psf_halo() {
         // The scenes of the test below with the 20 % halo PSF, on which
-        // KSB+ gives m = −0.052, with 140 galaxies instead of 500 (the
-        // scene is unlensed, and neighbours inside a galaxy's stamp are
-        // deconvolved and sheared with it), sky 25 e⁻. Measured: m =
-        // (−0.012, −0.002), c = (−0.0001, 0.0003); with four other seeds of
-        // the noise correction m₁ −0.003 … −0.008. (Until 2026-12-06 the
-        // sky was 100 e⁻ and the ± scenes shared one noise correction,
-        // seeded by position; with independent ones, as now, m₁ spread
-        // over −0.004 … −0.039 at that sky.) Bounds |m| < 0.02,
-        // |c| < 0.002.
+        // KSB+ gives m = −0.052 (sky 100 e⁻), with 140 galaxies instead of
+        // 500 (the scene is unlensed, and neighbours inside a galaxy's
+        // stamp are deconvolved and sheared with it), sky 25 e⁻. The ±g
+        // scenes have independent noise corrections (seeded by each
+        // stamp), so m carries their noise: over 20 seeds of the
+        // correction (a review's trial builds) m₁ = −0.0077 ± 0.0010
+        // (−0.015 … +0.004) and m₂ = +0.006 ± 0.001, 4 of 20 above 0.01;
+        // at sky 100 e⁻ m₁ = −0.014 ± 0.002, a bias of this dense scene
+        // that grows with the noise. With the seed as shipped m = (−0.012,
+        // −0.002), c = (−0.0001, 0.0003). Bounds |m| < 0.025 (KSB+ is at
+        // −0.052), |c| < 0.002.
         let g = 0.05;
         let params = KsbParams {
             method: crate::params::Method::Metacal,
@@ -972,7 +974,7 @@ mod tests {
             [a.e1 - b.e1, a.e2 - b.e2]
         });
         eprintln!("metacal, halo 0.2: m {m:?} c {c:?}");
-        assert!(m[0].abs() < 0.02 && m[1].abs() < 0.01, "m {m:?}");
+        assert!(m[0].abs() < 0.025 && m[1].abs() < 0.025, "m {m:?}");
         assert!(c[0].abs() < 0.002 && c[1].abs() < 0.002, "c {c:?}");
     }
 

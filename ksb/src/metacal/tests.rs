@@ -453,9 +453,10 @@ fn galaxies_at_one_pixel_of_many_images_do_not_share_a_noise_correction() {
     // own white noise (ν ≈ 40), as on a grid of fixed positions or a base
     // field seen at five shears. d = e(0) with the noise correction minus
     // e(0) without it is the correction's part of each measurement. Seeded
-    // by the position alone, d was the same in every image and its mean an
-    // offset that no number of images removes; seeded by the stamp, the d
-    // are independent and their mean is 0 within 4 standard errors.
+    // by the position alone, d was nearly the same in every image (spread
+    // 9e-4) and its mean an offset (0.018 in e₁) that no number of images
+    // removes; seeded by the stamp, the d are independent (spread 0.015)
+    // and their mean is 0 within 4 standard errors.
     let side = 32;
     let sigma_n = 0.002;
     let cov = convolve(&covariance(2.0, [0.0, 0.0]), &covariance(1.8, [0.0, 0.0]));
@@ -498,8 +499,8 @@ fn galaxies_at_one_pixel_of_many_images_do_not_share_a_noise_correction() {
         let mean = d.iter().map(|v| v[i]).sum::<f64>() / n as f64;
         let sd = (d.iter().map(|v| (v[i] - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt();
         assert!(
-            sd > 1e-3,
-            "e{}: the correction moves e by {sd:e} only",
+            sd > 5e-3,
+            "e{}: d has a spread of {sd:e} only: one correction shared by all images?",
             i + 1
         );
         assert!(
