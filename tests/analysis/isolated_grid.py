@@ -34,11 +34,9 @@ import random
 import sys
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from selection_slopes import read_catalogue, truth_tables
+from selection_slopes import galaxy_matches, read_catalogue
 
-PIXEL_SCALE = 0.206
 STEP_PX = 64
 N_STARS = 800
 
@@ -77,13 +75,7 @@ def matched(run, catalogue):
     """(field, g1, e1_int, e1, weight, hlr, mag) of each matched galaxy."""
     rows = read_catalogue(catalogue)
     out = []
-    for image, key, t in truth_tables(run, rows):
-        c = np.array(rows[image])
-        gal = np.nonzero(t["kind"] == 1)[0]
-        tree = cKDTree(np.column_stack([t["x"][gal], t["y"][gal]]))
-        d, k = tree.query(c[:, :2], distance_upper_bound=1.0 / PIXEL_SCALE)
-        ok = np.isfinite(d)
-        g, c = gal[k[ok]], c[ok]
+    for key, t, c, g, _ in galaxy_matches(run, rows):
         bt = t["bt"][g]
         hlr = (1 - bt) * 1.678 * t["disk_h_arcsec"][g] + bt * t["bulge_re_arcsec"][g]
         out.append(np.column_stack([

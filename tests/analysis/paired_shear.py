@@ -32,9 +32,8 @@ Needs numpy, scipy and astropy; not run by CI.
 import sys
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from selection_slopes import PIXEL_SCALE, read_catalogue, truth_tables
+from selection_slopes import galaxy_matches, read_catalogue
 
 
 def matched(run, catalogue):
@@ -43,20 +42,8 @@ def matched(run, catalogue):
     rows = read_catalogue(catalogue)
     out = []
     unmatched = 0
-    for image, key, t in truth_tables(run, rows):
-        xy = np.column_stack([t["x"], t["y"]])
-        galaxies = np.nonzero(t["kind"] == 1)[0]
-        c = np.array(rows[image])
-        d, k = cKDTree(xy[galaxies]).query(c[:, :2], distance_upper_bound=1.0 / PIXEL_SCALE)
-        ok = np.isfinite(d)
-        unmatched += int((~ok & (c[:, 4] > 0)).sum())
-        # One row per galaxy: the nearest.
-        order = np.argsort(d[ok], kind="stable")
-        rows_ok = np.nonzero(ok)[0][order]
-        _, first = np.unique(k[rows_ok], return_index=True)
-        r = rows_ok[first]
-        g = galaxies[k[r]]
-        c = c[r]
+    for key, t, c, g, lost in galaxy_matches(run, rows, one_per_galaxy=True):
+        unmatched += lost
         n = len(g)
         out.append(np.column_stack([
             np.full(n, int(key("FIELD"))), np.full(n, key("G1")), t["e1_int"][g],

@@ -55,6 +55,25 @@ def truth_tables(run, rows):
         yield image, lambda k, h=hdus: next(x.header[k] for x in h if k in x.header), hdus[1].data
 
 
+def galaxy_matches(run, rows, one_per_galaxy=False):
+    """(key, table, matched rows, their galaxies' indices, weighted rows
+    matched to none) of each truth file of RUN whose image has rows: each
+    row matched to the nearest truth galaxy within 1 arcsec (with
+    one_per_galaxy, only a galaxy's nearest row is kept)."""
+    for image, key, t in truth_tables(run, rows):
+        c = np.array(rows[image])
+        gal = np.nonzero(t["kind"] == 1)[0]
+        tree = cKDTree(np.column_stack([t["x"][gal], t["y"][gal]]))
+        d, k = tree.query(c[:, :2], distance_upper_bound=1.0 / PIXEL_SCALE)
+        ok = np.isfinite(d)
+        unmatched = int((~ok & (c[:, 4] > 0)).sum())
+        r = np.nonzero(ok)[0]
+        if one_per_galaxy:
+            r = r[np.argsort(d[r], kind="stable")]
+            r = r[np.unique(k[r], return_index=True)[1]]
+        yield key, t, c[r], gal[k[r]], unmatched
+
+
 def matched_isolated(run, rows):
     """(field, g1, e1_int, e1, weight, flags) of each matched isolated galaxy."""
     out = []
