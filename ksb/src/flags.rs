@@ -10,7 +10,7 @@
 //! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |
 //! | 5 | 32 | `SMALL` | r_g (or the PSF-corrected size, `size_cut`) ≤ `size_min_factor` × r_g* (star-like or smaller) |
 //! | 6 | 64 | `LARGE` | r_g reached `rg_max_px` |
-//! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `ksb_min_sn` (KSB+) or `min_sn` (metacal) |
+//! | 7 | 128 | `LOW_SN` | Gaussian-weighted S/N ν < `ksb_min_sn` (KSB+) or the unsheared version's < `min_sn` (metacal) |
 //! | 8 | 256 | `PGAMMA` | ½Tr P^γ < `min_pgamma` |
 //! | 9 | 512 | `BIG_SHEAR` | |γ̂| ≥ `max_shear` (written as 0 beyond the submission range, `stepsim_contract::MAX_ABS_SHEAR`) |
 //! | 10 | 1024 | `NO_PSF` | too few stars for a PSF model on this image |
@@ -30,7 +30,8 @@ pub const MOMENTS: u32 = 16;
 pub const SMALL: u32 = 32;
 /// Too large (r_g at rg_max).
 pub const LARGE: u32 = 64;
-/// Too faint (ν < ksb_min_sn for KSB+, min_sn for metacal).
+/// Too faint (ν < ksb_min_sn for KSB+; the unsheared version's ν < min_sn for
+/// metacal).
 pub const LOW_SN: u32 = 128;
 /// P^γ too small.
 pub const PGAMMA: u32 = 256;

@@ -36,7 +36,7 @@
 use crate::centroid::{WindowSettings, windowed};
 use crate::flags;
 use crate::image::Image;
-use crate::moments::ksb_integrals;
+use crate::moments::{PixelNoise, ksb_integrals};
 use crate::params::KsbParams;
 use crate::pipeline::MeasuredObject;
 use rand::RngExt;
@@ -72,8 +72,12 @@ pub struct McMeasure {
     pub e: [[f64; 2]; 5],
     /// Windowed size r_g of each version (pixels).
     pub rg: [f64; 5],
-    /// Weighted flux Σ W J of each version.
-    pub s0: [f64; 5],
+    /// S/N of each version, the one its cut compares with `min_sn`: its
+    /// weighted flux over σ √(Σ W²), σ the image's background noise
+    /// (KSB's ν of the version with the image's noise; infinite without
+    /// noise). A function of the version alone, so that R_S sees how the
+    /// cut responds to the shear ([`measure_object`]).
+    pub sn: [f64; 5],
     /// The version's centroid converged and its moments are defined.
     pub ok: [bool; 5],
     /// The version shows a second peak near the galaxy
@@ -429,12 +433,22 @@ impl Deconvolver {
         let mut m = McMeasure {
             e: [[0.0; 2]; 5],
             rg: [0.0; 5],
-            s0: [0.0; 5],
+            sn: [0.0; 5],
             ok: [false; 5],
             blended: [false; 5],
         };
         // The versions' noise: the image's, filtered, and the correction's.
         let sigma_v = noise_sigma * (2.0 * self.noise_gain).sqrt();
+        // Each version's S/N is its weighted flux over the image's σ times
+        // √(Σ W²) of its own window: decided on the version, as every cut
+        // is. (Until 2026-12-06 it was the image's KSB ν scaled by the
+        // version's weighted flux, which left out how the window's size
+        // follows the shear: m −0.027 ± 0.010 at STEP1's noise on the
+        // isolated-galaxy grid, docs/metacal.md.)
+        let pixel_noise = (noise_sigma > 0.0).then_some(PixelNoise {
+            background_var: noise_sigma * noise_sigma,
+            poisson: false,
+        });
         let rg0 = (rg * rg + self.sigma * self.sigma).sqrt();
         // The detection's position relative to the stamp's centre c.
         let rel = [det[0] - x, det[1] - y];
@@ -456,13 +470,17 @@ impl Deconvolver {
             let Some(w) = windowed(&img, start[0], start[1], rg0, true, win) else {
                 continue;
             };
-            let ints = ksb_integrals(&img, w.x, w.y, w.rg, win.radius_rg * w.rg, None);
+            let ints = ksb_integrals(&img, w.x, w.y, w.rg, win.radius_rg * w.rg, pixel_noise);
             if ints.clipped || !(ints.s0 > 0.0 && ints.trace > 0.0) {
                 continue;
             }
             m.e[v] = [ints.q[0] / ints.trace, ints.q[1] / ints.trace];
             m.rg[v] = w.rg;
-            m.s0[v] = ints.s0;
+            m.sn[v] = if ints.var_s0 > 0.0 {
+                ints.s0 / ints.var_s0.sqrt()
+            } else {
+                f64::INFINITY
+            };
             m.ok[v] = w.converged
                 && !w.at_bound
                 && (w.x - start[0]).hypot(w.y - start[1]) <= tests.max_shift;
@@ -691,12 +709,7 @@ pub fn measure_object(
         o.flags |= flags::BLENDED;
     }
     let pass = |v: usize| {
-        others == 0
-            && !m.blended[v]
-            && m.ok[v]
-            && m.s0[0] > 0.0
-            && o.sn * m.s0[v] / m.s0[0] >= params.min_sn
-            && m.rg[v] > min_rg
+        others == 0 && !m.blended[v] && m.ok[v] && m.sn[v] >= params.min_sn && m.rg[v] > min_rg
     };
     let selected = [pass(0), pass(1), pass(2), pass(3), pass(4)];
     if !m.ok[0] {
@@ -704,7 +717,7 @@ pub fn measure_object(
     } else if m.rg[0] <= min_rg {
         o.flags |= flags::SMALL;
     }
-    if o.sn < params.min_sn {
+    if m.ok[0] && m.sn[0] < params.min_sn {
         o.flags |= flags::LOW_SN;
     }
     if o.flags == 0 && !selected[0] {

@@ -125,8 +125,8 @@ pub struct KsbParams {
     pub size_min_factor: f64,
     /// Which size the `SMALL` cut uses ([`SizeCut::Windowed`]).
     pub size_cut: SizeCut,
-    /// Metacal's galaxies need Gaussian-weighted S/N ν ≥ this (10, like
-    /// CH and C1/C2).
+    /// Metacal's galaxies need Gaussian-weighted S/N ν ≥ this on each
+    /// version (10, like CH and C1/C2; `metacal::McMeasure::sn`).
     pub min_sn: f64,
     /// KSB+'s galaxies need ν ≥ this (20). Faint galaxies are the ones
     /// with a neighbour of ≥ 10 % of their flux within 3″ that the

@@ -163,6 +163,71 @@ fn the_response_of_an_ensemble_recovers_its_shear() {
 }
 
 #[test]
+fn the_signal_to_noise_a_version_is_cut_on_is_the_versions_own() {
+    // One galaxy seen through two PSFs has the same versions (the galaxy
+    // sheared and convolved with Γ), so the S/N each version is cut on
+    // must be the same through both: the version's weighted flux over σ
+    // √(Σ W²), here from the slow twin of the KSB sums on the analytic
+    // version. The image's KSB ν, which the cut was scaled from before
+    // 2026-12-06, differs between the two PSFs by more than 10 %.
+    let side = 48;
+    let c = [24.0, 24.0];
+    let flux = 1e6;
+    let noise_sigma = 1.0;
+    let gal = covariance(2.2, [0.3, -0.1]);
+    let sigma = 2.8;
+    let win = test_window();
+    let tests = VersionTests {
+        noise_sigma,
+        ..NOISELESS
+    };
+    let noise = Some(crate::moments::PixelNoise {
+        background_var: noise_sigma * noise_sigma,
+        poisson: false,
+    });
+    let round = [[sigma * sigma, 0.0], [0.0, sigma * sigma]];
+    let as_image = |pix: Vec<f64>| Image {
+        width: side,
+        height: side,
+        data: pix.iter().map(|&v| (flux * v) as f32).collect(),
+    };
+    let mut nu = Vec::new();
+    for psf_sigma in [1.4, 2.0] {
+        let psf = covariance(psf_sigma, [0.0, 0.0]);
+        let img = as_image(gaussian_stamp(side, c, &convolve(&gal, &psf)));
+        let stack = PsfStack {
+            pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &psf),
+            n_stars: 1,
+        };
+        let m = Deconvolver::new(&stack, side, sigma)
+            .measure(&img, c, c, 2.8, &win, &tests)
+            .expect("inside");
+        for (v, g) in VERSIONS.iter().enumerate() {
+            let want_img = as_image(gaussian_stamp(
+                side,
+                c,
+                &convolve(&shear_covariance(&gal, *g), &round),
+            ));
+            let w = windowed(&want_img, c[0], c[1], 3.0, true, &win).expect("found");
+            let ints =
+                crate::moments::ksb_integrals_slow(&want_img, w.x, w.y, w.rg, 4.0 * w.rg, noise);
+            let want = ints.s0 / ints.var_s0.sqrt();
+            assert!(
+                (m.sn[v] / want - 1.0).abs() < 1e-4,
+                "PSF σ {psf_sigma}, version {v}: S/N {} against {want}",
+                m.sn[v]
+            );
+        }
+        // The shear moves the S/N far more than the tolerance.
+        assert!((m.sn[1] / m.sn[2] - 1.0).abs() > 1e-3, "{:?}", m.sn);
+        let w = windowed(&img, c[0], c[1], 3.0, true, &win).expect("found");
+        let ints = ksb_integrals(&img, w.x, w.y, w.rg, 4.0 * w.rg, noise);
+        nu.push(ints.s0 / ints.var_s0.sqrt());
+    }
+    assert!(nu[0] / nu[1] - 1.0 > 0.1, "the images' ν {nu:?}");
+}
+
+#[test]
 fn a_stack_of_shifted_stars_is_the_star_centred() {
     let mut img = Image::zeros(200, 100);
     let psf = covariance(1.8, [0.05, 0.02]);
@@ -193,7 +258,7 @@ fn the_selection_response_counts_galaxies_that_cross_a_cut() {
             [e1, -0.02],
         ],
         rg: [2.0; 5],
-        s0: [1.0; 5],
+        sn: [20.0; 5],
         ok: [true; 5],
         blended: [false; 5],
     };
