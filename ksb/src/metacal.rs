@@ -444,7 +444,7 @@ impl Deconvolver {
         // is. (Until 2026-12-06 it was the image's KSB ν scaled by the
         // version's weighted flux, which left out how the window's size
         // follows the shear: m −0.027 ± 0.010 at STEP1's noise on the
-        // isolated-galaxy grid, docs/metacal.md.)
+        // isolated-galaxy grid, −0.011 ± 0.009 now; docs/metacal.md.)
         let pixel_noise = (noise_sigma > 0.0).then_some(PixelNoise {
             background_var: noise_sigma * noise_sigma,
             poisson: false,
