@@ -717,11 +717,16 @@ pub fn measure_object(
     } else if m.rg[0] <= min_rg {
         o.flags |= flags::SMALL;
     }
-    if m.ok[0] && m.sn[0] < params.min_sn {
+    // The row's ν is its unsheared version's S/N, the one its cut compares
+    // (0 when the version could not be measured, as for KSB+).
+    o.sn = m.sn[0];
+    if m.sn[0] < params.min_sn {
         o.flags |= flags::LOW_SN;
     }
+    // A guard: every cut above sets its flag, so this only catches a size
+    // or S/N that is NaN.
     if o.flags == 0 && !selected[0] {
-        o.flags |= flags::LOW_SN;
+        o.flags |= flags::MOMENTS;
     }
     o.metacal = Some((m, selected));
     o

@@ -25,9 +25,10 @@ population's own e2. For metacalibration the split is not the method's
 own (its rows carry the dataset's response, larger galaxies read high and
 smaller ones low), m is; and the per-field errors do not see the error of
 that response, which all fields share. The same is printed for the rows
-of true magnitude 17-22, 22-23 and 23-24. Printed first: the fraction of
-the truth's galaxies found in each run (a row matched, weighted or not)
-and the selection of finding them, the slope of their mean e1_int: the
+of true magnitude 17-22, 22-23 and 23-24. Printed before them: the
+fraction of the truth's galaxies found in each run (a row matched,
+weighted or not; over the images that have rows, every magnitude) and
+the selection of finding them, the slope of their mean e1_int: the
 detection's, which metacalibration's R_S does not see.
 
 Needs numpy, scipy and astropy; not run by CI.
@@ -73,6 +74,9 @@ def found_line(p, m, gp, gm):
         fm = m[(m[:, 0] == f) & (m[:, 2] > 0)]
         if len(fp) and len(fm):
             v.append((fp[:, 1].mean() - fm[:, 1].mean()) / (gp - gm))
+    if not v:
+        print("galaxies found: no base field has a galaxy found in both runs")
+        return
     v = np.array(v)
     err = v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else float("nan")
     print(f"galaxies found (a row, weighted or not): {p[:, 2].mean():.4f} / "

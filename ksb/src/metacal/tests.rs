@@ -228,6 +228,74 @@ fn the_signal_to_noise_a_version_is_cut_on_is_the_versions_own() {
 }
 
 #[test]
+fn a_row_is_cut_on_its_versions_s_n_not_on_the_images_nu() {
+    // `measure_object` decides LOW_SN and each version's selection on the
+    // versions' own S/N, whatever the image's ν (`o.sn`, KSB+'s) says: a
+    // faint galaxy given a high ν is cut, a bright one given a low ν is
+    // kept, and the row's ν becomes its unsheared version's.
+    let side = 96;
+    let c = [48.0, 48.0];
+    let psf = covariance(1.8, [0.0, 0.0]);
+    let gal = covariance(2.5, [0.2, 0.1]);
+    let stack = PsfStack {
+        pix: gaussian_stamp(PSF_SIDE, [16.0, 16.0], &psf),
+        n_stars: 1,
+    };
+    let sigma = 2.6;
+    let mc = ImageMetacal {
+        decs: STAMP_SIDES
+            .iter()
+            .map(|&s| Deconvolver::new(&stack, s, sigma))
+            .collect(),
+        sigma,
+    };
+    let params = KsbParams::default();
+    let shape = gaussian_stamp(side, c, &convolve(&gal, &psf));
+    // flux (e⁻, noise σ 1 e⁻), the image's ν handed in, kept
+    for (flux, image_nu, kept) in [(90.0, 1000.0, false), (3000.0, 5.0, true)] {
+        let sub = Image {
+            width: side,
+            height: side,
+            data: shape.iter().map(|&v| (flux * v) as f32).collect(),
+        };
+        let o = MeasuredObject {
+            x: c[0] + 1.0,
+            y: c[1] + 1.0,
+            e1: 0.0,
+            e2: 0.0,
+            weight: 0.0,
+            flags: 0,
+            rg_px: 3.1,
+            sn: image_nu,
+            mag: f64::NAN,
+            pgamma: f64::NAN,
+            metacal: None,
+            ksb: None,
+        };
+        let o = measure_object(o, 0, c, &sub, Some(&mc), &params, 1.0);
+        let (m, selected) = o.metacal.expect("measured");
+        assert_eq!(o.sn, m.sn[0], "the row's ν is its unsheared version's");
+        assert_eq!(
+            selected[0], kept,
+            "flux {flux}: S/N {:?}, flags {}",
+            m.sn, o.flags
+        );
+        assert_eq!(
+            o.flags & flags::LOW_SN != 0,
+            !kept,
+            "flux {flux}: flags {}",
+            o.flags
+        );
+        if kept {
+            assert_eq!(o.flags, 0, "flux {flux}: flags {}", o.flags);
+            assert!(selected.iter().all(|&b| b), "{selected:?}");
+        } else {
+            assert!(m.sn[0] < params.min_sn, "flux {flux}: S/N {:?}", m.sn);
+        }
+    }
+}
+
+#[test]
 fn a_stack_of_shifted_stars_is_the_star_centred() {
     let mut img = Image::zeros(200, 100);
     let psf = covariance(1.8, [0.05, 0.02]);
