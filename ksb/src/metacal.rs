@@ -476,11 +476,7 @@ impl Deconvolver {
             }
             m.e[v] = [ints.q[0] / ints.trace, ints.q[1] / ints.trace];
             m.rg[v] = w.rg;
-            m.sn[v] = if ints.var_s0 > 0.0 {
-                ints.s0 / ints.var_s0.sqrt()
-            } else {
-                f64::INFINITY
-            };
+            m.sn[v] = ints.sn();
             m.ok[v] = w.converged
                 && !w.at_bound
                 && (w.x - start[0]).hypot(w.y - start[1]) <= tests.max_shift;

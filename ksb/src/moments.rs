@@ -111,6 +111,16 @@ pub struct KsbShape {
 }
 
 impl KsbIntegrals {
+    /// The Gaussian-weighted S/N ν = S0 / √(Σ v W²) (infinite without a
+    /// noise model).
+    pub fn sn(&self) -> f64 {
+        if self.var_s0 > 0.0 {
+            self.s0 / self.var_s0.sqrt()
+        } else {
+            f64::INFINITY
+        }
+    }
+
     /// The shape, or `None` if the weighted flux or trace is not positive.
     pub fn shape(&self) -> Option<KsbShape> {
         let t = self.trace;
@@ -126,11 +136,7 @@ impl KsbIntegrals {
                 psm[a][b] = (self.xsm[a][b] - e[a] * self.esm[b]) / t;
             }
         }
-        let sn = if self.var_s0 > 0.0 {
-            self.s0 / self.var_s0.sqrt()
-        } else {
-            f64::INFINITY
-        };
+        let sn = self.sn();
         Some(KsbShape {
             sigma_w: self.sigma_w,
             e,
