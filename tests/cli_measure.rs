@@ -385,20 +385,30 @@ fn details_are_written_beside_the_submission_and_refused_where_they_cannot_be() 
     };
     ok(with(&sub, &table, &["--threads", "1"]));
     // The submission is the same bytes; the table holds its lines in its
-    // order, each with eight more columns.
+    // order, each with eight more columns of KSB+'s and eleven of
+    // metacal's (`nan`, and a mask 0, under KSB+).
     let text = std::fs::read_to_string(&sub).unwrap();
     assert_eq!(text, std::fs::read_to_string(&plain).unwrap());
     let details = std::fs::read_to_string(&table).unwrap();
     let mut lines = details.lines();
     assert_eq!(
         lines.next(),
-        Some("# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma")
+        Some(
+            "# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma \
+             e1_0 e2_0 e1_1p e2_1p e1_1m e2_1m e1_2p e2_2p e1_2m e2_2m mc_selected"
+        )
     );
     let rows: Vec<&str> = lines.collect();
     assert_eq!(rows.len(), text.lines().count() - 1);
     for (d, s) in rows.iter().zip(text.lines().skip(1)) {
         let cols: Vec<&str> = d.split(' ').collect();
-        assert_eq!((cols.len(), cols[..7].join(" ")), (15, s.to_string()));
+        assert_eq!((cols.len(), cols[..7].join(" ")), (26, s.to_string()));
+        assert_eq!(
+            cols[15..],
+            [
+                "nan", "nan", "nan", "nan", "nan", "nan", "nan", "nan", "nan", "nan", "0"
+            ]
+        );
     }
     // Metacal rows have no KSB+ parts: `nan`, their r_g and ν kept.
     let (mc, mc_table) = (dir.path().join("mc.txt"), dir.path().join("mc.details"));
@@ -412,9 +422,55 @@ fn details_are_written_beside_the_submission_and_refused_where_they_cannot_be() 
         .collect();
     assert!(weighted.len() > 20, "{}", weighted.len());
     for c in &weighted {
-        assert_eq!(c[10..], ["nan"; 5], "{c:?}");
+        assert_eq!(c[10..15], ["nan"; 5], "{c:?}");
         assert!(c[7].parse::<f64>().unwrap() > 1.0 && c[8].parse::<f64>().unwrap() >= 10.0);
+        // A weighted row passed the cuts unsheared.
+        assert_eq!(c[25].parse::<u32>().unwrap() & 1, 1, "{c:?}");
     }
+    // The versions' columns give back the dataset's response (both images
+    // are one dataset): recomputed here from the table alone, R⁻¹ e(0) is
+    // each weighted row's e to the table's six decimals.
+    type Versions = ([[f64; 2]; 5], u32);
+    let versions: Vec<Versions> = mc_rows
+        .lines()
+        .skip(1)
+        .map(|l| l.split(' ').collect::<Vec<_>>())
+        .filter(|c| c[15] != "nan")
+        .map(|c| {
+            let v = |k: usize| c[15 + k].parse::<f64>().unwrap();
+            let e = [0, 1, 2, 3, 4].map(|i| [v(2 * i), v(2 * i + 1)]);
+            (e, c[25].parse().unwrap())
+        })
+        .collect();
+    let mean = |f: &dyn Fn(&Versions) -> Option<f64>| {
+        let xs: Vec<f64> = versions.iter().filter_map(f).collect();
+        xs.iter().sum::<f64>() / xs.len() as f64
+    };
+    let mut r = [[0.0; 2]; 2];
+    for (i, row) in r.iter_mut().enumerate() {
+        for (j, rij) in row.iter_mut().enumerate() {
+            let (p, m) = (1 + 2 * j, 2 + 2 * j);
+            let gamma = mean(&|(e, s)| (s & 1 == 1).then(|| (e[p][i] - e[m][i]) / 0.02));
+            let on = |v: usize| mean(&|(e, s)| (s >> v & 1 == 1).then_some(e[0][i]));
+            *rij = gamma + (on(p) - on(m)) / 0.02;
+        }
+    }
+    assert!(r[0][0] > 0.3 && r[1][1] > 0.3, "{r:?}");
+    let det = r[0][0] * r[1][1] - r[0][1] * r[1][0];
+    let mut checked = 0;
+    for c in &weighted {
+        let v = |k: usize| c[k].parse::<f64>().unwrap();
+        let g = [
+            (r[1][1] * v(15) - r[0][1] * v(16)) / det,
+            (-r[1][0] * v(15) + r[0][0] * v(16)) / det,
+        ];
+        assert!(
+            (g[0] - v(3)).abs() < 1e-4 && (g[1] - v(4)).abs() < 1e-4,
+            "{g:?} {c:?}"
+        );
+        checked += 1;
+    }
+    assert_eq!(checked, weighted.len());
     // The table's own file, a directory, and shards: refused before
     // measuring.
     let o = with(&dir.path().join("s3.txt"), dir.path(), &[]);

@@ -107,14 +107,18 @@ pub fn push_row(s: &mut String, image: &str, o: &MeasuredObject) {
 
 /// Column header line of the details table (`stepsim measure --details`):
 /// the submission's columns, then the pipeline's own quantities.
-pub const DETAILS_HEADER: &str =
-    "# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 sigma_gamma";
+pub const DETAILS_HEADER: &str = "# image x y e1 e2 weight flags r_g_px nu mag pgamma k e_cor1 e_cor2 \
+     sigma_gamma e1_0 e2_0 e1_1p e2_1p e1_1m e2_1m e1_2p e2_2p e1_2m e2_2m mc_selected";
 
 /// Appends the details line of `o` (docs/ksb.md, "The details table"):
 /// its submission line's seven columns, then r_g (pixels), ν, the
 /// magnitude, ½Tr P^γ as used (k included), the calibration's k, e_cor
-/// and σ_γ; `nan` where the pipeline did not compute one (KSB+'s parts
-/// under metacal, no PSF model, no moments).
+/// and σ_γ; then, with metacalibration, the raw ellipticity of each of
+/// the five versions ([`crate::metacal::VERSIONS`]' order: no shear, +g₁,
+/// −g₁, +g₂, −g₂) and which versions pass the cuts (bit v for version v),
+/// so that a subset's own response can be computed; `nan` where the
+/// pipeline did not compute one (KSB+'s parts under metacal, metacal's
+/// under KSB+, no PSF model, no moments; the mask is then 0).
 pub fn push_details_row(s: &mut String, image: &str, o: &MeasuredObject) {
     let (e_cor, k, sigma) = o.ksb.map_or(([f64::NAN; 2], f64::NAN, f64::NAN), |d| {
         (d.e_cor, d.k, d.sigma_gamma)
@@ -126,7 +130,7 @@ pub fn push_details_row(s: &mut String, image: &str, o: &MeasuredObject) {
             "nan".to_string()
         }
     };
-    let _ = writeln!(
+    let _ = write!(
         s,
         "{image} {:.3} {:.3} {:.6} {:.6} {:.6} {} {} {} {} {} {} {} {} {}",
         o.x,
@@ -144,6 +148,14 @@ pub fn push_details_row(s: &mut String, image: &str, o: &MeasuredObject) {
         nan(e_cor[1], 6),
         nan(sigma, 6),
     );
+    let (versions, selected) = o.metacal.map_or(([[f64::NAN; 2]; 5], 0u32), |(m, sel)| {
+        let mask = (0..5).filter(|&v| sel[v]).map(|v| 1u32 << v).sum();
+        (m.e, mask)
+    });
+    for e in versions {
+        let _ = write!(s, " {} {}", nan(e[0], 6), nan(e[1], 6));
+    }
+    let _ = writeln!(s, " {selected}");
 }
 
 /// Writes a submission atomically (for the tests: a run writes its rows

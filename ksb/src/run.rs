@@ -600,8 +600,13 @@ mod tests {
         for (d, s) in lines.zip(sub.lines().skip(1)) {
             n += 1;
             let cols: Vec<&str> = d.split(' ').collect();
-            assert_eq!(cols.len(), 15, "{d}");
+            assert_eq!(cols.len(), 26, "{d}");
             assert_eq!(cols[..7].join(" "), s);
+            // Metacal's columns are empty under KSB+.
+            assert!(
+                cols[15..25].iter().all(|c| *c == "nan") && cols[25] == "0",
+                "{d}"
+            );
             let v = |i: usize| cols[i].parse::<f64>().unwrap();
             if v(5) > 0.0 {
                 weighted += 1;

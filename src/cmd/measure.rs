@@ -81,7 +81,8 @@ pub struct Args {
     size_cut: SizeCutArg,
     /// Also write a details table: the submission's rows in its order, each
     /// followed by r_g, ν, the magnitude, P^γ, the calibration's k, e_cor
-    /// and σ_γ (docs/ksb.md, "The details table"). Not with --shard.
+    /// and σ_γ, then metacal's five versions' e and which pass the cuts
+    /// (docs/ksb.md, "The details table"). Not with --shard.
     #[arg(long, value_name = "TABLE", conflicts_with_all = ["shard", "finish"])]
     details: Option<PathBuf>,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
