@@ -49,6 +49,30 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
     ok(measure(&run, &b, "2"));
     let text = std::fs::read_to_string(&a).unwrap();
     assert_eq!(text, std::fs::read_to_string(&b).unwrap());
+    check_submission(&text);
+    // Metadetection too: the same bytes at any thread count.
+    let md = |out: &Path, threads: &str| {
+        run_with(
+            stepsim()
+                .args(["measure", "--method", "metadetect", "--run"])
+                .arg(&run)
+                .arg("--out")
+                .arg(out)
+                .args(["--threads", threads]),
+        )
+    };
+    let (c, d) = (dir.path().join("c.txt"), dir.path().join("d.txt"));
+    ok(md(&c, "1"));
+    ok(md(&d, "2"));
+    let text = std::fs::read_to_string(&c).unwrap();
+    assert_eq!(text, std::fs::read_to_string(&d).unwrap());
+    check_submission(&text);
+}
+
+/// A submission of the test run: its header, sorted rows of seven
+/// finite columns inside the 512² images, weights exactly where the flags
+/// are 0, more than 20 of them, no two rows at one position, both images.
+fn check_submission(text: &str) {
     let mut lines = text.lines();
     assert_eq!(lines.next(), Some("# image x y e1 e2 weight flags"));
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split_whitespace().collect()).collect();

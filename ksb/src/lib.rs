@@ -33,6 +33,8 @@
 //! shear.rs        the estimator, weights and cuts (flags.rs: the flag bits)
 //! calibration.rs  P^γ calibrated on the image's own PSF with model galaxies
 //! metacal.rs      metacalibration, the other estimator (Method::Metacal)
+//! metadetect.rs   metacalibration of the whole image, detection included
+//!                 (Method::Metadetect)
 //! pipeline.rs     the stages strung together for one image
 //! run.rs          a public run directory in, a submission out (shards too)
 //! io.rs           FITS images, manifest, submission text
@@ -40,7 +42,9 @@
 //! ```
 //!
 //! With [`Method::Metacal`] the shear estimate is metacalibration instead
-//! of KSB+; detection, stars and cuts on the detection are shared.
+//! of KSB+; detection, stars and cuts on the detection are shared. With
+//! [`Method::Metadetect`] the detection too is made on each sheared
+//! version of the whole image.
 //!
 //! The modules are private: what users call is re-exported here, each item
 //! under one name. Synthetic test scenes live in `stepsim-testkit`
@@ -60,6 +64,7 @@ mod image;
 mod io;
 mod linalg;
 mod metacal;
+mod metadetect;
 mod moments;
 mod params;
 mod pipeline;

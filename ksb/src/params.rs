@@ -44,6 +44,9 @@ pub enum Method {
     /// Metacalibration (`metacal.rs`): the response measured by
     /// shearing each galaxy's deconvolved image, selection included.
     Metacal,
+    /// Metadetection (`metadetect.rs`): metacalibration of the whole
+    /// image, detection included.
+    Metadetect,
 }
 
 /// The pipeline's parameters. `KsbParams::default()` is the setting used by

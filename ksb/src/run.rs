@@ -469,6 +469,24 @@ fn measure_datasets(
                 crate::metacal::apply_response(objs);
             }
         }
+        if params.method == crate::params::Method::Metadetect {
+            // One response per dataset, from its images' version sums.
+            for members in datasets[group_start..=n].iter() {
+                let sums: Vec<crate::metadetect::VersionSums> = group
+                    .iter()
+                    .zip(done.iter())
+                    .filter(|(i, _)| members.contains(i))
+                    .filter_map(|(_, m)| m.version_sums)
+                    .collect();
+                let r = crate::metadetect::response(&sums);
+                let objs = group
+                    .iter()
+                    .zip(done.iter_mut())
+                    .filter(|(i, _)| members.contains(i))
+                    .flat_map(|(_, m)| m.objects.iter_mut());
+                crate::metadetect::apply_response(objs, r);
+            }
+        }
         for (&i, m) in group.iter().zip(done) {
             let mut text = String::new();
             for o in &m.objects {

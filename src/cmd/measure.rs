@@ -22,6 +22,10 @@ pub enum MethodArg {
     /// reconvolved and measured again; rows are R⁻¹ e with R the
     /// dataset's response, selection included (docs/metacal.md).
     Metacal,
+    /// Metadetection: the whole image deconvolved, sheared by ±0.01,
+    /// reconvolved, and detected and measured again; the response includes
+    /// the detection's (docs/metacal.md, "Metadetection").
+    Metadetect,
 }
 
 /// The calibration of KSB+'s P^γ on each image's PSF.
@@ -109,6 +113,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         method: match args.method {
             MethodArg::Ksb => Method::Ksb,
             MethodArg::Metacal => Method::Metacal,
+            MethodArg::Metadetect => Method::Metadetect,
         },
         calibration: match args.calibration {
             CalibrationArg::Exponential => Some(CalibrationProfile::Exponential),

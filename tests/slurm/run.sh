@@ -77,10 +77,12 @@ CONF
 /usr/sbin/slurmctld -c -f "$SLURM_CONF"
 /usr/sbin/slurmd -N "$host" -f "$SLURM_CONF"
 for _ in $(seq 60); do
-  sinfo -h -o %T 2>/dev/null | grep -q idle && break
+  # (grep without -q reads all its input: with pipefail, a grep that
+  # stops early can end the writer with SIGPIPE and the pipeline with 141.)
+  sinfo -h -o %T 2>/dev/null | grep idle >/dev/null && break
   sleep 0.5
 done
-sinfo -h -o %T | grep -q idle || { echo "tests/slurm: the node did not come up"; tail -20 "$D"/*.log; exit 1; }
+sinfo -h -o %T | grep idle >/dev/null || { echo "tests/slurm: the node did not come up"; tail -20 "$D"/*.log; exit 1; }
 
 # A small config: 2 PSFs x 2 shears x 2 images of 128 x 96 (8 images).
 cat > "$D/c.json" <<'JSON'
@@ -115,7 +117,9 @@ same() { # run directory: public/, private/ (no PSFs, markers) and submission as
 "$STEPSIM" slurm --config "$D/c.json" --out "$D/run" --shards 4 --cpus-per-task 1 --stepsim "$STEPSIM" > "$D/submit.sh"
 out=$(bash "$D/submit.sh")
 echo "$out"
-ids=$(echo "$out" | head -1 | grep -o '[0-9]\+' | tr '\n' ' ')
+# The first line's job ids (no `head`: it may stop reading before echo has
+# written, and pipefail then ends the script with 141).
+ids=$(grep -o '[0-9]\+' <<< "${out%%$'\n'*}" | tr '\n' ' ')
 # shellcheck disable=SC2086
 wait_for $ids
 same "$D/run"

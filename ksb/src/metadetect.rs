@@ -1,0 +1,550 @@
+//! Metadetection (Sheldon et al. 2020): metacalibration of the whole
+//! image, detection included (`stepsim measure --method metadetect`).
+//!
+//! Where `metacal.rs` makes five versions of each detection's stamp, this
+//! makes five versions of the whole (background-subtracted) image and runs
+//! the pipeline's detection and windowed moments on each. So which objects
+//! are found, merged, deblended or flagged is decided on each version, and
+//! the response sees it. The version sheared by g is
+//!
+//! J_g = (I ⊛ h_g) ∘ A_g,  ĥ_g(q) = Γ̂(A_g q) / P̂(q),
+//!
+//! whose transform is Î(M k) Γ̂(k) / P̂(M k) with M = A⁻¹, the same as a
+//! stamp's version in `metacal.rs`: the image is first convolved, on its
+//! own grid, with a kernel whose transform is exact there (P̂ the
+//! transform of the PSF stack, Γ̂ analytic), which leaves a field
+//! band-limited by Γ̂; that field is then resampled at A_g x (about the
+//! image's centre) by windowed-sinc interpolation in two one-dimensional
+//! passes, which is accurate because the field has almost no power where
+//! the interpolant is not flat. The noise correction is the stamps':
+//! white noise rotated by 90°, made into the version and rotated back;
+//! that equals processing unrotated noise with the PSF rotated and the
+//! shear −g, which is how it is done here (no image is rotated).
+//!
+//! The response of a dataset is R_ij = (⟨e_i⟩ over the objects selected
+//! on the +g_j version − the same on −g_j) / 0.02, each mean over its own
+//! version's detections: shear and selection response in one. The rows
+//! are the unsheared version's detections, each selected one with
+//! R⁻¹ e(0) and weight 1.
+
+use crate::flags;
+use crate::image::Image;
+#[cfg(test)]
+use crate::metacal::VERSIONS;
+use crate::metacal::{PSF_SIDE, PsfStack, STEP, freq};
+use rand::RngExt;
+use rustfft::num_complex::Complex64;
+use rustfft::{Fft, FftPlanner};
+use std::f64::consts::PI;
+use std::sync::Arc;
+use stepsim_contract::seed::{SeedKey, Stream};
+
+/// Objects whose windowed centroid lies within this many pixels of an edge
+/// of their version are cut (EDGE): the convolution wraps round the image
+/// and the resampling reads past it.
+pub const EDGE_MARGIN_PX: f64 = 64.0;
+
+/// Objects within this many pixels of a saturated detection (of the image
+/// as given, taken to each version's frame) are cut (SATURATED): the
+/// deconvolution of a clipped core rings.
+pub const SATURATED_RADIUS_PX: f64 = 32.0;
+
+/// Half-width of the interpolation kernel (Lanczos, taps −N+1 … N).
+const LANCZOS_N: i64 = 12;
+
+/// Taps of the interpolation kernel.
+const TAPS: usize = 2 * LANCZOS_N as usize;
+
+/// Seeds the noise correction's white noise (with the image's digest).
+const NOISE_SEED: u64 = 0x6d65_7461_6465_7400;
+
+/// The shear matrix A of SPEC §1 for g: (1 − |g|²)^(−½) [[1 − g₁, −g₂], [−g₂, 1 + g₁]].
+pub fn shear_matrix(g: [f64; 2]) -> [[f64; 2]; 2] {
+    let s = 1.0 / (1.0 - g[0] * g[0] - g[1] * g[1]).sqrt();
+    [[s * (1.0 - g[0]), -s * g[1]], [-s * g[1], s * (1.0 + g[0])]]
+}
+
+/// 2-D transforms of a width × height grid: rows, a blocked transpose,
+/// rows again. The forward transform leaves the spectrum transposed
+/// (index kx · height + ky); the inverse takes it so.
+struct Fft2 {
+    w: usize,
+    h: usize,
+    fw: Arc<dyn Fft<f64>>,
+    iw: Arc<dyn Fft<f64>>,
+    fh: Arc<dyn Fft<f64>>,
+    ih: Arc<dyn Fft<f64>>,
+}
+
+fn transpose(a: &[Complex64], rows: usize, cols: usize) -> Vec<Complex64> {
+    const B: usize = 32;
+    let mut out = vec![Complex64::new(0.0, 0.0); a.len()];
+    for r0 in (0..rows).step_by(B) {
+        for c0 in (0..cols).step_by(B) {
+            for r in r0..(r0 + B).min(rows) {
+                for c in c0..(c0 + B).min(cols) {
+                    out[c * rows + r] = a[r * cols + c];
+                }
+            }
+        }
+    }
+    out
+}
+
+impl Fft2 {
+    fn new(w: usize, h: usize) -> Self {
+        let mut p = FftPlanner::new();
+        Self {
+            w,
+            h,
+            fw: p.plan_fft_forward(w),
+            iw: p.plan_fft_inverse(w),
+            fh: p.plan_fft_forward(h),
+            ih: p.plan_fft_inverse(h),
+        }
+    }
+
+    fn forward(&self, mut buf: Vec<Complex64>) -> Vec<Complex64> {
+        self.fw.process(&mut buf);
+        let mut t = transpose(&buf, self.h, self.w);
+        self.fh.process(&mut t);
+        t
+    }
+
+    fn inverse(&self, mut spec: Vec<Complex64>) -> Vec<Complex64> {
+        self.ih.process(&mut spec);
+        let mut t = transpose(&spec, self.w, self.h);
+        self.iw.process(&mut t);
+        let norm = 1.0 / (self.w * self.h) as f64;
+        for v in &mut t {
+            *v *= norm;
+        }
+        t
+    }
+}
+
+/// Lanczos weights for interpolating at `t` (in samples): the first tap's
+/// index and 2N weights summing to 1. sin(π x) alternates in sign from tap
+/// to tap and sin(π x / N) is rotated by a recurrence, so one sine and
+/// cosine pair serves all taps.
+#[inline]
+fn lanczos(t: f64) -> (i64, [f64; TAPS]) {
+    let fl = t.floor();
+    let frac = t - fl;
+    let base = fl as i64 - LANCZOS_N + 1;
+    let mut w = [0.0; TAPS];
+    if frac < 1e-12 {
+        w[LANCZOS_N as usize - 1] = 1.0;
+        return (base, w);
+    }
+    let n = LANCZOS_N as f64;
+    // Tap k is at x = frac + N − 1 − k.
+    let sin_pi = (PI * frac).sin() * if (LANCZOS_N - 1) % 2 == 0 { 1.0 } else { -1.0 };
+    let (mut s, mut c) = (PI * (frac + n - 1.0) / n).sin_cos();
+    let (sd, cd) = (PI / n).sin_cos();
+    let mut sign = 1.0;
+    let mut sum = 0.0;
+    for (k, wk) in w.iter_mut().enumerate() {
+        let x = frac + n - 1.0 - k as f64;
+        *wk = n * sign * sin_pi * s / (PI * PI * x * x);
+        sum += *wk;
+        sign = -sign;
+        (s, c) = (s * cd - c * sd, c * cd + s * sd);
+    }
+    for wk in &mut w {
+        *wk /= sum;
+    }
+    (base, w)
+}
+
+/// The slow twin of [`lanczos`]: each weight from its own sines.
+#[cfg(test)]
+pub(crate) fn lanczos_slow(t: f64) -> (i64, [f64; TAPS]) {
+    let base = t.floor() as i64 - LANCZOS_N + 1;
+    let n = LANCZOS_N as f64;
+    let mut w = [0.0; TAPS];
+    for (k, wk) in w.iter_mut().enumerate() {
+        let x = t - (base + k as i64) as f64;
+        *wk = if x.abs() < 1e-12 {
+            1.0
+        } else if x.abs() >= n {
+            0.0
+        } else {
+            n * (PI * x).sin() * (PI * x / n).sin() / (PI * PI * x * x)
+        };
+    }
+    let sum: f64 = w.iter().sum();
+    (base, w.map(|v| v / sum))
+}
+
+/// Phases per sample of the tabulated kernel: a position is rounded to
+/// 1/PHASES of a pixel (1.2e-4 px at most; on a field of σ 2.3 px that
+/// moves a value by at most 3e-5 of its peak).
+const PHASES: usize = 4096;
+
+/// [`lanczos`] at the phases k / PHASES, k = 0 … PHASES.
+fn kernel_table() -> &'static [[f64; TAPS]] {
+    static TABLE: std::sync::OnceLock<Vec<[f64; TAPS]>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        (0..=PHASES)
+            .map(|k| lanczos(k as f64 / PHASES as f64).1)
+            .collect()
+    })
+}
+
+/// The tabulated kernel at `t`: the first tap's index and its weights.
+#[inline]
+fn weights(t: f64) -> (i64, &'static [f64; TAPS]) {
+    let fl = t.floor();
+    let k = ((t - fl) * PHASES as f64).round() as usize;
+    // A phase rounded up to 1 is the next sample's phase 0.
+    let (fl, k) = if k == PHASES { (fl + 1.0, 0) } else { (fl, k) };
+    (fl as i64 - LANCZOS_N + 1, &kernel_table()[k])
+}
+
+/// Σ w_t v_t over the taps, where `base` may reach past `v`'s ends (those
+/// taps count zero).
+#[inline]
+fn dot(v: &[f64], base: i64, w: &[f64; TAPS]) -> f64 {
+    if base >= 0 && base as usize + TAPS <= v.len() {
+        let s = &v[base as usize..base as usize + TAPS];
+        let mut acc = [0.0; 4];
+        for (c, wc) in s.chunks_exact(4).zip(w.chunks_exact(4)) {
+            for l in 0..4 {
+                acc[l] += c[l] * wc[l];
+            }
+        }
+        (acc[0] + acc[1]) + (acc[2] + acc[3])
+    } else {
+        let mut acc = 0.0;
+        for (t, wt) in w.iter().enumerate() {
+            let i = base + t as i64;
+            if i >= 0 && (i as usize) < v.len() {
+                acc += wt * v[i as usize];
+            }
+        }
+        acc
+    }
+}
+
+/// `f` (width × height, row-major) resampled at c + A (x − c), c the
+/// grid's centre: out(x) = f(c + A (x − c)), zero where that lies outside.
+/// Two passes: along rows to K(u, Y) = f(c + u / d + b (Y − c_y) / d, Y),
+/// then along columns to out(x, y) = K(x, c_y + b (x − c_x) + d (y − c_y))
+/// (A = [[a, b], [b, d]] symmetric with det 1). The kernel is tabulated
+/// ([`weights`]).
+pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
+    let (b, d) = (a[0][1], a[1][1]);
+    let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    let mut k = vec![0.0; w * h];
+    for (yy, (row, out)) in f.chunks_exact(w).zip(k.chunks_exact_mut(w)).enumerate() {
+        let shift = b * (yy as f64 - cy) / d;
+        for (x, o) in out.iter_mut().enumerate() {
+            let (base, wt) = weights(cx + (x as f64 - cx) / d + shift);
+            *o = dot(row, base, wt);
+        }
+    }
+    let mut out = vec![0.0; w * h];
+    for (y, orow) in out.chunks_exact_mut(w).enumerate() {
+        for (x, o) in orow.iter_mut().enumerate() {
+            let (base, wt) = weights(cy + b * (x as f64 - cx) + d * (y as f64 - cy));
+            let mut acc = 0.0;
+            if base >= 0 && base as usize + TAPS <= h {
+                let b0 = base as usize;
+                for (t, wk) in wt.iter().enumerate() {
+                    acc += wk * k[(b0 + t) * w + x];
+                }
+            } else {
+                for (t, wk) in wt.iter().enumerate() {
+                    let j = base + t as i64;
+                    if j >= 0 && (j as usize) < h {
+                        acc += wk * k[j as usize * w + x];
+                    }
+                }
+            }
+            *o = acc;
+        }
+    }
+    out
+}
+
+/// The slow twin of [`resample`]: each output pixel interpolated in 2-D
+/// at c + A (x − c) directly, with the same kernel in both axes.
+#[cfg(test)]
+pub fn resample_slow(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
+    let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    let mut out = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (u, v) = (x as f64 - cx, y as f64 - cy);
+            let xs = cx + a[0][0] * u + a[0][1] * v;
+            let ys = cy + a[1][0] * u + a[1][1] * v;
+            let (bx, wx) = lanczos(xs);
+            let (by, wy) = lanczos(ys);
+            let mut s = 0.0;
+            for (tj, wj) in wy.iter().enumerate() {
+                let j = by + tj as i64;
+                if j < 0 || j as usize >= h {
+                    continue;
+                }
+                for (ti, wi) in wx.iter().enumerate() {
+                    let i = bx + ti as i64;
+                    if i >= 0 && (i as usize) < w {
+                        s += wj * wi * f[j as usize * w + i as usize];
+                    }
+                }
+            }
+            out[y * w + x] = s;
+        }
+    }
+    out
+}
+
+/// The five versions of one image.
+pub struct WholeImage {
+    fft: Fft2,
+    w: usize,
+    h: usize,
+    /// σ of Γ (pixels).
+    pub sigma: f64,
+    /// Transforms of the image (`Î`) and of the noise (`N̂`), transposed.
+    img_hat: Vec<Complex64>,
+    noise_hat: Option<Vec<Complex64>>,
+    /// P̂ and the rotated PSF's, transposed.
+    psf_hat: Vec<Complex64>,
+    psf_rot_hat: Vec<Complex64>,
+}
+
+/// The PSF stack on a w × h grid, its centre at index (0, 0) (wrapped), and
+/// rotated by 90° when `rotated`.
+fn psf_on_grid(psf: &PsfStack, w: usize, h: usize, rotated: bool) -> Vec<Complex64> {
+    let mut g = vec![Complex64::new(0.0, 0.0); w * h];
+    let c = (PSF_SIDE / 2) as i64;
+    for (j, row) in psf.pix.chunks_exact(PSF_SIDE).enumerate() {
+        for (i, &p) in row.iter().enumerate() {
+            let (dx, dy) = (i as i64 - c, j as i64 - c);
+            let (dx, dy) = if rotated { (-dy, dx) } else { (dx, dy) };
+            let x = dx.rem_euclid(w as i64) as usize;
+            let y = dy.rem_euclid(h as i64) as usize;
+            g[y * w + x] += p;
+        }
+    }
+    g
+}
+
+/// The transforms of two real fields packed as one complex field, a + i b
+/// (transposed layout, w × h): (â, b̂) from the conjugate symmetry of
+/// real fields' transforms.
+fn unpack(z: &[Complex64], w: usize, h: usize) -> (Vec<Complex64>, Vec<Complex64>) {
+    let mut a = vec![Complex64::new(0.0, 0.0); z.len()];
+    let mut b = vec![Complex64::new(0.0, 0.0); z.len()];
+    for kx in 0..w {
+        let mx = (w - kx) % w;
+        for ky in 0..h {
+            let my = (h - ky) % h;
+            let (p, q) = (z[kx * h + ky], z[mx * h + my].conj());
+            a[kx * h + ky] = (p + q) * 0.5;
+            b[kx * h + ky] = (p - q) * Complex64::new(0.0, -0.5);
+        }
+    }
+    (a, b)
+}
+
+impl WholeImage {
+    /// Prepares the versions of `sub` (background-subtracted) with the PSF
+    /// stack `psf`, reconvolved with a round Gaussian of σ `sigma`, and,
+    /// when `noise_sigma > 0`, the noise correction (white noise of that
+    /// σ, seeded by a digest of the image's pixels). `None` if the image
+    /// is smaller than 4 × the PSF stack.
+    pub fn new(sub: &Image, psf: &PsfStack, sigma: f64, noise_sigma: f64) -> Option<Self> {
+        let (w, h) = (sub.width, sub.height);
+        if w < 4 * PSF_SIDE || h < 4 * PSF_SIDE {
+            return None;
+        }
+        let fft = Fft2::new(w, h);
+        // The image and the noise in one transform: I + i N.
+        let noise: Option<Vec<f64>> = (noise_sigma > 0.0).then(|| {
+            let digest = sub.data.iter().fold((w * h) as u64, |d, v| {
+                stepsim_contract::seed::splitmix64(d ^ u64::from(v.to_bits()))
+            });
+            let mut rng = SeedKey::base(NOISE_SEED, 0, Stream::Noise)
+                .with_index(digest)
+                .rng();
+            (0..w * h)
+                .map(|_| noise_sigma * rng.sample::<f64, _>(rand_distr::StandardNormal))
+                .collect()
+        });
+        let z: Vec<Complex64> = sub
+            .data
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| Complex64::new(f64::from(v), noise.as_ref().map_or(0.0, |n| n[i])))
+            .collect();
+        drop(noise);
+        let (img_hat, noise_hat) = unpack(&fft.forward(z), w, h);
+        let noise_hat = (noise_sigma > 0.0).then_some(noise_hat);
+        let p: Vec<Complex64> = psf_on_grid(psf, w, h, false)
+            .iter()
+            .zip(psf_on_grid(psf, w, h, true))
+            .map(|(a, b)| Complex64::new(a.re, b.re))
+            .collect();
+        let (psf_hat, psf_rot_hat) = unpack(&fft.forward(p), w, h);
+        Some(Self {
+            fft,
+            w,
+            h,
+            sigma,
+            img_hat,
+            noise_hat,
+            psf_hat,
+            psf_rot_hat,
+        })
+    }
+
+    /// ĥ(k) = Γ̂(A k) / P̂(k) for the PSF transform `p` at index `i`, no
+    /// frequency amplified more than 3 × (Γ ≤ 1.5 |P̂| is how Γ was chosen,
+    /// on a coarser grid).
+    #[inline]
+    fn kernel(&self, p: Complex64, a: &[[f64; 2]; 2], kx: f64, ky: f64) -> Complex64 {
+        let s2 = 2.0 * PI * PI * self.sigma * self.sigma;
+        let q = [a[0][0] * kx + a[0][1] * ky, a[1][0] * kx + a[1][1] * ky];
+        let gam = (-s2 * (q[0] * q[0] + q[1] * q[1])).exp();
+        let mag = p.norm();
+        if mag > 0.0 {
+            let gain = if gam > 3.0 * mag { 3.0 } else { gam / mag };
+            (p.conj() / mag) * gain
+        } else {
+            Complex64::new(0.0, 0.0)
+        }
+    }
+
+    /// The version sheared by `g`, noise correction included: the image's
+    /// field (I ⊛ h_g) ∘ A_g and the noise's (N ⊛ h′) ∘ A_−g, ĥ′ with the
+    /// rotated PSF, both from one inverse transform (the real and the
+    /// imaginary part).
+    pub fn version(&self, g: [f64; 2]) -> Image {
+        let a = shear_matrix(g);
+        let an = shear_matrix([-g[0], -g[1]]);
+        let mut prod = vec![Complex64::new(0.0, 0.0); self.img_hat.len()];
+        for kxi in 0..self.w {
+            let kx = freq(kxi, self.w);
+            for kyi in 0..self.h {
+                let ky = freq(kyi, self.h);
+                let i = kxi * self.h + kyi;
+                let mut v = self.img_hat[i] * self.kernel(self.psf_hat[i], &a, kx, ky);
+                if let Some(n) = &self.noise_hat {
+                    let nv = n[i] * self.kernel(self.psf_rot_hat[i], &an, kx, ky);
+                    v += Complex64::new(-nv.im, nv.re);
+                }
+                prod[i] = v;
+            }
+        }
+        let both = self.fft.inverse(prod);
+        let re: Vec<f64> = both.iter().map(|c| c.re).collect();
+        let mut j = resample(&re, self.w, self.h, a);
+        drop(re);
+        if self.noise_hat.is_some() {
+            let im: Vec<f64> = both.iter().map(|c| c.im).collect();
+            drop(both);
+            for (x, y) in j.iter_mut().zip(resample(&im, self.w, self.h, an)) {
+                *x += y;
+            }
+        }
+        Image {
+            width: self.w,
+            height: self.h,
+            data: j.iter().map(|&v| v as f32).collect(),
+        }
+    }
+}
+
+/// Where a point x of the image as given lies in the version sheared by
+/// g: c + M (x − c), M = A⁻¹.
+pub fn to_version(p: [f64; 2], w: usize, h: usize, g: [f64; 2]) -> [f64; 2] {
+    let a = shear_matrix(g);
+    // A is symmetric with det 1: A⁻¹ = [[d, −b], [−b, a]].
+    let m = [[a[1][1], -a[0][1]], [-a[1][0], a[0][0]]];
+    let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    let (u, v) = (p[0] - cx, p[1] - cy);
+    [
+        cx + m[0][0] * u + m[0][1] * v,
+        cy + m[1][0] * u + m[1][1] * v,
+    ]
+}
+
+/// Σ e₁, Σ e₂ and the count of the selected objects of each version.
+pub type VersionSums = [[f64; 3]; 5];
+
+/// A dataset's response from its images' version sums: R_ij =
+/// (⟨e_i⟩ on +g_j − ⟨e_i⟩ on −g_j) / 0.02; `None` if a sheared version
+/// selected nothing or R is singular.
+pub fn response(sums: &[VersionSums]) -> Option<[[f64; 2]; 2]> {
+    let mut tot = [[0.0; 3]; 5];
+    for s in sums {
+        for (t, v) in tot.iter_mut().zip(s) {
+            for k in 0..3 {
+                t[k] += v[k];
+            }
+        }
+    }
+    let mean = |v: usize, i: usize| (tot[v][2] > 0.0).then(|| tot[v][i] / tot[v][2]);
+    let mut r = [[0.0; 2]; 2];
+    for j in 0..2 {
+        for (i, row) in r.iter_mut().enumerate() {
+            row[j] = (mean(1 + 2 * j, i)? - mean(2 + 2 * j, i)?) / (2.0 * STEP);
+        }
+    }
+    let det = r[0][0] * r[1][1] - r[0][1] * r[1][0];
+    (det.is_finite() && det.abs() > 1e-6).then_some(r)
+}
+
+/// The flags a version's detection is cut by, besides its detection's.
+pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], saturated: &[[f64; 2]]) -> u32 {
+    let mut f = 0;
+    if p[0] < EDGE_MARGIN_PX
+        || p[1] < EDGE_MARGIN_PX
+        || p[0] > w as f64 - 1.0 - EDGE_MARGIN_PX
+        || p[1] > h as f64 - 1.0 - EDGE_MARGIN_PX
+    {
+        f |= flags::EDGE;
+    }
+    if saturated.iter().any(|&s| {
+        let q = to_version(s, w, h, g);
+        (q[0] - p[0]).hypot(q[1] - p[1]) < SATURATED_RADIUS_PX
+    }) {
+        f |= flags::SATURATED;
+    }
+    f
+}
+
+/// Sets the rows' estimates from their dataset's response `r`: each row
+/// selected on the unsheared version gets R⁻¹ e(0) and weight 1; without
+/// a response every row is flagged NO_PSF.
+pub fn apply_response<'a>(
+    objs: impl Iterator<Item = &'a mut crate::pipeline::MeasuredObject>,
+    r: Option<[[f64; 2]; 2]>,
+) {
+    for o in objs {
+        let Some((m, sel)) = o.metacal else { continue };
+        let Some(r) = r else {
+            o.flags |= flags::NO_PSF;
+            o.weight = 0.0;
+            continue;
+        };
+        let g = crate::metacal::apply_inverse(&r, m.e[0]);
+        if !(g[0].is_finite() && g[1].is_finite()) {
+            o.flags |= flags::MOMENTS;
+            continue;
+        }
+        if g[0].abs().max(g[1].abs()) <= stepsim_contract::MAX_ABS_SHEAR {
+            o.e1 = g[0];
+            o.e2 = g[1];
+        }
+        if sel[0] && o.flags == 0 {
+            o.weight = 1.0;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
