@@ -739,8 +739,17 @@ pub fn apply_response<'a>(
     let mut rows: Vec<&mut MeasuredObject> = objs.filter(|o| o.metacal.is_some()).collect();
     let ms: Vec<(McMeasure, [bool; 5])> = rows.iter().filter_map(|o| o.metacal).collect();
     let r = response(&ms);
-    for o in &mut rows {
-        let (m, sel) = o.metacal.expect("filtered");
+    set_rows(rows.iter_mut().map(|o| &mut **o), r);
+    r
+}
+
+/// Sets the rows `objs` from their response `r` (metacal's and
+/// metadetection's): each row with versions gets R⁻¹ e(0) and, when
+/// selected on its unsheared version and unflagged, weight 1; without a
+/// response it is flagged NO_PSF. Rows without versions are left alone.
+pub fn set_rows<'a>(objs: impl Iterator<Item = &'a mut MeasuredObject>, r: Option<[[f64; 2]; 2]>) {
+    for o in objs {
+        let Some((m, sel)) = o.metacal else { continue };
         let Some(r) = r else {
             o.flags |= flags::NO_PSF;
             o.weight = 0.0;
@@ -759,7 +768,6 @@ pub fn apply_response<'a>(
             o.weight = 1.0;
         }
     }
-    r
 }
 
 /// The stamp side for a galaxy of windowed size `rg` reconvolved with σ

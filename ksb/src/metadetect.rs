@@ -517,34 +517,5 @@ pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], saturated: &
     f
 }
 
-/// Sets the rows' estimates from their dataset's response `r`: each row
-/// selected on the unsheared version gets R⁻¹ e(0) and weight 1; without
-/// a response every row is flagged NO_PSF.
-pub fn apply_response<'a>(
-    objs: impl Iterator<Item = &'a mut crate::pipeline::MeasuredObject>,
-    r: Option<[[f64; 2]; 2]>,
-) {
-    for o in objs {
-        let Some((m, sel)) = o.metacal else { continue };
-        let Some(r) = r else {
-            o.flags |= flags::NO_PSF;
-            o.weight = 0.0;
-            continue;
-        };
-        let g = crate::metacal::apply_inverse(&r, m.e[0]);
-        if !(g[0].is_finite() && g[1].is_finite()) {
-            o.flags |= flags::MOMENTS;
-            continue;
-        }
-        if g[0].abs().max(g[1].abs()) <= stepsim_contract::MAX_ABS_SHEAR {
-            o.e1 = g[0];
-            o.e2 = g[1];
-        }
-        if sel[0] && o.flags == 0 {
-            o.weight = 1.0;
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests;

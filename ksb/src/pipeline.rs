@@ -144,7 +144,7 @@ pub fn measure_image_with(
         let r = m
             .version_sums
             .and_then(|s| crate::metadetect::response(&[s]));
-        crate::metadetect::apply_response(m.objects.iter_mut(), r);
+        crate::metacal::set_rows(m.objects.iter_mut(), r);
     } else {
         crate::metacal::apply_response(m.objects.iter_mut());
     }
@@ -1248,7 +1248,7 @@ mod tests {
                 for o in &mut objs {
                     o.weight = 0.0;
                 }
-                crate::metadetect::apply_response(objs.iter_mut(), Some(r));
+                crate::metacal::set_rows(objs.iter_mut(), Some(r));
                 objs
             })
         };

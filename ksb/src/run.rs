@@ -484,7 +484,7 @@ fn measure_datasets(
                     .zip(done.iter_mut())
                     .filter(|(i, _)| members.contains(i))
                     .flat_map(|(_, m)| m.objects.iter_mut());
-                crate::metadetect::apply_response(objs, r);
+                crate::metacal::set_rows(objs, r);
             }
         }
         for (&i, m) in group.iter().zip(done) {

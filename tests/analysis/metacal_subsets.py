@@ -27,17 +27,8 @@ import sys
 import numpy as np
 from scipy.spatial import cKDTree
 
+from noise_bias import read_details
 from selection_slopes import PIXEL_SCALE, truth_tables
-
-
-def read_details(path):
-    rows = {}
-    for line in open(path):
-        if line.startswith("#") or not line.strip():
-            continue
-        w = line.split()
-        rows.setdefault(w[0], []).append([float(v) for v in w[1:]])
-    return rows
 
 
 def isolated(xy, flux, galaxy, a):
