@@ -401,7 +401,7 @@ impl WholeImage {
         })
     }
 
-    /// ĥ(k) = Γ̂(A k) / P̂(k) for the PSF transform `p` at index `i`, no
+    /// ĥ(k) = Γ̂(A k) / P̂(k), given P̂(k) = `p` at frequency (kx, ky); no
     /// frequency amplified more than 3 × (Γ ≤ 1.5 |P̂| is how Γ was chosen,
     /// on a coarser grid).
     #[inline]
