@@ -62,8 +62,17 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
         )
     };
     let (c, d) = (dir.path().join("c.txt"), dir.path().join("d.txt"));
-    ok(md(&c, "1"));
+    let out = ok(md(&c, "1"));
     ok(md(&d, "2"));
+    // Its one dataset's response, with an error from its two images; no
+    // KSB+ PSF model.
+    let err = stderr(&out);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("stepsim: dataset d0: R = [["))
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!(line.ends_with("(jackknife over its 2 images)"), "{line}");
+    assert!(!err.contains("PSF order"), "{err}");
     let text = std::fs::read_to_string(&c).unwrap();
     assert_eq!(text, std::fs::read_to_string(&d).unwrap());
     check_submission(&text);

@@ -93,6 +93,6 @@ pub use linalg::Mat2;
 pub use params::{KsbParams, Method, PgammaMode, SizeCut};
 pub use pipeline::{ImageInfo, ImageMeasurement, KsbDetails, MeasuredObject, measure_image};
 pub use run::{
-    ImageSummary, Progress, join_parts, measure_run, measure_run_with_details, measure_shard,
-    part_path, parts_count, rows_path,
+    DatasetResponse, ImageSummary, Progress, join_parts, measure_run, measure_run_with_details,
+    measure_shard, part_path, parts_count, rows_path,
 };

@@ -76,9 +76,10 @@ struct Fft2 {
     ih: Arc<dyn Fft<f64>>,
 }
 
-fn transpose(a: &[Complex64], rows: usize, cols: usize) -> Vec<Complex64> {
+/// `a` (rows × cols, row-major) transposed, in blocks of 32 × 32.
+fn transpose<T: Copy + Default>(a: &[T], rows: usize, cols: usize) -> Vec<T> {
     const B: usize = 32;
-    let mut out = vec![Complex64::new(0.0, 0.0); a.len()];
+    let mut out = vec![T::default(); a.len()];
     for r0 in (0..rows).step_by(B) {
         for c0 in (0..cols).step_by(B) {
             for r in r0..(r0 + B).min(rows) {
@@ -181,6 +182,7 @@ pub(crate) fn lanczos_slow(t: f64) -> (i64, [f64; TAPS]) {
 /// 1/PHASES of a pixel (1.2e-4 px at most; on a field of σ 2.3 px that
 /// moves a value by at most 3e-5 of its peak).
 const PHASES: usize = 4096;
+const _: () = assert!(PHASES.is_power_of_two());
 
 /// [`lanczos`] at the phases k / PHASES, k = 0 … PHASES.
 fn kernel_table() -> &'static [[f64; TAPS]] {
@@ -193,13 +195,20 @@ fn kernel_table() -> &'static [[f64; TAPS]] {
 }
 
 /// The tabulated kernel at `t`: the first tap's index and its weights.
+/// `t` is rounded to the nearest phase n / PHASES (a phase rounded up to 1
+/// is the next sample's phase 0); the floor is taken by truncation and a
+/// shift, not by `f64::floor` and `round`, which are calls into libm on a
+/// target without SSE4.1 (about 15 % of the resampling's time).
 #[inline]
 fn weights(t: f64) -> (i64, &'static [f64; TAPS]) {
-    let fl = t.floor();
-    let k = ((t - fl) * PHASES as f64).round() as usize;
-    // A phase rounded up to 1 is the next sample's phase 0.
-    let (fl, k) = if k == PHASES { (fl + 1.0, 0) } else { (fl, k) };
-    (fl as i64 - LANCZOS_N + 1, &kernel_table()[k])
+    const SHIFT: u32 = PHASES.trailing_zeros();
+    let q = t * PHASES as f64 + 0.5;
+    let n = q as i64;
+    let n = if (n as f64) > q { n - 1 } else { n };
+    (
+        (n >> SHIFT) - LANCZOS_N + 1,
+        &kernel_table()[(n & (PHASES as i64 - 1)) as usize],
+    )
 }
 
 /// Σ w_t v_t over the taps, where `base` may reach past `v`'s ends (those
@@ -232,8 +241,15 @@ fn dot(v: &[f64], base: i64, w: &[f64; TAPS]) -> f64 {
 /// Two passes: along rows to K(u, Y) = f(c + u / d + b (Y − c_y) / d, Y),
 /// then along columns to out(x, y) = K(x, c_y + b (x − c_x) + d (y − c_y))
 /// (A = [[a, b], [b, d]] symmetric with det 1). The kernel is tabulated
-/// ([`weights`]).
+/// ([`weights`]). The second pass runs along the rows of K's transpose,
+/// so that each output is a contiguous dot product as in the first (along
+/// the columns it gathered 24 values a row apart for each pixel, and was
+/// the slower pass). At A = 1 every position is a sample, where the
+/// kernel is 1 at the sample and 0 elsewhere: `f` is returned as it is.
 pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
+    if a == [[1.0, 0.0], [0.0, 1.0]] {
+        return f.to_vec();
+    }
     let (b, d) = (a[0][1], a[1][1]);
     let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
     let mut k = vec![0.0; w * h];
@@ -244,28 +260,23 @@ pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
             *o = dot(row, base, wt);
         }
     }
-    let mut out = vec![0.0; w * h];
-    for (y, orow) in out.chunks_exact_mut(w).enumerate() {
-        for (x, o) in orow.iter_mut().enumerate() {
-            let (base, wt) = weights(cy + b * (x as f64 - cx) + d * (y as f64 - cy));
-            let mut acc = 0.0;
-            if base >= 0 && base as usize + TAPS <= h {
-                let b0 = base as usize;
-                for (t, wk) in wt.iter().enumerate() {
-                    acc += wk * k[(b0 + t) * w + x];
-                }
-            } else {
-                for (t, wk) in wt.iter().enumerate() {
-                    let j = base + t as i64;
-                    if j >= 0 && (j as usize) < h {
-                        acc += wk * k[j as usize * w + x];
-                    }
-                }
-            }
-            *o = acc;
+    // kt[x · h + y] = K(x, y): column x of K is row x of kt.
+    let kt = transpose(&k, h, w);
+    drop(k);
+    let mut out_t = vec![0.0; w * h];
+    for (x, (col, ocol)) in kt
+        .chunks_exact(h)
+        .zip(out_t.chunks_exact_mut(h))
+        .enumerate()
+    {
+        let shift = cy + b * (x as f64 - cx);
+        for (y, o) in ocol.iter_mut().enumerate() {
+            let (base, wt) = weights(shift + d * (y as f64 - cy));
+            *o = dot(col, base, wt);
         }
     }
-    out
+    drop(kt);
+    transpose(&out_t, w, h)
 }
 
 /// The slow twin of [`resample`]: each output pixel interpolated in 2-D
@@ -409,7 +420,9 @@ impl WholeImage {
         let s2 = 2.0 * PI * PI * self.sigma * self.sigma;
         let q = [a[0][0] * kx + a[0][1] * ky, a[1][0] * kx + a[1][1] * ky];
         let gam = (-s2 * (q[0] * q[0] + q[1] * q[1])).exp();
-        let mag = p.norm();
+        // |P̂| by a square root (an instruction), not `hypot` (a call into
+        // libm); P̂ is far from overflow.
+        let mag = p.norm_sqr().sqrt();
         if mag > 0.0 {
             let gain = if gam > 3.0 * mag { 3.0 } else { gam / mag };
             (p.conj() / mag) * gain
@@ -479,14 +492,54 @@ pub type VersionSums = [[f64; 3]; 5];
 /// (⟨e_i⟩ on +g_j − ⟨e_i⟩ on −g_j) / 0.02; `None` if a sheared version
 /// selected nothing or R is singular.
 pub fn response(sums: &[VersionSums]) -> Option<[[f64; 2]; 2]> {
-    let mut tot = [[0.0; 3]; 5];
+    response_of_total(&add(sums.iter(), 1.0, [[0.0; 3]; 5]))
+}
+
+/// `tot` plus `sign` × each of `sums`.
+fn add<'a>(
+    sums: impl Iterator<Item = &'a VersionSums>,
+    sign: f64,
+    mut tot: VersionSums,
+) -> VersionSums {
     for s in sums {
         for (t, v) in tot.iter_mut().zip(s) {
             for k in 0..3 {
-                t[k] += v[k];
+                t[k] += sign * v[k];
             }
         }
     }
+    tot
+}
+
+/// The error of [`response`] by the delete-one jackknife over the images:
+/// √((n − 1)/n Σᵢ (R₍ᵢ₎ − R̄)²), R₍ᵢ₎ the response without image i and R̄
+/// their mean, element by element. `None` with fewer than two images, or
+/// when a response without one image is undefined. It measures what the
+/// per-field errors of m leave out: R is one per dataset, shared by its
+/// fields.
+pub fn response_error(sums: &[VersionSums]) -> Option<[[f64; 2]; 2]> {
+    let n = sums.len();
+    if n < 2 {
+        return None;
+    }
+    let tot = add(sums.iter(), 1.0, [[0.0; 3]; 5]);
+    let parts: Vec<[[f64; 2]; 2]> = sums
+        .iter()
+        .map(|s| response_of_total(&add(std::iter::once(s), -1.0, tot)))
+        .collect::<Option<_>>()?;
+    let mut err = [[0.0; 2]; 2];
+    for (i, row) in err.iter_mut().enumerate() {
+        for (j, e) in row.iter_mut().enumerate() {
+            let mean = parts.iter().map(|r| r[i][j]).sum::<f64>() / n as f64;
+            let ss: f64 = parts.iter().map(|r| (r[i][j] - mean).powi(2)).sum();
+            *e = ((n - 1) as f64 / n as f64 * ss).sqrt();
+        }
+    }
+    Some(err)
+}
+
+/// [`response`] from the version sums of all the images together.
+fn response_of_total(tot: &VersionSums) -> Option<[[f64; 2]; 2]> {
     let mean = |v: usize, i: usize| (tot[v][2] > 0.0).then(|| tot[v][i] / tot[v][2]);
     let mut r = [[0.0; 2]; 2];
     for j in 0..2 {

@@ -86,7 +86,8 @@ pub struct ImageMeasurement {
     /// the input of the star selection, for pooling the star candidates of
     /// several images ([`crate::run::measure_run`]).
     pub star_candidates: Vec<SizeMag>,
-    /// PSF model polynomial order, if a model was built.
+    /// PSF model polynomial order, if a model was built (KSB+ only: metacal
+    /// and metadetection use the stars' stack).
     pub psf_order: Option<usize>,
     /// The smallest and largest P^γ factor k given to the image's
     /// galaxies; `None` when P^γ was not calibrated (turned off, no stars,
@@ -417,15 +418,21 @@ impl Detections {
                 .fold(rg_star, f64::max)
                 .min(params.rg_max_px)
         };
-        let model = locus.and_then(|l| {
-            PsfModel::build(
-                sub,
-                &psf_stars,
-                l.rg_star / params.scale_step,
-                rg_hi(l.rg_star),
-                params,
-            )
-        });
+        // The KSB+ model of the PSF across the field: metacal and
+        // metadetection deconvolve by the stars' stack instead, and their
+        // rows take no flag from it (`metacal::measure_object`,
+        // `metadetect_rows`), so it is built only for KSB+.
+        let model = locus
+            .filter(|_| params.method == Method::Ksb)
+            .and_then(|l| {
+                PsfModel::build(
+                    sub,
+                    &psf_stars,
+                    l.rg_star / params.scale_step,
+                    rg_hi(l.rg_star),
+                    params,
+                )
+            });
         lap("psf model", &mut t0);
 
         // Shear estimates with each galaxy's own P^γ.
@@ -1141,6 +1148,9 @@ mod tests {
         spec.n_galaxy_pairs = 70;
         spec.psf_halo = Some((0.2, covariance(4.0, [0.05, -0.03])));
         let plus = measured_with(&spec, &params);
+        // Metacal deconvolves by the stars' stack: KSB+'s model of the PSF
+        // across the field is not built for it.
+        assert!(plus.locus.is_some() && plus.psf_order.is_none());
         spec.shear = [-g, 0.0];
         let minus = measured_with(&spec, &params);
         spec.shear = [0.0, 0.0];

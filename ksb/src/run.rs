@@ -38,6 +38,8 @@ use stepsim_contract::run_dir::PublicDir;
 pub struct ImageSummary {
     /// Public image id.
     pub image: String,
+    /// Public id of its dataset.
+    pub dataset: String,
     /// Rows written.
     pub n_objects: usize,
     /// Rows with positive weight.
@@ -51,7 +53,15 @@ pub struct ImageSummary {
     /// The range of the P^γ calibration's k over the image's galaxies, if
     /// it was calibrated.
     pub calibration_k: Option<[f64; 2]>,
+    /// With metadetection, its dataset's response R (`None` if it has
+    /// none) and R's error by the jackknife over the dataset's images
+    /// (`None` with one image).
+    pub response: Option<DatasetResponse>,
 }
+
+/// A dataset's metadetection response and its jackknife error
+/// ([`crate::metadetect::response_error`]).
+pub type DatasetResponse = (Option<[[f64; 2]; 2]>, Option<[[f64; 2]; 2]>);
 
 /// Told (images measured, images in all) after each group of images, so
 /// that a long measurement can say how far it is.
@@ -239,9 +249,15 @@ pub fn parts_count(out: &Path) -> Result<u32, KsbError> {
     }
 }
 
-fn summary(im: &stepsim_contract::run_layout::ManifestImage, m: &ImageMeasurement) -> ImageSummary {
+fn summary(
+    im: &stepsim_contract::run_layout::ManifestImage,
+    m: &ImageMeasurement,
+    response: Option<DatasetResponse>,
+) -> ImageSummary {
     ImageSummary {
         image: im.image.clone(),
+        dataset: im.dataset.clone(),
+        response,
         n_objects: m.objects.len(),
         n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
         n_stars: m.n_stars,
@@ -444,6 +460,7 @@ fn measure_datasets(
         by_dataset.entry(im.dataset.as_str()).or_default().push(i);
     }
     let mut slots: Vec<Option<ImageSummary>> = vec![None; images.len()];
+    let mut responses: Vec<Option<DatasetResponse>> = vec![None; images.len()];
     let mut group: Vec<usize> = Vec::new();
     let datasets: Vec<&Vec<usize>> = by_dataset.values().collect();
     let mut n_done = 0;
@@ -479,6 +496,10 @@ fn measure_datasets(
                     .filter_map(|(_, m)| m.version_sums)
                     .collect();
                 let r = crate::metadetect::response(&sums);
+                let err = crate::metadetect::response_error(&sums);
+                for &i in members.iter() {
+                    responses[i] = Some((r, err));
+                }
                 let objs = group
                     .iter()
                     .zip(done.iter_mut())
@@ -500,7 +521,7 @@ fn measure_datasets(
                 }
                 d.put(i, &text)?;
             }
-            slots[i] = Some(summary(&images[i], &m));
+            slots[i] = Some(summary(&images[i], &m, responses[i]));
         }
         n_done += group.len();
         progress(n_done, images.len());

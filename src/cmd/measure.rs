@@ -202,18 +202,55 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let locus = s.rg_star_px.map_or("no stellar locus".to_string(), |r| {
             format!("r_g* {r:.3} px")
         });
-        let order = s
-            .psf_order
-            .map_or("no PSF model".to_string(), |o| format!("PSF order {o}"));
+        // Only KSB+ models the PSF across the field; metacal and
+        // metadetection deconvolve each image by its stars' stack.
+        let order = match (params.method, s.psf_order) {
+            (Method::Ksb, Some(o)) => format!(", PSF order {o}"),
+            (Method::Ksb, None) => ", no PSF model".to_string(),
+            _ => String::new(),
+        };
         let k = match (params.method, params.calibration, s.calibration_k) {
             (Method::Ksb, Some(_), Some([lo, hi])) => format!(", P^γ k {lo:.3}–{hi:.3}"),
             (Method::Ksb, Some(_), None) => ", P^γ not calibrated".to_string(),
             _ => String::new(),
         };
         eprintln!(
-            "stepsim: {}: {} objects, {} weighted, {} stars, {locus}, {order}{k}",
+            "stepsim: {}: {} objects, {} weighted, {} stars, {locus}{order}{k}",
             s.image, s.n_objects, s.n_weighted, s.n_stars
         );
+    }
+    // Metadetection's response, one per dataset, and its error over the
+    // dataset's images: R is shared by all of a dataset's fields, so the
+    // per-field errors of m do not contain it.
+    let mut datasets: std::collections::BTreeMap<&str, (usize, stepsim_ksb::DatasetResponse)> =
+        std::collections::BTreeMap::new();
+    for s in &summary {
+        if let Some(r) = s.response {
+            datasets.entry(&s.dataset).or_insert((0, r)).0 += 1;
+        }
+    }
+    let matrix = |m: [[f64; 2]; 2]| {
+        format!(
+            "[[{:.4}, {:.4}], [{:.4}, {:.4}]]",
+            m[0][0], m[0][1], m[1][0], m[1][1]
+        )
+    };
+    for (d, (n, (r, err))) in &datasets {
+        let images = if *n == 1 { "image" } else { "images" };
+        match (r, err) {
+            (Some(r), Some(e)) => eprintln!(
+                "stepsim: dataset {d}: R = {} ± {} (jackknife over its {n} {images})",
+                matrix(*r),
+                matrix(*e)
+            ),
+            (Some(r), None) => eprintln!(
+                "stepsim: dataset {d}: R = {} (its {n} {images}; no jackknife error)",
+                matrix(*r)
+            ),
+            (None, _) => eprintln!(
+                "stepsim: dataset {d}: no response; its rows have weight 0 and flag NO_PSF"
+            ),
+        }
     }
     eprintln!(
         "stepsim: wrote {} ({} images, {rows} objects, {weighted} with weight > 0)",

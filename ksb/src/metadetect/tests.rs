@@ -99,6 +99,16 @@ fn the_two_pass_resampling_equals_its_slow_twin_and_the_sheared_gaussian() {
         );
         assert!(worst(&fast, &slow) < 2e-4, "{g:?}");
     }
+    // At A = 1 (the unsheared version) the field comes back as it was:
+    // exactly from the fast form, to rounding from the slow twin.
+    let one = shear_matrix([0.0, 0.0]);
+    assert_eq!(resample(&f, w, h, one), f);
+    let slow = resample_slow(&f, w, h, one);
+    assert!(
+        f.iter()
+            .zip(&slow)
+            .all(|(p, q)| (p - q).abs() < 1e-12 * peak)
+    );
     // A wrong sign of the shear is seen: the error is then 100 times larger.
     let a = shear_matrix([0.01, 0.0]);
     let want = gaussian(w, h, c, sandwich(a, cov), 1000.0);
@@ -195,4 +205,45 @@ fn a_dataset_s_response_is_the_difference_of_its_versions_means() {
     c[3][2] = 0.0;
     c[3][1] = 0.0;
     assert!(response(&[c]).is_none());
+}
+
+#[test]
+fn the_response_s_jackknife_error_is_that_of_the_responses_without_each_image() {
+    // Four images of differing sums. The slow twin: each response without
+    // one image computed from the other three's sums, and the jackknife's
+    // √((n − 1)/n Σ (R₍ᵢ₎ − R̄)²) written out.
+    let image = |k: f64| -> VersionSums {
+        [
+            [0.01 * k, -0.02, 10.0],
+            [0.06 + 0.01 * k * k, 0.002 * k, 10.0 + k],
+            [-0.05 - 0.02 * k, 0.001, 9.0 + k],
+            [0.003 * k, 0.07 - 0.01 * k, 11.0],
+            [-0.001, -0.06 + 0.005 * k * k, 10.0 + 2.0 * k],
+        ]
+    };
+    let sums: Vec<VersionSums> = (0..4).map(|k| image(k as f64)).collect();
+    let err = response_error(&sums).expect("an error");
+    let without: Vec<[[f64; 2]; 2]> = (0..4)
+        .map(|i| {
+            let others: Vec<VersionSums> = (0..4).filter(|&j| j != i).map(|j| sums[j]).collect();
+            response(&others).expect("a response")
+        })
+        .collect();
+    for i in 0..2 {
+        for j in 0..2 {
+            let mean: f64 = without.iter().map(|r| r[i][j]).sum::<f64>() / 4.0;
+            let var: f64 = 0.75
+                * without
+                    .iter()
+                    .map(|r| (r[i][j] - mean).powi(2))
+                    .sum::<f64>();
+            assert!((err[i][j] - var.sqrt()).abs() < 1e-12, "{i}{j}: {err:?}");
+            assert!(err[i][j] > 1e-3, "{i}{j}: {err:?}");
+        }
+    }
+    // Identical images: no scatter. One image: no error.
+    let same = vec![image(1.0); 3];
+    let zero = response_error(&same).expect("an error");
+    assert!(zero.iter().flatten().all(|e| e.abs() < 1e-12), "{zero:?}");
+    assert!(response_error(&sums[..1]).is_none());
 }
