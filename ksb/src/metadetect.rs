@@ -39,9 +39,9 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 use stepsim_contract::seed::{SeedKey, Stream};
 
-/// Objects whose windowed centroid lies within this many pixels of an edge
-/// of their version are cut (EDGE): the convolution wraps round the image
-/// and the resampling reads past it.
+/// Objects whose windowed centroid, taken back to the image as given,
+/// lies within this many pixels of its edge are cut (EDGE): the
+/// convolution wraps round the image and the resampling reads past it.
 pub const EDGE_MARGIN_PX: f64 = 64.0;
 
 /// Objects within this many pixels of a saturated detection (of the image
@@ -551,13 +551,23 @@ fn response_of_total(tot: &VersionSums) -> Option<[[f64; 2]; 2]> {
     (det.is_finite() && det.abs() > 1e-6).then_some(r)
 }
 
-/// The flags a version's detection is cut by, besides its detection's.
+/// The flags a version's detection at `p` (in the version sheared by `g`)
+/// is cut by, besides its detection's. EDGE is decided where `p` lies in
+/// the image as given (the versions are sheared about the image's centre,
+/// so near an edge a version moves its objects by up to 0.01 × 2048 ≈ 20
+/// px): which objects lie near an edge does not depend on their shape,
+/// and a margin that moved with the shear only changed, at random, which
+/// objects each version's mean took, adding noise to the response and
+/// nothing else. SATURATED is decided in the version's frame, about the
+/// saturated detections taken there, as it follows the light.
 pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], saturated: &[[f64; 2]]) -> u32 {
     let mut f = 0;
-    if p[0] < EDGE_MARGIN_PX
-        || p[1] < EDGE_MARGIN_PX
-        || p[0] > w as f64 - 1.0 - EDGE_MARGIN_PX
-        || p[1] > h as f64 - 1.0 - EDGE_MARGIN_PX
+    // Back to the image as given: the map by −g inverts the map by g.
+    let o = to_version(p, w, h, [-g[0], -g[1]]);
+    if o[0] < EDGE_MARGIN_PX
+        || o[1] < EDGE_MARGIN_PX
+        || o[0] > w as f64 - 1.0 - EDGE_MARGIN_PX
+        || o[1] > h as f64 - 1.0 - EDGE_MARGIN_PX
     {
         f |= flags::EDGE;
     }

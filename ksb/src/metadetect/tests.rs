@@ -247,3 +247,32 @@ fn the_response_s_jackknife_error_is_that_of_the_responses_without_each_image() 
     assert!(zero.iter().flatten().all(|e| e.abs() < 1e-12), "{zero:?}");
     assert!(response_error(&sums[..1]).is_none());
 }
+
+#[test]
+fn the_edge_is_cut_in_the_image_as_given_and_saturation_where_the_light_went() {
+    let (w, h) = (4096, 4096);
+    for g in crate::metacal::VERSIONS {
+        // The two maps invert each other.
+        let p = [123.4, 3900.2];
+        let back = to_version(to_version(p, w, h, g), w, h, [-g[0], -g[1]]);
+        assert!((back[0] - p[0]).abs() < 1e-9 && (back[1] - p[1]).abs() < 1e-9);
+        // 70 px from the left edge as given: kept on every version, though
+        // the ±g₁ versions put it 50 and 90 px from their edge.
+        let q = to_version([70.0, 2047.5], w, h, g);
+        assert_eq!(position_flags(q, w, h, g, &[]), 0, "{g:?} at {q:?}");
+        // 60 px from it: cut on every version (40 and 80 px in the ±g₁
+        // versions' frames).
+        let q = to_version([60.0, 2047.5], w, h, g);
+        assert_eq!(position_flags(q, w, h, g, &[]), flags::EDGE, "{g:?}");
+        // A saturated detection of the image as given cuts what lies within
+        // SATURATED_RADIUS_PX of where the version put it.
+        let s = [1000.0, 3000.0];
+        let at = to_version(s, w, h, g);
+        let near = [at[0] + 0.9 * SATURATED_RADIUS_PX, at[1]];
+        let far = [at[0] + 1.1 * SATURATED_RADIUS_PX, at[1]];
+        assert_eq!(position_flags(near, w, h, g, &[s]), flags::SATURATED);
+        assert_eq!(position_flags(far, w, h, g, &[s]), 0);
+    }
+    let q = to_version([70.0, 2047.5], w, h, [0.01, 0.0]);
+    assert!(q[0] < 55.0, "{q:?}");
+}
