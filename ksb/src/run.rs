@@ -59,8 +59,8 @@ pub struct ImageSummary {
     pub response: Option<DatasetResponse>,
 }
 
-/// A dataset's metadetection response and its jackknife error
-/// ([`crate::metadetect::response_error`]).
+/// A dataset's metadetection response and its error by the delete-one
+/// jackknife over the dataset's images (`metadetect::response_error`).
 pub type DatasetResponse = (Option<[[f64; 2]; 2]>, Option<[[f64; 2]; 2]>);
 
 /// Told (images measured, images in all) after each group of images, so
