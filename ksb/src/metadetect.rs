@@ -44,9 +44,10 @@ use stepsim_contract::seed::{SeedKey, Stream};
 /// convolution wraps round the image and the resampling reads past it.
 pub const EDGE_MARGIN_PX: f64 = 64.0;
 
-/// Objects within this many pixels of a saturated detection (of the image
-/// as given, taken to each version's frame) are cut (SATURATED): the
-/// deconvolution of a clipped core rings.
+/// Objects within this many pixels of a saturated detection or of a star
+/// as bright as a PSF star (of the image as given, taken to each
+/// version's frame) are cut (SATURATED): the deconvolution of a clipped
+/// core rings, and a bright star's wings beyond the stack leave arcs.
 pub const SATURATED_RADIUS_PX: f64 = 32.0;
 
 /// Half-width of the interpolation kernel (Lanczos, taps −N+1 … N).
@@ -559,8 +560,9 @@ fn response_of_total(tot: &VersionSums) -> Option<[[f64; 2]; 2]> {
 /// and a margin that moved with the shear only changed, at random, which
 /// objects each version's mean took, adding noise to the response and
 /// nothing else. SATURATED is decided in the version's frame, about the
-/// saturated detections taken there, as it follows the light.
-pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], saturated: &[[f64; 2]]) -> u32 {
+/// positions `cut_round` (saturated detections and bright stars of the
+/// image as given) taken there, as it follows the light.
+pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], cut_round: &[[f64; 2]]) -> u32 {
     let mut f = 0;
     // Back to the image as given: the map by −g inverts the map by g.
     let o = to_version(p, w, h, [-g[0], -g[1]]);
@@ -571,7 +573,7 @@ pub fn position_flags(p: [f64; 2], w: usize, h: usize, g: [f64; 2], saturated: &
     {
         f |= flags::EDGE;
     }
-    if saturated.iter().any(|&s| {
+    if cut_round.iter().any(|&s| {
         let q = to_version(s, w, h, g);
         (q[0] - p[0]).hypot(q[1] - p[1]) < SATURATED_RADIUS_PX
     }) {
