@@ -50,11 +50,14 @@ pub const EDGE_MARGIN_PX: f64 = 64.0;
 /// core rings, and a bright star's wings beyond the stack leave arcs.
 pub const SATURATED_RADIUS_PX: f64 = 32.0;
 
-/// Half-width of the interpolation kernel (Lanczos, taps −N+1 … N).
-const LANCZOS_N: i64 = 12;
+/// Half-width of the interpolation kernel (taps −N+1 … N).
+const KERNEL_N: i64 = 12;
 
 /// Taps of the interpolation kernel.
-const TAPS: usize = 2 * LANCZOS_N as usize;
+const TAPS: usize = 2 * KERNEL_N as usize;
+
+/// The Kaiser window's β ([`kernel`]).
+const KERNEL_BETA: f64 = 12.0;
 
 /// Seeds the noise correction's white noise (with the image's digest).
 const NOISE_SEED: u64 = 0x6d65_7461_6465_7400;
@@ -125,58 +128,52 @@ impl Fft2 {
     }
 }
 
-/// Lanczos weights for interpolating at `t` (in samples): the first tap's
-/// index and 2N weights summing to 1. sin(π x) alternates in sign from tap
-/// to tap and sin(π x / N) is rotated by a recurrence, so one sine and
-/// cosine pair serves all taps.
-#[inline]
-fn lanczos(t: f64) -> (i64, [f64; TAPS]) {
+/// The interpolation kernel's weights at `t` (in samples): the first tap's
+/// index and 2N weights summing to 1, sinc(x) × I₀(β √(1 − (x/N)²)) /
+/// I₀(β) at each tap's distance x (a Kaiser-windowed sinc, zero for |x| ≥
+/// N). Against Lanczos (sinc windowed by sinc(x/N)) with the same 24 taps
+/// it interpolates a Gaussian of σ 2.2 – 3 px 200 times better (largest
+/// error 1e-6 of the peak against 2.4e-4): Lanczos's errors, largest in
+/// the wings and of opposite signs on either side of a sample, made a
+/// version's weighted moments 0.3 % (weight as wide as the object) to 5 %
+/// (twice as wide) too sheared.
+fn kernel(t: f64) -> (i64, [f64; TAPS]) {
     let fl = t.floor();
-    let frac = t - fl;
-    let base = fl as i64 - LANCZOS_N + 1;
-    let mut w = [0.0; TAPS];
-    if frac < 1e-12 {
-        w[LANCZOS_N as usize - 1] = 1.0;
-        return (base, w);
-    }
-    let n = LANCZOS_N as f64;
-    // Tap k is at x = frac + N − 1 − k.
-    let sin_pi = (PI * frac).sin() * if (LANCZOS_N - 1) % 2 == 0 { 1.0 } else { -1.0 };
-    let (mut s, mut c) = (PI * (frac + n - 1.0) / n).sin_cos();
-    let (sd, cd) = (PI / n).sin_cos();
-    let mut sign = 1.0;
-    let mut sum = 0.0;
-    for (k, wk) in w.iter_mut().enumerate() {
-        let x = frac + n - 1.0 - k as f64;
-        *wk = n * sign * sin_pi * s / (PI * PI * x * x);
-        sum += *wk;
-        sign = -sign;
-        (s, c) = (s * cd - c * sd, c * cd + s * sd);
-    }
-    for wk in &mut w {
-        *wk /= sum;
-    }
-    (base, w)
-}
-
-/// The slow twin of [`lanczos`]: each weight from its own sines.
-#[cfg(test)]
-pub(crate) fn lanczos_slow(t: f64) -> (i64, [f64; TAPS]) {
-    let base = t.floor() as i64 - LANCZOS_N + 1;
-    let n = LANCZOS_N as f64;
+    let base = fl as i64 - KERNEL_N + 1;
+    let n = KERNEL_N as f64;
     let mut w = [0.0; TAPS];
     for (k, wk) in w.iter_mut().enumerate() {
         let x = t - (base + k as i64) as f64;
-        *wk = if x.abs() < 1e-12 {
-            1.0
-        } else if x.abs() >= n {
+        let u = x / n;
+        *wk = if x.abs() >= n {
             0.0
         } else {
-            n * (PI * x).sin() * (PI * x / n).sin() / (PI * PI * x * x)
+            let sinc = if x.abs() < 1e-12 {
+                1.0
+            } else {
+                (PI * x).sin() / (PI * x)
+            };
+            sinc * bessel_i0(KERNEL_BETA * (1.0 - u * u).sqrt())
         };
     }
     let sum: f64 = w.iter().sum();
     (base, w.map(|v| v / sum))
+}
+
+/// I₀(x), the modified Bessel function of the first kind, by its power
+/// series Σ ((x/2)^k / k!)², summed until a term no longer changes the sum
+/// (x ≤ 20 here: at most 60 terms).
+fn bessel_i0(x: f64) -> f64 {
+    let q = x * x / 4.0;
+    let (mut term, mut sum) = (1.0, 1.0);
+    for k in 1..200 {
+        term *= q / (k * k) as f64;
+        sum += term;
+        if term < 1e-17 * sum {
+            break;
+        }
+    }
+    sum
 }
 
 /// Phases per sample of the tabulated kernel: a position is rounded to
@@ -185,12 +182,12 @@ pub(crate) fn lanczos_slow(t: f64) -> (i64, [f64; TAPS]) {
 const PHASES: usize = 4096;
 const _: () = assert!(PHASES.is_power_of_two());
 
-/// [`lanczos`] at the phases k / PHASES, k = 0 … PHASES.
+/// [`kernel`] at the phases k / PHASES, k = 0 … PHASES.
 fn kernel_table() -> &'static [[f64; TAPS]] {
     static TABLE: std::sync::OnceLock<Vec<[f64; TAPS]>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
         (0..=PHASES)
-            .map(|k| lanczos(k as f64 / PHASES as f64).1)
+            .map(|k| kernel(k as f64 / PHASES as f64).1)
             .collect()
     })
 }
@@ -207,7 +204,7 @@ fn weights(t: f64) -> (i64, &'static [f64; TAPS]) {
     let n = q as i64;
     let n = if (n as f64) > q { n - 1 } else { n };
     (
-        (n >> SHIFT) - LANCZOS_N + 1,
+        (n >> SHIFT) - KERNEL_N + 1,
         &kernel_table()[(n & (PHASES as i64 - 1)) as usize],
     )
 }
@@ -291,8 +288,8 @@ pub fn resample_slow(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64
             let (u, v) = (x as f64 - cx, y as f64 - cy);
             let xs = cx + a[0][0] * u + a[0][1] * v;
             let ys = cy + a[1][0] * u + a[1][1] * v;
-            let (bx, wx) = lanczos(xs);
-            let (by, wy) = lanczos(ys);
+            let (bx, wx) = kernel(xs);
+            let (by, wy) = kernel(ys);
             let mut s = 0.0;
             for (tj, wj) in wy.iter().enumerate() {
                 let j = by + tj as i64;
