@@ -4,7 +4,7 @@
 //! | bit | value | name | meaning |
 //! |---|---|---|---|
 //! | 0 | 1 | `EDGE` | footprint on the border or weight window beyond the image |
-//! | 1 | 2 | `SATURATED` | a footprint pixel at or above saturation; metadetection: also, on each version, within 32 px of a saturated detection or of a star as bright as a PSF star |
+//! | 1 | 2 | `SATURATED` | a footprint pixel at or above saturation; metadetection: also, on each version, within 32 px of a saturated detection or of a star of S/N ≥ 500 |
 //! | 2 | 4 | `BLENDED` | split from a footprint with another peak within `deblend_flag_px`, another object within `close_pair_px`, or two detections merged (KSB+); metacal: its unsheared version shows a second peak within `close_pair_px` (`metacal::neighbour_peak`) |
 //! | 3 | 8 | `CENTROID` | windowed centroid did not converge or moved > `centroid_max_shift_px` (metacal: on its unsheared version, from the detection's position) |
 //! | 4 | 16 | `MOMENTS` | weighted flux or trace not positive, or a singular tensor |

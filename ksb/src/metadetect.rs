@@ -45,10 +45,23 @@ use stepsim_contract::seed::{SeedKey, Stream};
 pub const EDGE_MARGIN_PX: f64 = 64.0;
 
 /// Objects within this many pixels of a saturated detection or of a star
-/// as bright as a PSF star (of the image as given, taken to each
+/// of S/N ν ≥ [`BRIGHT_STAR_MIN_SN`] (of the image as given, taken to each
 /// version's frame) are cut (SATURATED): the deconvolution of a clipped
 /// core rings, and a bright star's wings beyond the stack leave arcs.
 pub const SATURATED_RADIUS_PX: f64 = 32.0;
+
+/// Stars (on the stellar locus) with S/N ν at least this are cut round
+/// like saturated detections (SATURATED within [`SATURATED_RADIUS_PX`]).
+/// The stack holds a star's light within its 32² pixels; what lies beyond
+/// (1.4 % of STEP1's `none`) is deconvolved by nothing, and every version
+/// of a bright star shows pieces of it on the star's axes 19 – 21 px out,
+/// which are detected and selected. On the grid runs of `none` (low
+/// noise) they came from stars of I ≈ 18.8 – 19.5, whose ν is 900 – 1 200;
+/// the pieces scale with the star's flux as the detection's threshold
+/// with the noise, so a bound on ν holds at any noise. 500 leaves a factor
+/// of two; a bound at the PSF stars' ν ≥ 50 cut round ten times as many
+/// stars and lost 12 % of the lensed run's weighted rows.
+pub const BRIGHT_STAR_MIN_SN: f64 = 500.0;
 
 /// Half-width of the interpolation kernel (taps −N+1 … N).
 const KERNEL_N: i64 = 12;
@@ -491,6 +504,19 @@ pub type VersionSums = [[f64; 3]; 5];
 /// selected nothing or R is singular.
 pub fn response(sums: &[VersionSums]) -> Option<[[f64; 2]; 2]> {
     response_of_total(&add(sums.iter(), 1.0, [[0.0; 3]; 5]))
+}
+
+/// The part of a dataset's response `r` that its rows use: the diagonal,
+/// R₁₂ = R₂₁ = 0. For a population with no preferred direction the
+/// off-diagonal elements vanish to first order in the shear (e₁ answers
+/// g₂ only through terms in g₁g₂), but measured they carry as much noise
+/// as the diagonal: on the lensed low-noise run (32 images per dataset,
+/// g₁ = −2g₂) R₂₁'s noise carried g₁ into the g₂ estimate, and m's error
+/// from R was ±0.033 with the whole matrix against ±0.014 with its
+/// diagonal (docs/metacal.md, "The whole run, and the response's
+/// noise"). `None` unless both diagonal elements are positive.
+pub fn applied_response(r: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
+    (r[0][0] > 0.0 && r[1][1] > 0.0).then_some([[r[0][0], 0.0], [0.0, r[1][1]]])
 }
 
 /// `tot` plus `sign` × each of `sums`.

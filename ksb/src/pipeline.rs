@@ -144,7 +144,8 @@ pub fn measure_image_with(
     if params.method == Method::Metadetect {
         let r = m
             .version_sums
-            .and_then(|s| crate::metadetect::response(&[s]));
+            .and_then(|s| crate::metadetect::response(&[s]))
+            .and_then(crate::metadetect::applied_response);
         crate::metacal::set_rows(m.objects.iter_mut(), r);
     } else {
         crate::metacal::apply_response(m.objects.iter_mut());
@@ -395,13 +396,14 @@ impl Detections {
             .map(|(c, _)| c)
             .collect();
         let psf_stars: Vec<(f64, f64)> = psf_cands.iter().map(|c| (c.x, c.y)).collect();
-        // Every star as bright as a PSF star, clean or not: metadetection
-        // cuts round them (`metadetect_rows`).
+        // The bright stars, clean or not: metadetection cuts round them
+        // (`metadetect_rows`).
         let bright_stars: Vec<[f64; 2]> = cands
             .iter()
             .zip(&sizemag)
             .filter(|(_, o)| {
-                selection.is_some_and(|s| s.is_star(o, params) && o.sn >= s.psf_star_min_sn)
+                o.sn >= crate::metadetect::BRIGHT_STAR_MIN_SN
+                    && selection.is_some_and(|s| s.is_star(o, params))
             })
             .map(|(c, _)| [c.x, c.y])
             .collect();
@@ -656,7 +658,8 @@ struct Stars<'a> {
     is_star: &'a [bool],
     /// The PSF stars' positions, for the stack.
     psf: &'a [(f64, f64)],
-    /// Every star as bright as a PSF star (clean or not), to cut round.
+    /// The stars of ν ≥ [`crate::metadetect::BRIGHT_STAR_MIN_SN`] (clean
+    /// or not), to cut round.
     bright: &'a [[f64; 2]],
 }
 
@@ -669,12 +672,15 @@ struct Stars<'a> {
 /// NO_PSF, and no sums.
 ///
 /// Each version's detections within [`SATURATED_RADIUS_PX`] of a saturated
-/// detection or of a bright star (both taken to the version's frame) are
-/// cut (SATURATED). The stack is [`crate::metacal::PSF_SIDE`]² pixels: a
-/// star's wings beyond it are deconvolved by nothing, and the versions of
-/// a bright star show arcs about 20 px from it, detected as objects of
-/// |e| ≈ 0.4 whose response is not a galaxy's (docs/metacal.md, "On
-/// isolated galaxies").
+/// detection or of a bright star (ν ≥ [`BRIGHT_STAR_MIN_SN`]; both taken to
+/// the version's frame) are cut (SATURATED). The stack is
+/// [`crate::metacal::PSF_SIDE`]² pixels: a star's wings beyond it are
+/// deconvolved by nothing, and the versions of a bright star show pieces
+/// of them about 20 px from it, detected as objects of |e| ≈ 0.4 whose
+/// response is not a galaxy's (docs/metacal.md, "On isolated
+/// galaxies").
+///
+/// [`BRIGHT_STAR_MIN_SN`]: crate::metadetect::BRIGHT_STAR_MIN_SN
 ///
 /// [`SATURATED_RADIUS_PX`]: crate::metadetect::SATURATED_RADIUS_PX
 fn metadetect_rows(
@@ -899,7 +905,6 @@ mod tests {
     use stepsim_contract::seed::{SeedKey, Stream};
 
     const SAT_E: f64 = 65535.0 * 4.0;
-    const NEAR: f64 = 27.0;
 
     fn info() -> ImageInfo {
         ImageInfo {
@@ -1295,7 +1300,7 @@ mod tests {
                 for o in &mut objs {
                     o.weight = 0.0;
                 }
-                crate::metacal::set_rows(objs.iter_mut(), Some(r));
+                crate::metacal::set_rows(objs.iter_mut(), crate::metadetect::applied_response(r));
                 objs
             })
         };
@@ -1319,41 +1324,45 @@ mod tests {
 
     #[test]
     fn metadetect_cuts_round_bright_stars() {
-        // A 1024² field of 49 stars of flux 2e6 e⁻ (I ≈ 19 at STEP1's
-        // zero point, the brightest below saturation), 130 px apart, whose
-        // PSF is a Moffat profile (β = 2.5, FWHM 4.4 px: 1.3 % of the
-        // light beyond the 32² stack, as STEP1's `none` has 1.4 %), sky
-        // 25 e⁻. 60 px from each star a galaxy (σ 3.2 – 4.7 px, flux 3e5
-        // e⁻), and 27 px from every other star another: those stars are
-        // not clean, so not PSF stars, but as bright. On the grid runs of
-        // `none`, metadetection selected detections 19 – 20 px from such
-        // stars, on their axes, that matched no galaxy, and they biased m
-        // by +0.04 (docs/metacal.md, "On isolated galaxies"); every
-        // version now cuts within 32 px of every star as bright as a PSF
-        // star. Measured: all 25 near galaxies cut (none without the cut,
-        // 5 when only the PSF stars are cut round), all 49 far ones
-        // weighted.
+        // A 1024² field of 49 stars 130 px apart whose PSF is a Moffat
+        // profile (β = 2.5, FWHM 4.4 px: 1.3 % of the light beyond the 32²
+        // stack, as STEP1's `none` has 1.4 %), sky 25 e⁻. Half of them
+        // (the even (i + j)) are bright, flux 2e6 e⁻ (I ≈ 19 at STEP1's
+        // zero point, the brightest below saturation; ν 1 220 on the
+        // unsheared version), the others faint, 1.5e5 e⁻ (ν 333, PSF
+        // stars). 60 px from each
+        // star a galaxy (σ 3.2 – 4.7 px, flux 3e5 e⁻); 27 px from every
+        // bright star and from every other faint star another, which
+        // makes those stars unclean, so no PSF stars. On the grid runs
+        // of `none`, metadetection selected detections 19 – 21 px from
+        // stars of ν 900 – 1 200, on their axes, that matched no galaxy,
+        // and they biased m by +0.04 (docs/metacal.md, "On isolated
+        // galaxies"); every version now cuts within 32 px of every star
+        // of ν ≥ 500. Measured: all 25 galaxies near bright stars cut
+        // (none without the cut), none of the 12 near faint stars, all 49
+        // far ones weighted.
         let params = KsbParams {
             method: crate::params::Method::Metadetect,
             ..KsbParams::default()
         };
         let (beta, alpha) = (2.5f64, 4.4 / (2.0 * (2f64.powf(1.0 / 2.5) - 1.0).sqrt()));
-        let norm = 2e6 * (beta - 1.0) / (std::f64::consts::PI * alpha * alpha);
+        let norm = (beta - 1.0) / (std::f64::consts::PI * alpha * alpha);
         let mut img = Image::zeros(1024, 1024);
-        let mut near = Vec::new();
-        let mut far = Vec::new();
+        let (mut near_bright, mut near_faint, mut far) = (Vec::new(), Vec::new(), Vec::new());
         for j in 0..7 {
             for i in 0..7 {
                 let (x0, y0) = (
                     100.0 + 130.0 * i as f64 + 0.37 * ((3 * i + 5 * j) % 8) as f64 / 3.0,
                     100.0 + 130.0 * j as f64 + 0.41 * ((7 * i + 2 * j) % 8) as f64 / 3.0,
                 );
+                let bright = (i + j) % 2 == 0;
+                let flux = if bright { 2e6 } else { 1.5e5 };
                 for y in 0..1024 {
                     for x in 0..1024 {
                         let r2 = (x as f64 - x0).powi(2) + (y as f64 - y0).powi(2);
                         if r2 < 100.0 * 100.0 {
                             img.data[y * 1024 + x] +=
-                                (norm * (1.0 + r2 / (alpha * alpha)).powf(-beta)) as f32;
+                                (flux * norm * (1.0 + r2 / (alpha * alpha)).powf(-beta)) as f32;
                         }
                     }
                 }
@@ -1363,12 +1372,15 @@ mod tests {
                 let galaxy = |k: usize| covariance(size(k), [0.1, 0.05]);
                 draw_gaussian_sampled(&mut img, x0 + 60.0, y0 + 0.3, 3e5, &galaxy(k + 1));
                 far.push((x0 + 60.0, y0 + 0.3));
-                // Every other star has a near neighbour (and is no PSF
-                // star: the others make the locus and the stack).
-                if (i + j) % 2 == 0 {
-                    draw_gaussian_sampled(&mut img, x0 + NEAR, y0 + 0.3, 3e5, &galaxy(k));
-                    near.push((x0 + NEAR, y0 + 0.3));
-                }
+                let list = if bright {
+                    &mut near_bright
+                } else if i % 2 == 0 {
+                    &mut near_faint
+                } else {
+                    continue;
+                };
+                draw_gaussian_sampled(&mut img, x0 + 27.0, y0 + 0.3, 3e5, &galaxy(k));
+                list.push((x0 + 27.0, y0 + 0.3));
             }
         }
         add_sky_and_noise(&mut img, 25.0, 5.0, SeedKey::base(7, 0, Stream::Test));
@@ -1381,23 +1393,31 @@ mod tests {
                 .find(|o| (o.x - 1.0 - x).hypot(o.y - 1.0 - y) < 2.0)
                 .copied()
         };
-        let cut = near
-            .iter()
-            .filter_map(row)
-            .filter(|o| o.flags & flags::SATURATED != 0 && o.weight == 0.0)
-            .count();
-        let kept = far
-            .iter()
-            .filter_map(row)
-            .filter(|o| o.weight > 0.0)
-            .count();
+        let cut = |list: &[(f64, f64)]| {
+            list.iter()
+                .filter_map(row)
+                .filter(|o| o.flags & flags::SATURATED != 0 && o.weight == 0.0)
+                .count()
+        };
+        let weighted = |list: &[(f64, f64)]| {
+            list.iter()
+                .filter_map(row)
+                .filter(|o| o.weight > 0.0)
+                .count()
+        };
         eprintln!(
-            "near galaxies cut {cut} of {}, far ones weighted {kept} of {}",
-            near.len(),
+            "near bright stars cut {} of {}; near faint ones weighted {} of {}; far ones weighted {} of {}",
+            cut(&near_bright),
+            near_bright.len(),
+            weighted(&near_faint),
+            near_faint.len(),
+            weighted(&far),
             far.len()
         );
-        assert_eq!(cut, near.len());
-        assert!(kept + 2 >= far.len(), "{kept} far galaxies weighted");
+        assert_eq!(cut(&near_bright), near_bright.len());
+        assert_eq!(cut(&near_faint), 0);
+        assert!(weighted(&near_faint) + 1 >= near_faint.len());
+        assert!(weighted(&far) + 2 >= far.len());
     }
 
     /// Mean over objects weighted in both lists (matched within 0.5 px) of

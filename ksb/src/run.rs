@@ -505,7 +505,7 @@ fn measure_datasets(
                     .zip(done.iter_mut())
                     .filter(|(i, _)| members.contains(i))
                     .flat_map(|(_, m)| m.objects.iter_mut());
-                crate::metacal::set_rows(objs, r);
+                crate::metacal::set_rows(objs, r.and_then(crate::metadetect::applied_response));
             }
         }
         for (&i, m) in group.iter().zip(done) {

@@ -239,12 +239,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let images = if *n == 1 { "image" } else { "images" };
         match (r, err) {
             (Some(r), Some(e)) => eprintln!(
-                "stepsim: dataset {d}: R = {} ± {} (jackknife over its {n} {images})",
+                "stepsim: dataset {d}: R = {} ± {} (jackknife over its {n} {images}; its rows use the diagonal)",
                 matrix(*r),
                 matrix(*e)
             ),
             (Some(r), None) => eprintln!(
-                "stepsim: dataset {d}: R = {} (its {n} {images}; no jackknife error)",
+                "stepsim: dataset {d}: R = {} (its {n} {images}; no jackknife error; its rows use the diagonal)",
                 matrix(*r)
             ),
             (None, _) => eprintln!(

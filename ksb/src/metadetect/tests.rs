@@ -380,3 +380,12 @@ fn the_edge_is_cut_in_the_image_as_given_and_saturation_where_the_light_went() {
     let q = to_version([70.0, 2047.5], w, h, [0.01, 0.0]);
     assert!(q[0] < 55.0, "{q:?}");
 }
+
+#[test]
+fn the_rows_use_the_response_s_diagonal() {
+    let r = [[0.31, 0.02], [-0.015, 0.29]];
+    assert_eq!(applied_response(r), Some([[0.31, 0.0], [0.0, 0.29]]));
+    assert_eq!(applied_response([[0.31, 0.0], [0.0, -0.01]]), None);
+    assert_eq!(applied_response([[0.0, 0.3], [0.3, 0.3]]), None);
+    assert_eq!(applied_response([[f64::NAN, 0.0], [0.0, 0.3]]), None);
+}
