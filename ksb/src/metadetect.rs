@@ -142,9 +142,9 @@ impl Fft2 {
 }
 
 /// The interpolation kernel's weights at `t` (in samples): the first tap's
-/// index and 2N weights summing to 1, sinc(x) × I₀(β √(1 − (x/N)²)) /
-/// I₀(β) at each tap's distance x (a Kaiser-windowed sinc, zero for |x| ≥
-/// N). Against Lanczos (sinc windowed by sinc(x/N)) with the same 24 taps
+/// index and 2N weights, sinc(x) × I₀(β √(1 − (x/N)²)) at each tap's
+/// distance x (a Kaiser-windowed sinc, zero for |x| ≥ N) divided by their
+/// sum. Against Lanczos (sinc windowed by sinc(x/N)) with the same 24 taps
 /// it interpolates a Gaussian of σ 2.2 – 3 px 200 times better (largest
 /// error 1e-6 of the peak against 2.4e-4): Lanczos's errors, largest in
 /// the wings and of opposite signs on either side of a sample, made a
@@ -174,8 +174,8 @@ fn kernel(t: f64) -> (i64, [f64; TAPS]) {
 }
 
 /// I₀(x), the modified Bessel function of the first kind, by its power
-/// series Σ ((x/2)^k / k!)², summed until a term no longer changes the sum
-/// (x ≤ 20 here: at most 60 terms).
+/// series Σ ((x/2)^k / k!)², summed until a term is below 1e-17 of the
+/// sum (the kernel's x ≤ β = 12: 26 terms at most).
 fn bessel_i0(x: f64) -> f64 {
     let q = x * x / 4.0;
     let (mut term, mut sum) = (1.0, 1.0);
