@@ -396,17 +396,6 @@ impl Detections {
             .map(|(c, _)| c)
             .collect();
         let psf_stars: Vec<(f64, f64)> = psf_cands.iter().map(|c| (c.x, c.y)).collect();
-        // The bright stars, clean or not: metadetection cuts round them
-        // (`metadetect_rows`).
-        let bright_stars: Vec<[f64; 2]> = cands
-            .iter()
-            .zip(&sizemag)
-            .filter(|(_, o)| {
-                o.sn >= crate::metadetect::BRIGHT_STAR_MIN_SN
-                    && selection.is_some_and(|s| s.is_star(o, params))
-            })
-            .map(|(c, _)| [c.x, c.y])
-            .collect();
         // The stars' own e* across the field, for the size cut that takes
         // the PSF out as a tensor (none found: taken as round).
         let star_shape = (params.size_cut == SizeCut::PsfCorrected)
@@ -512,6 +501,16 @@ impl Detections {
         let mut version_sums = None;
         let (objects, stage, calibration_k): (Vec<MeasuredObject>, &str, Option<[f64; 2]>) =
             if params.method == Method::Metadetect {
+                // The bright stars, clean or not, to cut round.
+                let bright_stars: Vec<[f64; 2]> = cands
+                    .iter()
+                    .zip(&sizemag)
+                    .filter(|(_, o)| {
+                        o.sn >= crate::metadetect::BRIGHT_STAR_MIN_SN
+                            && selection.is_some_and(|s| s.is_star(o, params))
+                    })
+                    .map(|(c, _)| [c.x, c.y])
+                    .collect();
                 let stars = Stars {
                     is_star: &star,
                     psf: &psf_stars,
@@ -1357,8 +1356,10 @@ mod tests {
                 );
                 let bright = (i + j) % 2 == 0;
                 let flux = if bright { 2e6 } else { 1.5e5 };
-                for y in 0..1024 {
-                    for x in 0..1024 {
+                // Within 100 px of the star (every star is that far
+                // inside the image).
+                for y in (y0 as usize - 100)..(y0 as usize + 101) {
+                    for x in (x0 as usize - 100)..(x0 as usize + 101) {
                         let r2 = (x as f64 - x0).powi(2) + (y as f64 - y0).powi(2);
                         if r2 < 100.0 * 100.0 {
                             img.data[y * 1024 + x] +=
