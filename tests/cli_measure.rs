@@ -51,19 +51,22 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
     assert_eq!(text, std::fs::read_to_string(&b).unwrap());
     check_submission(&text);
     // Metadetection too: the same bytes at any thread count.
-    let md = |out: &Path, threads: &str| {
-        run_with(
-            stepsim()
-                .args(["measure", "--method", "metadetect", "--run"])
-                .arg(&run)
-                .arg("--out")
-                .arg(out)
-                .args(["--threads", threads]),
-        )
+    let md = |out: &Path, threads: &str, sums: Option<&Path>| {
+        let mut cmd = stepsim();
+        cmd.args(["measure", "--method", "metadetect", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(out)
+            .args(["--threads", threads]);
+        if let Some(sums) = sums {
+            cmd.arg("--version-sums").arg(sums);
+        }
+        run_with(&mut cmd)
     };
     let (c, d) = (dir.path().join("c.txt"), dir.path().join("d.txt"));
-    let out = ok(md(&c, "1"));
-    ok(md(&d, "2"));
+    let sums = dir.path().join("sums.txt");
+    let out = ok(md(&c, "1", Some(&sums)));
+    ok(md(&d, "2", None));
     // Its one dataset's response, with an error from its two images; no
     // KSB+ PSF model.
     let err = stderr(&out);
@@ -79,6 +82,76 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
     let text = std::fs::read_to_string(&c).unwrap();
     assert_eq!(text, std::fs::read_to_string(&d).unwrap());
     check_submission(&text);
+    // The version sums: a line per image, from which the printed R follows.
+    let table = std::fs::read_to_string(&sums).unwrap();
+    let mut lines = table.lines();
+    assert_eq!(
+        lines.next(),
+        Some(
+            "# image dataset n_0 sum_e1_0 sum_e2_0 n_1p sum_e1_1p sum_e2_1p n_1m sum_e1_1m \
+             sum_e2_1m n_2p sum_e1_2p sum_e2_2p n_2m sum_e1_2m sum_e2_2m"
+        )
+    );
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split_whitespace().collect()).collect();
+    assert_eq!(
+        rows.iter().map(|r| r[0]).collect::<Vec<_>>(),
+        ["ia1", "ib2"]
+    );
+    let mut tot = [[0.0f64; 3]; 5];
+    for r in &rows {
+        assert_eq!((r.len(), r[1]), (17, "d0"), "{r:?}");
+        for (v, t) in tot.iter_mut().enumerate() {
+            let n: u64 = r[2 + 3 * v].parse().unwrap();
+            assert!(n > 10, "{r:?}");
+            t[2] += n as f64;
+            t[0] += r[3 + 3 * v].parse::<f64>().unwrap();
+            t[1] += r[4 + 3 * v].parse::<f64>().unwrap();
+        }
+    }
+    let mean = |v: usize, i: usize| tot[v][i] / tot[v][2];
+    let r = [
+        [
+            (mean(1, 0) - mean(2, 0)) / 0.02,
+            (mean(3, 0) - mean(4, 0)) / 0.02,
+        ],
+        [
+            (mean(1, 1) - mean(2, 1)) / 0.02,
+            (mean(3, 1) - mean(4, 1)) / 0.02,
+        ],
+    ];
+    let printed = format!(
+        "stepsim: dataset d0: R = [[{:.4}, {:.4}], [{:.4}, {:.4}]] ± ",
+        r[0][0], r[0][1], r[1][0], r[1][1]
+    );
+    assert!(line.starts_with(&printed), "{line} against {printed}");
+    assert!(err.contains("stepsim: wrote the version sums"), "{err}");
+    // Refused without metadetection (nothing measured, nothing written),
+    // and where it would overwrite the submission.
+    let ksb_sums = dir.path().join("ksb-sums.txt");
+    let o = run_with(
+        stepsim()
+            .args(["measure", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(dir.path().join("e.txt"))
+            .arg("--version-sums")
+            .arg(&ksb_sums),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("needs --method metadetect"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!ksb_sums.exists() && !dir.path().join("e.txt").exists());
+    let o = md(&c, "1", Some(&c));
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("give it its own file"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(std::fs::read_to_string(&c).unwrap(), text);
 }
 
 /// A submission of the test run: its header, sorted rows of seven

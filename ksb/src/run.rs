@@ -57,6 +57,10 @@ pub struct ImageSummary {
     /// none) and R's error by the jackknife over the dataset's images
     /// (`None` with one image).
     pub response: Option<DatasetResponse>,
+    /// With metadetection, the image's own version sums (Σ e₁, Σ e₂ and
+    /// the count of the objects selected on each of the five versions), of
+    /// which its dataset's response is the pooled ratio.
+    pub version_sums: Option<crate::metadetect::VersionSums>,
 }
 
 /// A dataset's metadetection response and its error by the delete-one
@@ -258,6 +262,7 @@ fn summary(
         image: im.image.clone(),
         dataset: im.dataset.clone(),
         response,
+        version_sums: m.version_sums,
         n_objects: m.objects.len(),
         n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
         n_stars: m.n_stars,

@@ -89,6 +89,13 @@ pub struct Args {
     /// (docs/ksb.md, "The details table"). Not with --shard.
     #[arg(long, value_name = "TABLE", conflicts_with_all = ["shard", "finish"])]
     details: Option<PathBuf>,
+    /// With `--method metadetect`: also write each image's version sums,
+    /// one line per image (its id, its dataset's, then for each of the five
+    /// versions the number of objects it selects and the sums of their e₁
+    /// and e₂), from which the response of any set of images follows
+    /// (docs/metacal.md, "Metadetection"). Not with --shard.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["shard", "finish"])]
+    version_sums: Option<PathBuf>,
     /// Measure only the datasets of share K of N (or `auto`: this Slurm
     /// array task's), writing FILE.shards/K-of-N.txt; `--finish` joins the
     /// parts into FILE.
@@ -142,6 +149,33 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 args.out.display(),
                 stepsim_ksb::rows_path(details).display(),
                 stepsim_ksb::rows_path(&args.out).display()
+            );
+        }
+    }
+    if let Some(sums) = &args.version_sums {
+        if params.method != Method::Metadetect {
+            anyhow::bail!(
+                "--version-sums {} needs --method metadetect: only metadetection measures \
+                 sheared versions of the images",
+                sums.display()
+            );
+        }
+        file_not_directory("--version-sums", sums)?;
+        let mut taken = vec![
+            resolved(&args.out),
+            resolved(&stepsim_ksb::rows_path(&args.out)),
+        ];
+        if let Some(details) = &args.details {
+            taken.extend([
+                resolved(details),
+                resolved(&stepsim_ksb::rows_path(details)),
+            ]);
+        }
+        if taken.contains(&resolved(sums)) {
+            anyhow::bail!(
+                "--version-sums {} is the submission, the details table or one of their rows \
+                 files; give it its own file",
+                sums.display()
             );
         }
     }
@@ -260,7 +294,37 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if let Some(details) = &args.details {
         eprintln!("stepsim: wrote the details table {}", details.display());
     }
+    if let Some(path) = &args.version_sums {
+        let text = version_sums_text(&summary);
+        stepsim_contract::io::write_bytes_atomically(path, text.as_bytes())?;
+        eprintln!("stepsim: wrote the version sums {}", path.display());
+    }
     Ok(())
+}
+
+/// The version sums of every measured image, in the submission's image
+/// order: a header naming the columns, then `image dataset` and, for the
+/// versions 0, 1p, 1m, 2p, 2m in turn, `n Σe₁ Σe₂` (n an integer, the
+/// sums as Rust writes an f64: the shortest text that reads back to the
+/// same bits). An image without sums (no PSF) writes no line.
+fn version_sums_text(summary: &[stepsim_ksb::ImageSummary]) -> String {
+    use std::fmt::Write;
+    let mut text = String::from("# image dataset");
+    for v in ["0", "1p", "1m", "2p", "2m"] {
+        write!(text, " n_{v} sum_e1_{v} sum_e2_{v}").expect("writing to a String");
+    }
+    text.push('\n');
+    for s in summary {
+        let Some(sums) = &s.version_sums else {
+            continue;
+        };
+        write!(text, "{} {}", s.image, s.dataset).expect("writing to a String");
+        for [e1, e2, n] in sums {
+            write!(text, " {n} {e1:?} {e2:?}").expect("writing to a String");
+        }
+        text.push('\n');
+    }
+    text
 }
 
 /// Refuses an output `path` (given as `option`) that is a directory or ends

@@ -1,0 +1,182 @@
+#!/usr/bin/env python3
+"""m and c of a metadetection run from its version sums, with errors that
+contain the response's.
+
+    python3 tests/analysis/metadetect_response.py RUN SUMS [RUN SUMS ...]
+
+SUMS is what `stepsim measure --method metadetect --version-sums SUMS`
+wrote for RUN/public: per image, for each of the five versions (0, 1p, 1m,
+2p, 2m), the number of objects it selects and the sums of their e1 and e2.
+The unsheared version's sums are those of the submission's weighted rows
+before R is applied, so the submission itself is not needed. The truth
+comes from RUN/private/datasets.json (each dataset's PSF and shear, each
+image's base field). Several runs are taken together, their datasets
+grouped by PSF name and their fields by number: runs that differ only in
+their shears and share `run.seed` (the same galaxies, paired shears).
+
+For each PSF, over its datasets d (shear g_d) and base fields f (an
+image and its rotated twin):
+
+    e_d = <e>_d / R_d  (R's diagonal, as the rows use it),
+    m_i = slope of e_d,i against g_d,i over the datasets - 1 (i = 1, 2),
+    c_i = the intercept; m = (m1 + m2) / 2,
+
+with <e>_d the mean over all of d's images' selected objects and R_d the
+response of the images pooled in one of three ways: per dataset (what
+`measure` applies), per field and dataset (each field's own), or over
+all the PSF's datasets (one R for every shear; valid where R does not
+depend on the shear, which the per-dataset R's printed here test). The
+errors are the delete-one jackknife over base fields of the whole
+estimator, numerator and R recomputed without the field: the same
+galaxies make both, so their fluctuations are not independent, and adding
+R's own error to the fields' scatter counts it twice where they move
+together. Printed for comparison: the mean and standard error over fields
+of the per-field m with the per-dataset R (the scatter a field-by-field
+score sees, which leaves R's noise out).
+
+Measured numbers: docs/metacal.md, "Metadetection". Needs numpy; not run
+by CI.
+"""
+import json
+import sys
+
+import numpy as np
+
+STEP = 0.01
+
+
+def read_sums(path):
+    """{image: (dataset, 5 x 3 array of [sum e1, sum e2, n])}."""
+    out = {}
+    for line in open(path):
+        if line.startswith("#") or not line.strip():
+            continue
+        w = line.split()
+        v = np.array([float(x) for x in w[2:]]).reshape(5, 3)
+        out[w[0]] = (w[1], v[:, [1, 2, 0]])
+    return out
+
+
+def response(s):
+    """R's diagonal from summed version sums (5 x 3), or None."""
+    if np.any(s[1:, 2] <= 0):
+        return None
+    mean = s[:, :2] / s[:, 2:3]
+    r = np.array([(mean[1, 0] - mean[2, 0]) / (2 * STEP), (mean[3, 1] - mean[4, 1]) / (2 * STEP)])
+    return r if np.all(r > 0) else None
+
+
+def estimate(cells, datasets, shears, fields, mode):
+    """(m1, m2, c1, c2) from cells[(dataset, field)] = summed version sums
+    over the given fields; mode is "dataset", "field" or "pooled"."""
+    pooled = sum(cells[(d, f)] for d in datasets for f in fields)
+    rp = response(pooled)
+    est = []
+    for d in datasets:
+        tot = sum(cells[(d, f)] for f in fields)
+        if mode == "field":
+            num = np.zeros(2)
+            for f in fields:
+                s = cells[(d, f)]
+                r = response(s)
+                if r is None:
+                    return None
+                num += s[0, :2] / r
+            e = num / tot[0, 2]
+        else:
+            r = response(tot) if mode == "dataset" else rp
+            if r is None:
+                return None
+            e = tot[0, :2] / tot[0, 2] / r
+        est.append(e)
+    est = np.array(est)
+    g = np.array([shears[d] for d in datasets])
+    out = []
+    for i in range(2):
+        if np.ptp(g[:, i]) == 0:
+            out.append((np.nan, est[:, i].mean()))
+        else:
+            slope, icept = np.polyfit(g[:, i], est[:, i], 1)
+            out.append((slope - 1, icept))
+    return np.array([out[0][0], out[1][0], out[0][1], out[1][1]])
+
+
+def jackknife(cells, datasets, shears, fields, mode):
+    full = estimate(cells, datasets, shears, fields, mode)
+    parts = [estimate(cells, datasets, shears, [g for g in fields if g != f], mode) for f in fields]
+    if full is None or any(p is None for p in parts):
+        return None, None
+    parts = np.array(parts)
+    n = len(fields)
+    # m is the mean of the components a design tests (m2 is nan when
+    # every dataset has the same g2).
+    both = lambda v: np.nanmean(v[..., :2], axis=-1)
+    with np.errstate(invalid="ignore"):
+        m = np.column_stack([parts, both(parts)])
+        err = np.sqrt((n - 1) / n * ((m - m.mean(0)) ** 2).sum(0))
+    return np.append(full, both(full)), err
+
+
+def main():
+    args = sys.argv[1:]
+    if len(args) < 2 or len(args) % 2:
+        sys.exit(__doc__)
+    by_psf = {}
+    field_of = {}
+    shears = {}
+    sums = {}
+    for k in range(0, len(args), 2):
+        # Ids are prefixed with the run's place: two runs may share them.
+        run = f"{k // 2}:"
+        truth = json.load(open(f"{args[k]}/private/datasets.json"))
+        for d in truth["datasets"]:
+            by_psf.setdefault(d["psf"], []).append(run + d["dataset"])
+            shears[run + d["dataset"]] = (d["g1"], d["g2"])
+            for im in d["images"]:
+                field_of[run + im["image"]] = im["field"]
+        for image, (dataset, s) in read_sums(args[k + 1]).items():
+            sums[run + image] = (run + dataset, s)
+    for psf, datasets in by_psf.items():
+        cells = {}
+        for image, (dataset, s) in sums.items():
+            if dataset in datasets:
+                k = (dataset, field_of[image])
+                cells[k] = cells.get(k, 0) + s
+        fields = sorted({f for (_, f) in cells})
+        datasets = [d for d in datasets if all((d, f) in cells for f in fields)]
+        n_rows = sum(cells[(d, f)][0, 2] for d in datasets for f in fields)
+        print(f"PSF {psf}: {len(datasets)} datasets, {len(fields)} fields, "
+              f"{n_rows:.0f} selected objects (unsheared version)")
+        for d in datasets:
+            tot = sum(cells[(d, f)] for f in fields)
+            r = response(tot)
+            print(f"  dataset {d} g = ({shears[d][0]:+.4f}, {shears[d][1]:+.4f}): "
+                  f"R11 {r[0]:.4f}  R22 {r[1]:.4f}")
+        # The per-field scatter with the per-dataset R, as a score by field sees it.
+        rs = {d: response(sum(cells[(d, f)] for f in fields)) for d in datasets}
+        per_field = []
+        for f in fields:
+            cf = {(d, f): cells[(d, f)] for d in datasets}
+            est = np.array([cf[(d, f)][0, :2] / cf[(d, f)][0, 2] / rs[d] for d in datasets])
+            g = np.array([shears[d] for d in datasets])
+            ms = [np.polyfit(g[:, i], est[:, i], 1)[0] - 1 if np.ptp(g[:, i]) else np.nan
+                  for i in range(2)]
+            per_field.append(ms + [np.nanmean(ms)])
+        per_field = np.array(per_field)
+        se = per_field.std(0, ddof=1) / np.sqrt(len(fields))
+        mean = per_field.mean(0)
+        print(f"  per field, R per dataset (fields' scatter only): m {mean[2]:+.4f} ± {se[2]:.4f}"
+              f"  (m1 {mean[0]:+.4f} ± {se[0]:.4f}, m2 {mean[1]:+.4f} ± {se[1]:.4f})")
+        for mode, name in [("dataset", "R per dataset"), ("field", "R per field and dataset"),
+                           ("pooled", "R pooled over the PSF's datasets")]:
+            v, e = jackknife(cells, datasets, shears, fields, mode)
+            if v is None:
+                print(f"  {name}: undefined (a response without a field)")
+                continue
+            print(f"  {name}, jackknife over fields: m {v[4]:+.4f} ± {e[4]:.4f}"
+                  f"  (m1 {v[0]:+.4f} ± {e[0]:.4f}, m2 {v[1]:+.4f} ± {e[1]:.4f}),"
+                  f"  c1 {v[2]:+.5f} ± {e[2]:.5f}, c2 {v[3]:+.5f} ± {e[3]:.5f}")
+
+
+if __name__ == "__main__":
+    main()
