@@ -389,3 +389,124 @@ fn the_rows_use_the_response_s_diagonal() {
     assert_eq!(applied_response([[0.0, 0.3], [0.3, 0.3]]), None);
     assert_eq!(applied_response([[f64::NAN, 0.0], [0.0, 0.3]]), None);
 }
+
+/// White noise of σ 1, `n` values, from `seed` (Box–Muller on splitmix64).
+fn white(n: usize, seed: u64) -> Vec<f64> {
+    let u = |k: u64| {
+        let x = stepsim_contract::seed::splitmix64(seed.wrapping_mul(0x1_0000_0001) ^ k);
+        ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    (0..n as u64)
+        .map(|i| (-2.0 * u(2 * i).ln()).sqrt() * (2.0 * PI * u(2 * i + 1)).cos())
+        .collect()
+}
+
+/// A Gaussian PSF stack of covariance `cov`, normalised.
+fn gaussian_stack(cov: [[f64; 2]; 2]) -> PsfStack {
+    let half = (PSF_SIDE / 2) as f64;
+    let pix = gaussian(PSF_SIDE, PSF_SIDE, [half, half], cov, 1.0);
+    let sum: f64 = pix.iter().sum();
+    PsfStack {
+        pix: pix.iter().map(|v| v / sum).collect(),
+        n_stars: 1,
+    }
+}
+
+/// The ellipticity of a field's power spectrum over the central `side`²
+/// pixels: Σ P(k) (k_x² − k_y², 2 k_x k_y) / Σ P(k) |k|².
+fn power_e(img: &Image, side: usize) -> [f64; 2] {
+    let (x0, y0) = ((img.width - side) / 2, (img.height - side) / 2);
+    let z: Vec<Complex64> = (0..side * side)
+        .map(|i| {
+            let v = img.data[(y0 + i / side) * img.width + x0 + i % side];
+            Complex64::new(f64::from(v), 0.0)
+        })
+        .collect();
+    let s = Fft2::new(side, side).forward(z);
+    let (mut q1, mut q2, mut t) = (0.0, 0.0, 0.0);
+    for kxi in 0..side {
+        let kx = freq(kxi, side);
+        for kyi in 0..side {
+            let ky = freq(kyi, side);
+            let p = s[kxi * side + kyi].norm_sqr();
+            q1 += p * (kx * kx - ky * ky);
+            q2 += p * 2.0 * kx * ky;
+            t += p * (kx * kx + ky * ky);
+        }
+    }
+    [q1 / t, q2 / t]
+}
+
+#[test]
+fn the_noise_correction_leaves_the_version_s_noise_without_direction() {
+    // White noise through an elliptical PSF, deconvolved and sheared: the
+    // version's noise has a direction (the PSF's, and the shear's). The
+    // correction adds the same noise rotated by 90°, so the sum has none.
+    let (w, h) = (512, 512);
+    let sub = Image {
+        width: w,
+        height: h,
+        data: white(w * h, 1).iter().map(|&v| v as f32).collect(),
+    };
+    let psf = gaussian_stack([[2.6, 0.5], [0.5, 1.7]]);
+    let bare = WholeImage::new(&sub, &psf, 2.6, 0.0).expect("large enough");
+    let fixed = WholeImage::new(&sub, &psf, 2.6, 1.0).expect("large enough");
+    for g in VERSIONS {
+        let e_bare = power_e(&bare.version(g), 448);
+        let e_fixed = power_e(&fixed.version(g), 448);
+        assert!(e_bare[0].hypot(e_bare[1]) > 0.1, "{g:?}: {e_bare:?}");
+        for i in 0..2 {
+            assert!(
+                e_fixed[i].abs() < 0.01,
+                "{g:?}: {e_fixed:?} ({e_bare:?} without)"
+            );
+        }
+    }
+}
+
+#[test]
+fn every_version_holds_the_noise_correction_where_the_objects_are() {
+    // A blank image: each version is the correction's noise alone. Taken
+    // back to the image's frame (resampled at A_−g x, as a version's
+    // objects are by `to_version`), the ±0.01 versions hold the same noise
+    // but for the 1 % shear of its filter, even far from the centre.
+    // Resampled against the image, as the first versions did, it moved by
+    // 0.04 r between them, 6 px or more beyond r = 150 px, where σ_Γ is
+    // 2.2 px.
+    let (w, h) = (512, 512);
+    let sub = Image {
+        width: w,
+        height: h,
+        data: vec![0.0; w * h],
+    };
+    let psf = gaussian_stack([[2.0, 0.3], [0.3, 1.6]]);
+    let whole = WholeImage::new(&sub, &psf, 2.2, 1.0).expect("large enough");
+    let c = (w as f64 - 1.0) / 2.0;
+    for (p, m) in [(1, 2), (3, 4)] {
+        let back = |g: [f64; 2]| {
+            let v: Vec<f64> = whole
+                .version(g)
+                .data
+                .iter()
+                .map(|&x| f64::from(x))
+                .collect();
+            resample(&v, w, h, shear_matrix([-g[0], -g[1]]))
+        };
+        let (a, b) = (back(VERSIONS[p]), back(VERSIONS[m]));
+        let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+        for y in 0..h {
+            for x in 0..w {
+                let r = (x as f64 - c).hypot(y as f64 - c);
+                if !(150.0..=230.0).contains(&r) {
+                    continue;
+                }
+                let (u, v) = (a[y * w + x], b[y * w + x]);
+                ab += u * v;
+                aa += u * u;
+                bb += v * v;
+            }
+        }
+        let corr = ab / (aa * bb).sqrt();
+        assert!(corr > 0.98, "versions {p} and {m}: correlation {corr}");
+    }
+}
