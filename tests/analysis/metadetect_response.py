@@ -165,16 +165,19 @@ def main():
         per_field = np.array(per_field)
         se = per_field.std(0, ddof=1) / np.sqrt(len(fields))
         mean = per_field.mean(0)
+        comps = ", ".join(f"m{i + 1} {mean[i]:+.4f} ± {se[i]:.4f}" if np.isfinite(mean[i])
+                          else f"m{i + 1} untested (one g{i + 1})" for i in range(2))
         print(f"  per field, R per dataset (fields' scatter only): m {mean[2]:+.4f} ± {se[2]:.4f}"
-              f"  (m1 {mean[0]:+.4f} ± {se[0]:.4f}, m2 {mean[1]:+.4f} ± {se[1]:.4f})")
+              f"  ({comps})")
         for mode, name in [("dataset", "R per dataset"), ("field", "R per field and dataset"),
                            ("pooled", "R pooled over the PSF's datasets")]:
             v, e = jackknife(cells, datasets, shears, fields, mode)
             if v is None:
                 print(f"  {name}: undefined (a response without a field)")
                 continue
-            print(f"  {name}, jackknife over fields: m {v[4]:+.4f} ± {e[4]:.4f}"
-                  f"  (m1 {v[0]:+.4f} ± {e[0]:.4f}, m2 {v[1]:+.4f} ± {e[1]:.4f}),"
+            comps = ", ".join(f"m{i + 1} {v[i]:+.4f} ± {e[i]:.4f}" if np.isfinite(v[i])
+                              else f"m{i + 1} untested (one g{i + 1})" for i in range(2))
+            print(f"  {name}, jackknife over fields: m {v[4]:+.4f} ± {e[4]:.4f}  ({comps}),"
                   f"  c1 {v[2]:+.5f} ± {e[2]:.5f}, c2 {v[3]:+.5f} ± {e[3]:.5f}")
 
 
