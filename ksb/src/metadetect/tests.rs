@@ -510,3 +510,44 @@ fn every_version_holds_the_noise_correction_where_the_objects_are() {
         assert!(corr > 0.98, "versions {p} and {m}: correlation {corr}");
     }
 }
+
+#[test]
+fn the_noise_filter_s_psf_power_equals_its_direct_transform_between_the_grid_s_frequencies() {
+    // The slow twin of `rot_power`: |Σ P(R⁻¹x) e^(−2πi k·x)|² over the
+    // stack's pixels, at frequencies between the grid's (and past its
+    // Nyquist, where it wraps), against the bilinear interpolation of the
+    // grid's |P̂_rot|².
+    let (w, h) = (512, 384);
+    let sub = Image {
+        width: w,
+        height: h,
+        data: vec![0.0; w * h],
+    };
+    let psf = gaussian_stack([[2.4, 0.6], [0.6, 1.5]]);
+    let whole = WholeImage::new(&sub, &psf, 2.2, 1.0).expect("large enough");
+    let c = (PSF_SIDE / 2) as f64;
+    let direct = |kx: f64, ky: f64| {
+        let mut z = Complex64::new(0.0, 0.0);
+        for (j, row) in psf.pix.chunks_exact(PSF_SIDE).enumerate() {
+            for (i, &p) in row.iter().enumerate() {
+                let (dx, dy) = (i as f64 - c, j as f64 - c);
+                let (x, y) = (-dy, dx);
+                z += Complex64::from_polar(p, -2.0 * PI * (kx * x + ky * y));
+            }
+        }
+        z.norm_sqr()
+    };
+    let mut worst: f64 = 0.0;
+    for k in 0..400 {
+        let t = k as f64;
+        let (kx, ky) = (
+            (t * 0.618_034).fract() - 0.5,
+            (t * 0.414_214).fract() * 1.2 - 0.6,
+        );
+        worst = worst.max((whole.rot_power(kx, ky) - direct(kx, ky)).abs());
+    }
+    // Bilinear interpolation errs by about h² max|f″| / 8, h = 1/384 and
+    // f″ ≈ 8π² · 2.4 here: 1.6e-4 of the peak (measured 1.63e-4); at
+    // 4096 px, 1.4e-6.
+    assert!(worst < 3e-4, "{worst}");
+}
