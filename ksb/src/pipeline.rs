@@ -3,7 +3,7 @@
 
 use crate::background::Background;
 use crate::calibration::PgammaCalibration;
-use crate::centroid::windowed;
+use crate::centroid::{Windowed, windowed};
 use crate::error::KsbError;
 use crate::filter::{noise_factor, smooth};
 use crate::flags;
@@ -264,6 +264,11 @@ fn detect_image_with(
         poisson: params.poisson_variance,
     };
     let settings = params.window_settings();
+    // The largest window, about a centroid as far from the peak as the
+    // CENTROID flag allows, stays inside a source's cell.
+    let cell_half = (params.window_radius_rg * params.rg_max_px + params.centroid_max_shift_px)
+        .ceil() as usize
+        + 2;
     let cands: Vec<Candidate> = dets
         .par_iter()
         .map(|d| {
@@ -279,7 +284,19 @@ fn detect_image_with(
             }
             let rg0 = ((d.area as f64 / std::f64::consts::PI).sqrt() * 0.5)
                 .max(params.detect_filter_sigma_px);
-            let Some(c) = windowed(&sub, d.x, d.y, rg0, true, &settings) else {
+            let cell;
+            let (im, ox, oy) = if given.is_some() && !d.siblings.is_empty() {
+                cell = own_cell(&sub, d.peak, &d.siblings, cell_half);
+                (&cell.0, cell.1 as f64, cell.2 as f64)
+            } else {
+                (&sub, 0.0, 0.0)
+            };
+            let c = windowed(im, d.x - ox, d.y - oy, rg0, true, &settings).map(|c| Windowed {
+                x: c.x + ox,
+                y: c.y + oy,
+                ..c
+            });
+            let Some(c) = c else {
                 return Candidate {
                     x: d.x,
                     y: d.y,
@@ -297,9 +314,9 @@ fn detect_image_with(
                 f |= flags::LARGE;
             }
             let m = ksb_integrals(
-                &sub,
-                c.x,
-                c.y,
+                im,
+                c.x - ox,
+                c.y - oy,
                 c.rg,
                 params.window_radius_rg * c.rg,
                 Some(noise),
@@ -813,6 +830,42 @@ fn metadetect_rows(
     (objects, Some(sums))
 }
 
+/// A deblended source's own light: the pixels of `sub` within `half` px
+/// of `own` (a square, cut at the image's edges), those nearer to a
+/// sibling's peak than to `own` set to zero; with the cell's first
+/// column and row in `sub`.
+fn own_cell(
+    sub: &Image,
+    own: (f64, f64),
+    siblings: &[(f64, f64)],
+    half: usize,
+) -> (Image, usize, usize) {
+    let (cx, cy) = (
+        own.0.round().max(0.0) as usize,
+        own.1.round().max(0.0) as usize,
+    );
+    let x0 = cx.saturating_sub(half);
+    let y0 = cy.saturating_sub(half);
+    let x1 = (cx + half).min(sub.width - 1);
+    let y1 = (cy + half).min(sub.height - 1);
+    let mut cell = Image::zeros(x1 + 1 - x0, y1 + 1 - y0);
+    for iy in y0..=y1 {
+        let dy = iy as f64 - own.1;
+        for ix in x0..=x1 {
+            let dx = ix as f64 - own.0;
+            let r2 = dx * dx + dy * dy;
+            let theirs = siblings.iter().any(|s| {
+                let (sx, sy) = (ix as f64 - s.0, iy as f64 - s.1);
+                sx * sx + sy * sy < r2
+            });
+            if !theirs {
+                *cell.at_mut(ix - x0, iy - y0) = sub.at(ix, iy);
+            }
+        }
+    }
+    (cell, x0, y0)
+}
+
 /// Two detections whose windowed centroids converged to within 1 px are
 /// one object (e.g. two peaks of one galaxy): keep the one with the higher
 /// S/N (the earlier on ties), flagged BLENDED. This also guarantees that no
@@ -942,6 +995,70 @@ mod tests {
         let mut o = blank;
         set_shear(&mut o, [f64::NAN, 0.2], 1.0);
         assert_eq!((o.e1, o.e2, o.flags), (0.0, 0.0, flags::MOMENTS));
+    }
+
+    #[test]
+    fn a_source_s_cell_keeps_the_pixels_nearer_its_own_peak() {
+        // Pixel value = 1 + x + 100 y, so every kept pixel can be told.
+        let mut img = Image::zeros(40, 30);
+        for iy in 0..30 {
+            for ix in 0..40 {
+                *img.at_mut(ix, iy) = (1 + ix + 100 * iy) as f32;
+            }
+        }
+        // Own peak (10.3, 10), siblings at (16, 10) and (10.3, 3): kept are
+        // x < 13.15 and y > 6.5, within 5 px of (10, 10).
+        let (cell, x0, y0) = own_cell(&img, (10.3, 10.0), &[(16.0, 10.0), (10.3, 3.0)], 5);
+        assert_eq!((cell.width, cell.height, x0, y0), (11, 11, 5, 5));
+        for iy in 0..11 {
+            for ix in 0..11 {
+                let (x, y) = (ix + 5, iy + 5);
+                let want = if x <= 13 && y >= 7 {
+                    (1 + x + 100 * y) as f32
+                } else {
+                    0.0
+                };
+                assert_eq!(cell.at(ix, iy), want, "pixel {x}, {y}");
+            }
+        }
+        // Cut at the image's corner.
+        let (cell, x0, y0) = own_cell(&img, (1.6, 27.2), &[(30.0, 0.0)], 5);
+        assert_eq!((cell.width, cell.height, x0, y0), (8, 8, 0, 22));
+        assert_eq!(cell.at(0, 7), (1 + 29 * 100) as f32);
+    }
+
+    #[test]
+    fn a_deblended_source_is_measured_on_its_own_light_in_the_versions() {
+        // A faint round source (σ 2 px) 11 px from one 5 times brighter
+        // (σ 3 px), noise-free, with a given noise of 1 e⁻: the detection
+        // splits them. On the whole image the faint one's adaptive window
+        // grows over its neighbour and its centroid runs to it (the KSB+
+        // rows flag it CENTROID); in its own cell it stays.
+        let mut img = Image::zeros(128, 96);
+        draw_gaussian_sampled(&mut img, 50.2, 47.6, 1e3, &covariance(2.0, [0.0, 0.0]));
+        draw_gaussian_sampled(&mut img, 61.2, 47.6, 5e3, &covariance(3.0, [0.0, 0.0]));
+        let params = KsbParams::default();
+        let given = GivenNoise {
+            rms: 1.0,
+            filtered_rms: noise_factor(params.detect_filter_sigma_px),
+        };
+        let (dets, _) = detect_image_with(&img, &info(), &params, Some(given)).unwrap();
+        assert_eq!(dets.cands.len(), 2, "{:?}", dets.cands);
+        let faint = dets.cands.iter().find(|c| c.det[0] < 55.0).unwrap();
+        let bright = dets.cands.iter().find(|c| c.det[0] > 55.0).unwrap();
+        for (c, x) in [(faint, 50.2), (bright, 61.2)] {
+            assert_eq!(c.flags, flags::BLENDED, "{c:?}");
+            assert!((c.x - x).abs() < 0.5 && (c.y - 47.6).abs() < 1e-3, "{c:?}");
+        }
+        let whole = windowed(
+            &img,
+            faint.det[0],
+            faint.det[1],
+            2.0,
+            true,
+            &params.window_settings(),
+        );
+        assert!(whole.unwrap().x > 58.0, "{whole:?}");
     }
 
     /// A noise-free 310 × 380 image of a constant sky (100 e⁻) with 8

@@ -39,6 +39,9 @@ pub struct Detection {
     pub touches_edge: bool,
     /// A pixel of the footprint is at or above the saturation level.
     pub saturated: bool,
+    /// The sub-pixel peaks of the other sources split from its footprint
+    /// (empty when it was not split).
+    pub siblings: Vec<(f64, f64)>,
 }
 
 /// Detects sources. `filtered` is the background-subtracted image smoothed
@@ -244,9 +247,21 @@ fn split_footprint(
                 blended: nearest < params.deblend_flag_px,
                 touches_edge: false,
                 saturated: false,
+                siblings: Vec::new(),
             }
         })
         .collect();
+    if blended {
+        let peaks: Vec<(f64, f64)> = dets.iter().map(|d| d.peak).collect();
+        for (i, d) in dets.iter_mut().enumerate() {
+            d.siblings = peaks
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, &p)| p)
+                .collect();
+        }
+    }
     for &p in pixels {
         let (x, y) = xy(p);
         let k = if blended {
