@@ -207,7 +207,11 @@ impl GivenNoise {
 /// noise and the detection threshold are the given ones, the same for
 /// every version of an image (metadetection: a threshold or a background
 /// that differed from version to version would select objects by more
-/// than the shear).
+/// than the shear), and each source split from a footprint is measured on
+/// its own cell ([`own_cell`]): on the whole image the adaptive window of
+/// a deblended source can grow over its neighbour and follow it, in one
+/// version and not in the next. KSB+'s rows (no `given`) keep the whole
+/// image.
 fn detect_image_with(
     img: &Image,
     info: &ImageInfo,
