@@ -60,7 +60,7 @@ struct Inner {
     /// caller scores the queue, as tests do).
     workers: Option<Arc<AtomicUsize>>,
     /// Uploads of each team being received or checked now.
-    uploads: Mutex<std::collections::HashMap<i64, usize>>,
+    uploads: Mutex<std::collections::HashMap<i64, api::upload::TeamUploads>>,
     /// Uploads being received or checked now, all teams.
     uploads_all: Arc<tokio::sync::Semaphore>,
     /// Format checks running now.

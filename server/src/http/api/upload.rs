@@ -178,22 +178,41 @@ async fn receive(
 }
 
 /// Refuses with 429 when a team has used its quota of accepted uploads
-/// (counting `in_flight` other uploads of it still arriving or being
-/// checked), or its cap on refused ones, in the last 24 hours.
-async fn check_limits(state: &AppState, team_id: i64, in_flight: usize) -> Result<(), ApiError> {
+/// (counting its other uploads admitted by this check and still arriving
+/// or being checked), or its cap on refused ones, in the last 24 hours;
+/// else admits `slot`. The count of admitted uploads is read and the
+/// slot admitted under one lock, after the store's read, and an upload
+/// leaves the admitted before its insert: so no upload is counted twice,
+/// in the store and in flight (counting the uploads in flight when the
+/// slot was taken, before the store's read, refused all but one of six
+/// parallel uploads under a quota of two on a loaded machine), and one
+/// this check refuses never counts against another. An upload inserted
+/// between the read and the lock is in neither count and one more may be
+/// admitted; the insert's transaction holds the quota then.
+async fn check_limits(state: &AppState, slot: &mut UploadSlot) -> Result<(), ApiError> {
     let since = crate::now_s() - QUOTA_WINDOW_S;
     let store = state.store();
     let accepted = store
-        .accepted_since(team_id, since)
+        .accepted_since(slot.team_id, since)
         .await
         .map_err(ApiError::internal)?;
     let refused = store
-        .format_failures_since(team_id, since)
+        .format_failures_since(slot.team_id, since)
         .await
         .map_err(ApiError::internal)?;
-    match limits(&state.inner.settings, &accepted, &refused, in_flight) {
+    let mut map = state
+        .inner
+        .uploads
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let team = map.entry(slot.team_id).or_default();
+    match limits(&state.inner.settings, &accepted, &refused, team.admitted) {
         Some(r) => Err(refusal_answer(r)),
-        None => Ok(()),
+        None => {
+            team.admitted += 1;
+            slot.admitted = true;
+            Ok(())
+        }
     }
 }
 
@@ -210,27 +229,37 @@ fn refusal_answer(r: Refusal) -> ApiError {
     }
 }
 
+/// A team's uploads being received or checked now.
+#[derive(Debug, Default, Clone, Copy)]
+pub(crate) struct TeamUploads {
+    /// Holding a slot.
+    slots: usize,
+    /// Of those, admitted by the quota's check ([`check_limits`]).
+    admitted: usize,
+}
+
 /// An upload of one team counted as in flight (being received or
 /// checked) until it is dropped; holds a turn of all uploads at once.
 struct UploadSlot {
     state: AppState,
     team_id: i64,
+    /// Counted in its team's admitted uploads.
+    admitted: bool,
     _all: tokio::sync::OwnedSemaphorePermit,
 }
 
 impl UploadSlot {
     /// Takes a slot for `team_id`: 429 when the team has
     /// `uploads_per_team` in flight, 503 when the server has
-    /// `uploads_at_once`. Returns it with the count of the team's other
-    /// uploads in flight.
-    fn take(state: &AppState, team_id: i64) -> Result<(Self, usize), ApiError> {
+    /// `uploads_at_once`.
+    fn take(state: &AppState, team_id: i64) -> Result<Self, ApiError> {
         let l = &state.inner.limits;
         let mut map = state
             .inner
             .uploads
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        let n = map.get(&team_id).copied().unwrap_or(0);
+        let n = map.get(&team_id).map_or(0, |t| t.slots);
         if n >= l.uploads_per_team.max(1) {
             return Err(ApiError::new(
                 StatusCode::TOO_MANY_REQUESTS,
@@ -257,29 +286,47 @@ impl UploadSlot {
                     ),
                 )
             })?;
-        map.insert(team_id, n + 1);
-        Ok((
-            Self {
-                state: state.clone(),
-                team_id,
-                _all: all,
-            },
-            n,
-        ))
+        map.entry(team_id).or_default().slots += 1;
+        Ok(Self {
+            state: state.clone(),
+            team_id,
+            admitted: false,
+            _all: all,
+        })
     }
 }
 
-impl Drop for UploadSlot {
-    fn drop(&mut self) {
+impl UploadSlot {
+    /// No longer counted among its team's admitted uploads (it is about
+    /// to be in the store, or is gone).
+    fn leave_admitted(&mut self) {
+        if !std::mem::take(&mut self.admitted) {
+            return;
+        }
         let mut map = self
             .state
             .inner
             .uploads
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some(n) = map.get_mut(&self.team_id) {
-            *n = n.saturating_sub(1);
-            if *n == 0 {
+        if let Some(t) = map.get_mut(&self.team_id) {
+            t.admitted = t.admitted.saturating_sub(1);
+        }
+    }
+}
+
+impl Drop for UploadSlot {
+    fn drop(&mut self) {
+        self.leave_admitted();
+        let mut map = self
+            .state
+            .inner
+            .uploads
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(t) = map.get_mut(&self.team_id) {
+            t.slots = t.slots.saturating_sub(1);
+            if t.slots == 0 {
                 map.remove(&self.team_id);
             }
         }
@@ -419,8 +466,8 @@ async fn receive_and_queue(
     }
     // Before a byte of the body is read: a turn among the team's and all
     // uploads at once, and the quota counting the team's uploads in flight.
-    let (_slot, in_flight) = UploadSlot::take(state, team.id)?;
-    check_limits(state, team.id, in_flight).await?;
+    let mut slot = UploadSlot::take(state, team.id)?;
+    check_limits(state, &mut slot).await?;
     let max = state.inner.settings.max_upload_bytes;
     let (tmp, sha, size) = receive(state, req, max, check).await?;
     // The format check: the harness reads the whole upload against every
@@ -446,7 +493,7 @@ async fn receive_and_queue(
     // changed during a slow upload (a body sent until after the deadline
     // or the reveal), and parallel uploads of one team, on any host, must
     // not all pass the quota. Only accepted entries count here: the uploads
-    // that were in flight when this one took its slot have been counted
+    // admitted while this one was (`check_limits`) have been counted
     // before its body was read, and those that finished since are in the
     // store (counting them again refused the second of two parallel
     // uploads under a quota of 2).
@@ -470,6 +517,9 @@ async fn receive_and_queue(
     let settings = state.inner.settings.clone();
     let rule: crate::store::Rule =
         Arc::new(move |l| admission_refusal(&settings, l, now).is_none());
+    // From here the store counts it: an upload whose check reads the
+    // store after this insert must not count it among the admitted too.
+    slot.leave_admitted();
     let admitted = state
         .store()
         .admit(team.id, &sha, size as i64, now, now - QUOTA_WINDOW_S, rule)
