@@ -834,35 +834,106 @@ fn metadetect_rows(
     (objects, Some(sums))
 }
 
+/// The square of `sub` within `half` px of `own` (cut at the image's
+/// edges): first column, first row, last column, last row.
+fn cell_bounds(sub: &Image, own: (f64, f64), half: usize) -> [usize; 4] {
+    let cx = own.0.round().max(0.0) as usize;
+    let cy = own.1.round().max(0.0) as usize;
+    [
+        cx.saturating_sub(half),
+        cy.saturating_sub(half),
+        (cx + half).min(sub.width - 1),
+        (cy + half).min(sub.height - 1),
+    ]
+}
+
+/// Whether pixel (x, y) is nearer to a sibling's peak than to `own`.
+fn nearer_a_sibling(x: f64, y: f64, own: (f64, f64), siblings: &[(f64, f64)]) -> bool {
+    let (dx, dy) = (x - own.0, y - own.1);
+    let r2 = dx * dx + dy * dy;
+    siblings.iter().any(|s| {
+        let (sx, sy) = (x - s.0, y - s.1);
+        sx * sx + sy * sy < r2
+    })
+}
+
 /// A deblended source's own light: the pixels of `sub` within `half` px
 /// of `own` (a square, cut at the image's edges), those nearer to a
 /// sibling's peak than to `own` set to zero; with the cell's first
-/// column and row in `sub`.
+/// column and row in `sub`. The pixels nearer `own` than a sibling lie
+/// on one side of a straight line, so a row's kept pixels are one run:
+/// its ends are solved per sibling, then moved to where
+/// [`nearer_a_sibling`] (the rule of `own_cell_slow`, its twin) changes.
 fn own_cell(
     sub: &Image,
     own: (f64, f64),
     siblings: &[(f64, f64)],
     half: usize,
 ) -> (Image, usize, usize) {
-    let (cx, cy) = (
-        own.0.round().max(0.0) as usize,
-        own.1.round().max(0.0) as usize,
-    );
-    let x0 = cx.saturating_sub(half);
-    let y0 = cy.saturating_sub(half);
-    let x1 = (cx + half).min(sub.width - 1);
-    let y1 = (cy + half).min(sub.height - 1);
+    let [x0, y0, x1, y1] = cell_bounds(sub, own, half);
+    let mut cell = Image::zeros(x1 + 1 - x0, y1 + 1 - y0);
+    let cw = cell.width;
+    let mine = |x: i64, y: f64| !nearer_a_sibling(x as f64, y, own, siblings);
+    let (x0i, x1i) = (x0 as i64, x1 as i64);
+    let oo = own.0 * own.0 + own.1 * own.1;
+    for iy in y0..=y1 {
+        let y = iy as f64;
+        // Kept: 2 x (o_x − s_x) ≥ |o|² − |s|² − 2 y (o_y − s_y) for
+        // every sibling s.
+        let (mut lo, mut hi) = (x0 as f64, x1 as f64);
+        for s in siblings {
+            let a = 2.0 * (own.0 - s.0);
+            let b = oo - s.0 * s.0 - s.1 * s.1 - 2.0 * y * (own.1 - s.1);
+            if a > 0.0 {
+                lo = lo.max(b / a);
+            } else if a < 0.0 {
+                hi = hi.min(b / a);
+            } else if b > 0.0 {
+                hi = lo - 1.0;
+            }
+        }
+        if !(lo.is_finite() && hi.is_finite()) {
+            continue;
+        }
+        let mut lo = (lo.ceil() as i64).clamp(x0i, x1i + 1);
+        let mut hi = (hi.floor() as i64).clamp(x0i - 1, x1i);
+        // Rounding near a boundary: the rule decides.
+        while lo > x0i && lo <= hi + 1 && mine(lo - 1, y) {
+            lo -= 1;
+        }
+        while lo <= hi && !mine(lo, y) {
+            lo += 1;
+        }
+        while hi < x1i && hi + 1 >= lo && mine(hi + 1, y) {
+            hi += 1;
+        }
+        while hi >= lo && !mine(hi, y) {
+            hi -= 1;
+        }
+        if lo > hi {
+            continue;
+        }
+        let (a, b) = (lo as usize, hi as usize);
+        let row = (iy - y0) * cw;
+        cell.data[row + a - x0..=row + b - x0]
+            .copy_from_slice(&sub.data[iy * sub.width + a..=iy * sub.width + b]);
+    }
+    (cell, x0, y0)
+}
+
+/// `own_cell` pixel by pixel.
+#[cfg(test)]
+fn own_cell_slow(
+    sub: &Image,
+    own: (f64, f64),
+    siblings: &[(f64, f64)],
+    half: usize,
+) -> (Image, usize, usize) {
+    let [x0, y0, x1, y1] = cell_bounds(sub, own, half);
     let mut cell = Image::zeros(x1 + 1 - x0, y1 + 1 - y0);
     for iy in y0..=y1 {
-        let dy = iy as f64 - own.1;
         for ix in x0..=x1 {
-            let dx = ix as f64 - own.0;
-            let r2 = dx * dx + dy * dy;
-            let theirs = siblings.iter().any(|s| {
-                let (sx, sy) = (ix as f64 - s.0, iy as f64 - s.1);
-                sx * sx + sy * sy < r2
-            });
-            if !theirs {
+            if !nearer_a_sibling(ix as f64, iy as f64, own, siblings) {
                 *cell.at_mut(ix - x0, iy - y0) = sub.at(ix, iy);
             }
         }
@@ -1029,6 +1100,64 @@ mod tests {
         let (cell, x0, y0) = own_cell(&img, (1.6, 27.2), &[(30.0, 0.0)], 5);
         assert_eq!((cell.width, cell.height, x0, y0), (8, 8, 0, 22));
         assert_eq!(cell.at(0, 7), (1 + 29 * 100) as f32);
+    }
+
+    #[test]
+    fn a_source_s_cell_row_by_row_equals_its_slow_twin() {
+        // Row runs against the pixel-by-pixel rule: ties on the pixels
+        // (bisectors through pixel centres), a sibling straight above
+        // (no x in the line's equation), up to five siblings, cells cut
+        // at every edge; 2 000 drawn cases besides. Bit for bit.
+        let mut img = Image::zeros(97, 83);
+        for (k, v) in img.data.iter_mut().enumerate() {
+            *v = 1.0 + k as f32;
+        }
+        type Case = ((f64, f64), Vec<(f64, f64)>, usize);
+        let mut cases: Vec<Case> = vec![
+            ((10.0, 10.0), vec![(14.0, 10.0)], 20),
+            ((10.0, 10.0), vec![(10.0, 16.0)], 20),
+            ((10.0, 10.0), vec![(14.0, 14.0), (6.0, 14.0)], 20),
+            ((48.0, 40.0), vec![(48.0, 40.0)], 30),
+            ((96.0, 82.0), vec![(0.0, 0.0)], 65),
+            ((0.4, 81.6), vec![(3.0, 80.0), (0.4, 70.0)], 65),
+        ];
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |span: f64| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 * span
+        };
+        for _ in 0..2000 {
+            let own = (next(97.0), next(83.0));
+            let n = 1 + next(5.0) as usize;
+            let sibs = (0..n)
+                .map(|_| {
+                    // Half of them on the pixel grid's half steps.
+                    let (x, y) = (own.0 + next(40.0) - 20.0, own.1 + next(40.0) - 20.0);
+                    if next(1.0) < 0.5 {
+                        ((2.0 * x).round() / 2.0, (2.0 * y).round() / 2.0)
+                    } else {
+                        (x, y)
+                    }
+                })
+                .collect();
+            cases.push((own, sibs, 1 + next(40.0) as usize));
+        }
+        let mut kept = 0usize;
+        for (own, sibs, half) in &cases {
+            let fast = own_cell(&img, *own, sibs, *half);
+            let slow = own_cell_slow(&img, *own, sibs, *half);
+            assert_eq!((fast.1, fast.2), (slow.1, slow.2));
+            assert_eq!(fast.0.data, slow.0.data, "{own:?} {sibs:?} {half}");
+            kept += fast.0.data.iter().filter(|&&v| v != 0.0).count();
+        }
+        // Not all empty, not all full.
+        let all: usize = cases
+            .iter()
+            .map(|(o, _, h)| own_cell_slow(&img, *o, &[], *h).0.data.len())
+            .sum();
+        assert!(kept > all / 5 && kept < all, "{kept} of {all}");
     }
 
     #[test]
