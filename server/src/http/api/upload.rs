@@ -200,11 +200,7 @@ async fn check_limits(state: &AppState, slot: &mut UploadSlot) -> Result<(), Api
         .format_failures_since(slot.team_id, since)
         .await
         .map_err(ApiError::internal)?;
-    let mut map = state
-        .inner
-        .uploads
-        .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    let mut map = team_uploads(state);
     let team = map.entry(slot.team_id).or_default();
     match limits(&state.inner.settings, &accepted, &refused, team.admitted) {
         Some(r) => Err(refusal_answer(r)),
@@ -227,6 +223,18 @@ fn refusal_answer(r: Refusal) -> ApiError {
         reset_s: r.reset_s,
         ..ApiError::new(status, r.message)
     }
+}
+
+/// The teams' uploads in flight, locked (a poisoned lock is taken as it
+/// is: the counts stay whole, each change is one statement).
+fn team_uploads(
+    state: &AppState,
+) -> std::sync::MutexGuard<'_, std::collections::HashMap<i64, TeamUploads>> {
+    state
+        .inner
+        .uploads
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// A team's uploads being received or checked now.
@@ -254,11 +262,7 @@ impl UploadSlot {
     /// `uploads_at_once`.
     fn take(state: &AppState, team_id: i64) -> Result<Self, ApiError> {
         let l = &state.inner.limits;
-        let mut map = state
-            .inner
-            .uploads
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut map = team_uploads(state);
         let n = map.get(&team_id).map_or(0, |t| t.slots);
         if n >= l.uploads_per_team.max(1) {
             return Err(ApiError::new(
@@ -303,13 +307,7 @@ impl UploadSlot {
         if !std::mem::take(&mut self.admitted) {
             return;
         }
-        let mut map = self
-            .state
-            .inner
-            .uploads
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some(t) = map.get_mut(&self.team_id) {
+        if let Some(t) = team_uploads(&self.state).get_mut(&self.team_id) {
             t.admitted = t.admitted.saturating_sub(1);
         }
     }
@@ -318,12 +316,7 @@ impl UploadSlot {
 impl Drop for UploadSlot {
     fn drop(&mut self) {
         self.leave_admitted();
-        let mut map = self
-            .state
-            .inner
-            .uploads
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut map = team_uploads(&self.state);
         if let Some(t) = map.get_mut(&self.team_id) {
             t.slots = t.slots.saturating_sub(1);
             if t.slots == 0 {
