@@ -95,18 +95,59 @@ struct Fft2 {
 
 /// `a` (rows × cols, row-major) transposed, in blocks of 32 × 32.
 fn transpose<T: Copy + Default>(a: &[T], rows: usize, cols: usize) -> Vec<T> {
+    let mut out = Vec::new();
+    transpose_into(a, rows, cols, &mut out);
+    out
+}
+
+/// A buffer of `len` values for a caller that writes every one: `buf` as
+/// it is when it already has that length (no value is written here, no
+/// page faulted in again), else a new one.
+fn sized<T: Copy + Default>(buf: &mut Vec<T>, len: usize) -> &mut [T] {
+    if buf.len() != len {
+        *buf = vec![T::default(); len];
+    }
+    buf
+}
+
+/// [`transpose`] into `out` (reused when it has `a`'s length).
+fn transpose_into<T: Copy + Default>(a: &[T], rows: usize, cols: usize, out: &mut Vec<T>) {
+    transpose_map(a, rows, cols, out, |v| v);
+}
+
+/// [`transpose_into`], each value through `f` on its way.
+fn transpose_map<T: Copy, U: Copy + Default>(
+    a: &[T],
+    rows: usize,
+    cols: usize,
+    out: &mut Vec<U>,
+    f: impl Fn(T) -> U,
+) {
     const B: usize = 32;
-    let mut out = vec![T::default(); a.len()];
+    let out = sized(out, a.len());
     for r0 in (0..rows).step_by(B) {
         for c0 in (0..cols).step_by(B) {
             for r in r0..(r0 + B).min(rows) {
                 for c in c0..(c0 + B).min(cols) {
-                    out[c * rows + r] = a[r * cols + c];
+                    out[c * rows + r] = f(a[r * cols + c]);
                 }
             }
         }
     }
-    out
+}
+
+/// Buffers a [`WholeImage`] reuses from one version to the next, so that
+/// each version does not take about 1.2 GB of new pages from the system
+/// for a 4096² image (and have the kernel clear them): the spectrum, the
+/// convolved field and the resampling's passes ([`resample_t`]), rows on
+/// their way back from the spectrum and the row transforms' scratch.
+#[derive(Default)]
+struct Scratch {
+    spec: Vec<Complex64>,
+    field: Vec<f64>,
+    pass: Vec<f64>,
+    rows: Vec<Complex64>,
+    fft: Vec<Complex64>,
 }
 
 impl Fft2 {
@@ -122,22 +163,62 @@ impl Fft2 {
         }
     }
 
+    #[cfg(test)]
     fn forward(&self, mut buf: Vec<Complex64>) -> Vec<Complex64> {
-        self.fw.process(&mut buf);
-        let mut t = transpose(&buf, self.h, self.w);
+        self.forward_in(&mut buf)
+    }
+
+    /// The transform of `buf` (row-major), transposed; `buf` is left
+    /// holding the row transforms, a buffer its caller may reuse.
+    fn forward_in(&self, buf: &mut [Complex64]) -> Vec<Complex64> {
+        self.fw.process(buf);
+        let mut t = transpose(buf, self.h, self.w);
         self.fh.process(&mut t);
         t
     }
 
-    fn inverse(&self, mut spec: Vec<Complex64>) -> Vec<Complex64> {
-        self.ih.process(&mut spec);
-        let mut t = transpose(&spec, self.w, self.h);
-        self.iw.process(&mut t);
-        let norm = 1.0 / (self.w * self.h) as f64;
-        for v in &mut t {
-            *v *= norm;
+    /// The real part of the inverse transform of `spec` (transposed,
+    /// as [`Self::forward_in`] leaves it; transformed in place along its
+    /// columns), row-major into `re`: the columns, then bands of 32 rows
+    /// gathered from the transposed spectrum and transformed in `rows`
+    /// (the same values and sums as a whole transpose and the rows after
+    /// it, without a second spectrum-sized buffer).
+    fn inverse_re(
+        &self,
+        spec: &mut [Complex64],
+        re: &mut Vec<f64>,
+        rows: &mut Vec<Complex64>,
+        scratch: &mut Vec<Complex64>,
+    ) {
+        const B: usize = 32;
+        let (w, h) = (self.w, self.h);
+        let mut fft_scratch = |f: &Arc<dyn Fft<f64>>| {
+            let n = f.get_inplace_scratch_len();
+            if scratch.len() < n {
+                scratch.resize(n, Complex64::new(0.0, 0.0));
+            }
+        };
+        fft_scratch(&self.ih);
+        fft_scratch(&self.iw);
+        let n = self.ih.get_inplace_scratch_len();
+        self.ih.process_with_scratch(spec, &mut scratch[..n]);
+        let re = sized(re, w * h);
+        let band = sized(rows, B.min(h) * w);
+        let norm = 1.0 / (w * h) as f64;
+        let n = self.iw.get_inplace_scratch_len();
+        for y0 in (0..h).step_by(B) {
+            let nr = B.min(h - y0);
+            let band = &mut band[..nr * w];
+            for kx in 0..w {
+                for (r, &v) in spec[kx * h + y0..][..nr].iter().enumerate() {
+                    band[r * w + kx] = v;
+                }
+            }
+            self.iw.process_with_scratch(band, &mut scratch[..n]);
+            for (o, v) in re[y0 * w..][..nr * w].iter_mut().zip(band.iter()) {
+                *o = v.re * norm;
+            }
         }
-        t
     }
 }
 
@@ -257,24 +338,34 @@ fn dot(v: &[f64], base: i64, w: &[f64; TAPS]) -> f64 {
 /// the columns it gathered 24 values a row apart for each pixel, and was
 /// the slower pass). At A = 1 every position is a sample, where the
 /// kernel is 1 at the sample and 0 elsewhere: `f` is returned as it is.
+#[cfg(test)]
 pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
     if a == [[1.0, 0.0], [0.0, 1.0]] {
         return f.to_vec();
     }
+    let (mut field, mut pass) = (f.to_vec(), Vec::new());
+    resample_t(&mut field, w, h, a, &mut pass);
+    transpose(&pass, w, h)
+}
+
+/// [`resample`] of `field` (A not 1), left transposed in `pass` (index
+/// x · height + y); `field` holds the passes between (both reused when
+/// they have the grid's size).
+fn resample_t(field: &mut Vec<f64>, w: usize, h: usize, a: [[f64; 2]; 2], pass: &mut Vec<f64>) {
     let (b, d) = (a[0][1], a[1][1]);
     let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
-    let mut k = vec![0.0; w * h];
-    for (yy, (row, out)) in f.chunks_exact(w).zip(k.chunks_exact_mut(w)).enumerate() {
+    let k = sized(pass, w * h);
+    for (yy, (row, krow)) in field.chunks_exact(w).zip(k.chunks_exact_mut(w)).enumerate() {
         let shift = b * (yy as f64 - cy) / d;
-        for (x, o) in out.iter_mut().enumerate() {
+        for (x, o) in krow.iter_mut().enumerate() {
             let (base, wt) = weights(cx + (x as f64 - cx) / d + shift);
             *o = dot(row, base, wt);
         }
     }
-    // kt[x · h + y] = K(x, y): column x of K is row x of kt.
-    let kt = transpose(&k, h, w);
-    drop(k);
-    let mut out_t = vec![0.0; w * h];
+    // kt[x · h + y] = K(x, y): column x of K is row x of kt (in `field`),
+    // whose second pass goes into `pass`.
+    transpose_into(pass, h, w, field);
+    let (kt, out_t) = (&*field, sized(pass, w * h));
     for (x, (col, ocol)) in kt
         .chunks_exact(h)
         .zip(out_t.chunks_exact_mut(h))
@@ -286,8 +377,6 @@ pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
             *o = dot(col, base, wt);
         }
     }
-    drop(kt);
-    transpose(&out_t, w, h)
 }
 
 /// The slow twin of [`resample`]: each output pixel interpolated in 2-D
@@ -338,29 +427,70 @@ pub struct WholeImage {
     /// noise correction's filter at any frequency, by bilinear
     /// interpolation.
     psf_rot_pow: Vec<f64>,
+    /// Buffers kept from one version to the next.
+    scratch: std::cell::Cell<Scratch>,
 }
 
-/// The PSF stack on a w × h grid, its centre at index (0, 0) (wrapped), and
-/// rotated by 90° when `rotated`.
-fn psf_on_grid(psf: &PsfStack, w: usize, h: usize, rotated: bool) -> Vec<Complex64> {
+/// The PSF stack on a w × h grid, its centre at index (0, 0) (wrapped),
+/// as the real part, and rotated by 90° as the imaginary part.
+fn psf_on_grid(psf: &PsfStack, w: usize, h: usize) -> Vec<Complex64> {
     let mut g = vec![Complex64::new(0.0, 0.0); w * h];
     let c = (PSF_SIDE / 2) as i64;
     for (j, row) in psf.pix.chunks_exact(PSF_SIDE).enumerate() {
         for (i, &p) in row.iter().enumerate() {
             let (dx, dy) = (i as i64 - c, j as i64 - c);
-            let (dx, dy) = if rotated { (-dy, dx) } else { (dx, dy) };
-            let x = dx.rem_euclid(w as i64) as usize;
-            let y = dy.rem_euclid(h as i64) as usize;
-            g[y * w + x] += p;
+            for (rotated, (dx, dy)) in [(false, (dx, dy)), (true, (-dy, dx))] {
+                let x = dx.rem_euclid(w as i64) as usize;
+                let y = dy.rem_euclid(h as i64) as usize;
+                let v = &mut g[y * w + x];
+                if rotated {
+                    v.im += p;
+                } else {
+                    v.re += p;
+                }
+            }
         }
     }
     g
 }
 
 /// The transforms of two real fields packed as one complex field, a + i b
-/// (transposed layout, w × h): (â, b̂) from the conjugate symmetry of
-/// real fields' transforms.
-fn unpack(z: &[Complex64], w: usize, h: usize) -> (Vec<Complex64>, Vec<Complex64>) {
+/// (transposed layout, w × h), from the conjugate symmetry of real
+/// fields' transforms: `z` becomes â, and `b` is given b̂ at each index
+/// (each index once; a frequency and its mirror are done together, so
+/// that nothing is read after it is overwritten).
+fn unpack(z: &mut [Complex64], w: usize, h: usize, mut b: impl FnMut(usize, Complex64)) {
+    let half = |p: Complex64, q: Complex64| {
+        (
+            (p + q.conj()) * 0.5,
+            (p - q.conj()) * Complex64::new(0.0, -0.5),
+        )
+    };
+    for kx in 0..w {
+        let mx = (w - kx) % w;
+        for ky in 0..h {
+            let my = (h - ky) % h;
+            let (i, m) = (kx * h + ky, mx * h + my);
+            if m < i {
+                continue;
+            }
+            let (p, q) = (z[i], z[m]);
+            let (ai, bi) = half(p, q);
+            let (am, bm) = half(q, p);
+            z[i] = ai;
+            b(i, bi);
+            if m != i {
+                z[m] = am;
+                b(m, bm);
+            }
+        }
+    }
+}
+
+/// The slow twin of [`unpack`]: â and b̂ into new fields, each frequency
+/// from the packed field as given.
+#[cfg(test)]
+fn unpack_slow(z: &[Complex64], w: usize, h: usize) -> (Vec<Complex64>, Vec<Complex64>) {
     let mut a = vec![Complex64::new(0.0, 0.0); z.len()];
     let mut b = vec![Complex64::new(0.0, 0.0); z.len()];
     for kx in 0..w {
@@ -399,21 +529,30 @@ impl WholeImage {
                 .map(|_| noise_sigma * rng.sample::<f64, _>(rand_distr::StandardNormal))
                 .collect()
         });
-        let z: Vec<Complex64> = sub
+        let mut z: Vec<Complex64> = sub
             .data
             .iter()
             .enumerate()
             .map(|(i, &v)| Complex64::new(f64::from(v), noise.as_ref().map_or(0.0, |n| n[i])))
             .collect();
         drop(noise);
-        let (img_hat, noise_hat) = unpack(&fft.forward(z), w, h);
-        let noise_hat = (noise_sigma > 0.0).then_some(noise_hat);
-        let p: Vec<Complex64> = psf_on_grid(psf, w, h, false)
-            .iter()
-            .zip(psf_on_grid(psf, w, h, true))
-            .map(|(a, b)| Complex64::new(a.re, b.re))
-            .collect();
-        let (psf_hat, psf_rot_hat) = unpack(&fft.forward(p), w, h);
+        let mut img_hat = fft.forward_in(&mut z);
+        let mut noise_hat = (noise_sigma > 0.0).then(|| vec![Complex64::new(0.0, 0.0); w * h]);
+        unpack(&mut img_hat, w, h, |i, b| {
+            if let Some(n) = &mut noise_hat {
+                n[i] = b;
+            }
+        });
+        let mut p = psf_on_grid(psf, w, h);
+        let mut psf_hat = fft.forward_in(&mut p);
+        drop(p);
+        let mut psf_rot_pow = vec![0.0; w * h];
+        unpack(&mut psf_hat, w, h, |i, b| psf_rot_pow[i] = b.norm_sqr());
+        // z's buffer is the first version's spectrum.
+        let scratch = Scratch {
+            spec: z,
+            ..Scratch::default()
+        };
         Some(Self {
             fft,
             w,
@@ -422,7 +561,8 @@ impl WholeImage {
             img_hat,
             noise_hat,
             psf_hat,
-            psf_rot_pow: psf_rot_hat.iter().map(|p| p.norm_sqr()).collect(),
+            psf_rot_pow,
+            scratch: std::cell::Cell::new(scratch),
         })
     }
 
@@ -506,7 +646,8 @@ impl WholeImage {
                 a[1][0] * a[0][1] + a[1][1] * a[1][1],
             ],
         ];
-        let mut prod = vec![Complex64::new(0.0, 0.0); self.img_hat.len()];
+        let mut s = self.scratch.take();
+        let prod = sized(&mut s.spec, self.img_hat.len());
         for kxi in 0..self.w {
             let kx = freq(kxi, self.w);
             for kyi in 0..self.h {
@@ -519,14 +660,20 @@ impl WholeImage {
                 prod[i] = v;
             }
         }
-        let field = self.fft.inverse(prod);
-        let re: Vec<f64> = field.iter().map(|c| c.re).collect();
-        drop(field);
-        let j = resample(&re, self.w, self.h, a);
+        self.fft
+            .inverse_re(&mut s.spec, &mut s.field, &mut s.rows, &mut s.fft);
+        let mut data = Vec::new();
+        if a == [[1.0, 0.0], [0.0, 1.0]] {
+            data = s.field.iter().map(|&v| v as f32).collect();
+        } else {
+            resample_t(&mut s.field, self.w, self.h, a, &mut s.pass);
+            transpose_map(&s.pass, self.w, self.h, &mut data, |v| v as f32);
+        }
+        self.scratch.set(s);
         Image {
             width: self.w,
             height: self.h,
-            data: j.iter().map(|&v| v as f32).collect(),
+            data,
         }
     }
 }

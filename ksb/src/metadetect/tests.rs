@@ -551,3 +551,93 @@ fn the_noise_filter_s_psf_power_equals_its_direct_transform_between_the_grid_s_f
     // 4096 px, 1.4e-6.
     assert!(worst < 3e-4, "{worst}");
 }
+
+#[test]
+fn unpacking_in_place_equals_its_slow_twin() {
+    // Grids of even and odd sides (an odd side has no Nyquist frequency,
+    // so only (0, 0) is its own mirror; an even one has four such
+    // frequencies): â in place and b̂ given index by index, bit for bit
+    // as the slow twin computes them from the packed field as given.
+    for (w, h) in [(8, 6), (7, 5), (6, 9), (1, 4)] {
+        let re = white(w * h, 3);
+        let im = white(w * h, 4);
+        let z: Vec<Complex64> = re
+            .iter()
+            .zip(&im)
+            .map(|(&a, &b)| Complex64::new(a, b))
+            .collect();
+        let (a_slow, b_slow) = unpack_slow(&z, w, h);
+        let mut a = z.clone();
+        let mut b = vec![Complex64::new(f64::NAN, f64::NAN); w * h];
+        let mut seen = vec![0u32; w * h];
+        unpack(&mut a, w, h, |i, v| {
+            b[i] = v;
+            seen[i] += 1;
+        });
+        assert!(seen.iter().all(|&n| n == 1), "{w}×{h}: {seen:?}");
+        let bits = |v: &[Complex64]| -> Vec<(u64, u64)> {
+            v.iter().map(|c| (c.re.to_bits(), c.im.to_bits())).collect()
+        };
+        assert_eq!(bits(&a), bits(&a_slow), "{w}×{h}: â");
+        assert_eq!(bits(&b), bits(&b_slow), "{w}×{h}: b̂");
+    }
+    // The two fields are told apart: with the real field zero and the
+    // imaginary one v, â is zero (to rounding) and b̂ the transform of v.
+    let (w, h) = (8, 6);
+    let v = white(w * h, 5);
+    let fft = Fft2::new(w, h);
+    let mut a = fft.forward(v.iter().map(|&x| Complex64::new(0.0, x)).collect());
+    let want = fft.forward(v.iter().map(|&x| Complex64::new(x, 0.0)).collect());
+    let mut b = vec![Complex64::new(0.0, 0.0); w * h];
+    unpack(&mut a, w, h, |i, x| b[i] = x);
+    assert!(a.iter().all(|c| c.norm() < 1e-12), "{a:?}");
+    assert!(b.iter().zip(&want).all(|(p, q)| (p - q).norm() < 1e-12));
+    assert!(want.iter().map(|c| c.norm()).sum::<f64>() > 1.0);
+}
+
+#[test]
+fn a_version_does_not_depend_on_the_versions_made_before_it() {
+    // The versions reuse their buffers: each must be the same bits made
+    // first, made again, or made after the others in any order, with and
+    // without the noise correction, on a grid whose sides differ.
+    let (w, h) = (160, 136);
+    let c = [70.3, 61.8];
+    let field = gaussian(w, h, c, [[6.0, 1.2], [1.2, 4.0]], 4000.0);
+    let noise = white(w * h, 9);
+    let sub = Image {
+        width: w,
+        height: h,
+        data: field
+            .iter()
+            .zip(&noise)
+            .map(|(f, n)| (f + n) as f32)
+            .collect(),
+    };
+    let psf = gaussian_stack([[2.2, 0.4], [0.4, 1.8]]);
+    for noise_sigma in [0.0, 1.0] {
+        let first: Vec<Vec<u32>> = VERSIONS
+            .iter()
+            .map(|&g| {
+                let whole = WholeImage::new(&sub, &psf, 2.4, noise_sigma).expect("large enough");
+                whole.version(g).data.iter().map(|v| v.to_bits()).collect()
+            })
+            .collect();
+        let whole = WholeImage::new(&sub, &psf, 2.4, noise_sigma).expect("large enough");
+        for order in [[0, 1, 2, 3, 4], [4, 3, 2, 1, 0], [2, 0, 4, 1, 3]] {
+            for v in order {
+                let got: Vec<u32> = whole
+                    .version(VERSIONS[v])
+                    .data
+                    .iter()
+                    .map(|x| x.to_bits())
+                    .collect();
+                assert!(
+                    got == first[v],
+                    "σ {noise_sigma}, version {v} after {order:?}"
+                );
+            }
+        }
+        // The versions differ from one another (the test could fail).
+        assert!(first[1] != first[2] && first[0] != first[1]);
+    }
+}
