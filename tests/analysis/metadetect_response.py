@@ -3,6 +3,7 @@
 contain the response's.
 
     python3 tests/analysis/metadetect_response.py RUN SUMS [RUN SUMS ...]
+    python3 tests/analysis/metadetect_response.py --difference RUN_A SUMS_A RUN_B SUMS_B
 
 SUMS is what `stepsim measure --method metadetect --version-sums SUMS`
 wrote for RUN/public: per image, for each of the five versions (0, 1p, 1m,
@@ -33,6 +34,13 @@ R's own error to the fields' scatter counts it twice where they move
 together. Printed for comparison: the mean and standard error over fields
 of the per-field m with the per-dataset R (the scatter a field-by-field
 score sees, which leaves R's noise out).
+
+With --difference, two runs of the same galaxies and shears that differ
+in one setting (e.g. `population.lens_positions`): for each PSF, m and c
+of each run and of A minus B, with the jackknife over the base fields
+they share, both runs' numerators and R's recomputed without the field,
+so what the two runs have in common (the galaxies, their shape noise)
+cancels in the difference's error.
 
 Measured numbers: docs/metacal.md, "Metadetection". Needs numpy; not run
 by CI.
@@ -117,10 +125,9 @@ def jackknife(cells, datasets, shears, fields, mode):
     return np.append(full, both(full)), err
 
 
-def main():
-    args = sys.argv[1:]
-    if len(args) < 2 or len(args) % 2:
-        sys.exit(__doc__)
+def load(args):
+    """(datasets by PSF, shears, cells by PSF) of the runs in args (RUN
+    SUMS pairs), dataset ids prefixed with the run's place."""
     by_psf = {}
     field_of = {}
     shears = {}
@@ -136,12 +143,66 @@ def main():
                 field_of[run + im["image"]] = im["field"]
         for image, (dataset, s) in read_sums(args[k + 1]).items():
             sums[run + image] = (run + dataset, s)
+    cells_by_psf = {}
     for psf, datasets in by_psf.items():
         cells = {}
         for image, (dataset, s) in sums.items():
             if dataset in datasets:
                 k = (dataset, field_of[image])
                 cells[k] = cells.get(k, 0) + s
+        cells_by_psf[psf] = cells
+    return by_psf, shears, cells_by_psf
+
+
+def difference(args):
+    """m and c of run A, of run B and of A - B per PSF, jackknifed over the
+    shared base fields."""
+    runs = [load(args[0:2]), load(args[2:4])]
+    for psf in sorted(set(runs[0][0]) & set(runs[1][0])):
+        parts = []
+        for by_psf, shears, cells_by_psf in runs:
+            cells = cells_by_psf[psf]
+            parts.append((cells, by_psf[psf], shears, {f for (_, f) in cells}))
+        fields = sorted(parts[0][3] & parts[1][3])
+        parts = [(c, [d for d in ds if all((d, f) in c for f in fields)], sh)
+                 for c, ds, sh, _ in parts]
+        print(f"PSF {psf}: {len(fields)} shared fields")
+        for mode, name in [("dataset", "R per dataset"),
+                           ("pooled", "R pooled over the PSF's datasets")]:
+            def est(fs):
+                e = [estimate(c, ds, sh, fs, mode) for c, ds, sh in parts]
+                if any(v is None for v in e):
+                    return None
+                e = [np.append(v, np.nanmean(v[:2])) for v in e]
+                return np.array([e[0], e[1], e[0] - e[1]])
+            full = est(fields)
+            jk = [est([g for g in fields if g != f]) for f in fields]
+            if full is None or any(v is None for v in jk):
+                print(f"  {name}: undefined (a response without a field)")
+                continue
+            jk = np.array(jk)
+            n = len(fields)
+            with np.errstate(invalid="ignore"):
+                err = np.sqrt((n - 1) / n * ((jk - jk.mean(0)) ** 2).sum(0))
+            for row, label in enumerate(["A", "B", "A - B"]):
+                v, e = full[row], err[row]
+                print(f"  {name}, {label}: m {v[4]:+.4f} ± {e[4]:.4f}"
+                      f"  (m1 {v[0]:+.4f} ± {e[0]:.4f}), c1 {v[2]:+.5f} ± {e[2]:.5f},"
+                      f" c2 {v[3]:+.5f} ± {e[3]:.5f}")
+
+
+def main():
+    args = sys.argv[1:]
+    if args[:1] == ["--difference"]:
+        if len(args) != 5:
+            sys.exit(__doc__)
+        difference(args[1:])
+        return
+    if len(args) < 2 or len(args) % 2:
+        sys.exit(__doc__)
+    by_psf, shears, cells_by_psf = load(args)
+    for psf, datasets in by_psf.items():
+        cells = cells_by_psf[psf]
         fields = sorted({f for (_, f) in cells})
         datasets = [d for d in datasets if all((d, f) in cells for f in fields)]
         n_rows = sum(cells[(d, f)][0, 2] for d in datasets for f in fields)
