@@ -584,7 +584,8 @@ impl WholeImage {
     }
 
     /// The noise correction's filter at the grid frequency k for the
-    /// version whose shear matrix is `a`: Γ̂(A k) / |P̂_rot(A² k)|, no
+    /// version whose shear matrix is A (`a2` = A², `gam` = Γ̂(A k) from
+    /// [`Self::gamma`]): Γ̂(A k) / |P̂_rot(A² k)|, no
     /// frequency amplified more than 3 × (as [`Self::kernel`]). Resampled
     /// at A x as the image is, white noise so filtered has the power
     /// σ² |Γ̂(k′)|² / |P̂_rot(A k′)|² at k′ = A q, which is the power of
@@ -593,10 +594,7 @@ impl WholeImage {
     /// correction must add for the sum to have no direction. Real and
     /// even, so the noise stays real.
     #[inline]
-    fn noise_gain(&self, a: &[[f64; 2]; 2], a2: &[[f64; 2]; 2], kx: f64, ky: f64) -> f64 {
-        let s2 = 2.0 * PI * PI * self.sigma * self.sigma;
-        let q = [a[0][0] * kx + a[0][1] * ky, a[1][0] * kx + a[1][1] * ky];
-        let gam = (-s2 * (q[0] * q[0] + q[1] * q[1])).exp();
+    fn noise_gain(&self, a2: &[[f64; 2]; 2], kx: f64, ky: f64, gam: f64) -> f64 {
         let mag = self
             .rot_power(a2[0][0] * kx + a2[0][1] * ky, a2[1][0] * kx + a2[1][1] * ky)
             .sqrt();
@@ -607,14 +605,20 @@ impl WholeImage {
         }
     }
 
-    /// ĥ(k) = Γ̂(A k) / P̂(k), given P̂(k) = `p` at frequency (kx, ky); no
-    /// frequency amplified more than 3 × (Γ ≤ 1.5 |P̂| is how Γ was chosen,
-    /// on a coarser grid).
+    /// Γ̂(A k) at the frequency k = (kx, ky): what [`Self::kernel`] and
+    /// [`Self::noise_gain`] take, computed once for both.
     #[inline]
-    fn kernel(&self, p: Complex64, a: &[[f64; 2]; 2], kx: f64, ky: f64) -> Complex64 {
+    fn gamma(&self, a: &[[f64; 2]; 2], kx: f64, ky: f64) -> f64 {
         let s2 = 2.0 * PI * PI * self.sigma * self.sigma;
         let q = [a[0][0] * kx + a[0][1] * ky, a[1][0] * kx + a[1][1] * ky];
-        let gam = (-s2 * (q[0] * q[0] + q[1] * q[1])).exp();
+        (-s2 * (q[0] * q[0] + q[1] * q[1])).exp()
+    }
+
+    /// ĥ(k) = Γ̂(A k) / P̂(k), given P̂(k) = `p` and `gam` = Γ̂(A k)
+    /// ([`Self::gamma`]); no frequency amplified more than 3 × (Γ ≤ 1.5
+    /// |P̂| is how Γ was chosen, on a coarser grid).
+    #[inline]
+    fn kernel(p: Complex64, gam: f64) -> Complex64 {
         // |P̂| by a square root (an instruction), not `hypot` (a call into
         // libm); P̂ is far from overflow.
         let mag = p.norm_sqr().sqrt();
@@ -653,9 +657,10 @@ impl WholeImage {
             for kyi in 0..self.h {
                 let ky = freq(kyi, self.h);
                 let i = kxi * self.h + kyi;
-                let mut v = self.img_hat[i] * self.kernel(self.psf_hat[i], &a, kx, ky);
+                let gam = self.gamma(&a, kx, ky);
+                let mut v = self.img_hat[i] * Self::kernel(self.psf_hat[i], gam);
                 if let Some(n) = &self.noise_hat {
-                    v += n[i] * self.noise_gain(&a, &a2, kx, ky);
+                    v += n[i] * self.noise_gain(&a2, kx, ky, gam);
                 }
                 prod[i] = v;
             }
