@@ -291,7 +291,7 @@ fn kernel_table() -> &'static [[f64; TAPS]] {
 /// is the next sample's phase 0); the floor is taken by truncation and a
 /// shift, not by `f64::floor` and `round`, which are calls into libm on a
 /// target without SSE4.1 (about 15 % of the resampling's time).
-#[inline]
+#[inline(always)]
 fn weights(t: f64) -> (i64, &'static [f64; TAPS]) {
     const SHIFT: u32 = PHASES.trailing_zeros();
     let q = t * PHASES as f64 + 0.5;
@@ -305,7 +305,7 @@ fn weights(t: f64) -> (i64, &'static [f64; TAPS]) {
 
 /// Σ w_t v_t over the taps, where `base` may reach past `v`'s ends (those
 /// taps count zero).
-#[inline]
+#[inline(always)]
 fn dot(v: &[f64], base: i64, w: &[f64; TAPS]) -> f64 {
     if base >= 0 && base as usize + TAPS <= v.len() {
         let s = &v[base as usize..base as usize + TAPS];
@@ -351,7 +351,43 @@ pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
 /// [`resample`] of `field` (A not 1), left transposed in `pass` (index
 /// x · height + y); `field` holds the passes between (both reused when
 /// they have the grid's size).
+///
+/// Where the CPU runs AVX2 the same code runs built for it: the dot
+/// products' four partial sums in one vector register, the same
+/// multiplications and additions in the same order (Rust does not fuse
+/// them), so the same bits as the plain build (the tests run both where
+/// the CPU allows, `STEPSIM_SIMD=0` the plain one).
 fn resample_t(field: &mut Vec<f64>, w: usize, h: usize, a: [[f64; 2]; 2], pass: &mut Vec<f64>) {
+    #[cfg(target_arch = "x86_64")]
+    if stepsim_numerics::simd::has_avx2() {
+        // SAFETY: the CPU runs AVX2 (checked just above).
+        return unsafe { resample_t_avx2(field, w, h, a, pass) };
+    }
+    resample_t_body(field, w, h, a, pass);
+}
+
+/// [`resample_t_body`] built for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn resample_t_avx2(
+    field: &mut Vec<f64>,
+    w: usize,
+    h: usize,
+    a: [[f64; 2]; 2],
+    pass: &mut Vec<f64>,
+) {
+    resample_t_body(field, w, h, a, pass);
+}
+
+/// The body of [`resample_t`].
+#[inline(always)]
+fn resample_t_body(
+    field: &mut Vec<f64>,
+    w: usize,
+    h: usize,
+    a: [[f64; 2]; 2],
+    pass: &mut Vec<f64>,
+) {
     let (b, d) = (a[0][1], a[1][1]);
     let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
     let k = sized(pass, w * h);
@@ -573,8 +609,10 @@ impl WholeImage {
     /// interpolation's relative error is about (π · 63 / side)² / 8.
     fn rot_power(&self, kx: f64, ky: f64) -> f64 {
         let (w, h) = (self.w as f64, self.h as f64);
-        let (u, v) = ((kx * w).rem_euclid(w), (ky * h).rem_euclid(h));
-        let (i0, j0) = (u.floor(), v.floor());
+        let (u, v) = (wrap(kx * w, w), wrap(ky * h, h));
+        // u, v ≥ 0: the floor by truncation (`f64::floor` is a call into
+        // libm on a target without SSE4.1).
+        let (i0, j0) = ((u as u64) as f64, (v as u64) as f64);
         let (fx, fy) = (u - i0, v - j0);
         let (i0, j0) = (i0 as usize % self.w, j0 as usize % self.h);
         let (i1, j1) = ((i0 + 1) % self.w, (j0 + 1) % self.h);
@@ -680,6 +718,22 @@ impl WholeImage {
             height: self.h,
             data,
         }
+    }
+}
+
+/// `x.rem_euclid(n)` for n > 0, the same bits, without a call to `fmod`
+/// where −n < x < 2n (x itself, x + n as `rem_euclid` adds it, or x − n,
+/// exact there by Sterbenz's lemma as `fmod` is).
+#[inline]
+fn wrap(x: f64, n: f64) -> f64 {
+    if (0.0..n).contains(&x) {
+        x
+    } else if x > -n && x < 0.0 {
+        x + n
+    } else if x >= n && x < 2.0 * n {
+        x - n
+    } else {
+        x.rem_euclid(n)
     }
 }
 

@@ -641,3 +641,58 @@ fn a_version_does_not_depend_on_the_versions_made_before_it() {
         assert!(first[1] != first[2] && first[0] != first[1]);
     }
 }
+
+#[test]
+fn wrapping_a_frequency_equals_rem_euclid_bit_for_bit() {
+    // Every branch of `wrap` and its edges: 0, ±n, 2n, values a rounding
+    // away from them, signed zeros, and a sweep across (−3n, 3n).
+    for n in [4096.0f64, 384.0, 7.0] {
+        let mut xs = vec![0.0, -0.0, n, -n, 2.0 * n, -2.0 * n, 3.5 * n, -3.5 * n];
+        for e in [n, -n, 0.0, 2.0 * n] {
+            xs.push(f64::from_bits(e.to_bits() + 1));
+            xs.push(f64::from_bits(e.to_bits().saturating_sub(1)));
+            xs.push(e - 1e-12);
+            xs.push(e + 1e-12);
+        }
+        for k in 0..6000 {
+            xs.push((k as f64 / 1000.0 - 3.0) * n + 0.000_123 * k as f64);
+        }
+        for x in xs {
+            assert_eq!(
+                wrap(x, n).to_bits(),
+                x.rem_euclid(n).to_bits(),
+                "x = {x:e}, n = {n}"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_resampling_built_for_avx2_gives_the_plain_build_s_bits() {
+    let (w, h) = (96, 80);
+    let f = white(w * h, 11);
+    for g in [[0.01, 0.0], [0.0, -0.01], [0.05, -0.03]] {
+        let a = shear_matrix(g);
+        let (mut field, mut pass) = (f.clone(), Vec::new());
+        resample_t_body(&mut field, w, h, a, &mut pass);
+        let plain: Vec<u64> = pass.iter().map(|v| v.to_bits()).collect();
+        // The dispatching entry gives the same (AVX2 where the CPU runs it).
+        let (mut field, mut pass) = (f.clone(), Vec::new());
+        resample_t(&mut field, w, h, a, &mut pass);
+        assert!(
+            pass.iter().map(|v| v.to_bits()).eq(plain.iter().copied()),
+            "{g:?}"
+        );
+        #[cfg(target_arch = "x86_64")]
+        if stepsim_numerics::simd::has_avx2() {
+            let (mut field, mut pass) = (f.clone(), Vec::new());
+            // SAFETY: the CPU runs AVX2 (checked just above).
+            unsafe { resample_t_avx2(&mut field, w, h, a, &mut pass) };
+            assert!(
+                pass.iter().map(|v| v.to_bits()).eq(plain.iter().copied()),
+                "{g:?}"
+            );
+        }
+        assert!(plain.iter().any(|&b| b != 0));
+    }
+}
