@@ -137,27 +137,89 @@ pub fn remove_stale_temporaries(dir: &Path) -> Vec<PathBuf> {
     removed
 }
 
+/// What already stands at a path about to be written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Target {
+    /// Nothing, a regular file or a directory (or a link to one): the
+    /// finished file is renamed into place.
+    Renamed,
+    /// A character device (`/dev/null`): the finished file is copied into
+    /// it, never renamed over it.
+    Device,
+}
+
+/// How `path` is written, or an error naming it when something other than
+/// a regular file, a directory or a character device stands there (a
+/// FIFO, a socket, a block device): renaming over it would replace it, and
+/// writing into it could wait for a reader for ever.
+fn target(path: &Path) -> Result<Target, IoError> {
+    let Ok(meta) = std::fs::metadata(path) else {
+        return Ok(Target::Renamed);
+    };
+    let kind = meta.file_type();
+    if kind.is_file() || kind.is_dir() {
+        return Ok(Target::Renamed);
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt as _;
+        if kind.is_char_device() {
+            return Ok(Target::Device);
+        }
+    }
+    Err(IoError::format(
+        path,
+        "not a regular file, a directory or a character device (a FIFO, a socket or a block \
+         device?): stepsim writes a finished file in place of its output, so it does not write \
+         into this one; give a file name",
+    ))
+}
+
 /// Writes `path` atomically: `write` receives a temporary path to create; on
 /// success it is renamed to `path`, on failure it is removed.
+///
+/// Where `path` is a character device (`--out /dev/null`), the temporary
+/// file is made in the system's temporary directory and copied into the
+/// device, which stays what it was (renamed over, `/dev/null` would have
+/// become a regular file). A FIFO, a socket or a block device is refused
+/// before anything is written ([`target`]).
 pub fn write_atomically<E>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E>
 where
     E: From<IoError>,
 {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
-    }
-    let tmp = temporary_name(path);
-    let _ = std::fs::remove_file(&tmp);
-    match write(&tmp) {
-        Ok(()) => std::fs::rename(&tmp, path).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            E::from(IoError::os(path, e))
-        }),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
+    let target = target(path)?;
+    let tmp = match target {
+        Target::Renamed => {
+            if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
+            }
+            temporary_name(path)
         }
+        Target::Device => {
+            let name = temporary_name(path);
+            std::env::temp_dir().join(name.file_name().unwrap_or_default())
+        }
+    };
+    let _ = std::fs::remove_file(&tmp);
+    let done = write(&tmp).and_then(|()| match target {
+        Target::Renamed => std::fs::rename(&tmp, path).map_err(|e| E::from(IoError::os(path, e))),
+        Target::Device => copy_into(&tmp, path).map_err(E::from),
+    });
+    if done.is_err() || target == Target::Device {
+        let _ = std::fs::remove_file(&tmp);
     }
+    done
+}
+
+/// Copies the file `from` into the existing `device`.
+fn copy_into(from: &Path, device: &Path) -> Result<(), IoError> {
+    let mut src = std::fs::File::open(from).map_err(|e| IoError::os(from, e))?;
+    let mut dst = std::fs::OpenOptions::new()
+        .write(true)
+        .open(device)
+        .map_err(|e| IoError::os(device, e))?;
+    std::io::copy(&mut src, &mut dst).map_err(|e| IoError::os(device, e))?;
+    Ok(())
 }
 
 /// Writes bytes atomically.
@@ -190,6 +252,49 @@ mod tests {
         assert_eq!(temporary_owner(&path), None);
         assert_eq!(std::fs::read(&path).unwrap(), b"whole");
         assert_eq!(std::fs::read_dir(dir.path().join("a")).unwrap().count(), 1);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_device_is_written_into_and_a_fifo_refused_never_replaced() {
+        use std::os::unix::fs::FileTypeExt as _;
+        // `--out /dev/null`: the bytes go into the device, which stays a
+        // character device (renamed over, it became a regular file, and
+        // every later `> /dev/null` on the machine filled it).
+        let null = Path::new("/dev/null");
+        write_bytes_atomically(null, b"into the device").unwrap();
+        let r: Result<(), IoError> = write_atomically(null, |tmp| {
+            assert!(tmp.starts_with(std::env::temp_dir()), "{}", tmp.display());
+            std::fs::write(tmp, b"x").map_err(|e| IoError::os(tmp, e))
+        });
+        r.unwrap();
+        let meta = std::fs::metadata(null).unwrap();
+        assert!(meta.file_type().is_char_device());
+        assert_eq!(std::fs::read(null).unwrap(), b"");
+        assert!(!temporary_name(null).exists());
+        let tmp_left = std::env::temp_dir().join(temporary_name(null).file_name().unwrap());
+        assert!(!tmp_left.exists());
+        // A FIFO is refused before anything is written, and stays.
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("pipe");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let mut called = false;
+        let r: Result<(), IoError> = write_atomically(&fifo, |_| {
+            called = true;
+            Ok(())
+        });
+        let e = r.unwrap_err().to_string();
+        assert!(!called);
+        assert!(
+            e.contains("pipe") && e.contains("not a regular file"),
+            "{e}"
+        );
+        assert!(std::fs::metadata(&fifo).unwrap().file_type().is_fifo());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]
