@@ -182,7 +182,7 @@ fn target(path: &Path) -> Result<Target, IoError> {
 /// file is made in the system's temporary directory and copied into the
 /// device, which stays what it was (renamed over, `/dev/null` would have
 /// become a regular file). A FIFO, a socket or a block device is refused
-/// before anything is written ([`target`]).
+/// before anything is written.
 pub fn write_atomically<E>(path: &Path, write: impl FnOnce(&Path) -> Result<(), E>) -> Result<(), E>
 where
     E: From<IoError>,
