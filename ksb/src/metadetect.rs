@@ -75,6 +75,10 @@ const KERNEL_BETA: f64 = 12.0;
 /// Seeds the noise correction's white noise (with the image's digest).
 const NOISE_SEED: u64 = 0x6d65_7461_6465_7400;
 
+/// The shear matrix of the unsheared version, where every position of
+/// the resampling is a sample.
+const UNSHEARED: [[f64; 2]; 2] = [[1.0, 0.0], [0.0, 1.0]];
+
 /// The shear matrix A of SPEC §1 for g: (1 − |g|²)^(−½) [[1 − g₁, −g₂], [−g₂, 1 + g₁]].
 pub fn shear_matrix(g: [f64; 2]) -> [[f64; 2]; 2] {
     let s = 1.0 / (1.0 - g[0] * g[0] - g[1] * g[1]).sqrt();
@@ -96,7 +100,7 @@ struct Fft2 {
 /// `a` (rows × cols, row-major) transposed, in blocks of 32 × 32.
 fn transpose<T: Copy + Default>(a: &[T], rows: usize, cols: usize) -> Vec<T> {
     let mut out = Vec::new();
-    transpose_into(a, rows, cols, &mut out);
+    transpose_map(a, rows, cols, &mut out, |v| v);
     out
 }
 
@@ -110,12 +114,8 @@ fn sized<T: Copy + Default>(buf: &mut Vec<T>, len: usize) -> &mut [T] {
     buf
 }
 
-/// [`transpose`] into `out` (reused when it has `a`'s length).
-fn transpose_into<T: Copy + Default>(a: &[T], rows: usize, cols: usize, out: &mut Vec<T>) {
-    transpose_map(a, rows, cols, out, |v| v);
-}
-
-/// [`transpose_into`], each value through `f` on its way.
+/// [`transpose`] into `out` (reused when it has `a`'s length), each value
+/// through `f` on its way.
 fn transpose_map<T: Copy, U: Copy + Default>(
     a: &[T],
     rows: usize,
@@ -192,20 +192,17 @@ impl Fft2 {
     ) {
         const B: usize = 32;
         let (w, h) = (self.w, self.h);
-        let mut fft_scratch = |f: &Arc<dyn Fft<f64>>| {
-            let n = f.get_inplace_scratch_len();
-            if scratch.len() < n {
-                scratch.resize(n, Complex64::new(0.0, 0.0));
-            }
-        };
-        fft_scratch(&self.ih);
-        fft_scratch(&self.iw);
-        let n = self.ih.get_inplace_scratch_len();
-        self.ih.process_with_scratch(spec, &mut scratch[..n]);
+        let (ni, nw) = (
+            self.ih.get_inplace_scratch_len(),
+            self.iw.get_inplace_scratch_len(),
+        );
+        if scratch.len() < ni.max(nw) {
+            scratch.resize(ni.max(nw), Complex64::new(0.0, 0.0));
+        }
+        self.ih.process_with_scratch(spec, &mut scratch[..ni]);
         let re = sized(re, w * h);
         let band = sized(rows, B.min(h) * w);
         let norm = 1.0 / (w * h) as f64;
-        let n = self.iw.get_inplace_scratch_len();
         for y0 in (0..h).step_by(B) {
             let nr = B.min(h - y0);
             let band = &mut band[..nr * w];
@@ -214,7 +211,7 @@ impl Fft2 {
                     band[r * w + kx] = v;
                 }
             }
-            self.iw.process_with_scratch(band, &mut scratch[..n]);
+            self.iw.process_with_scratch(band, &mut scratch[..nw]);
             for (o, v) in re[y0 * w..][..nr * w].iter_mut().zip(band.iter()) {
                 *o = v.re * norm;
             }
@@ -340,7 +337,7 @@ fn dot(v: &[f64], base: i64, w: &[f64; TAPS]) -> f64 {
 /// kernel is 1 at the sample and 0 elsewhere: `f` is returned as it is.
 #[cfg(test)]
 pub fn resample(f: &[f64], w: usize, h: usize, a: [[f64; 2]; 2]) -> Vec<f64> {
-    if a == [[1.0, 0.0], [0.0, 1.0]] {
+    if a == UNSHEARED {
         return f.to_vec();
     }
     let (mut field, mut pass) = (f.to_vec(), Vec::new());
@@ -400,7 +397,7 @@ fn resample_t_body(
     }
     // kt[x · h + y] = K(x, y): column x of K is row x of kt (in `field`),
     // whose second pass goes into `pass`.
-    transpose_into(pass, h, w, field);
+    transpose_map(pass, h, w, field, |v| v);
     let (kt, out_t) = (&*field, sized(pass, w * h));
     for (x, (col, ocol)) in kt
         .chunks_exact(h)
@@ -705,13 +702,14 @@ impl WholeImage {
         }
         self.fft
             .inverse_re(&mut s.spec, &mut s.field, &mut s.rows, &mut s.fft);
-        let mut data = Vec::new();
-        if a == [[1.0, 0.0], [0.0, 1.0]] {
-            data = s.field.iter().map(|&v| v as f32).collect();
+        let data = if a == UNSHEARED {
+            s.field.iter().map(|&v| v as f32).collect()
         } else {
             resample_t(&mut s.field, self.w, self.h, a, &mut s.pass);
+            let mut data = Vec::new();
             transpose_map(&s.pass, self.w, self.h, &mut data, |v| v as f32);
-        }
+            data
+        };
         self.scratch.set(s);
         Image {
             width: self.w,
