@@ -439,6 +439,59 @@ fn sharded_measure_joined_is_byte_identical_to_one_measure() {
 }
 
 #[test]
+fn the_detection_thresholds_are_options_and_refused_out_of_range() {
+    // The defaults are DETECT_THRESH 2 and a peak of 5 σ: naming them
+    // changes nothing; raising both finds fewer sources.
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let rows = |options: &[&str]| measured_rows(&run, dir.path(), options).1;
+    let default = rows(&[]);
+    let named = rows(&["--detect-thresh", "2", "--detect-peak-sn", "5"]);
+    assert_eq!(default, named);
+    let raised = rows(&["--detect-thresh", "30", "--detect-peak-sn", "80"]);
+    assert!(
+        !raised.is_empty() && raised.len() < default.len(),
+        "{} rows at 30 σ, {} at 2 σ",
+        raised.len(),
+        default.len()
+    );
+    let out = dir.path().join("refused.txt");
+    for bad in [
+        &["--detect-thresh", "0"][..],
+        &["--detect-thresh", "nan"],
+        &["--detect-peak-sn", "-1"],
+        &["--detect-peak-sn", "2e6"],
+    ] {
+        let o = run_with(
+            stepsim()
+                .arg("measure")
+                .args(bad)
+                .arg("--run")
+                .arg(&run)
+                .arg("--out")
+                .arg(&out),
+        );
+        assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", stderr(&o));
+    }
+    let o = run_with(
+        stepsim()
+            .args(["measure", "--detect-thresh", "9", "--detect-peak-sn", "8"])
+            .arg("--run")
+            .arg(&run)
+            .arg("--out")
+            .arg(&out),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("--detect-peak-sn 8 is below --detect-thresh 9"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}
+
+#[test]
 fn the_size_cut_option_changes_only_the_small_flags() {
     // `--size-cut psf-corrected` moves galaxies in and out of SMALL (32);
     // the rows, positions and the detection's flags stay. (The P^γ

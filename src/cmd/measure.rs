@@ -83,6 +83,15 @@ pub struct Args {
     /// effect on metacal).
     #[arg(long, value_enum, default_value_t = SizeCutArg::Windowed)]
     size_cut: SizeCutArg,
+    /// Footprints are the pixels of the filtered image above this many of
+    /// its noise σ (SExtractor's DETECT_THRESH; 2). Raise it with the S/N
+    /// of a deep run to keep its isophotes where a shallow run's are
+    /// (docs/ksb.md, step 2).
+    #[arg(long, value_name = "SIGMA", default_value_t = 2.0, value_parser = detect_sigma_arg)]
+    detect_thresh: f64,
+    /// A source's filtered peak must reach this many noise σ (5).
+    #[arg(long, value_name = "SIGMA", default_value_t = 5.0, value_parser = detect_sigma_arg)]
+    detect_peak_sn: f64,
     /// Also write a details table: the submission's rows in its order, each
     /// followed by r_g, ν, the magnitude, P^γ, the calibration's k, e_cor
     /// and σ_γ, then metacal's five versions' e and which pass the cuts
@@ -105,6 +114,20 @@ pub struct Args {
     /// byte-identical to an unsharded measure (refused when one is missing).
     #[arg(long)]
     finish: bool,
+}
+
+/// The largest detection threshold in noise σ: beyond it a 4096² image of
+/// sky at 10⁶ s has no source left to find.
+const MAX_DETECT_SIGMA: f64 = 1e6;
+
+/// Parses `--detect-thresh` and `--detect-peak-sn`: a number of noise σ,
+/// above 0 and at most [`MAX_DETECT_SIGMA`] (a usage error, exit 2, otherwise).
+fn detect_sigma_arg(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(k) if k > 0.0 && k <= MAX_DETECT_SIGMA => Ok(k),
+        Ok(k) => Err(format!("{k} is not in (0, {MAX_DETECT_SIGMA}] noise σ")),
+        Err(e) => Err(format!("not a number of noise σ: {e}")),
+    }
 }
 
 /// Measures every image of the run and writes the submission.
@@ -131,8 +154,18 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             SizeCutArg::Windowed => SizeCut::Windowed,
             SizeCutArg::PsfCorrected => SizeCut::PsfCorrected,
         },
+        detect_thresh: args.detect_thresh,
+        detect_peak_sn: args.detect_peak_sn,
         ..KsbParams::default()
     };
+    if args.detect_peak_sn < args.detect_thresh {
+        anyhow::bail!(
+            "--detect-peak-sn {} is below --detect-thresh {}: a peak must lie inside its \
+             footprint",
+            args.detect_peak_sn,
+            args.detect_thresh
+        );
+    }
     let threads = super::threads(args.threads);
     if !args.finish {
         file_not_directory("--out", &args.out)?;
