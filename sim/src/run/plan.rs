@@ -418,6 +418,7 @@ impl Plan {
             placement: self.placement_area(),
             lensing_centre: self.lensing_centre(),
             lens_positions: self.lens_positions(),
+            rotate_positions: self.config.population.rotate_positions,
             pixel_scale_arcsec: self.pixel_scale_arcsec(),
             shears: self.datasets.iter().map(|d| (d.g1, d.g2)).collect(),
             lists: self.lists.clone(),

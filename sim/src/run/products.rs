@@ -174,7 +174,7 @@ pub fn write_catalog(plan: &Plan, out: &Path) -> Result<CatalogCounts, ProductEr
         counts.galaxies += rows.iter().filter(|r| !r.is_star()).count();
         write_field(plan, out, field, false, &rows, &t_types)?;
         if plan.rotated_pairs() {
-            let twin = population::rotated(&rows);
+            let twin = population::twin(&plan.population(), &rows);
             write_field(plan, out, field, true, &twin, &t_types)?;
         }
     }

@@ -86,6 +86,13 @@ pub fn galaxy_placement_area(spec: &PopulationSpec) -> Placement {
         hx = hx.max(a[0][0].abs() * hx0 + a[0][1].abs() * hy0);
         hy = hy.max(a[1][0].abs() * hx0 + a[1][1].abs() * hy0);
     }
+    if spec.rotate_positions {
+        // The twin turns this area by 90° about the centre: a square keeps
+        // it covering the image for every shear of the run (the turned
+        // area of shear g is that of −g, whose box is this one's transposed).
+        hx = hx.max(hy);
+        hy = hx;
+    }
     let s = spec.pixel_scale_arcsec / 60.0;
     Placement {
         area_arcmin2: 4.0 * hx * hy * s * s,
@@ -581,6 +588,35 @@ pub fn sheared(rows: &[TruthRow], g1: f64, g2: f64) -> Vec<TruthRow> {
             r.g1 = g1;
             r.g2 = g2;
             fill_ellipticities(&mut r);
+            r
+        })
+        .collect()
+}
+
+/// The rotated twin of a base field as `spec` asks for it: [`rotated`],
+/// and with `rotate_positions` every object's position turned by 90° about
+/// [`PopulationSpec::lensing_centre`] as well ([`turned_positions`]).
+pub fn twin(spec: &PopulationSpec, rows: &[TruthRow]) -> Vec<TruthRow> {
+    let twin = rotated(rows);
+    if spec.rotate_positions {
+        turned_positions(spec, &twin)
+    } else {
+        twin
+    }
+}
+
+/// Every object of `rows` (galaxies and stars) moved by a 90° turn about
+/// [`PopulationSpec::lensing_centre`] (c), in the sense of the position
+/// angles (from +x towards +y): (x, y) → (c_x − (y − c_y), c_y + (x − c_x)),
+/// sky coordinates recomputed from the images' WCS. On a square image
+/// c_x = c_y and pixel centres go to pixel centres exactly.
+pub fn turned_positions(spec: &PopulationSpec, rows: &[TruthRow]) -> Vec<TruthRow> {
+    let (cx, cy) = spec.lensing_centre;
+    rows.iter()
+        .map(|r| {
+            let mut r = *r;
+            (r.x, r.y) = (cx - (r.y - cy), cy + (r.x - cx));
+            (r.ra_deg, r.dec_deg) = spec.wcs.pixel_to_sky(r.x, r.y);
             r
         })
         .collect()

@@ -40,6 +40,9 @@ pub struct PopulationSpec {
     pub lensing_centre: (f64, f64),
     /// Whether galaxy positions are lensed by the dataset's shear.
     pub lens_positions: bool,
+    /// Whether the rotated twin turns the positions too, about
+    /// `lensing_centre` ([`crate::model::population::twin`]).
+    pub rotate_positions: bool,
     /// Image pixel scale (arcsec).
     pub pixel_scale_arcsec: f64,
     /// Every dataset's shear (g1, g2): lensed positions must cover the image

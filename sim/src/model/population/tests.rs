@@ -312,6 +312,76 @@ fn rotated_twin_cancels_intrinsic_shapes() {
     }
 }
 
+/// Σ over the galaxies within 20 px of each galaxy of flux × e^{2iφ}, φ
+/// the direction from the galaxy to the neighbour: a spin-2 quantity of
+/// the scene that turns with the positions, not with the shapes.
+fn neighbour_directions(rows: &[TruthRow]) -> Vec<Complex64> {
+    let g = galaxies_of(rows);
+    g.iter()
+        .map(|a| {
+            g.iter()
+                .filter(|b| b.id != a.id && (b.x - a.x).hypot(b.y - a.y) < 20.0)
+                .map(|b| {
+                    let phi = (b.y - a.y).atan2(b.x - a.x);
+                    b.flux_e * Complex64::from_polar(1.0, 2.0 * phi)
+                })
+                .sum()
+        })
+        .collect()
+}
+
+#[test]
+fn the_turned_twin_changes_the_sign_of_shapes_and_of_neighbour_directions() {
+    let common = [
+        "image.width_px=600",
+        "image.height_px=600",
+        "population.rotated_pairs=true",
+        "population.lens_positions=true",
+        "shears=[{\"g1\":0.04,\"g2\":-0.02}]",
+    ];
+    let turned = plan_with(&[&common[..], &["population.rotate_positions=true"]].concat());
+    let spec = turned.population();
+    let base = base_field(&spec, 0).unwrap();
+    let tw = twin(&spec, &base);
+    let (cx, cy) = spec.lensing_centre;
+    assert_eq!((cx, cy), (300.5, 300.5));
+    for (b, t) in base.iter().zip(&tw) {
+        assert_eq!((b.id, b.flux_e, b.kind), (t.id, t.flux_e, t.kind));
+        // (x, y) → (c − (y − c), c + (x − c)), stars too.
+        assert_eq!((t.x, t.y), (cx - (b.y - cy), cy + (b.x - cx)));
+        assert_eq!((t.ra_deg, t.dec_deg), spec.wcs.pixel_to_sky(t.x, t.y));
+        if !b.is_star() {
+            assert!((b.e1_int + t.e1_int).abs() < 1e-12 && (b.e2_int + t.e2_int).abs() < 1e-12);
+        }
+    }
+    // The directions to the neighbours change sign with the shapes (a 180°
+    // turn, or none, would keep them).
+    let (nb, nt) = (neighbour_directions(&base), neighbour_directions(&tw));
+    let scale: f64 = nb.iter().map(|z| z.norm()).sum();
+    assert!(scale > 0.0 && nb.iter().filter(|z| z.norm() > 0.0).count() > 100);
+    for (a, b) in nb.iter().zip(&nt) {
+        assert!((a + b).norm() < 1e-9 * scale, "{a} {b}");
+    }
+    // Four turns are the identity.
+    let back = (0..3).fold(tw.clone(), |r, _| turned_positions(&spec, &r));
+    for (a, b) in base.iter().zip(&back) {
+        assert!((a.x - b.x).abs() < 1e-9 && (a.y - b.y).abs() < 1e-9);
+    }
+    // The source area is square, so that the turned twin covers the image
+    // for the run's shears as the field does.
+    let area = galaxy_placement_area(&spec);
+    assert_eq!(
+        area.x_px.1 - area.x_px.0,
+        area.y_px.1 - area.y_px.0,
+        "{area:?}"
+    );
+    // Without the option the twin is `rotated`, positions kept.
+    let kept = plan_with(&common).population();
+    assert_eq!(twin(&kept, &base), rotated(&base));
+    let plain = galaxy_placement_area(&kept);
+    assert!(plain.x_px.1 - plain.x_px.0 != plain.y_px.1 - plain.y_px.0);
+}
+
 #[test]
 fn whole_galaxy_moments_are_flux_weighted_sums() {
     // A pure disk of h = 1″ at β = 0.5, θ = 0: σ² = 3, Q = diag(3, 0.75).

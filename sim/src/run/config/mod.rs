@@ -454,6 +454,26 @@ impl RawConfig {
         image::validate_instrument(&self.instrument)?;
         image::validate_telescope(&self.telescope)?;
         self.population.validate()?;
+        if self.population.rotate_positions {
+            if !self.population.rotated_pairs {
+                return Err(Invalid::new(
+                    "population.rotate_positions".into(),
+                    "turns the rotated twin's positions, so it needs \
+                     population.rotated_pairs = true"
+                        .into(),
+                ));
+            }
+            if self.image.width_px != self.image.height_px {
+                return Err(Invalid::new(
+                    "population.rotate_positions".into(),
+                    format!(
+                        "a 90° turn maps the image onto itself only when it is square, \
+                         got {} × {} pixels",
+                        self.image.width_px, self.image.height_px
+                    ),
+                ));
+            }
+        }
         self.render.validate()?;
         self.output.validate()?;
         self.challenge.validate(self.image.n_images)?;
@@ -616,6 +636,43 @@ mod tests {
         assert_eq!(short_number(1e-9), "1e-9");
         assert_eq!(short_number(-0.5), "-0.5");
         assert_eq!(short_number(f64::NAN), "NaN");
+    }
+
+    #[test]
+    fn rotate_positions_needs_twins_and_a_square_image_and_is_written_only_when_on() {
+        let with = |o: &[&str]| {
+            let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
+            RawConfig::parse("{}", Path::new("t.json"), &o)
+                .and_then(|raw| raw.validate(Path::new("t.json")).map(|()| raw))
+        };
+        let err = with(&["population.rotate_positions=true"])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("population.rotate_positions") && err.contains("rotated_pairs"),
+            "{err}"
+        );
+        let err = with(&[
+            "population.rotate_positions=true",
+            "population.rotated_pairs=true",
+            "image.height_px=4000",
+        ])
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("square") && err.contains("4096 × 4000"),
+            "{err}"
+        );
+        let on = with(&[
+            "population.rotate_positions=true",
+            "population.rotated_pairs=true",
+        ])
+        .unwrap();
+        assert!(on.to_json().contains("\"rotate_positions\": true"));
+        assert_eq!(parse(&on.to_json()).unwrap(), on);
+        // Off, the key is not written: older configs keep their bytes.
+        let off = with(&["population.rotated_pairs=true"]).unwrap();
+        assert!(!off.to_json().contains("rotate_positions"));
     }
 
     #[test]

@@ -28,6 +28,20 @@ pub struct RawPopulation {
     /// the shear matrix A of the profiles; stars stay put). Off by default
     /// and in the STEP1 presets: STEP1 sheared shapes only (κ = 0).
     pub lens_positions: bool,
+    /// Beyond STEP2/GREAT3: with `rotated_pairs`, the twin is the whole
+    /// field turned by 90° about the image centre, the positions of galaxies
+    /// and stars as well as the galaxies' position angles, so that every
+    /// spin-2 quantity of the field (shapes, and the directions from a galaxy
+    /// to its neighbours) changes sign in the twin. Needs a square image.
+    /// Left out of the resolved config when off, so that configs without it
+    /// keep their bytes.
+    #[serde(skip_serializing_if = "is_false")]
+    pub rotate_positions: bool,
+}
+
+/// For `skip_serializing_if`: an option that is off is not written.
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// Where the objects of the base fields come from.

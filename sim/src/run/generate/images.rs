@@ -171,7 +171,8 @@ impl<'a> FieldPopulations<'a> {
     fn draw(&self, field: u32, twin: bool, cell: &PopulationCell) -> Result<(), GenerateError> {
         match crate::model::population::base_field(&self.plan.population(), field) {
             Ok(base) => {
-                let twin = twin.then(|| crate::model::population::rotated(&base));
+                let twin =
+                    twin.then(|| crate::model::population::twin(&self.plan.population(), &base));
                 let _ = cell.set(Some(Arc::new(Population { base, twin })));
                 Ok(())
             }

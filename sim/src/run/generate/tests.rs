@@ -242,6 +242,55 @@ fn noise_free_image_is_model_plus_sky_and_model_is_verified() {
 }
 
 #[test]
+fn the_turned_twin_at_minus_g_is_the_field_at_g_turned() {
+    // With `rotate_positions` the twin is the field turned by 90°: drawn
+    // with shear −g it is the field drawn with +g, turned ((x, y) →
+    // (W + 1 − y, x) in FITS pixels), up to the drawing's rounding.
+    let p = plan(&[
+        "image.width_px=128",
+        "image.height_px=128",
+        "population.rotated_pairs=true",
+        "population.rotate_positions=true",
+        "population.lens_positions=true",
+        "shears=[{\"g1\":0.04,\"g2\":-0.02},{\"g1\":-0.04,\"g2\":0.02}]",
+    ]);
+    let key = blinding_key(&p);
+    let all = jobs(&p, &key).unwrap();
+    let job = |dataset: u32, rotated: bool| {
+        all.iter()
+            .find(|j| j.field == 0 && j.rotated == rotated && j.dataset == dataset)
+            .unwrap()
+    };
+    // Datasets 0 and 1: PSF a (round) with +g and −g.
+    let pop = p.population();
+    let base = crate::model::population::base_field(&pop, 0).unwrap();
+    let turned = crate::model::population::twin(&pop, &base);
+    let r = p.renderer(0).unwrap();
+    let draw =
+        |rows: &[stepsim_contract::truth::TruthRow]| try_draw_image(&r, rows, 128, 128).unwrap();
+    let field = draw(&pipeline::dataset_rows(&p, job(0, false), &base));
+    let twin = draw(&pipeline::dataset_rows(&p, job(1, true), &turned));
+    let peak = field.iter().fold(0f32, |m, &v| m.max(v));
+    assert!(peak > 0.0);
+    let w = 128;
+    let mut worst = 0f32;
+    for y in 0..w {
+        for x in 0..w {
+            // 0-based: field (x, y) lands at (w − 1 − y, x).
+            let d = (field[y * w + x] - twin[x * w + (w - 1 - y)]).abs();
+            worst = worst.max(d);
+        }
+    }
+    assert!(worst < 1e-4 * peak, "{worst} of {peak}");
+    // Not the same image unturned.
+    let unturned = field
+        .iter()
+        .zip(&twin)
+        .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(unturned > 0.1 * peak);
+}
+
+#[test]
 fn an_image_is_its_field_sheared_drawn_and_noised_with_its_own_key() {
     // Rebuild one image of the run by hand from the documented recipe and
     // compare bytes: base field k (rotated twin), the dataset's shear and
