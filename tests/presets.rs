@@ -83,3 +83,20 @@ fn mini_has_the_same_datasets_on_small_images() {
         (1024, 1024, 2)
     );
 }
+
+#[test]
+fn deep_lensed_is_the_benchmark_design_of_docs_metacal() {
+    // docs/metacal.md, "A deep lensed scene whose twins turn the whole
+    // field": its numbers were measured on this config, seed included.
+    let p = load("deep-lensed.json");
+    let im = p.geometry();
+    assert_eq!((im.width_px, im.height_px, p.n_fields()), (4096, 4096, 64));
+    assert_eq!(p.seed(), 2612071);
+    assert!(p.lens_positions() && p.rotated_pairs());
+    assert!(p.population().rotate_positions);
+    let g: Vec<(f64, f64)> = p.shears().iter().map(|s| (s.g1, s.g2)).collect();
+    assert_eq!(g, [(-0.04, -0.04), (0.04, 0.04)]);
+    assert_eq!(p.n_psfs(), 1);
+    assert_eq!(p.instrument().sky_mag_arcsec2, 24.2);
+    assert_eq!(p.instrument().exposure_s, 1e6);
+}
