@@ -116,8 +116,9 @@ pub struct Args {
     finish: bool,
 }
 
-/// The largest detection threshold in noise σ: beyond it a 4096² image of
-/// sky at 10⁶ s has no source left to find.
+/// The largest detection threshold in noise σ accepted: far beyond any use
+/// (the defaults are 2 and 5; the deep lensed run of docs/metacal.md, at
+/// about 167 times STEP1's S/N, uses 150 and 375).
 const MAX_DETECT_SIGMA: f64 = 1e6;
 
 /// Parses `--detect-thresh` and `--detect-peak-sn`: a number of noise σ,
