@@ -159,22 +159,23 @@ pub struct CatalogCounts {
 /// plus `field_kkk_rot.*` with `population.rotated_pairs`. The population
 /// is checked ([`population::preflight`]) before the first file is written.
 pub fn write_catalog(plan: &Plan, out: &Path) -> Result<CatalogCounts, ProductError> {
-    population::preflight(&plan.population()).map_err(ProductError::Preflight)?;
+    let spec = plan.population();
+    population::preflight(&spec).map_err(ProductError::Preflight)?;
     write_bytes_atomically(&out.join("config.json"), plan.config_json().as_bytes())?;
     let mut counts = CatalogCounts {
         fields: plan.n_fields(),
         galaxies: 0,
         stars: 0,
     };
-    let t_types = population::t_types(&plan.population());
+    let t_types = population::t_types(&spec);
     for field in 0..plan.n_fields() {
-        let rows = population::base_field(&plan.population(), field)
+        let rows = population::base_field(&spec, field)
             .map_err(|source| ProductError::Population { field, source })?;
         counts.stars += rows.iter().filter(|r| r.is_star()).count();
         counts.galaxies += rows.iter().filter(|r| !r.is_star()).count();
         write_field(plan, out, field, false, &rows, &t_types)?;
         if plan.rotated_pairs() {
-            let twin = population::twin(&plan.population(), &rows);
+            let twin = population::twin(&spec, &rows);
             write_field(plan, out, field, true, &twin, &t_types)?;
         }
     }

@@ -169,10 +169,10 @@ impl<'a> FieldPopulations<'a> {
     /// Draws the population of `field` and stores it unless another copy
     /// was stored first. `Err` carries this draw's own error.
     fn draw(&self, field: u32, twin: bool, cell: &PopulationCell) -> Result<(), GenerateError> {
-        match crate::model::population::base_field(&self.plan.population(), field) {
+        let spec = self.plan.population();
+        match crate::model::population::base_field(&spec, field) {
             Ok(base) => {
-                let twin =
-                    twin.then(|| crate::model::population::twin(&self.plan.population(), &base));
+                let twin = twin.then(|| crate::model::population::twin(&spec, &base));
                 let _ = cell.set(Some(Arc::new(Population { base, twin })));
                 Ok(())
             }
