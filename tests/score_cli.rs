@@ -109,6 +109,7 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
             "by_disk_size",
             "by_magnitude",
             "datasets",
+            "isolation_plane",
             "match_radius_arcsec",
             "psfs",
             "run",
@@ -125,6 +126,9 @@ fn score_writes_the_spec_report_and_refuses_to_overwrite_it() {
     );
     assert_eq!(r["submission"], "Team A");
     assert_eq!(r["match_radius_arcsec"], 1.0);
+    // No config.json in the synthetic private directory: positions are the
+    // image's.
+    assert_eq!(r["isolation_plane"], "image");
     let d = &r["datasets"][0];
     for k in [
         "dataset",
@@ -674,6 +678,86 @@ fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
             oldp.display()
         )
     );
+}
+
+#[test]
+fn a_run_with_lensed_positions_classes_isolated_galaxies_in_the_source_plane() {
+    // The same truth and submission scored as a run whose positions are
+    // lensed (private/config.json says so) and as one whose are not. The
+    // submission measures g exactly on the galaxies isolated in the source
+    // plane of their dataset and 0.8 g on the others, so m_isolated is 0
+    // exactly when the harness classes in the source plane; in the image
+    // plane some galaxies change class at g ≠ 0 (neighbours at 12–28 px
+    // about the 15-px radius) and m_isolated is not 0.
+    use stepsim_harness::{Isolation, Plane, isolated};
+    let fx = Fixture::new();
+    let index = fx.run.index();
+    let mut iso = std::collections::HashSet::new();
+    for (info, t) in index.images.iter().zip(&fx.run.truth) {
+        let ds = &fx.run.datasets.datasets[info.dataset];
+        let class = Isolation::standard(
+            fx.run.datasets.pixel_scale_arcsec,
+            Plane::Source {
+                g1: ds.g1,
+                g2: ds.g2,
+            },
+        );
+        for (row, ok) in t.iter().zip(isolated(t, class)) {
+            if ok {
+                iso.insert((info.dataset, row.x.to_bits(), row.y.to_bits()));
+            }
+        }
+    }
+    let ds = fx.run.datasets.datasets.clone();
+    let rows = fx.run.submission(&|t: &TruthRow, d| {
+        let g = (ds[d].g1, ds[d].g2);
+        if t.is_star() {
+            None
+        } else if iso.contains(&(d, t.x.to_bits(), t.y.to_bits())) {
+            Some((g.0, g.1, 1.0))
+        } else {
+            Some((0.8 * g.0, 0.8 * g.1, 1.0))
+        }
+    });
+    let sub = fx.path("sub.txt");
+    std::fs::write(&sub, submission_text(&index, &rows)).unwrap();
+    let report = |out: &str| -> serde_json::Value {
+        let o = fx.score(&sub, out, &[]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let text = std::fs::read_to_string(fx.path(&format!("{out}/report.json"))).unwrap();
+        serde_json::from_str(&text).unwrap()
+    };
+    let image = report("image");
+    let config = fx.path("private/config.json");
+    std::fs::write(&config, r#"{"population": {"lens_positions": true}}"#).unwrap();
+    let source = report("source");
+    assert_eq!(image["isolation_plane"], "image");
+    assert_eq!(source["isolation_plane"], "source");
+    for (pi, ps) in image["psfs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(source["psfs"].as_array().unwrap())
+    {
+        let (mi, ms) = (
+            pi["m_isolated"].as_f64().unwrap(),
+            ps["m_isolated"].as_f64().unwrap(),
+        );
+        assert!(ms.abs() < 1e-12, "source plane: {ms}");
+        assert!(mi.abs() > 1e-4, "image plane: {mi}");
+        // The whole catalogue's m does not depend on the class.
+        assert_eq!(pi["m"], ps["m"]);
+    }
+    // A config.json that does not say true or false is refused by name.
+    std::fs::write(&config, r#"{"population": {"lens_positions": "yes"}}"#).unwrap();
+    let o = fx.score(&sub, "refused", &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("config.json") && e.contains("population.lens_positions is `\"yes\"`"),
+        "{e}"
+    );
+    assert!(!fx.path("refused").exists());
 }
 
 #[test]

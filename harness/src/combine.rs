@@ -127,6 +127,19 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
                 ),
             ));
         }
+        if r.isolation_plane != first.isolation_plane {
+            return Err(refuse(
+                path,
+                format!(
+                    "its isolated galaxies are classed in the {} plane, but {}'s in the {} plane \
+                     (one run lensed its galaxies' positions, the other did not); combine reports \
+                     of runs that place galaxies alike",
+                    r.isolation_plane,
+                    first_path.display(),
+                    first.isolation_plane
+                ),
+            ));
+        }
         if name.is_none() && r.submission != first.submission {
             return Err(refuse(
                 path,
@@ -213,6 +226,7 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         submission: name.map_or_else(|| first.submission.clone(), str::to_owned),
         run,
         match_radius_arcsec: first.match_radius_arcsec,
+        isolation_plane: first.isolation_plane.clone(),
         datasets,
         psfs,
         summary,
@@ -368,6 +382,7 @@ mod tests {
             submission: "ksb".into(),
             run: run.into(),
             match_radius_arcsec: 1.0,
+            isolation_plane: "image".into(),
             datasets: vec![],
             psfs,
             summary,
@@ -526,6 +541,17 @@ mod tests {
             "{e}"
         );
         b.match_radius_arcsec = 1.0;
+        b.isolation_plane = "source".into();
+        let e = msg(combine(
+            &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
+            None,
+        ));
+        assert!(
+            e.starts_with("b.json:")
+                && e.contains("classed in the source plane, but a.json's in the image plane"),
+            "{e}"
+        );
+        b.isolation_plane = "image".into();
         b.submission = "other".into();
         let e = msg(combine(
             &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],

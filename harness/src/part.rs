@@ -59,6 +59,7 @@ pub fn restrict(p: &Prepared, part: Part) -> Result<Prepared, HarnessError> {
         index,
         dir: p.truth.dir.clone(),
         run: format!("{}#{}", p.truth.run, part.name()),
+        lensed_positions: p.truth.lensed_positions,
     };
     Ok(Prepared {
         truth,

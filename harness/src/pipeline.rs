@@ -6,6 +6,7 @@ use crate::error::HarnessError;
 use crate::read::submission::{Submission, read_submission_limited};
 use crate::read::truth_set::{TruthSet, load_truth_set, run_submission_limit};
 use crate::score::bootstrap::{DEFAULT_RESAMPLES, DEFAULT_SEED, bootstrap};
+use crate::score::isolation::{Isolation, Plane};
 use crate::score::metrics::{
     DISK_EDGES_ARCSEC, DatasetMeta, ImageStats, MAG_EDGES, binned_residuals, match_image,
     score_tables,
@@ -142,10 +143,12 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
         .filter(|&i| p.submission.image_len(i) > 0)
         .collect();
     let radius_px = radius_arcsec / p.truth.index.pixel_scale_arcsec;
+    let scale = p.truth.index.pixel_scale_arcsec;
     which
         .par_iter()
         .map(|&i| {
             let info = &p.truth.index.images[i];
+            let plane = isolation_plane(&p.truth, info.dataset);
             let path = p.truth.truth_path(&info.image);
             let truth = crate::read::truth_set::read_scoring_columns(&path)?;
             let rows = p.submission.image_rows(i)?;
@@ -156,10 +159,25 @@ pub fn match_images(p: &Prepared, radius_arcsec: f64) -> Result<Vec<ImageStats>,
                 &truth,
                 radius_px,
                 (p.truth.index.width_px, p.truth.index.height_px),
-                crate::score::isolation::ISOLATION_RADIUS_ARCSEC / p.truth.index.pixel_scale_arcsec,
+                Isolation::standard(scale, plane),
             ))
         })
         .collect()
+}
+
+/// Where dataset `d`'s isolated galaxies are classed: in the source plane
+/// (its shear undone) when the run lensed its galaxies' positions, else in
+/// the image plane (docs/scoring.md, "Isolated galaxies").
+pub fn isolation_plane(truth: &TruthSet, d: usize) -> Plane {
+    let ds = &truth.datasets.datasets[d];
+    if truth.lensed_positions {
+        Plane::Source {
+            g1: ds.g1,
+            g2: ds.g2,
+        }
+    } else {
+        Plane::Image
+    }
 }
 
 /// Stage 3: the metrics, the bootstrap and the report.
@@ -194,6 +212,7 @@ pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> 
         submission: name,
         run: p.truth.run.clone(),
         match_radius_arcsec: opts.match_radius_arcsec,
+        isolation_plane: crate::score::isolation::plane_name(p.truth.lensed_positions).into(),
         datasets: scores.datasets,
         psfs: scores.psfs,
         summary,

@@ -33,7 +33,7 @@ use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
 use stepsim_contract::shear::lens_offset;
-use stepsim_harness::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+use stepsim_harness::{Isolation, Plane, isolated};
 use stepsim_sim::Plan;
 use stepsim_sim::model::population::{base_field, lensed, rotated, sheared};
 use stepsim_sim::model::render::{Accuracy, Renderer, Stamp, draw_image};
@@ -141,8 +141,11 @@ fn measure(plan: &Plan, renderer: &Renderer, field: u32, lens: bool) -> Response
     let stars_too = plan.population().stars.density_per_arcmin2 > 0.0;
     let population = plan.population();
     let base = base_field(&population, field).unwrap();
-    let r_px = ISOLATION_RADIUS_ARCSEC / plan.geometry().pixel_scale_arcsec;
-    let iso = isolated(&base, r_px, ISOLATION_FLUX_FRACTION);
+    // Classed on the unlensed field: the source plane of the lensed views.
+    let iso = isolated(
+        &base,
+        Isolation::standard(plan.geometry().pixel_scale_arcsec, Plane::Image),
+    );
     let twin = rotated(&base);
     // Per galaxy id: (view, χ1 in the image, χ1 alone); view = 2·twin + (g > 0).
     let mut per: std::collections::BTreeMap<i64, Vec<(usize, f64, f64)>> = Default::default();

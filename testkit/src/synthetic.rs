@@ -355,7 +355,10 @@ impl SynthRun {
                     &self.truth[i],
                     r,
                     (self.datasets.width_px, self.datasets.height_px),
-                    stepsim_harness::ISOLATION_RADIUS_ARCSEC / self.datasets.pixel_scale_arcsec,
+                    stepsim_harness::Isolation::standard(
+                        self.datasets.pixel_scale_arcsec,
+                        stepsim_harness::Plane::Image,
+                    ),
                 )
             })
             .collect()

@@ -91,6 +91,11 @@ pub struct TruthSet {
     pub dir: PathBuf,
     /// The run's identity: [`run_identity`] of the `datasets.json` bytes.
     pub run: String,
+    /// True when the run lensed its galaxies' positions
+    /// (`population.lens_positions` in `private/config.json`): the isolated
+    /// galaxies are then classed in the source plane
+    /// ([`crate::score::isolation::Plane`]).
+    pub lensed_positions: bool,
 }
 
 /// The identity of a run: `sha256:` and the SHA-256 of its `datasets.json`
@@ -133,7 +138,41 @@ pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
         index,
         dir: dir.to_path_buf(),
         run: run_identity(&bytes),
+        lensed_positions: lensed_positions(dir)?,
     })
+}
+
+/// The largest `private/config.json` the harness reads (1 MiB; a resolved
+/// config is a few kB).
+pub const MAX_CONFIG_JSON_BYTES: u64 = 1 << 20;
+
+/// Whether the run of private directory `dir` lensed its galaxies'
+/// positions: `population.lens_positions` of `DIR/config.json`, false when
+/// the key is absent (the configs before it) or the directory has no
+/// `config.json` (a truth set assembled by hand: its positions are taken as
+/// the image's). A `config.json` that cannot be read, is not JSON, or holds
+/// a key that is not true or false is refused by name.
+pub fn lensed_positions(dir: &Path) -> Result<bool, HarnessError> {
+    let path = PrivateDir::new(dir).config();
+    match std::fs::symlink_metadata(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        _ => {}
+    }
+    let bytes = crate::read::input::read_regular_file(&path, MAX_CONFIG_JSON_BYTES)
+        .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
+    let config: serde_json::Value = serde_json::from_slice(&bytes)
+        .map_err(|e| HarnessError::truth(&path, format!("not a config.json: {e}")))?;
+    match config
+        .get("population")
+        .and_then(|p| p.get("lens_positions"))
+    {
+        None => Ok(false),
+        Some(serde_json::Value::Bool(b)) => Ok(*b),
+        Some(other) => Err(HarnessError::truth(
+            &path,
+            format!("population.lens_positions is `{other}`, not true or false"),
+        )),
+    }
 }
 
 /// Truth columns the metrics use ([`crate::score::metrics::image_stats`]).
@@ -333,6 +372,38 @@ mod tests {
         }
         let e = read_scoring_columns(&dir.path().join("none.fits")).unwrap_err();
         assert!(e.to_string().contains("none.fits: no such file"), "{e}");
+    }
+
+    #[test]
+    fn lensed_positions_come_from_the_config_and_a_bad_one_is_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(!lensed_positions(dir.path()).unwrap(), "no config.json");
+        let config = PrivateDir::new(dir.path()).config();
+        for (text, want) in [
+            (r#"{"population": {"lens_positions": true}}"#, Ok(true)),
+            (r#"{"population": {"lens_positions": false}}"#, Ok(false)),
+            (r#"{"population": {"rotated_pairs": true}}"#, Ok(false)),
+            (r#"{"image": {}}"#, Ok(false)),
+            (
+                r#"{"population": {"lens_positions": 1}}"#,
+                Err("is `1`, not true or false"),
+            ),
+            ("{\"population\": ", Err("not a config.json")),
+        ] {
+            std::fs::write(&config, text).unwrap();
+            match (lensed_positions(dir.path()), want) {
+                (Ok(got), Ok(w)) => assert_eq!(got, w, "{text}"),
+                (Err(e), Err(w)) => {
+                    let e = e.to_string();
+                    assert!(e.contains("config.json") && e.contains(w), "{e}");
+                }
+                (got, w) => panic!("{text}: {got:?} against {w:?}"),
+            }
+        }
+        std::fs::remove_file(&config).unwrap();
+        std::fs::create_dir(&config).unwrap();
+        let e = lensed_positions(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("config.json"), "{e}");
     }
 
     #[test]

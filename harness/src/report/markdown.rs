@@ -317,6 +317,14 @@ pub fn report_markdown(r: &Report) -> String {
         o,
         "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
     );
+    if r.isolation_plane == crate::score::isolation::plane_name(true) {
+        let _ = writeln!(
+            o,
+            "The run lensed its galaxies' positions: two galaxies' separation is taken in the \
+             source plane (each dataset's shear undone), so the class holds the same galaxies in \
+             every dataset; a galaxy's distance from a star is the image's.\n"
+        );
+    }
     table(
         &mut o,
         &["PSF", "m_isolated", "c1_isolated", "c2_isolated"],
@@ -560,6 +568,17 @@ mod tests {
         assert!(
             without.contains("⟨m_isolated⟩ = -0.0123; σ_c of the isolated galaxies = 0.00234."),
             "{without}"
+        );
+        // A report written before `isolation_plane` reads as the image's,
+        // and says nothing of planes; a lensed run's says where it classed.
+        assert_eq!(r.isolation_plane, "image");
+        assert!(!without.contains("source plane"), "{without}");
+        let mut lensed = r.clone();
+        lensed.isolation_plane = "source".into();
+        assert!(
+            report_markdown(&lensed).contains("separation is taken in the source plane"),
+            "{}",
+            report_markdown(&lensed)
         );
         r.summary.bootstrap = Some(crate::score::report::BootstrapCi {
             n_resamples: 200,

@@ -182,7 +182,7 @@ pub fn intervals(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::score::isolation::{ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, isolated};
+    use crate::score::isolation::{Isolation, Plane, isolated};
     use crate::score::metrics::Scores;
     use crate::synthetic::{SynthSpec, make_run};
     use std::collections::HashSet;
@@ -197,10 +197,10 @@ mod tests {
         spec.shape_noise = noise;
         spec.psfs.truncate(3);
         let run = make_run(&spec);
-        let r_px = ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let class = Isolation::standard(spec.pixel_scale_arcsec, Plane::Image);
         let mut iso = HashSet::new();
         for t in &run.truth {
-            for (row, ok) in t.iter().zip(isolated(t, r_px, ISOLATION_FLUX_FRACTION)) {
+            for (row, ok) in t.iter().zip(isolated(t, class)) {
                 if ok {
                     iso.insert((row.x.to_bits(), row.y.to_bits()));
                 }

@@ -9,7 +9,7 @@
 
 use crate::read::submission::SubRow;
 use crate::score::fit::{PolyFit, fit_poly, mean_and_error, population_std};
-use crate::score::isolation::ISOLATION_FLUX_FRACTION;
+use crate::score::isolation::Isolation;
 use crate::score::matching::match_nearest;
 use crate::score::report::{
     BinReport, Binned, DatasetReport, FitChoice, FitKind, PsfReport, Summary,
@@ -259,8 +259,9 @@ pub fn image_stats(
 /// Matches one image's submitted `rows` to its `truth` table (nearest
 /// truth object within `radius_px`, [`match_nearest`]), reduces them
 /// ([`image_stats`]), sums the rows matched to isolated galaxies (no
-/// neighbour above [`ISOLATION_FLUX_FRACTION`] of the flux within
-/// `isolation_radius_px`, [`crate::score::isolation::isolated`]) and measures the
+/// neighbour above the class's fraction of the flux within its radius,
+/// separations taken in its plane: [`crate::score::isolation::isolated`])
+/// and measures the
 /// chance-match rate of the image (`size_px` = (width, height),
 /// [`chance_matches`]).
 pub fn match_image(
@@ -270,14 +271,13 @@ pub fn match_image(
     truth: &[TruthRow],
     radius_px: f64,
     size_px: (u32, u32),
-    isolation_radius_px: f64,
+    isolation: Isolation,
 ) -> ImageStats {
     let txy: Vec<(f64, f64)> = truth.iter().map(|t| (t.x, t.y)).collect();
     let qxy: Vec<(f64, f64)> = rows.iter().map(|r| (r.x, r.y)).collect();
     let m = match_nearest(&txy, &qxy, radius_px);
     let mut s = image_stats(dataset, field, rows, &m, truth);
-    let iso =
-        crate::score::isolation::isolated(truth, isolation_radius_px, ISOLATION_FLUX_FRACTION);
+    let iso = crate::score::isolation::isolated(truth, isolation);
     for (r, j) in rows.iter().zip(&m) {
         if let Some(j) = *j
             && iso[j]
@@ -1169,15 +1169,14 @@ mod tests {
         // only the former, the paper's m a mixture.
         let spec = crate::synthetic::SynthSpec::small(2);
         let run = crate::synthetic::make_run(&spec);
-        let r_px = crate::score::isolation::ISOLATION_RADIUS_ARCSEC / spec.pixel_scale_arcsec;
+        let class = Isolation::standard(
+            spec.pixel_scale_arcsec,
+            crate::score::isolation::Plane::Image,
+        );
         let mut iso = std::collections::HashSet::new();
         let mut counts = (0, 0);
         for t in &run.truth {
-            for (row, ok) in t.iter().zip(crate::score::isolation::isolated(
-                t,
-                r_px,
-                ISOLATION_FLUX_FRACTION,
-            )) {
+            for (row, ok) in t.iter().zip(crate::score::isolation::isolated(t, class)) {
                 if ok {
                     iso.insert((row.x.to_bits(), row.y.to_bits()));
                     counts.0 += 1;

@@ -22,6 +22,12 @@ pub struct Report {
     pub run: String,
     /// Match radius used.
     pub match_radius_arcsec: f64,
+    /// Where the isolated galaxies' separations were taken: `"image"`, or
+    /// `"source"` for a run whose galaxy positions are lensed (each
+    /// dataset's shear undone; [`crate::score::isolation::Plane`]). Reports
+    /// written before the key read as `"image"`.
+    #[serde(default = "image_plane")]
+    pub isolation_plane: String,
     /// One entry per dataset with at least one submitted image.
     pub datasets: Vec<DatasetReport>,
     /// One entry per PSF.
@@ -35,6 +41,10 @@ pub struct Report {
     /// Things the participant should know (ignored columns, skipped images).
     #[serde(default)]
     pub warnings: Vec<String>,
+}
+
+fn image_plane() -> String {
+    "image".into()
 }
 
 /// Per-dataset numbers (one PSF, one shear).
