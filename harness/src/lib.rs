@@ -58,7 +58,8 @@ pub use read::submission::{
 };
 pub use read::truth_set::{
     ImageIndex, ImageInfo, SCORING_COLUMNS, SUBMISSION_BYTES_PER_IMAGE,
-    SUBMISSION_BYTES_PER_TRUTH_ROW, TruthSet, load_truth_set, run_identity, run_submission_limit,
+    SUBMISSION_BYTES_PER_TRUTH_ROW, TruthSet, lensed_positions, load_truth_set, population_switch,
+    run_identity, run_submission_limit,
 };
 
 // Scoring.

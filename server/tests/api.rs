@@ -589,6 +589,25 @@ async fn init_refuses_a_run_without_held_out_fields_unless_told() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("already holds a challenge"), "{err}");
+    // A run whose twins turn the whole field is a benchmark, not a
+    // challenge: turned, its images pair the datasets of opposite shear.
+    let config = tmp.path().join("run/private/config.json");
+    std::fs::write(&config, r#"{"population": {"rotate_positions": true}}"#).unwrap();
+    let err = common::init(&tmp.path().join("run"), &tmp.path().join("s3"), 4, false)
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("config.json")
+            && err.contains("rotate_positions")
+            && err.contains("opposite shear"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("s3").exists());
+    std::fs::write(&config, r#"{"population": {"rotate_positions": false}}"#).unwrap();
+    common::init(&tmp.path().join("run"), &tmp.path().join("s3"), 4, false)
+        .await
+        .unwrap();
 }
 
 #[tokio::test]

@@ -153,6 +153,13 @@ pub const MAX_CONFIG_JSON_BYTES: u64 = 1 << 20;
 /// the image's). A `config.json` that cannot be read, is not JSON, or holds
 /// a key that is not true or false is refused by name.
 pub fn lensed_positions(dir: &Path) -> Result<bool, HarnessError> {
+    population_switch(dir, "lens_positions")
+}
+
+/// A switch of the run's `population` section (`population.KEY` of
+/// `DIR/config.json`, DIR = `RUN/private`), read as [`lensed_positions`]
+/// reads `lens_positions`: false when absent or without `config.json`.
+pub fn population_switch(dir: &Path, key: &str) -> Result<bool, HarnessError> {
     let path = PrivateDir::new(dir).config();
     match std::fs::symlink_metadata(&path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
@@ -162,15 +169,12 @@ pub fn lensed_positions(dir: &Path) -> Result<bool, HarnessError> {
         .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
     let config: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| HarnessError::truth(&path, format!("not a config.json: {e}")))?;
-    match config
-        .get("population")
-        .and_then(|p| p.get("lens_positions"))
-    {
+    match config.get("population").and_then(|p| p.get(key)) {
         None => Ok(false),
         Some(serde_json::Value::Bool(b)) => Ok(*b),
         Some(other) => Err(HarnessError::truth(
             &path,
-            format!("population.lens_positions is `{other}`, not true or false"),
+            format!("population.{key} is `{other}`, not true or false"),
         )),
     }
 }

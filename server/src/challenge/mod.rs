@@ -133,6 +133,16 @@ impl Challenge {
         let run_dir = RunDir::new(run);
         let truth_dir = run_dir.private().path().to_path_buf();
         let truth = load_truth_set(&truth_dir).map_err(|e| ChallengeError::Run(e.to_string()))?;
+        if stepsim_harness::population_switch(&truth_dir, "rotate_positions")
+            .map_err(|e| ChallengeError::Run(e.to_string()))?
+        {
+            return Err(ChallengeError::Run(format!(
+                "{}: population.rotate_positions is on, a benchmark setting: its turned twin at \
+                 shear +g is the field at −g turned, so turning the public images would pair the \
+                 datasets of opposite shear. Generate the challenge's run without it",
+                run_dir.private().config().display()
+            )));
+        }
         let holdout = has_holdout(&truth.datasets);
         if !holdout && !no_holdout {
             return Err(ChallengeError::Run(format!(

@@ -473,6 +473,15 @@ impl RawConfig {
                     ),
                 ));
             }
+            if self.challenge.holdout_fields > 0 {
+                return Err(Invalid::new(
+                    "population.rotate_positions".into(),
+                    "is a benchmark setting, not one for a challenge (challenge.holdout_fields \
+                     > 0): a turned twin at shear +g is the field at −g turned, so turning the \
+                     public images would pair the datasets of opposite shear"
+                        .into(),
+                ));
+            }
         }
         self.render.validate()?;
         self.output.validate()?;
@@ -639,7 +648,7 @@ mod tests {
     }
 
     #[test]
-    fn rotate_positions_needs_twins_and_a_square_image_and_is_written_only_when_on() {
+    fn rotate_positions_needs_twins_and_a_square_image_no_challenge_and_is_written_only_when_on() {
         let with = |o: &[&str]| {
             let o: Vec<String> = o.iter().map(|s| s.to_string()).collect();
             RawConfig::parse("{}", Path::new("t.json"), &o)
@@ -668,6 +677,16 @@ mod tests {
         .unwrap();
         assert!(on.to_json().contains("\"rotate_positions\": true"));
         assert_eq!(parse(&on.to_json()).unwrap(), on);
+        // Not in a challenge: its turned twins pair opposite shears.
+        refused(
+            &[
+                "population.rotate_positions=true",
+                "population.rotated_pairs=true",
+                "image.n_images=2",
+                "challenge.holdout_fields=1",
+            ],
+            &["population.rotate_positions", "benchmark", "opposite shear"],
+        );
         // Off, the key is not written: older configs keep their bytes.
         let off = with(&["population.rotated_pairs=true"]).unwrap();
         assert!(!off.to_json().contains("rotate_positions"));
