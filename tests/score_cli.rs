@@ -622,6 +622,25 @@ fn the_leaderboard_ranks_one_run_and_one_radius_with_escaped_names() {
         assert_eq!(o.status.code(), Some(1));
         assert_eq!(stderr(&o).trim_end(), format!("stepsim: error: {want}"));
     }
+    // Isolated galaxies classed in another plane (a lensed run scored
+    // before and after the source plane), and a plane that is neither.
+    let mut lensed: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&b).unwrap()).unwrap();
+    lensed["isolation_plane"] = "source".into();
+    let lensed_path = fx.path("lensed.json");
+    std::fs::write(&lensed_path, lensed.to_string()).unwrap();
+    let o = stepsim(&[&"leaderboard", &a, &lensed_path]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("classes its isolated galaxies in the source plane"),
+        "{}",
+        stderr(&o)
+    );
+    lensed["isolation_plane"] = "sideways".into();
+    std::fs::write(&lensed_path, lensed.to_string()).unwrap();
+    let o = stepsim(&[&"leaderboard", &a, &lensed_path]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("lensed.json"), "{}", stderr(&o));
     // Another run (other shears, so another datasets.json).
     let other = tempfile::tempdir().unwrap();
     let mut spec = SynthSpec::small(2);
@@ -754,7 +773,9 @@ fn a_run_with_lensed_positions_classes_isolated_galaxies_in_the_source_plane() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     let e = stderr(&o);
     assert!(
-        e.contains("config.json") && e.contains("population.lens_positions is `\"yes\"`"),
+        e.contains("config.json")
+            && e.contains("population.lens_positions is a string, not true or false")
+            && !e.contains("yes"),
         "{e}"
     );
     assert!(!fx.path("refused").exists());

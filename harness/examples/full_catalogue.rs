@@ -126,6 +126,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         private.join("datasets.json"),
         serde_json::to_string_pretty(&ds)?,
     )?;
+    std::fs::write(private.join("config.json"), "{}\n")?;
     let cat = std::fs::File::create(out.join("catalogue.txt"))?;
     let mut cat = std::io::BufWriter::with_capacity(1 << 20, cat);
     writeln!(cat, "# image x y e1 e2 weight flags")?;

@@ -134,9 +134,9 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
                     "its isolated galaxies are classed in the {} plane, but {}'s in the {} plane \
                      (one run lensed its galaxies' positions, the other did not); combine reports \
                      of runs that place galaxies alike",
-                    r.isolation_plane,
+                    r.isolation_plane.name(),
                     first_path.display(),
-                    first.isolation_plane
+                    first.isolation_plane.name()
                 ),
             ));
         }
@@ -226,7 +226,7 @@ pub fn combine(reports: &[(PathBuf, Report)], name: Option<&str>) -> Result<Repo
         submission: name.map_or_else(|| first.submission.clone(), str::to_owned),
         run,
         match_radius_arcsec: first.match_radius_arcsec,
-        isolation_plane: first.isolation_plane.clone(),
+        isolation_plane: first.isolation_plane,
         datasets,
         psfs,
         summary,
@@ -382,7 +382,7 @@ mod tests {
             submission: "ksb".into(),
             run: run.into(),
             match_radius_arcsec: 1.0,
-            isolation_plane: "image".into(),
+            isolation_plane: crate::score::isolation::IsolationPlane::Image,
             datasets: vec![],
             psfs,
             summary,
@@ -541,7 +541,7 @@ mod tests {
             "{e}"
         );
         b.match_radius_arcsec = 1.0;
-        b.isolation_plane = "source".into();
+        b.isolation_plane = crate::score::isolation::IsolationPlane::Source;
         let e = msg(combine(
             &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],
             None,
@@ -551,7 +551,7 @@ mod tests {
                 && e.contains("classed in the source plane, but a.json's in the image plane"),
             "{e}"
         );
-        b.isolation_plane = "image".into();
+        b.isolation_plane = crate::score::isolation::IsolationPlane::Image;
         b.submission = "other".into();
         let e = msg(combine(
             &[("a.json".into(), a.clone()), ("b.json".into(), b.clone())],

@@ -68,7 +68,8 @@ pub use score::bootstrap::{
 };
 pub use score::fit::{PolyFit, fit_line_closed_form};
 pub use score::isolation::{
-    ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, Isolation, Plane, isolated, isolated_slow,
+    ISOLATION_FLUX_FRACTION, ISOLATION_RADIUS_ARCSEC, Isolation, IsolationPlane, Plane, isolated,
+    isolated_slow,
 };
 pub use score::matching::{Matches, match_nearest, match_nearest_slow};
 pub use score::metrics::{

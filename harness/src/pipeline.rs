@@ -212,7 +212,7 @@ pub fn build_report(p: &Prepared, stats: &[ImageStats], opts: &ScoreOptions) -> 
         submission: name,
         run: p.truth.run.clone(),
         match_radius_arcsec: opts.match_radius_arcsec,
-        isolation_plane: crate::score::isolation::plane_name(p.truth.lensed_positions).into(),
+        isolation_plane: crate::score::isolation::IsolationPlane::of_run(p.truth.lensed_positions),
         datasets: scores.datasets,
         psfs: scores.psfs,
         summary,

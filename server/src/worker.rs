@@ -30,6 +30,19 @@ pub fn participant_message(message: &str, upload: &Path, truth_dir: &Path) -> St
     )
 }
 
+/// True when the harness's error is the organisers' (the run's private
+/// files: `datasets.json`, `config.json`), not the upload's: a participant
+/// is then neither charged for it nor shown it.
+pub fn organisers_fault(e: &stepsim_harness::HarnessError) -> bool {
+    matches!(e, stepsim_harness::HarnessError::Truth { .. })
+}
+
+/// The message a participant sees for a fault of the organisers' side
+/// (fixed: it depends on nothing private).
+pub const ORGANISERS_FAULT: &str = "the server could not read its run to score this entry (the \
+     organisers' side, not the upload; they are told): it can be scored again with `challenge \
+     rescore`";
+
 /// The harness's advice to pass `--allow-missing-images` (a flag of
 /// `stepsim score`) as a participant of the server can act on it: the
 /// server takes no flags and scores complete catalogues only. The rest of
@@ -101,8 +114,14 @@ pub fn score_upload_unless(
     let truth = &settings.truth_dir;
     let mut opts = upload_options(settings, &upload);
     opts.name = Some(format!("entry {}", sub.id));
-    let msg =
-        |e: stepsim_harness::HarnessError| participant_message(&e.to_string(), &upload, truth);
+    let msg = |e: stepsim_harness::HarnessError| {
+        if organisers_fault(&e) {
+            tracing::error!(entry = sub.id, error = %e, "the run cannot be read");
+            ORGANISERS_FAULT.to_string()
+        } else {
+            participant_message(&e.to_string(), &upload, truth)
+        }
+    };
     // The upload is read and checked once; both parts are scored from it.
     let prepared = prepare(&opts).map_err(msg)?;
     let public = score_prepared_part(&prepared, Part::Public, &opts).map_err(msg)?;

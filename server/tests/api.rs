@@ -303,6 +303,38 @@ async fn duplicates_are_recognised() {
 }
 
 #[tokio::test]
+async fn a_run_that_cannot_be_read_is_not_the_uploads_fault() {
+    // The run's config.json broken after init (the organisers' side): an
+    // upload is answered 503, not counted as a refusal, shown nothing of
+    // the private file; mended, the same upload is taken.
+    let f = fixture(4, &["alpha"]).await;
+    f.set("format_failure_cap", "1").await;
+    let app = f.app().await;
+    let good = catalogue(&f.all, 0.0);
+    let config = f.truth.join("config.json");
+    let kept = std::fs::read(&config).unwrap();
+    std::fs::write(
+        &config,
+        r#"{"population": {"lens_positions": "private words"}}"#,
+    )
+    .unwrap();
+    for _ in 0..3 {
+        let (s, _, body) = call(&app, upload(&f.tokens[0], good.clone())).await;
+        assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE, "{body}");
+        let msg = json(&body)["error"].as_str().unwrap().to_owned();
+        assert!(msg.contains("not counted"), "{msg}");
+        assert!(
+            !msg.contains("private words") && !msg.contains("config.json"),
+            "{msg}"
+        );
+    }
+    assert!(files_in(&f.state.join("uploads")).is_empty());
+    std::fs::write(&config, kept).unwrap();
+    let (s, _, body) = call(&app, upload(&f.tokens[0], good)).await;
+    assert_eq!(s, StatusCode::ACCEPTED, "past a cap of 1 refusal: {body}");
+}
+
+#[tokio::test]
 async fn bad_uploads_get_the_harness_message_and_change_nothing() {
     let f = fixture(4, &["alpha", "beta"]).await;
     f.set("format_failure_cap", "5").await;

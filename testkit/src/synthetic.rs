@@ -297,12 +297,17 @@ impl SynthRun {
             .expect("unique synthetic ids")
     }
 
-    /// Writes `dir/datasets.json` and `dir/truth/<image>.fits` (dir =
-    /// `RUN/private`).
+    /// Writes `dir/datasets.json`, a `dir/config.json` of unlensed positions
+    /// and `dir/truth/<image>.fits` (dir = `RUN/private`).
     pub fn write(&self, dir: &Path) -> Result<(), HarnessError> {
         let json = serde_json::to_string_pretty(&self.datasets).unwrap_or_default();
         let private = PrivateDir::new(dir);
         stepsim_contract::io::write_bytes_atomically(&private.datasets(), json.as_bytes())?;
+        // The run's config as the harness reads it: positions not lensed.
+        stepsim_contract::io::write_bytes_atomically(
+            &private.config(),
+            b"{\"population\": {\"lens_positions\": false}}\n",
+        )?;
         let index = self.index();
         for (info, rows) in index.images.iter().zip(&self.truth) {
             let path = private.truth(&info.image);

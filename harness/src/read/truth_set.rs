@@ -133,48 +133,87 @@ pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
         ));
     }
     let index = ImageIndex::new(&datasets, &path)?;
+    let lensed_positions = lensed_positions(dir)?;
+    if lensed_positions {
+        // The source plane undoes each dataset's shear: it must be a shear.
+        if let Some(d) = datasets
+            .datasets
+            .iter()
+            .find(|d| d.g1.hypot(d.g2) >= 1.0 || d.g1.hypot(d.g2).is_nan())
+        {
+            return Err(HarnessError::truth(
+                &path,
+                format!(
+                    "dataset `{}` has shear ({}, {}), whose modulus is not below 1",
+                    d.dataset, d.g1, d.g2
+                ),
+            ));
+        }
+    }
     Ok(TruthSet {
         datasets,
         index,
         dir: dir.to_path_buf(),
         run: run_identity(&bytes),
-        lensed_positions: lensed_positions(dir)?,
+        lensed_positions,
     })
 }
 
-/// The largest `private/config.json` the harness reads (1 MiB; a resolved
-/// config is a few kB).
-pub const MAX_CONFIG_JSON_BYTES: u64 = 1 << 20;
+/// The largest `private/config.json` the harness reads (64 MiB, as
+/// `datasets.json`; a resolved config is a few kB).
+pub const MAX_CONFIG_JSON_BYTES: u64 = crate::read::input::MAX_DATASETS_JSON_BYTES;
 
 /// Whether the run of private directory `dir` lensed its galaxies'
-/// positions: `population.lens_positions` of `DIR/config.json`, false when
-/// the key is absent (the configs before it) or the directory has no
-/// `config.json` (a truth set assembled by hand: its positions are taken as
-/// the image's). A `config.json` that cannot be read, is not JSON, or holds
-/// a key that is not true or false is refused by name.
+/// positions: `population.lens_positions` of `DIR/config.json` (the run's
+/// resolved config), false when the key is absent (the configs before it).
+/// A missing `config.json`, one that cannot be read or is not a JSON
+/// object, a `population` that is not an object, or a key that is not true
+/// or false is refused by name: scoring a lensed run as an unlensed one
+/// would class its isolated galaxies in the wrong plane without a word.
 pub fn lensed_positions(dir: &Path) -> Result<bool, HarnessError> {
     population_switch(dir, "lens_positions")
 }
 
 /// A switch of the run's `population` section (`population.KEY` of
-/// `DIR/config.json`, DIR = `RUN/private`), read as [`lensed_positions`]
-/// reads `lens_positions`: false when absent or without `config.json`.
+/// `DIR/config.json`, DIR = `RUN/private`), read and refused as
+/// [`lensed_positions`] reads `lens_positions`. Messages name the JSON
+/// type of a wrong value, never the value.
 pub fn population_switch(dir: &Path, key: &str) -> Result<bool, HarnessError> {
     let path = PrivateDir::new(dir).config();
-    match std::fs::symlink_metadata(&path) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
-        _ => {}
-    }
     let bytes = crate::read::input::read_regular_file(&path, MAX_CONFIG_JSON_BYTES)
-        .map_err(|e| HarnessError::truth(&path, e.to_string()))?;
+        .map_err(|e| HarnessError::truth(&path, format!("cannot read the run's config: {e}")))?;
     let config: serde_json::Value = serde_json::from_slice(&bytes)
         .map_err(|e| HarnessError::truth(&path, format!("not a config.json: {e}")))?;
-    match config.get("population").and_then(|p| p.get(key)) {
+    let type_of = |v: &serde_json::Value| match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    };
+    let Some(config) = config.as_object() else {
+        return Err(HarnessError::truth(
+            &path,
+            format!("not a config.json: {}, not an object", type_of(&config)),
+        ));
+    };
+    let population = match config.get("population") {
+        None => return Ok(false),
+        Some(serde_json::Value::Object(p)) => p,
+        Some(other) => {
+            return Err(HarnessError::truth(
+                &path,
+                format!("population is {}, not an object", type_of(other)),
+            ));
+        }
+    };
+    match population.get(key) {
         None => Ok(false),
         Some(serde_json::Value::Bool(b)) => Ok(*b),
         Some(other) => Err(HarnessError::truth(
             &path,
-            format!("population.{key} is `{other}`, not true or false"),
+            format!("population.{key} is {}, not true or false", type_of(other)),
         )),
     }
 }
@@ -381,7 +420,11 @@ mod tests {
     #[test]
     fn lensed_positions_come_from_the_config_and_a_bad_one_is_refused_by_name() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(!lensed_positions(dir.path()).unwrap(), "no config.json");
+        let e = lensed_positions(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("config.json") && e.contains("cannot read"),
+            "{e}"
+        );
         let config = PrivateDir::new(dir.path()).config();
         for (text, want) in [
             (r#"{"population": {"lens_positions": true}}"#, Ok(true)),
@@ -389,9 +432,16 @@ mod tests {
             (r#"{"population": {"rotated_pairs": true}}"#, Ok(false)),
             (r#"{"image": {}}"#, Ok(false)),
             (
-                r#"{"population": {"lens_positions": 1}}"#,
-                Err("is `1`, not true or false"),
+                r#"{"population": {"lens_positions": "secret"}}"#,
+                Err("population.lens_positions is a string, not true or false"),
             ),
+            (
+                r#"{"population": 5}"#,
+                Err("population is a number, not an object"),
+            ),
+            ("[]", Err("an array, not an object")),
+            (r#""x""#, Err("a string, not an object")),
+            ("null", Err("null, not an object")),
             ("{\"population\": ", Err("not a config.json")),
         ] {
             std::fs::write(&config, text).unwrap();
@@ -400,6 +450,7 @@ mod tests {
                 (Err(e), Err(w)) => {
                     let e = e.to_string();
                     assert!(e.contains("config.json") && e.contains(w), "{e}");
+                    assert!(!e.contains("secret"), "the value is not echoed: {e}");
                 }
                 (got, w) => panic!("{text}: {got:?} against {w:?}"),
             }
@@ -452,6 +503,22 @@ mod tests {
             let e = load_truth_set(dir.path()).unwrap_err().to_string();
             assert!(e.contains("datasets.json") && e.contains(want), "{e}");
         }
+        std::fs::write(&p, doc(DATASETS_FORMAT, 0.2, &entry("a"))).unwrap();
+        // Without the run's config.json the plane of the isolated galaxies
+        // is unknown: refused.
+        let e = load_truth_set(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("config.json"), "{e}");
+        let config = PrivateDir::new(dir.path()).config();
+        std::fs::write(&config, r#"{"population": {"lens_positions": true}}"#).unwrap();
+        let t = load_truth_set(dir.path()).unwrap();
+        assert!(t.lensed_positions);
+        // Lensed positions need shears below 1 to be undone.
+        let big = entry("a").replace("\"g1\": 0.0, \"g2\": 0.0", "\"g1\": 0.8, \"g2\": 0.6");
+        std::fs::write(&p, doc(DATASETS_FORMAT, 0.2, &big)).unwrap();
+        let e = load_truth_set(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("dataset `da` has shear (0.8, 0.6)"), "{e}");
+        std::fs::write(&config, "{}").unwrap();
+        assert!(!load_truth_set(dir.path()).unwrap().lensed_positions);
         std::fs::write(&p, doc(DATASETS_FORMAT, 0.2, &entry("a"))).unwrap();
         let t = load_truth_set(dir.path()).unwrap();
         assert_eq!(t.index.images.len(), 1);

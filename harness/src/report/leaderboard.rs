@@ -58,8 +58,9 @@ pub fn read_report(path: &Path) -> Result<Report, HarnessError> {
 }
 
 /// Refuses a set of reports that cannot be ranked together, naming both
-/// files: the same file given twice, reports of different runs (`run`) or
-/// match radii, two reports with the same submission name.
+/// files: the same file given twice, reports of different runs (`run`),
+/// match radii or isolation planes, two reports with the same submission
+/// name.
 pub fn check_comparable(reports: &[(PathBuf, Report)]) -> Result<(), HarnessError> {
     let canonical: Vec<PathBuf> = reports
         .iter()
@@ -88,6 +89,15 @@ pub fn check_comparable(reports: &[(PathBuf, Report)]) -> Result<(), HarnessErro
                      compares one match radius",
                     show_number(rj.match_radius_arcsec),
                     show_number(ri.match_radius_arcsec)
+                )));
+            }
+            if ri.isolation_plane != rj.isolation_plane {
+                return Err(refuse(format!(
+                    "classes its isolated galaxies in the {} plane, {other} in the {} plane \
+                     (scored before and after the harness classed a lensed run's in the source \
+                     plane); score both again with one stepsim",
+                    rj.isolation_plane.name(),
+                    ri.isolation_plane.name()
                 )));
             }
             if ri.submission == rj.submission {

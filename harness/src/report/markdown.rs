@@ -317,7 +317,7 @@ pub fn report_markdown(r: &Report) -> String {
         o,
         "\n## Isolated galaxies (no neighbour above 10 % of the flux within 3″)\n"
     );
-    if r.isolation_plane == crate::score::isolation::plane_name(true) {
+    if r.isolation_plane == crate::score::isolation::IsolationPlane::Source {
         let _ = writeln!(
             o,
             "The run lensed its galaxies' positions: two galaxies' separation is taken in the \
@@ -431,6 +431,7 @@ pub fn report_markdown(r: &Report) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::score::isolation::IsolationPlane;
 
     #[test]
     fn a_table_has_a_header_an_alignment_row_and_one_line_per_row() {
@@ -571,10 +572,10 @@ mod tests {
         );
         // A report written before `isolation_plane` reads as the image's,
         // and says nothing of planes; a lensed run's says where it classed.
-        assert_eq!(r.isolation_plane, "image");
+        assert_eq!(r.isolation_plane, IsolationPlane::Image);
         assert!(!without.contains("source plane"), "{without}");
         let mut lensed = r.clone();
-        lensed.isolation_plane = "source".into();
+        lensed.isolation_plane = IsolationPlane::Source;
         assert!(
             report_markdown(&lensed).contains("separation is taken in the source plane"),
             "{}",

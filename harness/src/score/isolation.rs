@@ -19,6 +19,7 @@
 //! [`isolated`] sweeps the objects sorted by x; [`isolated_slow`] is its
 //! slow, obvious reference.
 
+use serde::{Deserialize, Serialize};
 use stepsim_contract::truth::TruthRow;
 
 /// Default radius within which a neighbour counts (arcsec).
@@ -42,14 +43,9 @@ pub enum Plane {
 }
 
 impl Plane {
-    /// The name `report.json` gives it (`isolation_plane`).
-    pub fn name(&self) -> &'static str {
-        plane_name(matches!(self, Plane::Source { .. }))
-    }
-
-    /// The position (x, y) of a galaxy in this plane (its image position
-    /// for [`Plane::Image`]); only differences of these positions are used,
-    /// so the lensing centre drops out.
+    /// The position (x, y) of a galaxy in this plane, A (x, y) for
+    /// [`Plane::Source`] (the lensing centre drops out of the differences,
+    /// which are all that is used), its image position for [`Plane::Image`].
     fn galaxy_position(&self, x: f64, y: f64) -> (f64, f64) {
         match *self {
             Plane::Image => (x, y),
@@ -61,10 +57,37 @@ impl Plane {
     }
 }
 
-/// The name of the plane of a run whose galaxy positions are lensed
-/// (`"source"`) or not (`"image"`), as `report.json`'s `isolation_plane`.
-pub fn plane_name(lensed_positions: bool) -> &'static str {
-    if lensed_positions { "source" } else { "image" }
+/// Where a report's isolated galaxies were classed (`report.json`'s
+/// `isolation_plane`): `"image"`, or `"source"` for a run whose galaxy
+/// positions are lensed. A report written before the key reads as
+/// `"image"`; any other value is refused when a report is read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum IsolationPlane {
+    /// Separations as the image shows them.
+    #[default]
+    Image,
+    /// Two galaxies' separation with the dataset's shear undone.
+    Source,
+}
+
+impl IsolationPlane {
+    /// The plane of a run whose galaxy positions are lensed or not.
+    pub fn of_run(lensed_positions: bool) -> Self {
+        if lensed_positions {
+            IsolationPlane::Source
+        } else {
+            IsolationPlane::Image
+        }
+    }
+
+    /// Its name in `report.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            IsolationPlane::Image => "image",
+            IsolationPlane::Source => "source",
+        }
+    }
 }
 
 /// The parameters of the class: the radius (pixels), the flux fraction and
@@ -96,15 +119,20 @@ fn flux(mag: f64) -> f64 {
     10f64.powf(-0.4 * mag)
 }
 
-/// Squared distance of `g` and `n` as the class measures it.
+/// Squared distance of `g` and `n` as the class measures it: between two
+/// galaxies, of their positions in the class's plane (each position
+/// mapped, then subtracted, as [`isolated`]'s sweep does, so that the two
+/// agree to the bit at the radius), else of their image positions.
 fn distance2(g: &TruthRow, n: &TruthRow, plane: Plane) -> f64 {
-    let (dx, dy) = (n.x - g.x, n.y - g.y);
-    let (dx, dy) = if g.is_star() || n.is_star() {
-        (dx, dy)
+    let ((gx, gy), (nx, ny)) = if g.is_star() || n.is_star() {
+        ((g.x, g.y), (n.x, n.y))
     } else {
-        plane.galaxy_position(dx, dy)
+        (
+            plane.galaxy_position(g.x, g.y),
+            plane.galaxy_position(n.x, n.y),
+        )
     };
-    dx * dx + dy * dy
+    (nx - gx).powi(2) + (ny - gy).powi(2)
 }
 
 /// Reference: for each row, true when it is a galaxy with no other row
@@ -316,6 +344,44 @@ mod tests {
         for r in [12.2, 13.0] {
             assert_eq!(isolated(&t, source(r)), isolated_slow(&t, source(r)));
         }
+    }
+
+    #[test]
+    fn a_neighbour_exactly_at_the_radius_counts_in_the_source_plane() {
+        // Ties: the radius set to a pair's distance as the class measures
+        // it (where the square root squares back exactly); the sweep and
+        // the reference agree that the neighbour blends.
+        let mut rng = SimRng::seed_from_u64(5);
+        let mut ties = 0;
+        for _ in 0..2000 {
+            let (x, y) = (rng.random_range(0.0..4096.0), rng.random_range(0.0..4096.0));
+            let t = [
+                row(x, y, 22.0, KIND_GALAXY),
+                row(
+                    x + rng.random_range(-9.0..9.0),
+                    y + rng.random_range(-9.0..9.0),
+                    22.5,
+                    KIND_GALAXY,
+                ),
+            ];
+            let plane = Plane::Source {
+                g1: rng.random_range(-0.2..0.2),
+                g2: rng.random_range(-0.2..0.2),
+            };
+            let d2 = distance2(&t[0], &t[1], plane);
+            let class = Isolation {
+                radius_px: d2.sqrt(),
+                fraction: 0.1,
+                plane,
+            };
+            if class.radius_px * class.radius_px != d2 {
+                continue;
+            }
+            ties += 1;
+            assert_eq!(isolated(&t, class), vec![false, false], "{t:?} {class:?}");
+            assert_eq!(isolated_slow(&t, class), vec![false, false]);
+        }
+        assert!(ties > 500, "{ties}");
     }
 
     #[test]

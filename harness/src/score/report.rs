@@ -26,8 +26,8 @@ pub struct Report {
     /// `"source"` for a run whose galaxy positions are lensed (each
     /// dataset's shear undone; [`crate::score::isolation::Plane`]). Reports
     /// written before the key read as `"image"`.
-    #[serde(default = "image_plane")]
-    pub isolation_plane: String,
+    #[serde(default)]
+    pub isolation_plane: crate::score::isolation::IsolationPlane,
     /// One entry per dataset with at least one submitted image.
     pub datasets: Vec<DatasetReport>,
     /// One entry per PSF.
@@ -41,10 +41,6 @@ pub struct Report {
     /// Things the participant should know (ignored columns, skipped images).
     #[serde(default)]
     pub warnings: Vec<String>,
-}
-
-fn image_plane() -> String {
-    "image".into()
 }
 
 /// Per-dataset numbers (one PSF, one shear).

@@ -121,6 +121,7 @@ pub fn pair(fits: &dyn Fn(&[Row]) -> Vec<u8>) -> Pair {
     let (a, b) = (run_a.private(), run_b.private());
     run.write(a.path()).unwrap();
     std::fs::create_dir_all(b.truth_dir()).unwrap();
+    std::fs::copy(a.config(), b.config()).unwrap();
     for e in std::fs::read_dir(a.truth_dir()).unwrap() {
         let e = e.unwrap();
         std::fs::copy(e.path(), b.truth_dir().join(e.file_name())).unwrap();

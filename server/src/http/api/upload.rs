@@ -347,14 +347,33 @@ async fn format_check(
             let _turn = permit;
             let opts = crate::worker::upload_options(&settings, &tmp2);
             stepsim_harness::prepare(&opts).map(drop).map_err(|e| {
-                crate::worker::participant_message(&e.to_string(), &tmp2, &settings.truth_dir)
+                if crate::worker::organisers_fault(&e) {
+                    tracing::error!(error = %e, "the run cannot be read: uploads are not checked");
+                    None
+                } else {
+                    Some(crate::worker::participant_message(
+                        &e.to_string(),
+                        &tmp2,
+                        &settings.truth_dir,
+                    ))
+                }
             })
         })
         .await
         .map_err(ApiError::internal)
     };
     match tokio::time::timeout(l.check_budget, run).await {
-        Ok(r) => r,
+        // The run itself cannot be read: not the upload's fault, so it is
+        // neither counted nor told what is wrong with the private files.
+        Ok(Err(e)) => Err(e),
+        Ok(Ok(Ok(()))) => Ok(Ok(())),
+        Ok(Ok(Err(Some(message)))) => Ok(Err(message)),
+        Ok(Ok(Err(None))) => Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the server cannot check uploads now (its run cannot be read; the organisers are \
+             told); the upload was not kept and not counted against your team"
+                .to_string(),
+        )),
         Err(_) => Err(ApiError {
             reset_s: Some(crate::now_s() + 60),
             ..ApiError::new(
