@@ -136,11 +136,10 @@ pub fn load_truth_set(dir: &Path) -> Result<TruthSet, HarnessError> {
     let lensed_positions = lensed_positions(dir)?;
     if lensed_positions {
         // The source plane undoes each dataset's shear: it must be a shear.
-        if let Some(d) = datasets
-            .datasets
-            .iter()
-            .find(|d| d.g1.hypot(d.g2) >= 1.0 || d.g1.hypot(d.g2).is_nan())
-        {
+        if let Some(d) = datasets.datasets.iter().find(|d| {
+            let g = d.g1.hypot(d.g2);
+            g >= 1.0 || g.is_nan()
+        }) {
             return Err(HarnessError::truth(
                 &path,
                 format!(

@@ -261,9 +261,8 @@ pub fn image_stats(
 /// ([`image_stats`]), sums the rows matched to isolated galaxies (no
 /// neighbour above the class's fraction of the flux within its radius,
 /// separations taken in its plane: [`crate::score::isolation::isolated`])
-/// and measures the
-/// chance-match rate of the image (`size_px` = (width, height),
-/// [`chance_matches`]).
+/// and measures the chance-match rate of the image (`size_px` = (width,
+/// height), [`chance_matches`]).
 pub fn match_image(
     dataset: usize,
     field: u32,
