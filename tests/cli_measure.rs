@@ -154,6 +154,110 @@ fn measure_writes_a_sorted_submission_independent_of_threads() {
     assert_eq!(std::fs::read_to_string(&c).unwrap(), text);
 }
 
+#[test]
+fn unshear_measures_metadetection_again_and_writes_where_it_sheared_back() {
+    // `--unshear`: the sums file gains the sheared-back version's columns,
+    // its first seventeen are those of a plain metadetection, the version's
+    // shear is minus the plain rows' weighted mean (the dataset's first
+    // estimate ĝ₀), and the rows' weighted mean is ĝ₀ + ⟨e⟩/R of the new
+    // columns. Refused without metadetection, nothing written.
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("public");
+    public_run(&run);
+    let md = |out: &Path, sums: &Path, unshear: bool| {
+        let mut cmd = stepsim();
+        cmd.args([
+            "measure",
+            "--method",
+            "metadetect",
+            "--threads",
+            "2",
+            "--run",
+        ])
+        .arg(&run)
+        .arg("--out")
+        .arg(out)
+        .arg("--version-sums")
+        .arg(sums);
+        if unshear {
+            cmd.arg("--unshear");
+        }
+        ok(run_with(&mut cmd))
+    };
+    let (a, sa, b, sb) = (
+        dir.path().join("a.txt"),
+        dir.path().join("a.sums"),
+        dir.path().join("b.txt"),
+        dir.path().join("b.sums"),
+    );
+    md(&a, &sa, false);
+    md(&b, &sb, true);
+    let mean = |path: &Path| {
+        let mut acc = [0.0f64; 3];
+        for l in std::fs::read_to_string(path).unwrap().lines().skip(1) {
+            let w: Vec<f64> = l.split(' ').skip(1).map(|v| v.parse().unwrap()).collect();
+            acc = [acc[0] + w[4] * w[2], acc[1] + w[4] * w[3], acc[2] + w[4]];
+        }
+        assert!(acc[2] > 20.0, "{acc:?}");
+        [acc[0] / acc[2], acc[1] / acc[2]]
+    };
+    let (plain, again) = (mean(&a), mean(&b));
+    let table = std::fs::read_to_string(&sb).unwrap();
+    let first = std::fs::read_to_string(&sa).unwrap();
+    assert!(
+        table
+            .lines()
+            .next()
+            .unwrap()
+            .ends_with("sum_e2_2m shear1_u shear2_u n_u sum_e1_u sum_e2_u")
+    );
+    let mut tot = [[0.0f64; 3]; 6];
+    for (l, f) in table.lines().zip(first.lines()).skip(1) {
+        let w: Vec<&str> = l.split(' ').collect();
+        assert_eq!(w.len(), 22, "{l}");
+        assert_eq!(w[..17].join(" "), f, "the first measurement's columns");
+        let g0 = [w[17].parse::<f64>().unwrap(), w[18].parse::<f64>().unwrap()];
+        for i in 0..2 {
+            // The rows are written to six decimals.
+            assert!((g0[i] + plain[i]).abs() < 1e-5, "{g0:?} {plain:?}");
+        }
+        let v: Vec<f64> = w[2..17]
+            .iter()
+            .chain(&w[19..])
+            .map(|x| x.parse().unwrap())
+            .collect();
+        for (k, t) in tot.iter_mut().enumerate() {
+            *t = [t[0] + v[3 * k + 1], t[1] + v[3 * k + 2], t[2] + v[3 * k]];
+        }
+    }
+    let m = |k: usize, i: usize| tot[k][i] / tot[k][2];
+    let r = [(m(1, 0) - m(2, 0)) / 0.02, (m(3, 1) - m(4, 1)) / 0.02];
+    for i in 0..2 {
+        let want = plain[i] + m(5, i) / r[i];
+        assert!((again[i] - want).abs() < 1e-5, "{again:?} against {want}");
+    }
+    assert_ne!(
+        std::fs::read(&a).unwrap(),
+        std::fs::read(&b).unwrap(),
+        "the rows are the second measurement's"
+    );
+    let ksb = dir.path().join("k.txt");
+    let o = run_with(
+        stepsim()
+            .args(["measure", "--unshear", "--run"])
+            .arg(&run)
+            .arg("--out")
+            .arg(&ksb),
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--unshear needs --method metadetect"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!ksb.exists());
+}
+
 /// A submission of the test run: its header, sorted rows of seven
 /// finite columns inside the 512² images, weights exactly where the flags
 /// are 0, more than 20 of them, no two rows at one position, both images.

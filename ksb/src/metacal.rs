@@ -748,6 +748,17 @@ pub fn apply_response<'a>(
 /// selected on its unsheared version and unflagged, weight 1; without a
 /// response it is flagged NO_PSF. Rows without versions are left alone.
 pub fn set_rows<'a>(objs: impl Iterator<Item = &'a mut MeasuredObject>, r: Option<[[f64; 2]; 2]>) {
+    set_rows_about(objs, r, [0.0; 2]);
+}
+
+/// [`set_rows`] for rows measured on a version sheared by −`g0`
+/// (metadetection's `unshear`): each row gets g0 + R⁻¹ e, the shear it
+/// estimates in the image as given.
+pub fn set_rows_about<'a>(
+    objs: impl Iterator<Item = &'a mut MeasuredObject>,
+    r: Option<[[f64; 2]; 2]>,
+    g0: [f64; 2],
+) {
     for o in objs {
         let Some((m, sel)) = o.metacal else { continue };
         let Some(r) = r else {
@@ -755,7 +766,10 @@ pub fn set_rows<'a>(objs: impl Iterator<Item = &'a mut MeasuredObject>, r: Optio
             o.weight = 0.0;
             continue;
         };
-        let g = apply_inverse(&r, m.e[0]);
+        let mut g = apply_inverse(&r, m.e[0]);
+        if g0 != [0.0; 2] {
+            g = [g0[0] + g[0], g0[1] + g[1]];
+        }
         if !(g[0].is_finite() && g[1].is_finite()) {
             o.flags |= flags::MOMENTS;
             continue;

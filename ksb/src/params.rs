@@ -36,6 +36,12 @@ pub enum SizeCut {
     PsfCorrected,
 }
 
+/// The largest |ĝ₀| a dataset is sheared back by ([`KsbParams::unshear`]):
+/// beyond it the reconvolution's Γ, chosen for the ±0.01 versions, would
+/// be amplified past its cap on more than the faintest frequencies, and
+/// the run keeps the first measurement (docs/metacal.md).
+pub const MAX_ORIGIN_SHEAR: f64 = 0.2;
+
 /// The shear method (`stepsim measure --method`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
@@ -169,6 +175,19 @@ pub struct KsbParams {
     /// this × the reconvolution's σ (1.2, i.e. (r_g² − σ²)/σ² > 0.44, about
     /// KSB's r_g > 1.25 r_g*).
     pub metacal_size_min_factor: f64,
+    /// Metadetection measures each dataset a second time on its images
+    /// sheared back by its first estimate ĝ₀ (`stepsim measure --unshear`;
+    /// false): the response R is a derivative at the shear the image has,
+    /// so ⟨e⟩/R is off by a term in |g|² (+0.0165 at g = ±(0.08, 0.08) on
+    /// isolated galaxies, docs/metacal.md, "The response at a finite
+    /// shear"); the rows are then ĝ₀ + R⁻¹ e of the version sheared by
+    /// −ĝ₀, whose own shear is near zero. Assumes one shear per dataset.
+    pub unshear: bool,
+    /// The shear of the one version metadetection makes when it is not
+    /// zero: −ĝ₀ of the image's dataset, set by the run for the second
+    /// measurement of [`Self::unshear`]; zero (the five versions about
+    /// the image as given) otherwise.
+    pub metadetect_origin: [f64; 2],
 }
 
 impl Default for KsbParams {
@@ -216,6 +235,8 @@ impl Default for KsbParams {
             method: Method::Ksb,
             calibration: Some(CalibrationProfile::Exponential),
             metacal_size_min_factor: 1.2,
+            unshear: false,
+            metadetect_origin: [0.0; 2],
         }
     }
 }
@@ -253,6 +274,20 @@ impl KsbParams {
                 message: "the P^γ calibration is the response of each galaxy's own P^γ, \
                           not of a P^γ fitted against size: with pgamma_mode FitSize set \
                           calibration None (`--pgamma fit-size --calibration none`)",
+            });
+        }
+        if self.unshear && self.method != Method::Metadetect {
+            return Err(KsbError::Combination {
+                message: "unshear is metadetection's second measurement: \
+                          use it with `--method metadetect`",
+            });
+        }
+        let o = self.metadetect_origin;
+        if !(o[0].is_finite() && o[1].is_finite() && o[0].hypot(o[1]) < MAX_ORIGIN_SHEAR) {
+            return Err(KsbError::Param {
+                name: "metadetect_origin",
+                value: o[0].hypot(o[1]),
+                reason: "its modulus must be finite and below 0.2",
             });
         }
         if self.background_mesh_px < 8 {
@@ -336,5 +371,31 @@ mod tests {
         }
         .validate()
         .unwrap();
+        // unshear is metadetection's; the origin's modulus below 0.2.
+        let e = KsbParams {
+            unshear: true,
+            ..KsbParams::default()
+        }
+        .validate()
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("--method metadetect"), "{e}");
+        let md = KsbParams {
+            method: Method::Metadetect,
+            unshear: true,
+            metadetect_origin: [0.1, -0.17],
+            ..KsbParams::default()
+        };
+        md.validate().unwrap();
+        for o in [[0.0, 0.2], [f64::NAN, 0.0], [0.15, -0.15]] {
+            let e = KsbParams {
+                metadetect_origin: o,
+                ..md.clone()
+            }
+            .validate()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains("metadetect_origin"), "{o:?}: {e}");
+        }
     }
 }

@@ -761,9 +761,14 @@ fn metadetect_rows(
     let mut sums = [[0.0; 3]; 5];
     let mut objects = Vec::new();
     // The noise, hence the detection's threshold and every S/N, is the
-    // unsheared version's for all five.
+    // unsheared version's for all five. With an origin (the second
+    // measurement of `unshear`) there is one version, sheared by it, whose
+    // detections are the rows and whose sums take the first place.
+    let origin = params.metadetect_origin;
+    let one = [origin];
+    let versions: &[[f64; 2]] = if origin == [0.0; 2] { &VERSIONS } else { &one };
     let mut given = None;
-    for (v, g) in VERSIONS.iter().enumerate() {
+    for (v, g) in versions.iter().enumerate() {
         let img = whole.version(*g);
         if given.is_none() {
             given = GivenNoise::measure(&img, params);
@@ -810,9 +815,16 @@ fn metadetect_rows(
                 if f == 0 && !selected {
                     f |= flags::MOMENTS;
                 }
+                // Where the detection lies in the image as given (the
+                // version sheared by g is mapped back by −g).
+                let at = if *g == [0.0; 2] {
+                    [c.x, c.y]
+                } else {
+                    crate::metadetect::to_version([c.x, c.y], w, h, [-g[0], -g[1]])
+                };
                 objects.push(MeasuredObject {
-                    x: c.x + 1.0,
-                    y: c.y + 1.0,
+                    x: at[0] + 1.0,
+                    y: at[1] + 1.0,
                     e1: 0.0,
                     e2: 0.0,
                     weight: 0.0,
@@ -1024,7 +1036,7 @@ fn set_shear(o: &mut MeasuredObject, g: [f64; 2], max_shear: f64) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::scene::{
         SceneSpec, add_sky_and_noise, covariance, draw_gaussian_sampled, synthetic_scene,
@@ -1497,15 +1509,26 @@ mod tests {
     /// them, through the Gaussian PSF `psf`, sky 25 e⁻: far from every cut
     /// and from the edges, so each version's catalogue holds the same
     /// galaxies.
-    fn grid_scene(g: [f64; 2], psf: &crate::linalg::Mat2) -> Image {
+    pub(crate) fn grid_scene(g: [f64; 2], psf: &crate::linalg::Mat2) -> Image {
+        grid_scene_with(g, psf, (2.5, 4.0), 0.5)
+    }
+
+    /// [`grid_scene`] with the galaxies' σ drawn from `sigma` (px) and
+    /// their |e| below `e_max` (0: round galaxies).
+    pub(crate) fn grid_scene_with(
+        g: [f64; 2],
+        psf: &crate::linalg::Mat2,
+        sigma: (f64, f64),
+        e_max: f64,
+    ) -> Image {
         let mut img = Image::zeros(1024, 1024);
         let mut rng = SeedKey::base(5, 0, Stream::Test).rng();
         for j in 0..15 {
             for i in 0..15 {
                 let (x, y) = (120.0 + 56.0 * i as f64, 120.0 + 56.0 * j as f64);
-                let sigma = crate::scene::uniform(&mut rng, 2.5, 4.0);
+                let sigma = crate::scene::uniform(&mut rng, sigma.0, sigma.1);
                 let (r, phi) = (
-                    0.5 * crate::scene::uniform(&mut rng, 0.0, 1.0).sqrt(),
+                    e_max * crate::scene::uniform(&mut rng, 0.0, 1.0).sqrt(),
                     crate::scene::uniform(&mut rng, 0.0, std::f64::consts::TAU),
                 );
                 let cov = covariance(sigma, [r * phi.cos(), r * phi.sin()]);

@@ -61,6 +61,11 @@ pub struct ImageSummary {
     /// the count of the objects selected on each of the five versions), of
     /// which its dataset's response is the pooled ratio.
     pub version_sums: Option<crate::metadetect::VersionSums>,
+    /// With metadetection's `unshear`: the shear of the one version of
+    /// the second measurement (−ĝ₀ of the dataset; zero when the dataset
+    /// was not measured again, and then the sums are the unsheared
+    /// version's) and Σ e₁, Σ e₂ and the count of the objects it selects.
+    pub unsheared: Option<([f64; 2], [f64; 3])>,
 }
 
 /// A dataset's metadetection response and its error by the delete-one
@@ -263,6 +268,7 @@ fn summary(
         dataset: im.dataset.clone(),
         response,
         version_sums: m.version_sums,
+        unsheared: None,
         n_objects: m.objects.len(),
         n_weighted: m.objects.iter().filter(|o| o.weight > 0.0).count(),
         n_stars: m.n_stars,
@@ -466,6 +472,7 @@ fn measure_datasets(
     }
     let mut slots: Vec<Option<ImageSummary>> = vec![None; images.len()];
     let mut responses: Vec<Option<DatasetResponse>> = vec![None; images.len()];
+    let mut unsheared: Vec<Option<([f64; 2], [f64; 3])>> = vec![None; images.len()];
     let mut group: Vec<usize> = Vec::new();
     let datasets: Vec<&Vec<usize>> = by_dataset.values().collect();
     let mut n_done = 0;
@@ -505,12 +512,43 @@ fn measure_datasets(
                 for &i in members.iter() {
                     responses[i] = Some((r, err));
                 }
+                let applied = r.and_then(crate::metadetect::applied_response);
+                let origin = if params.unshear {
+                    first_estimate(&sums, applied)
+                } else {
+                    None
+                };
+                if let Some(g0) = origin {
+                    // The second measurement: each image once more, as one
+                    // version sheared by −ĝ₀, whose detections are the rows.
+                    let again = KsbParams {
+                        metadetect_origin: [-g0[0], -g0[1]],
+                        ..params.clone()
+                    };
+                    let own: Vec<usize> = members.to_vec();
+                    let second =
+                        pool.install(|| measure_group(&images, &own, &read, &info, &again))?;
+                    for (i, m2) in own.iter().zip(second) {
+                        let k = group.binary_search(i).expect("a member of the group");
+                        unsheared[*i] = Some((
+                            again.metadetect_origin,
+                            m2.version_sums.map_or([0.0; 3], |v| v[0]),
+                        ));
+                        done[k].objects = m2.objects;
+                    }
+                } else if params.unshear {
+                    for &i in members.iter() {
+                        let k = group.binary_search(&i).expect("a member of the group");
+                        unsheared[i] =
+                            Some(([0.0; 2], done[k].version_sums.map_or([0.0; 3], |v| v[0])));
+                    }
+                }
                 let objs = group
                     .iter()
                     .zip(done.iter_mut())
                     .filter(|(i, _)| members.contains(i))
                     .flat_map(|(_, m)| m.objects.iter_mut());
-                crate::metacal::set_rows(objs, r.and_then(crate::metadetect::applied_response));
+                crate::metacal::set_rows_about(objs, applied, origin.unwrap_or([0.0; 2]));
             }
         }
         for (&i, m) in group.iter().zip(done) {
@@ -526,7 +564,9 @@ fn measure_datasets(
                 }
                 d.put(i, &text)?;
             }
-            slots[i] = Some(summary(&images[i], &m, responses[i]));
+            let mut sm = summary(&images[i], &m, responses[i]);
+            sm.unsheared = unsheared[i];
+            slots[i] = Some(sm);
         }
         n_done += group.len();
         progress(n_done, images.len());
@@ -541,6 +581,32 @@ fn measure_datasets(
         rows,
         details,
     })
+}
+
+/// A dataset's first estimate ĝ₀ = R⁻¹ ⟨e⟩ (R's diagonal, as the rows
+/// use it; ⟨e⟩ over the objects its images' unsheared versions select),
+/// the shear its images are sheared back by in metadetection's second
+/// measurement (`KsbParams::unshear`). `None`, and no second measurement,
+/// without a response or a selected object, or when |ĝ₀| is not below
+/// [`crate::params::MAX_ORIGIN_SHEAR`].
+fn first_estimate(
+    sums: &[crate::metadetect::VersionSums],
+    applied: Option<[[f64; 2]; 2]>,
+) -> Option<[f64; 2]> {
+    let r = applied?;
+    let mut tot = [0.0; 3];
+    for s in sums {
+        for (t, v) in tot.iter_mut().zip(s[0]) {
+            *t += v;
+        }
+    }
+    if tot[2] <= 0.0 {
+        return None;
+    }
+    let g0 = [tot[0] / tot[2] / r[0][0], tot[1] / tot[2] / r[1][1]];
+    let modulus = g0[0].hypot(g0[1]);
+    (modulus.is_finite() && modulus > 0.0 && modulus < crate::params::MAX_ORIGIN_SHEAR)
+        .then_some(g0)
 }
 
 /// Measures the images `group` (indices into `images`, ascending; whole
@@ -945,5 +1011,153 @@ mod tests {
         let (got, want) = (std::fs::read(&out).unwrap(), std::fs::read(&want).unwrap());
         assert!(got.len() > 500);
         assert!(got == want, "submissions differ");
+    }
+
+    #[test]
+    fn the_first_estimate_is_the_unsheared_versions_mean_over_r_or_none() {
+        let r = Some([[0.5, 0.0], [0.0, 0.25]]);
+        let image = |e1: f64, e2: f64, n: f64| {
+            let mut s = [[1.0; 3]; 5];
+            s[0] = [e1, e2, n];
+            s
+        };
+        // Pooled over the images: (0.02 + 0.06) / 4 / 0.5, (0.01 + 0.01) / 4 / 0.25.
+        let g0 = first_estimate(&[image(0.02, 0.01, 1.0), image(0.06, 0.01, 3.0)], r).unwrap();
+        assert!(
+            (g0[0] - 0.04).abs() < 1e-15 && (g0[1] - 0.02).abs() < 1e-15,
+            "{g0:?}"
+        );
+        // No response, nothing selected, a zero estimate, or |ĝ₀| ≥ 0.2.
+        assert_eq!(first_estimate(&[image(0.02, 0.01, 1.0)], None), None);
+        assert_eq!(first_estimate(&[image(0.0, 0.0, 0.0)], r), None);
+        assert_eq!(first_estimate(&[image(0.0, 0.0, 5.0)], r), None);
+        assert_eq!(first_estimate(&[image(0.1, 0.0, 1.0)], r), None);
+        assert!(first_estimate(&[image(0.099, 0.0, 1.0)], r).is_some());
+        assert_eq!(first_estimate(&[image(f64::NAN, 0.0, 1.0)], r), None);
+    }
+
+    #[test]
+    fn unshear_measures_again_about_the_images_sheared_back() {
+        // Two datasets, g = ±(0.1, 0.1), one image each: the same 225
+        // bright round galaxies on a grid (σ 4.5 – 6 px, far from every
+        // cut) and the same noise (`pipeline`'s grid scene), through a round
+        // PSF. The second measurement makes one version of each image,
+        // sheared by −ĝ₀ of its dataset (ĝ₀ the first measurement's mean
+        // row), and writes ĝ₀ + R⁻¹ e of its objects. For round Gaussians
+        // ⟨e⟩/R hardly bends with the shear, so both measurements must give
+        // the same m; a version sheared the wrong way (2g) or rows taken
+        // to the wrong frame would not (the rows' places are checked too).
+        // Measured: m = (−0.0000, −0.0050) first, (+0.0008, −0.0041)
+        // after; c within 2e-4 both ways. The
+        // same bytes at one and two threads, the first measurement's
+        // sums unchanged, and every image measured again.
+        let dir = tempfile::tempdir().unwrap();
+        let g = 0.1;
+        let psf = crate::scene::covariance(4.37 / 2.3548, [0.0, 0.0]);
+        let scenes: Vec<(&str, &str, Image)> = [("dm", "dm0", -g), ("dp", "dp0", g)]
+            .map(|(d, i, s)| {
+                (
+                    d,
+                    i,
+                    crate::pipeline::tests::grid_scene_with([s, s], &psf, (4.5, 6.0), 0.0),
+                )
+            })
+            .into();
+        let refs: Vec<(&str, &str, &Image)> =
+            scenes.iter().map(|(d, i, img)| (*d, *i, img)).collect();
+        write_public_run(dir.path(), &refs).unwrap();
+        let plain = KsbParams {
+            method: crate::params::Method::Metadetect,
+            ..KsbParams::default()
+        };
+        let unshear = KsbParams {
+            unshear: true,
+            ..plain.clone()
+        };
+        let mean = |path: &Path| -> [[f64; 2]; 2] {
+            let text = std::fs::read_to_string(path).unwrap();
+            let mut acc = [[0.0; 3]; 2];
+            for l in text.lines().filter(|l| !l.starts_with('#')) {
+                let w: Vec<&str> = l.split(' ').collect();
+                let d = usize::from(w[0].starts_with("dp"));
+                let weight: f64 = w[5].parse().unwrap();
+                acc[d][0] += weight * w[3].parse::<f64>().unwrap();
+                acc[d][1] += weight * w[4].parse::<f64>().unwrap();
+                acc[d][2] += weight;
+            }
+            assert!(acc[0][2] > 200.0 && acc[1][2] > 200.0, "{acc:?}");
+            acc.map(|a| [a[0] / a[2], a[1] / a[2]])
+        };
+        let m_c = |[minus, plus]: [[f64; 2]; 2]| {
+            [0, 1].map(|i| {
+                (
+                    (plus[i] - minus[i]) / (2.0 * g) - 1.0,
+                    (plus[i] + minus[i]) / 2.0,
+                )
+            })
+        };
+        let (a, b, c) = (
+            dir.path().join("plain.txt"),
+            dir.path().join("unshear.txt"),
+            dir.path().join("unshear2.txt"),
+        );
+        let sa = measure_run(dir.path(), &a, 2, &plain, &|_, _| {}).unwrap();
+        let sb = measure_run(dir.path(), &b, 1, &unshear, &|_, _| {}).unwrap();
+        measure_run(dir.path(), &c, 2, &unshear, &|_, _| {}).unwrap();
+        assert!(std::fs::read(&b).unwrap() == std::fs::read(&c).unwrap());
+        let (before, after) = (m_c(mean(&a)), m_c(mean(&b)));
+        eprintln!("unshear: m, c before {before:?} after {after:?}");
+        for i in 0..2 {
+            assert!(before[i].0.abs() < 0.008, "m before {before:?}");
+            assert!(after[i].0.abs() < 0.008, "m after {after:?}");
+            assert!(
+                (after[i].0 - before[i].0).abs() < 0.002,
+                "{before:?} {after:?}"
+            );
+            assert!(before[i].1.abs() < 5e-4 && after[i].1.abs() < 5e-4);
+        }
+        // The second measurement's rows are placed in the image as given:
+        // each weighted one within 0.2 px of a weighted row of the first.
+        let places = |path: &Path| -> Vec<(String, f64, f64)> {
+            std::fs::read_to_string(path)
+                .unwrap()
+                .lines()
+                .filter(|l| !l.starts_with('#'))
+                .map(|l| l.split(' ').collect::<Vec<_>>())
+                .filter(|w| w[5] != "0.000000")
+                .map(|w| {
+                    (
+                        w[0].to_string(),
+                        w[1].parse().unwrap(),
+                        w[2].parse().unwrap(),
+                    )
+                })
+                .collect()
+        };
+        let (first_rows, second_rows) = (places(&a), places(&b));
+        for (id, x, y) in &second_rows {
+            assert!(
+                first_rows
+                    .iter()
+                    .any(|(i, u, v)| i == id && (u - x).hypot(v - y) < 0.2),
+                "{id} {x} {y}: no row of the first measurement there"
+            );
+        }
+        // The first measurement's sums are the same with and without the
+        // second; its version is sheared by −ĝ₀ of its dataset, which is
+        // the mean row of the first measurement.
+        let first = mean(&a);
+        for (x, y) in sa.iter().zip(&sb) {
+            assert_eq!(x.version_sums, y.version_sums);
+            let (origin, sums) = y.unsheared.expect("measured again");
+            let d = usize::from(y.dataset == "dp");
+            for i in 0..2 {
+                assert!(
+                    (origin[i] + first[d][i]).abs() < 1e-5,
+                    "{origin:?} {first:?}"
+                );
+            }
+            assert!(sums[2] > 200.0, "{sums:?}");
+        }
     }
 }

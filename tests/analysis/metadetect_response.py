@@ -52,17 +52,26 @@ import numpy as np
 
 STEP = 0.01
 
+# {dataset: the shear of `--unshear`'s version (-ĝ0)}, from the sums.
+ORIGIN = {}
+
 
 def read_sums(path):
-    """{image: (dataset, 5 x 3 array of [sum e1, sum e2, n])}."""
+    """{image: (dataset, 5 x 3 array of [sum e1, sum e2, n])}; with
+    `--unshear`'s columns a sixth row, the sheared-back version's sums,
+    and {dataset: the shear it was sheared back by} (else empty)."""
     out = {}
+    back = {}
     for line in open(path):
         if line.startswith("#") or not line.strip():
             continue
         w = line.split()
-        v = np.array([float(x) for x in w[2:]]).reshape(5, 3)
-        out[w[0]] = (w[1], v[:, [1, 2, 0]])
-    return out
+        v = np.array([float(x) for x in w[2:]])
+        if len(v) == 20:
+            back[w[1]] = (v[15], v[16])
+            v = np.append(v[:15], v[17:])
+        out[w[0]] = (w[1], v.reshape(-1, 3)[:, [1, 2, 0]])
+    return out, back
 
 
 def response(s):
@@ -91,6 +100,12 @@ def estimate(cells, datasets, shears, fields, mode):
                     return None
                 num += s[0, :2] / r
             e = num / tot[0, 2]
+        elif mode == "unshear":
+            # ĝ0 + R^-1 <e> of the version sheared back by ĝ0 (origin = -ĝ0).
+            r = response(tot)
+            if r is None or len(tot) < 6 or tot[5, 2] <= 0:
+                return None
+            e = -np.array(ORIGIN[d]) + tot[5, :2] / tot[5, 2] / r
         else:
             r = response(tot) if mode == "dataset" else rp
             if r is None:
@@ -141,8 +156,11 @@ def load(args):
             shears[run + d["dataset"]] = (d["g1"], d["g2"])
             for im in d["images"]:
                 field_of[run + im["image"]] = im["field"]
-        for image, (dataset, s) in read_sums(args[k + 1]).items():
+        read, back = read_sums(args[k + 1])
+        for image, (dataset, s) in read.items():
             sums[run + image] = (run + dataset, s)
+        for dataset, origin in back.items():
+            ORIGIN[run + dataset] = origin
     cells_by_psf = {}
     for psf, datasets in by_psf.items():
         cells = {}
@@ -230,8 +248,11 @@ def main():
                           else f"m{i + 1} untested (one g{i + 1})" for i in range(2))
         print(f"  per field, R per dataset (fields' scatter only): m {mean[2]:+.4f} ± {se[2]:.4f}"
               f"  ({comps})")
-        for mode, name in [("dataset", "R per dataset"), ("field", "R per field and dataset"),
-                           ("pooled", "R pooled over the PSF's datasets")]:
+        modes = [("dataset", "R per dataset"), ("field", "R per field and dataset"),
+                 ("pooled", "R pooled over the PSF's datasets")]
+        if all(d in ORIGIN for d in datasets):
+            modes.append(("unshear", "sheared back by ĝ0 (--unshear's rows)"))
+        for mode, name in modes:
             v, e = jackknife(cells, datasets, shears, fields, mode)
             if v is None:
                 print(f"  {name}: undefined (a response without a field)")
