@@ -191,7 +191,11 @@ fn unshear_measures_metadetection_again_and_writes_where_it_sheared_back() {
         dir.path().join("b.sums"),
     );
     md(&a, &sa, false);
-    md(&b, &sb, true);
+    let err = stderr(&md(&b, &sb, true));
+    assert!(
+        err.contains("stepsim: dataset d0: measured again sheared back by ĝ₀ = ("),
+        "{err}"
+    );
     let mean = |path: &Path| {
         let mut acc = [0.0f64; 3];
         for l in std::fs::read_to_string(path).unwrap().lines().skip(1) {

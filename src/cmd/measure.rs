@@ -335,6 +335,22 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 "stepsim: dataset {d}: no response; its rows have weight 0 and flag NO_PSF"
             ),
         }
+        if params.unshear {
+            match summary
+                .iter()
+                .find(|s| s.dataset == *d)
+                .and_then(|s| s.unsheared)
+            {
+                Some(([g1, g2], _)) if [g1, g2] != [0.0; 2] => eprintln!(
+                    "stepsim: dataset {d}: measured again sheared back by ĝ₀ = ({:.5}, {:.5})",
+                    -g1, -g2
+                ),
+                _ => eprintln!(
+                    "stepsim: dataset {d}: not measured again (no first estimate below 0.2); \
+                     its rows are the first measurement's"
+                ),
+            }
+        }
     }
     eprintln!(
         "stepsim: wrote {} ({} images, {rows} objects, {weighted} with weight > 0)",
