@@ -111,7 +111,7 @@ pub struct Args {
     /// at the shear the images have, which biases ⟨e⟩/R by a term in |g|²
     /// (m +0.0165 at g = ±(0.08, 0.08) on isolated galaxies); sheared back,
     /// the version's own shear is near zero. Assumes one shear per dataset
-    /// (a challenge's datasets have one); about 40 % more CPU
+    /// (a challenge's datasets have one); 1.5 times the CPU
     /// (docs/metacal.md, "The response at a finite shear").
     #[arg(long)]
     unshear: bool,
