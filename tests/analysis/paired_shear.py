@@ -4,7 +4,7 @@
     python3 tests/analysis/paired_shear.py RUN_PLUS CAT_PLUS RUN_MINUS CAT_MINUS
 
 Each run has one dataset (`shears` = [{g1: +g, g2: 0}] and [{g1: -g, g2:
-0}]) and the same `run.seed`, so the two hold the same galaxies at the same
+0}], or with g2 = g1 likewise) and the same `run.seed`, so the two hold the same galaxies at the same
 positions and, as an image's noise is keyed by its dataset index, the same
 pixel noise: what differs is the shear alone, and shape noise and most
 pixel noise cancel in the difference. Each catalogue row is matched to the
@@ -14,6 +14,7 @@ Per base field (its rotated twin pooled with it):
 
     m = (<e1>+ - <e1>-) / (g+ - g-) - 1,   c1 = (<e1>+ + <e1>-) / 2,
     c2 = (<e2>+ + <e2>-) / 2,
+    m2 = (<e2>+ - <e2>-) / (g2+ - g2-) - 1 (where the runs' g2 differ),
 
 with <.> the weighted mean over the field's kept rows (weight > 0); mean
 +- standard error over the fields (both runs must hold the same fields).
@@ -99,6 +100,7 @@ COLUMNS = {
     "m": (lambda a: a[:, 3], True, True),
     "selection": (lambda a: a[:, 2], True, False),
     "estimator": (lambda a: a[:, 3] - a[:, 2], True, True),
+    "m2": (lambda a: a[:, 4], "g2", True),
     "c1": (lambda a: a[:, 3], False, False),
     "c2": (lambda a: a[:, 4], False, False),
     "c2, selection": (lambda a: a[:, 7], False, False),
@@ -113,7 +115,14 @@ def paired(p, m, gp, gm, name):
         if not fields:
             parts.append(f"{'-':>19s}")
             continue
-        if slope:
+        if slope == "g2":
+            # m2 only where the runs' g2 differ (g1 = g2 = +-g designs).
+            dg2 = p[0, 8] - m[0, 8]
+            if dg2 == 0:
+                parts.append(f"{'-':>19s}")
+                continue
+            v = np.array([(fp[f] - fm[f]) / dg2 for f in fields]) - float(minus_one)
+        elif slope:
             v = np.array([(fp[f] - fm[f]) / (gp - gm) for f in fields]) - float(minus_one)
         else:
             v = np.array([(fp[f] + fm[f]) / 2 for f in fields])
@@ -129,11 +138,12 @@ def main():
     p, every_p, up = matched(sys.argv[1], sys.argv[2])
     m, every_m, um = matched(sys.argv[3], sys.argv[4])
     for a, run in [(p, sys.argv[1]), (m, sys.argv[3])]:
-        if len(np.unique(a[:, 1])) != 1 or np.any(a[:, 8] != 0):
-            sys.exit(f"{run}: the run must have one shear, with g2 = 0")
+        if len(np.unique(a[:, 1])) != 1 or len(np.unique(a[:, 8])) != 1:
+            sys.exit(f"{run}: the run must have one shear")
     gp, gm = p[0, 1], m[0, 1]
-    if not (gp > 0 and gm == -gp):
-        sys.exit(f"g1 = {gp:+g} and {gm:+g}: the first run must have +g, the second -g")
+    if not (gp > 0 and gm == -gp and p[0, 8] == -m[0, 8]):
+        sys.exit(f"g = ({gp:+g}, {p[0, 8]:+g}) and ({gm:+g}, {m[0, 8]:+g}): the first run must "
+                 "have +g, the second -g")
     fields_p, fields_m = set(np.unique(p[:, 0])), set(np.unique(m[:, 0]))
     if fields_p != fields_m:
         sys.exit(f"the runs hold different base fields: {sorted(fields_p ^ fields_m)} in one only")
