@@ -57,9 +57,10 @@ ORIGIN = {}
 
 
 def read_sums(path):
-    """{image: (dataset, 5 x 3 array of [sum e1, sum e2, n])}; with
-    `--unshear`'s columns a sixth row, the sheared-back version's sums,
-    and {dataset: the shear it was sheared back by} (else empty)."""
+    """({image: (dataset, 6 x 3 array of [sum e1, sum e2, n])}, {dataset:
+    the shear it was sheared back by}): the five versions' rows, then
+    `--unshear`'s version's (zeros, and no entry in the second dict,
+    without it)."""
     out = {}
     back = {}
     for line in open(path):
@@ -70,12 +71,18 @@ def read_sums(path):
         if len(v) == 20:
             back[w[1]] = (v[15], v[16])
             v = np.append(v[:15], v[17:])
-        out[w[0]] = (w[1], v.reshape(-1, 3)[:, [1, 2, 0]])
+        else:
+            # No second measurement: its row is empty, so that runs with
+            # and without one can be pooled.
+            v = np.append(v, np.zeros(3))
+        out[w[0]] = (w[1], v.reshape(6, 3)[:, [1, 2, 0]])
     return out, back
 
 
 def response(s):
-    """R's diagonal from summed version sums (5 x 3), or None."""
+    """R's diagonal from summed version sums (the five versions' rows of
+    s), or None."""
+    s = s[:5]
     if np.any(s[1:, 2] <= 0):
         return None
     mean = s[:, :2] / s[:, 2:3]
@@ -103,7 +110,7 @@ def estimate(cells, datasets, shears, fields, mode):
         elif mode == "unshear":
             # ĝ0 + R^-1 <e> of the version sheared back by ĝ0 (origin = -ĝ0).
             r = response(tot)
-            if r is None or len(tot) < 6 or tot[5, 2] <= 0:
+            if r is None or tot[5, 2] <= 0:
                 return None
             e = -np.array(ORIGIN[d]) + tot[5, :2] / tot[5, 2] / r
         else:
