@@ -36,10 +36,13 @@ pub enum SizeCut {
     PsfCorrected,
 }
 
-/// The largest |ĝ₀| a dataset is sheared back by ([`KsbParams::unshear`]):
-/// beyond it the reconvolution's Γ, chosen for the ±0.01 versions, would
-/// be amplified past its cap on more than the faintest frequencies, and
-/// the run keeps the first measurement (docs/metacal.md).
+/// The largest |ĝ₀| a dataset is sheared back by ([`KsbParams::unshear`];
+/// a dataset whose first estimate is larger keeps its first
+/// measurement): far beyond the weak shears the method is for (measured
+/// up to |g| = 0.113, docs/metacal.md). The reconvolution's Γ is chosen
+/// for the ±0.01 versions, and a version sheared further asks more of
+/// the deconvolution at high frequencies (its gain is capped at 3); how
+/// far that holds has not been measured.
 pub const MAX_ORIGIN_SHEAR: f64 = 0.2;
 
 /// The shear method (`stepsim measure --method`).
