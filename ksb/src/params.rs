@@ -181,10 +181,12 @@ pub struct KsbParams {
     /// Metadetection measures each dataset a second time on its images
     /// sheared back by its first estimate ĝ₀ (`stepsim measure --unshear`;
     /// false): the response R is a derivative at the shear the image has,
-    /// so ⟨e⟩/R is off by a term in |g|² (+0.0165 at g = ±(0.08, 0.08) on
-    /// isolated galaxies, docs/metacal.md, "The response at a finite
+    /// so ⟨e⟩/R is off by a term in |g|² (for metadetection +0.003 ±
+    /// 0.003 at g = ±(0.08, 0.08) on isolated galaxies, for per-object
+    /// metacal +0.0165; docs/metacal.md, "The response at a finite
     /// shear"); the rows are then ĝ₀ + R⁻¹ e of the version sheared by
-    /// −ĝ₀, whose own shear is near zero. Assumes one shear per dataset.
+    /// −ĝ₀, whose own shear is near zero, where a galaxy and its turned
+    /// twin cancel whatever their shapes. Assumes one shear per dataset.
     pub unshear: bool,
     /// The shear of the one version metadetection makes when it is not
     /// zero: −ĝ₀ of the image's dataset, set by the run for the second
