@@ -1043,14 +1043,15 @@ mod tests {
         // cut) and the same noise (`pipeline`'s grid scene), through a round
         // PSF. The second measurement makes one version of each image,
         // sheared by −ĝ₀ of its dataset (ĝ₀ the first measurement's mean
-        // row), and writes ĝ₀ + R⁻¹ e of its objects. For round Gaussians
-        // ⟨e⟩/R hardly bends with the shear, so both measurements must give
-        // the same m; a version sheared the wrong way (2g) or rows taken
-        // to the wrong frame would not (the rows' places are checked too).
-        // Measured: m = (−0.0000, −0.0050) first, (+0.0008, −0.0041)
-        // after; c within 2e-4 both ways. The
-        // same bytes at one and two threads, the first measurement's
-        // sums unchanged, and every image measured again.
+        // row), and writes ĝ₀ + R⁻¹ e of its objects. At this diagonal
+        // shear the first measurement of round Gaussians is near m = 0 (a
+        // scratch run along one axis, g = (0.1, 0), gave m₁ = +0.0095), so
+        // both measurements must agree; a version sheared the wrong way
+        // (2g) or rows taken to the wrong frame would not (the rows'
+        // places are checked too). Measured: m = (−0.0000, −0.0050)
+        // first, (+0.0008, −0.0041) after; c within 2e-4 both ways. The
+        // same bytes at one and two threads, the first measurement's sums
+        // unchanged, and every image measured again.
         let dir = tempfile::tempdir().unwrap();
         let g = 0.1;
         let psf = crate::scene::covariance(4.37 / 2.3548, [0.0, 0.0]);
