@@ -394,8 +394,10 @@ fn version_sums_text(summary: &[stepsim_ksb::ImageSummary]) -> String {
         for [e1, e2, n] in sums {
             write!(text, " {n} {e1:?} {e2:?}").expect("writing to a String");
         }
-        if unshear {
-            let ([g1, g2], [e1, e2, n]) = s.unsheared.unwrap_or(([0.0; 2], sums[0]));
+        // With `--unshear` the run gives every image with sums its second
+        // measurement's (a zero shear and the unsheared version's sums
+        // where its dataset was not measured again).
+        if let Some(([g1, g2], [e1, e2, n])) = s.unsheared {
             write!(text, " {g1:?} {g2:?} {n} {e1:?} {e2:?}").expect("writing to a String");
         }
         text.push('\n');
