@@ -58,8 +58,17 @@ pub const VERSIONS: [[f64; 2]; 5] = [
     [0.0, -STEP],
 ];
 
-/// Side of the PSF stack.
+/// Side of the PSF stack (metacalibration's stamps, KSB+'s P^γ
+/// calibration).
 pub const PSF_SIDE: usize = 32;
+
+/// Side of metadetection's PSF stack ([`stack_psf_wide`]).
+pub const WIDE_PSF_SIDE: usize = 64;
+
+/// A star whose stamp has another detection's disc within this many
+/// pixels of its centre is left out of [`stack_psf_wide`]: its flux, the
+/// sum of its pixels outside the discs, would miss part of its core.
+pub const WIDE_STACK_CORE_PX: f64 = 8.0;
 
 /// Stamp sides used for galaxies (the smallest that holds 8 r_g of the
 /// reconvolved galaxy).
@@ -205,22 +214,25 @@ fn m_minus_one(g: [f64; 2]) -> [[f64; 2]; 2] {
 /// The image's PSF, as a normalised stack of its PSF stars.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PsfStack {
-    /// Pixel values on a PSF_SIDE² grid, the centre at index PSF_SIDE / 2
-    /// in both axes; they sum to 1.
+    /// Side of the stack: [`PSF_SIDE`], or [`WIDE_PSF_SIDE`] for
+    /// metadetection ([`stack_psf_wide`]).
+    pub side: usize,
+    /// Pixel values on a side² grid, the centre at index side / 2 in both
+    /// axes; they sum to 1.
     pub pix: Vec<f64>,
     /// Number of stars stacked.
     pub n_stars: usize,
 }
 
 impl PsfStack {
-    /// The stack on a side × side grid (side ≥ PSF_SIDE), its centre at
-    /// index side / 2 in both axes, zero around it.
+    /// The stack on a side × side grid (side ≥ the stack's), its centre
+    /// at index side / 2 in both axes, zero around it.
     pub fn on_grid(&self, side: usize) -> Vec<f64> {
         let mut grid = vec![0.0; side * side];
-        let (h, o) = (PSF_SIDE / 2, side / 2);
-        for (j, row) in self.pix.chunks_exact(PSF_SIDE).enumerate() {
+        let (h, o) = (self.side / 2, side / 2);
+        for (j, row) in self.pix.chunks_exact(self.side).enumerate() {
             let start = (j + o - h) * side + o - h;
-            grid[start..start + PSF_SIDE].copy_from_slice(row);
+            grid[start..start + self.side].copy_from_slice(row);
         }
         grid
     }
@@ -234,7 +246,53 @@ impl PsfStack {
 /// enter), normalised to sum 1. `None` without a star whose PSF_SIDE²
 /// stamp lies inside the image.
 pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
-    let s = PSF_SIDE;
+    stack_of_side(sub, stars, PSF_SIDE, None)
+}
+
+/// The stack of [`stack_psf`] on [`WIDE_PSF_SIDE`]² pixels, with two
+/// changes. Each star's pixels within `others[i][2]` px of another
+/// detection (`others[i]` = x, y, radius; one within 1 px of the star is
+/// the star itself) are left out of that pixel's median and of the star's
+/// flux, and a pixel left out of every star's takes the mean of the
+/// stack's pixels at its distance from the centre (to 1 px): a 64² stamp
+/// holds neighbours that a 32² one did not, and where the stars share a
+/// layout of neighbours, as on a grid, the median does not remove them.
+/// And the stack is multiplied by [`round_taper`], so that it holds the
+/// PSF within a circle, not a square. Metadetection's versions are
+/// deconvolved by it. The light a stack leaves out is deconvolved by
+/// nothing, and a square leaves out more along its diagonals than along
+/// its axes: a PSF model with a direction of its own, of the square's
+/// symmetry, which biases e₁ (along the pixels) and e₂ (along their
+/// diagonals) unequally (`pipeline` test
+/// `metadetection_s_psf_stack_has_no_direction_of_its_own`: m₁ − m₂ =
+/// +0.004 … +0.005 through the 32² square, within ±0.0013 through this).
+pub fn stack_psf_wide(sub: &Image, stars: &[(f64, f64)], others: &[[f64; 3]]) -> Option<PsfStack> {
+    stack_of_side(sub, stars, WIDE_PSF_SIDE, Some(others))
+}
+
+/// The weight of a stack of `side` at a distance `r` (px) from its
+/// centre: 1 within `side`/2 − 8, 0 beyond `side`/2 − ½, a half cosine
+/// between (a hard round cut would keep the square grid's pattern at its
+/// edge).
+pub fn round_taper(r: f64, side: usize) -> f64 {
+    let (r1, r2) = (side as f64 / 2.0 - 8.0, side as f64 / 2.0 - 0.5);
+    if r <= r1 {
+        1.0
+    } else if r >= r2 {
+        0.0
+    } else {
+        0.5 * (1.0 + (PI * (r - r1) / (r2 - r1)).cos())
+    }
+}
+
+/// [`stack_psf`] on `s`² pixels; with `others`, [`stack_psf_wide`]'s
+/// neighbours left out, empty pixels filled and the round taper.
+fn stack_of_side(
+    sub: &Image,
+    stars: &[(f64, f64)],
+    s: usize,
+    others: Option<&[[f64; 3]]>,
+) -> Option<PsfStack> {
     let plans = Plans::new(s);
     let h = (s / 2) as f64;
     let norm = (s * s) as f64;
@@ -244,36 +302,91 @@ pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
             continue;
         };
         let mut t = transforms_one(&stamp, c, &plans);
-        let flux = t[0].re;
+        let Some(others) = others else {
+            let flux = t[0].re;
+            if !(flux > 0.0 && flux.is_finite()) {
+                continue;
+            }
+            // Centre at index s/2: multiply by e^{−2πi k·(s/2)} / flux.
+            about_centre(&mut t, [-h, -h], s, 1.0 / flux);
+            plans.fft2(&mut t, true);
+            centred.push(t.iter().map(|v| v.re / norm).collect());
+            continue;
+        };
+        about_centre(&mut t, [-h, -h], s, 1.0);
+        plans.fft2(&mut t, true);
+        let mut star: Vec<f64> = t.iter().map(|v| v.re / norm).collect();
+        // The centred pixel (i, j) lies at (x + i − h, y + j − h).
+        let mut core_covered = false;
+        for o in others {
+            let (dx, dy) = (o[0] - x, o[1] - y);
+            let reach = h + o[2];
+            let d = dx.hypot(dy);
+            if d < 1.0 || dx.abs() > reach || dy.abs() > reach {
+                continue;
+            }
+            if d - o[2] < WIDE_STACK_CORE_PX {
+                core_covered = true;
+                break;
+            }
+            for (p, v) in star.iter_mut().enumerate() {
+                let (u, w) = ((p % s) as f64 - h - dx, (p / s) as f64 - h - dy);
+                if u * u + w * w < o[2] * o[2] {
+                    *v = f64::NAN;
+                }
+            }
+        }
+        if core_covered {
+            continue;
+        }
+        let flux: f64 = star.iter().filter(|v| !v.is_nan()).sum();
         if !(flux > 0.0 && flux.is_finite()) {
             continue;
         }
-        // Centre at index s/2: multiply by e^{−2πi k·(s/2)} / flux.
-        about_centre(&mut t, [-h, -h], s, 1.0 / flux);
-        plans.fft2(&mut t, true);
-        centred.push(t.iter().map(|v| v.re / norm).collect());
+        star.iter_mut().for_each(|v| *v /= flux);
+        centred.push(star);
     }
     if centred.is_empty() {
         return None;
     }
-    let mut column = vec![0.0; centred.len()];
+    let mut column = Vec::with_capacity(centred.len());
     let mut pix: Vec<f64> = (0..s * s)
         .map(|p| {
-            for (v, star) in column.iter_mut().zip(&centred) {
-                *v = star[p];
-            }
+            column.clear();
+            column.extend(centred.iter().map(|star| star[p]).filter(|v| !v.is_nan()));
             column.sort_by(f64::total_cmp);
             let n = column.len();
-            if n % 2 == 1 {
+            if n == 0 {
+                f64::NAN
+            } else if n % 2 == 1 {
                 column[n / 2]
             } else {
                 0.5 * (column[n / 2 - 1] + column[n / 2])
             }
         })
         .collect();
+    if others.is_some() {
+        let radius = |p: usize| ((p % s) as f64 - h).hypot((p / s) as f64 - h);
+        let mut ring = vec![(0.0, 0usize); s];
+        for (p, v) in pix.iter().enumerate() {
+            let r = radius(p) as usize;
+            if !v.is_nan() && r < s {
+                ring[r].0 += v;
+                ring[r].1 += 1;
+            }
+        }
+        for (p, v) in pix.iter_mut().enumerate() {
+            if v.is_nan() {
+                let (sum, n) = ring[(radius(p) as usize).min(s - 1)];
+                *v = if n > 0 { sum / n as f64 } else { 0.0 };
+            }
+            *v *= round_taper(radius(p), s);
+        }
+    }
     let total: f64 = pix.iter().sum();
     pix.iter_mut().for_each(|v| *v /= total);
     Some(PsfStack {
+        side: s,
         pix,
         n_stars: centred.len(),
     })

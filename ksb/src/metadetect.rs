@@ -31,7 +31,7 @@ use crate::flags;
 use crate::image::Image;
 #[cfg(test)]
 use crate::metacal::VERSIONS;
-use crate::metacal::{PSF_SIDE, PsfStack, STEP, freq};
+use crate::metacal::{PsfStack, STEP, freq};
 use rand::RngExt;
 use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
@@ -52,10 +52,12 @@ pub const SATURATED_RADIUS_PX: f64 = 32.0;
 
 /// Stars (on the stellar locus) with S/N ν at least this are cut round
 /// like saturated detections (SATURATED within [`SATURATED_RADIUS_PX`]).
-/// The stack holds a star's light within its 32² pixels; what lies beyond
-/// (1.4 % of STEP1's `none`) is deconvolved by nothing, and every version
-/// of a bright star shows pieces of it on the star's axes 19 – 21 px out,
-/// which are detected and selected. On the grid runs of `none` (low
+/// The stack held a star's light within its 32² pixels (until
+/// 2026-12-07; now within 31.5 px, [`crate::metacal::stack_psf_wide`]);
+/// what lay beyond (1.4 % of STEP1's `none`) was deconvolved by nothing,
+/// and every version of a bright star showed pieces of it on the star's
+/// axes 19 – 21 px out, which were detected and selected. The cut is
+/// kept with the wider stack, whose edge the wings still cross. On the grid runs of `none` (low
 /// noise) they came from stars of I ≈ 18.8 – 19.5, whose ν is 900 – 1 200;
 /// the pieces scale with the star's flux as the detection's threshold
 /// with the noise, so a bound on ν holds at any noise. 500 leaves a factor
@@ -468,8 +470,8 @@ pub struct WholeImage {
 /// as the real part, and rotated by 90° as the imaginary part.
 fn psf_on_grid(psf: &PsfStack, w: usize, h: usize) -> Vec<Complex64> {
     let mut g = vec![Complex64::new(0.0, 0.0); w * h];
-    let c = (PSF_SIDE / 2) as i64;
-    for (j, row) in psf.pix.chunks_exact(PSF_SIDE).enumerate() {
+    let c = (psf.side / 2) as i64;
+    for (j, row) in psf.pix.chunks_exact(psf.side).enumerate() {
         for (i, &p) in row.iter().enumerate() {
             let (dx, dy) = (i as i64 - c, j as i64 - c);
             for (rotated, (dx, dy)) in [(false, (dx, dy)), (true, (-dy, dx))] {
@@ -546,7 +548,7 @@ impl WholeImage {
     /// is smaller than 4 × the PSF stack.
     pub fn new(sub: &Image, psf: &PsfStack, sigma: f64, noise_sigma: f64) -> Option<Self> {
         let (w, h) = (sub.width, sub.height);
-        if w < 4 * PSF_SIDE || h < 4 * PSF_SIDE {
+        if w < 4 * psf.side || h < 4 * psf.side {
             return None;
         }
         let fft = Fft2::new(w, h);

@@ -1044,12 +1044,13 @@ mod tests {
         // PSF. The second measurement makes one version of each image,
         // sheared by −ĝ₀ of its dataset (ĝ₀ the first measurement's mean
         // row), and writes ĝ₀ + R⁻¹ e of its objects. At this diagonal
-        // shear the first measurement of round Gaussians is near m = 0 (a
-        // scratch run along one axis, g = (0.1, 0), gave m₁ = +0.0095), so
+        // shear the first measurement of round Gaussians is near m = 0, so
         // both measurements must agree; a version sheared the wrong way
         // (2g) or rows taken to the wrong frame would not (the rows'
-        // places are checked too). Measured: m = (−0.0000, −0.0050)
-        // first, (+0.0008, −0.0041) after; c within 2e-4 both ways. The
+        // places are checked too). Measured: m = (+0.0003, −0.0029)
+        // first, (+0.0010, −0.0021) after; c within 2e-4 both ways
+        // ((−0.0000, −0.0050) and (+0.0008, −0.0041) through the 32² stack
+        // metadetection had until 2026-12-07). The
         // same bytes at one and two threads, the first measurement's sums
         // unchanged, and every image measured again.
         let dir = tempfile::tempdir().unwrap();

@@ -20,6 +20,7 @@ fn stack(parts: &[(f64, Mat2)]) -> PsfStack {
     }
     let total: f64 = img.data.iter().map(|&v| f64::from(v)).sum();
     PsfStack {
+        side: PSF_SIDE,
         pix: img.data.iter().map(|&v| f64::from(v) / total).collect(),
         n_stars: 1,
     }

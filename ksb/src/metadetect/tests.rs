@@ -1,4 +1,5 @@
 use super::*;
+use crate::metacal::PSF_SIDE;
 
 /// An elliptical Gaussian of covariance `c` and flux `flux` centred at
 /// `p`, sampled at pixel centres of a w × h grid.
@@ -229,6 +230,7 @@ fn a_version_of_the_whole_image_is_the_sheared_galaxy_reconvolved() {
     );
     let sum: f64 = pix.iter().sum();
     let psf = PsfStack {
+        side: PSF_SIDE,
         pix: pix.iter().map(|v| v / sum).collect(),
         n_stars: 1,
     };
@@ -407,6 +409,7 @@ fn gaussian_stack(cov: [[f64; 2]; 2]) -> PsfStack {
     let pix = gaussian(PSF_SIDE, PSF_SIDE, [half, half], cov, 1.0);
     let sum: f64 = pix.iter().sum();
     PsfStack {
+        side: PSF_SIDE,
         pix: pix.iter().map(|v| v / sum).collect(),
         n_stars: 1,
     }
