@@ -254,8 +254,9 @@ pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
 /// detection (`others[i]` = x, y, radius; one within 1 px of the star is
 /// the star itself) are left out of that pixel's median and of the star's
 /// flux (a star with such a disc within [`WIDE_STACK_CORE_PX`] of its
-/// centre is left out), and a pixel left out of every star's takes the mean of the
-/// stack's pixels at its distance from the centre (to 1 px): a 64² stamp
+/// centre is left out), and a pixel left out of every star's takes the
+/// mean of the stack's pixels at its distance from the centre (to 1 px):
+/// a 64² stamp
 /// holds neighbours that a 32² one did not, and where the stars share a
 /// layout of neighbours, as on a grid, the median does not remove them.
 /// And the stack is multiplied by [`round_taper`], so that it holds the
