@@ -323,8 +323,11 @@ fn stack_of_side(
         for o in others {
             let (dx, dy) = (o[0] - x, o[1] - y);
             let reach = h + o[2];
+            if dx.abs() > reach || dy.abs() > reach {
+                continue;
+            }
             let d = dx.hypot(dy);
-            if d < 1.0 || dx.abs() > reach || dy.abs() > reach {
+            if d < 1.0 {
                 continue;
             }
             if d - o[2] < WIDE_STACK_CORE_PX {
@@ -368,21 +371,23 @@ fn stack_of_side(
         })
         .collect();
     if others.is_some() {
-        let radius = |p: usize| ((p % s) as f64 - h).hypot((p / s) as f64 - h);
+        // Each pixel's distance from the centre: at most h √2 < s.
+        let radius: Vec<f64> = (0..s * s)
+            .map(|p| ((p % s) as f64 - h).hypot((p / s) as f64 - h))
+            .collect();
         let mut ring = vec![(0.0, 0usize); s];
-        for (p, v) in pix.iter().enumerate() {
-            let r = radius(p) as usize;
-            if !v.is_nan() && r < s {
-                ring[r].0 += v;
-                ring[r].1 += 1;
+        for (v, r) in pix.iter().zip(&radius) {
+            if !v.is_nan() {
+                ring[*r as usize].0 += v;
+                ring[*r as usize].1 += 1;
             }
         }
-        for (p, v) in pix.iter_mut().enumerate() {
+        for (v, r) in pix.iter_mut().zip(&radius) {
             if v.is_nan() {
-                let (sum, n) = ring[(radius(p) as usize).min(s - 1)];
+                let (sum, n) = ring[*r as usize];
                 *v = if n > 0 { sum / n as f64 } else { 0.0 };
             }
-            *v *= round_taper(radius(p), s);
+            *v *= round_taper(*r, s);
         }
     }
     let total: f64 = pix.iter().sum();
