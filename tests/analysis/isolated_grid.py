@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """KSB+ on isolated galaxies: the preset's galaxies on a grid, no neighbours.
 
-    python3 tests/analysis/isolated_grid.py lists CATALOG_DIR OUT_DIR N_FIELDS
+    python3 tests/analysis/isolated_grid.py lists CATALOG_DIR OUT_DIR N_FIELDS [turned]
     python3 tests/analysis/isolated_grid.py table RUN CATALOGUE [c]
 
 `lists` reads the SkyMaker lists `stepsim catalog` wrote (CATALOG_DIR/
@@ -11,6 +11,15 @@ object at the cell's centre plus a uniform sub-pixel offset; 800 cells hold
 stars of 18.5 < I < 21 drawn from the field's own (with replacement; with
 200 the stellar locus was not found among 3 900 bright galaxies), the rest
 the field's galaxies with I < 24 in a random order (3 296 of about 7 700).
+With `turned` the grid is turned by atan(1/2) = 26.57 degrees about the
+image's centre (the same 64 px spacing; 3 977 cells inside 32 px of the
+edges, so 3 177 galaxies): its nearest cells along a pixel row or column
+are 143 px apart instead of 64, and along a diagonal 202 px instead of 91.
+The preset's optical PSFs have diffraction spikes along the pixels' axes
+that reach beyond metadetection's PSF stack (31.5 px), and on the plain
+grid each galaxy lies on the spikes of its four nearest neighbours: they
+are not deconvolved, and their response to the versions' shear is not a
+galaxy's (docs/metacal.md, "The spikes of the grid's neighbours").
 Seeds are fixed (1000 + k), so the lists are the same on every run. A config
 with `population.source = {"skymaker_list": {"path": "OUT_DIR/f{field}.list"}}`
 and `population.rotated_pairs = true` renders them (docs/baseline.md,
@@ -41,7 +50,26 @@ STEP_PX = 64
 N_STARS = 800
 
 
-def lists(catalog_dir, out_dir, n_fields):
+def cells_of(turned):
+    """The cells' centres: the 64 px grid, or that grid turned by
+    atan(1/2) about the image's centre, its cells inside 32 px of the
+    edges."""
+    n = 4096 // STEP_PX
+    if not turned:
+        return [(STEP_PX / 2 + STEP_PX * i, STEP_PX / 2 + STEP_PX * j)
+                for i in range(n) for j in range(n)]
+    c, s = 2.0 / np.sqrt(5.0), 1.0 / np.sqrt(5.0)
+    out = []
+    for i in range(-n, n + 1):
+        for j in range(-n, n + 1):
+            x = 2048 + STEP_PX * (i * c - j * s)
+            y = 2048 + STEP_PX * (i * s + j * c)
+            if STEP_PX / 2 <= x <= 4096 - STEP_PX / 2 and STEP_PX / 2 <= y <= 4096 - STEP_PX / 2:
+                out.append((x, y))
+    return out
+
+
+def lists(catalog_dir, out_dir, n_fields, turned=False):
     for k in range(n_fields):
         rng = random.Random(1000 + k)
         galaxies, stars = [], []
@@ -54,9 +82,7 @@ def lists(catalog_dir, out_dir, n_fields):
             elif w[0] == "100" and 18.5 < float(w[3]) < 21:
                 stars.append(w)
         rng.shuffle(galaxies)
-        n = 4096 // STEP_PX
-        cells = [(STEP_PX / 2 + STEP_PX * i, STEP_PX / 2 + STEP_PX * j)
-                 for i in range(n) for j in range(n)]
+        cells = cells_of(turned)
         rng.shuffle(cells)
         with open(f"{out_dir}/f{k}.list", "w") as f:
             for c, (x, y) in enumerate(cells):
@@ -129,8 +155,8 @@ def table(run, catalogue, coefficient):
 
 
 def main():
-    if len(sys.argv) == 5 and sys.argv[1] == "lists":
-        lists(sys.argv[2], sys.argv[3], int(sys.argv[4]))
+    if len(sys.argv) in (5, 6) and sys.argv[1] == "lists" and sys.argv[5:] in ([], ["turned"]):
+        lists(sys.argv[2], sys.argv[3], int(sys.argv[4]), sys.argv[5:] == ["turned"])
     elif len(sys.argv) in (4, 5) and sys.argv[1] == "table":
         table(sys.argv[2], sys.argv[3], 1 if sys.argv[4:] == ["c"] else 0)
     else:
