@@ -12,7 +12,7 @@ stars of 18.5 < I < 21 drawn from the field's own (with replacement; with
 200 the stellar locus was not found among 3 900 bright galaxies), the rest
 the field's galaxies with I < 24 in a random order (3 296 of about 7 700).
 With `turned` the grid is turned by atan(1/2) = 26.57 degrees about the
-image's centre (the same 64 px spacing; 3 977 cells inside 32 px of the
+image's centre (the same 64 px spacing; 3 977 cells at least 32 px from the
 edges, so 3 177 galaxies): its nearest cells along a pixel row or column
 are 143 px apart instead of 64, and along a diagonal 202 px instead of 91.
 The preset's optical PSFs have diffraction spikes along the pixels' axes
@@ -52,7 +52,7 @@ N_STARS = 800
 
 def cells_of(turned):
     """The cells' centres: the 64 px grid, or that grid turned by
-    atan(1/2) about the image's centre, its cells inside 32 px of the
+    atan(1/2) about the image's centre, its cells at least 32 px from the
     edges."""
     n = 4096 // STEP_PX
     if not turned:
