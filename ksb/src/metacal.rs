@@ -256,9 +256,9 @@ pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
 /// flux (a star with such a disc within [`WIDE_STACK_CORE_PX`] of its
 /// centre is left out), and a pixel left out of every star's takes the
 /// mean of the stack's pixels at its distance from the centre (to 1 px):
-/// a 64² stamp
-/// holds neighbours that a 32² one did not, and where the stars share a
-/// layout of neighbours, as on a grid, the median does not remove them.
+/// a 64² stamp holds neighbours that a 32² one did not, and where the
+/// stars share a layout of neighbours, as on a grid, the median does not
+/// remove them.
 /// And the stack is multiplied by [`round_taper`], so that it holds the
 /// PSF within a circle, not a square. Metadetection's versions are
 /// deconvolved by it. The light a stack leaves out is deconvolved by
@@ -378,8 +378,9 @@ fn stack_of_side(
         let mut ring = vec![(0.0, 0usize); s];
         for (v, r) in pix.iter().zip(&radius) {
             if !v.is_nan() {
-                ring[*r as usize].0 += v;
-                ring[*r as usize].1 += 1;
+                let ring = &mut ring[*r as usize];
+                ring.0 += v;
+                ring.1 += 1;
             }
         }
         for (v, r) in pix.iter_mut().zip(&radius) {
