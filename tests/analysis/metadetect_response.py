@@ -13,7 +13,10 @@ before R is applied, so the submission itself is not needed. The truth
 comes from RUN/private/datasets.json (each dataset's PSF and shear, each
 image's base field). Several runs are taken together, their datasets
 grouped by PSF name and their fields by number: runs that differ only in
-their shears and share `run.seed` (the same galaxies, paired shears).
+their shears and share `run.seed` (the same galaxies, paired shears). A
+dataset that lacks some of the group's fields is left out, with a line
+saying so; runs of other galaxies and other numbers of fields are
+better measured one by one and their m's averaged.
 
 For each PSF, over its datasets d (shear g_d) and base fields f (an
 image and its rotated twin):
@@ -229,10 +232,17 @@ def main():
     for psf, datasets in by_psf.items():
         cells = cells_by_psf[psf]
         fields = sorted({f for (_, f) in cells})
-        datasets = [d for d in datasets if all((d, f) in cells for f in fields)]
+        # The estimators pair datasets field by field: a dataset without
+        # every field is left out, and said so.
+        partial = [d for d in datasets if not all((d, f) in cells for f in fields)]
+        datasets = [d for d in datasets if d not in partial]
         n_rows = sum(cells[(d, f)][0, 2] for d in datasets for f in fields)
         print(f"PSF {psf}: {len(datasets)} datasets, {len(fields)} fields, "
               f"{n_rows:.0f} selected objects (unsheared version)")
+        for d in partial:
+            have = sum((d, f) in cells for f in fields)
+            print(f"  dataset {d} left out: it has {have} of the {len(fields)} fields"
+                  " (runs given together must have the same base fields)")
         for d in datasets:
             tot = sum(cells[(d, f)] for f in fields)
             r = response(tot)
