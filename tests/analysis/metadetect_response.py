@@ -182,6 +182,20 @@ def load(args):
     return by_psf, shears, cells_by_psf
 
 
+def complete(datasets, cells, fields):
+    """(the datasets that have every one of `fields`, a line for each left
+    out): the estimators pair datasets field by field."""
+    kept, left = [], []
+    for d in datasets:
+        have = sum((d, f) in cells for f in fields)
+        if have == len(fields):
+            kept.append(d)
+        else:
+            left.append(f"  dataset {d} left out: it has {have} of the {len(fields)} fields"
+                        " (runs given together must have the same base fields)")
+    return kept, left
+
+
 def difference(args):
     """m and c of run A, of run B and of A - B per PSF, jackknifed over the
     shared base fields."""
@@ -192,9 +206,12 @@ def difference(args):
             cells = cells_by_psf[psf]
             parts.append((cells, by_psf[psf], shears, {f for (_, f) in cells}))
         fields = sorted(parts[0][3] & parts[1][3])
-        parts = [(c, [d for d in ds if all((d, f) in c for f in fields)], sh)
-                 for c, ds, sh, _ in parts]
         print(f"PSF {psf}: {len(fields)} shared fields")
+        kept = [complete(ds, c, fields) for c, ds, _, _ in parts]
+        for _, left in kept:
+            for line in left:
+                print(line)
+        parts = [(c, ds, sh) for (c, _, sh, _), (ds, _) in zip(parts, kept)]
         for mode, name in [("dataset", "R per dataset"),
                            ("pooled", "R pooled over the PSF's datasets")]:
             def est(fs):
@@ -232,17 +249,12 @@ def main():
     for psf, datasets in by_psf.items():
         cells = cells_by_psf[psf]
         fields = sorted({f for (_, f) in cells})
-        # The estimators pair datasets field by field: a dataset without
-        # every field is left out, and said so.
-        partial = [d for d in datasets if not all((d, f) in cells for f in fields)]
-        datasets = [d for d in datasets if d not in partial]
+        datasets, left = complete(datasets, cells, fields)
         n_rows = sum(cells[(d, f)][0, 2] for d in datasets for f in fields)
         print(f"PSF {psf}: {len(datasets)} datasets, {len(fields)} fields, "
               f"{n_rows:.0f} selected objects (unsheared version)")
-        for d in partial:
-            have = sum((d, f) in cells for f in fields)
-            print(f"  dataset {d} left out: it has {have} of the {len(fields)} fields"
-                  " (runs given together must have the same base fields)")
+        for line in left:
+            print(line)
         for d in datasets:
             tot = sum(cells[(d, f)] for f in fields)
             r = response(tot)
