@@ -74,7 +74,11 @@ impl Locus {
 /// Finds the stellar locus, or `None` if there are fewer than
 /// `psf_min_stars` candidates on it.
 pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
-    let ln = candidates(objects, params);
+    locus_among(&candidates(objects, params), params)
+}
+
+/// [`find_locus`] on the candidates' ln r_g ([`candidates`]).
+fn locus_among(ln: &[f64], params: &KsbParams) -> Option<Locus> {
     if ln.len() < params.psf_min_stars {
         return None;
     }
@@ -112,7 +116,7 @@ pub fn find_locus(objects: &[SizeMag], params: &KsbParams) -> Option<Locus> {
         score[k] >= 0.3 * top && score[k] >= left && score[k] >= right
     })?;
     let mode = lo + first_peak as f64 * step;
-    let (centre, width) = refine_locus(&ln, mode, params)?;
+    let (centre, width) = refine_locus(ln, mode, params)?;
     let half_width = (params.locus_nsigma * width).max(params.locus_min_halfwidth);
     let n_stars = ln
         .iter()
@@ -166,8 +170,9 @@ impl StarSelection {
 /// [`find_locus`] among the candidates with S/N ≥ `star_min_sn`; if there
 /// is none, again among those with S/N ≥ `star_class_min_sn` (few bright
 /// stars: small images, or a field poor in stars); if there is still none,
-/// again among the first candidates with a kernel, a starting width and a
-/// least half-width a quarter of the parameters' ([`narrow_locus`]).
+/// again among those with S/N ≥ `star_min_sn`, with a kernel, a starting
+/// width and a least half-width a quarter of the parameters'
+/// ([`narrow_locus`]).
 pub fn select_stars(objects: &[SizeMag], params: &KsbParams) -> Option<StarSelection> {
     if let Some(locus) = find_locus(objects, params) {
         return Some(StarSelection {
@@ -187,13 +192,14 @@ pub fn select_stars(objects: &[SizeMag], params: &KsbParams) -> Option<StarSelec
         });
     }
     let narrow = narrow_locus(params);
-    let locus = find_locus(objects, &narrow)?;
+    let ln = candidates(objects, &narrow);
+    let locus = locus_among(&ln, &narrow)?;
     // A narrow window finds chance clumps of galaxies too: the locus must
     // hold at least NARROW_MIN_STARS candidates, and five times as many as
     // the bands beside it (from its half-width to three half-widths, twice
     // as wide: ten times their density).
     let (centre, hw) = (locus.rg_star.ln(), locus.half_width);
-    let beside = candidates(objects, &narrow)
+    let beside = ln
         .iter()
         .filter(|v| (*v - centre).abs() > hw && (*v - centre).abs() <= 3.0 * hw)
         .count();
@@ -211,7 +217,7 @@ pub const NARROW_MIN_STARS: usize = 10;
 /// [`select_stars`]. On a deep image through a compact PSF (a Gaussian of
 /// 0.9″ at 10⁶ s: 810 stars of ν ≥ 50 at r_g* = 1.879 px whose ln r_g
 /// scatter by less than 0.002, among 9 400 galaxies of ν ≥ 50 whose sizes
-/// start some 4 % above) the default kernel of 0.03 sees the stars and
+/// start right above theirs) the default kernel of 0.03 sees the stars and
 /// the smallest galaxies as one broad peak, refused when refined; a
 /// quarter of it separates them. Tried last, so no image whose locus the
 /// defaults find changes; its locus must also stand out of the objects
