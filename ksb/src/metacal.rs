@@ -45,6 +45,7 @@ use rustfft::{Fft, FftPlanner};
 use std::f64::consts::PI;
 use std::sync::Arc;
 use stepsim_contract::seed::{SeedKey, Stream};
+use stepsim_numerics::stats::weighted_median;
 
 /// The shear of the sheared versions.
 pub const STEP: f64 = 0.01;
@@ -259,6 +260,17 @@ pub fn stack_psf(sub: &Image, stars: &[(f64, f64)]) -> Option<PsfStack> {
 /// a 64² stamp holds neighbours that a 32² one did not, and where the
 /// stars share a layout of neighbours, as on a grid, the median does not
 /// remove them.
+/// The median is weighted by each star's flux squared (the inverse of the
+/// variance of its normalised pixels where the sky's noise dominates), so
+/// that light that is not the star's (what the background's mode leaves
+/// of a deep scene's faint galaxies, a level b) enters as b / F of the
+/// brightest stars, not of the median one: in the deep lensed scene's
+/// images the plain median had 3.5 % of the stack's light in a pedestal
+/// beyond 8 px (1–2·10⁻⁵ a pixel against the PSF's 2.6·10⁻⁶ at 26 px)
+/// and its centre 4 % low; weighted, the stack's rings are within 6·10⁻⁶
+/// of the image's PSF at its centre (peak 0.032; 2.6·10⁻⁵ through a
+/// Gaussian PSF, peak 0.038) and 6·10⁻⁷ beyond 8 px (docs/metacal.md,
+/// "The PSF stack's pedestal").
 /// And the stack is multiplied by [`round_taper`], so that it holds the
 /// PSF within a circle, not a square. Metadetection's versions are
 /// deconvolved by it. The light a stack leaves out is deconvolved by
@@ -299,6 +311,8 @@ fn stack_of_side(
     let h = (s / 2) as f64;
     let norm = (s * s) as f64;
     let mut centred: Vec<Vec<f64>> = Vec::new();
+    // The wide stack's weights (flux²; the plain stack has none).
+    let mut weights: Vec<f64> = Vec::new();
     for &(x, y) in stars {
         let Some((stamp, c)) = cut(sub, x, y, s) else {
             continue;
@@ -350,13 +364,26 @@ fn stack_of_side(
         }
         star.iter_mut().for_each(|v| *v /= flux);
         centred.push(star);
+        weights.push(flux * flux);
     }
     if centred.is_empty() {
         return None;
     }
     let mut column = Vec::with_capacity(centred.len());
+    let mut weighted = Vec::with_capacity(centred.len());
     let mut pix: Vec<f64> = (0..s * s)
         .map(|p| {
+            if others.is_some() {
+                weighted.clear();
+                weighted.extend(
+                    centred
+                        .iter()
+                        .zip(&weights)
+                        .filter(|(star, _)| !star[p].is_nan())
+                        .map(|(star, &w)| (star[p], w)),
+                );
+                return weighted_median(&mut weighted).unwrap_or(f64::NAN);
+            }
             column.clear();
             column.extend(centred.iter().map(|star| star[p]).filter(|v| !v.is_nan()));
             column.sort_by(f64::total_cmp);

@@ -1524,8 +1524,8 @@ pub(crate) mod tests {
     }
 
     /// A 1024² scene of 225 bright galaxies on a grid 56 px apart (σ 2.5 –
-    /// 4 px, |e| < 0.5, flux 3e5 e⁻, sheared by `g`) and 49 stars between
-    /// them, through the Gaussian PSF `psf`, sky 25 e⁻: far from every cut
+    /// 4 px, |e| < 0.5, flux 3e5 e⁻, sheared by `g`) and 49 stars of 3e6 e⁻
+    /// between them, through the Gaussian PSF `psf`, sky 25 e⁻: far from every cut
     /// and from the edges, so each version's catalogue holds the same
     /// galaxies.
     pub(crate) fn grid_scene(g: [f64; 2], psf: &crate::linalg::Mat2) -> Image {
@@ -1554,7 +1554,7 @@ pub(crate) mod tests {
                 let seen = crate::scene::convolve(&crate::scene::shear_covariance(&cov, g), psf);
                 draw_gaussian_sampled(&mut img, x, y, 3e5, &seen);
                 if i % 2 == 0 && j % 2 == 0 && i < 14 && j < 14 {
-                    draw_gaussian_sampled(&mut img, x + 28.0, y + 28.0, 3e5, psf);
+                    draw_gaussian_sampled(&mut img, x + 28.0, y + 28.0, 3e6, psf);
                 }
             }
         }
@@ -1571,9 +1571,11 @@ pub(crate) mod tests {
         // version's own catalogue, where one galaxy of e ≈ 0.3 crossing
         // the cut moves a small catalogue's R by 0.15 / 100 galaxies, so a
         // test of that part needs a large run (docs/metacal.md).
-        // Measured: m = (+0.0018, +0.0041) and c = (+0.00003, +0.00003)
-        // (bounds 0.005 and 5e-4); (+0.0023, +0.0012) through the 32²
-        // stack metadetection had until 2026-12-07.
+        // Measured: m = (+0.0014, +0.0023) and c = (+0.00001, −0.00005)
+        // (bounds 0.005 and 5e-4), the same within 2e-5 with the stars'
+        // plain median. With stars of 3e5 e⁻ (until 2026-12-08) the stack's
+        // noise moved m by up to 0.007 and c by 7e-4 with which of the
+        // middle stars a pixel's median took.
         let g = 0.05;
         let params = KsbParams {
             method: crate::params::Method::Metadetect,

@@ -18,6 +18,55 @@ pub fn median(v: &mut [f64]) -> Option<f64> {
     })
 }
 
+/// Weighted median of (value, weight) pairs (weights positive and finite),
+/// reordering them (sorted by value): the value at which the weights,
+/// summed in increasing order of value, first reach half their total; the
+/// mean of that value and the next when they reach exactly half, so that
+/// equal weights give [`median`]. `None` when empty.
+pub fn weighted_median(v: &mut [(f64, f64)]) -> Option<f64> {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let half = 0.5 * v.iter().map(|p| p.1).sum::<f64>();
+    let mut below = 0.0;
+    for (k, &(x, w)) in v.iter().enumerate() {
+        below += w;
+        if below == half && k + 1 < v.len() {
+            return Some(0.5 * (x + v[k + 1].0));
+        }
+        if below >= half {
+            return Some(x);
+        }
+    }
+    v.last().map(|p| p.0)
+}
+
+/// Slow reference for [`weighted_median`]: the sample value x whose weight
+/// strictly below it is less than half the total and whose weight at or
+/// below it is more than half; or, where the weight at or below a value is
+/// exactly half, the mean of it and the smallest value above it. Found by
+/// summing over every sample for every sample (O(n²), no sorting).
+pub fn weighted_median_slow(v: &[(f64, f64)]) -> Option<f64> {
+    let half = 0.5 * v.iter().map(|p| p.1).sum::<f64>();
+    let weight =
+        |keep: &dyn Fn(f64) -> bool| -> f64 { v.iter().filter(|p| keep(p.0)).map(|p| p.1).sum() };
+    for &(x, _) in v {
+        let (below, at_or_below) = (weight(&|y| y < x), weight(&|y| y <= x));
+        if at_or_below == half {
+            let next = v
+                .iter()
+                .map(|p| p.0)
+                .filter(|&y| y > x)
+                .fold(f64::INFINITY, f64::min);
+            if next.is_finite() {
+                return Some(0.5 * (x + next));
+            }
+        }
+        if below < half && at_or_below >= half {
+            return Some(x);
+        }
+    }
+    None
+}
+
 /// Complementary error function (the `libm` crate's, accurate to about
 /// one unit in the last place).
 pub fn erfc(x: f64) -> f64 {
@@ -202,6 +251,47 @@ mod tests {
             assert_eq!(median(&mut v.clone()), median_slow(&v), "{v:?}");
             let v: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
             assert_eq!(median(&mut v.clone()), median_slow(&v), "{v:?}");
+        }
+    }
+
+    #[test]
+    fn weighted_median_matches_summing_and_the_median_for_equal_weights() {
+        assert_eq!(weighted_median(&mut []), None);
+        assert_eq!(weighted_median_slow(&[]), None);
+        // A heavy sample is the median however many light ones lie on one
+        // side of it.
+        let mut v = [(5.0, 10.0), (1.0, 1.0), (2.0, 1.0), (3.0, 1.0)];
+        assert_eq!(weighted_median(&mut v), Some(5.0));
+        assert_eq!(weighted_median(&mut [(1.0, 1.0), (2.0, 3.0)]), Some(2.0));
+        assert_eq!(weighted_median(&mut [(1.0, 2.0), (2.0, 2.0)]), Some(1.5));
+        let mut rng = test_rng(6);
+        for n in 0..40 {
+            // Integer weights sum exactly, so "exactly half" happens; few
+            // distinct values make ties.
+            let v: Vec<(f64, f64)> = (0..n)
+                .map(|_| {
+                    (
+                        f64::from(rng.random_range(0..7u8)),
+                        f64::from(rng.random_range(1..5u8)),
+                    )
+                })
+                .collect();
+            assert_eq!(
+                weighted_median(&mut v.clone()),
+                weighted_median_slow(&v),
+                "{v:?}"
+            );
+            let v: Vec<(f64, f64)> = (0..n)
+                .map(|_| (rng.random::<f64>() - 0.5, rng.random::<f64>() + 0.01))
+                .collect();
+            assert_eq!(
+                weighted_median(&mut v.clone()),
+                weighted_median_slow(&v),
+                "{v:?}"
+            );
+            let mut values: Vec<f64> = v.iter().map(|p| p.0).collect();
+            let mut equal: Vec<(f64, f64)> = values.iter().map(|&x| (x, 1.0)).collect();
+            assert_eq!(weighted_median(&mut equal), median(&mut values), "{v:?}");
         }
     }
 
