@@ -311,7 +311,8 @@ fn stack_of_side(
     let h = (s / 2) as f64;
     let norm = (s * s) as f64;
     let mut centred: Vec<Vec<f64>> = Vec::new();
-    // The wide stack's weights (flux²; the plain stack has none).
+    // Each star's weight in the pixels' medians: 1 in the plain stack,
+    // flux² in the wide one.
     let mut weights: Vec<f64> = Vec::new();
     for &(x, y) in stars {
         let Some((stamp, c)) = cut(sub, x, y, s) else {
@@ -327,6 +328,7 @@ fn stack_of_side(
             about_centre(&mut t, [-h, -h], s, 1.0 / flux);
             plans.fft2(&mut t, true);
             centred.push(t.iter().map(|v| v.re / norm).collect());
+            weights.push(1.0);
             continue;
         };
         about_centre(&mut t, [-h, -h], s, 1.0);
@@ -369,32 +371,20 @@ fn stack_of_side(
     if centred.is_empty() {
         return None;
     }
+    // Equal weights make the weighted median the plain one, bit for bit
+    // (`stepsim_numerics::stats` tests it).
     let mut column = Vec::with_capacity(centred.len());
-    let mut weighted = Vec::with_capacity(centred.len());
     let mut pix: Vec<f64> = (0..s * s)
         .map(|p| {
-            if others.is_some() {
-                weighted.clear();
-                weighted.extend(
-                    centred
-                        .iter()
-                        .zip(&weights)
-                        .filter(|(star, _)| !star[p].is_nan())
-                        .map(|(star, &w)| (star[p], w)),
-                );
-                return weighted_median(&mut weighted).unwrap_or(f64::NAN);
-            }
             column.clear();
-            column.extend(centred.iter().map(|star| star[p]).filter(|v| !v.is_nan()));
-            column.sort_by(f64::total_cmp);
-            let n = column.len();
-            if n == 0 {
-                f64::NAN
-            } else if n % 2 == 1 {
-                column[n / 2]
-            } else {
-                0.5 * (column[n / 2 - 1] + column[n / 2])
-            }
+            column.extend(
+                centred
+                    .iter()
+                    .zip(&weights)
+                    .filter(|(star, _)| !star[p].is_nan())
+                    .map(|(star, &w)| (star[p], w)),
+            );
+            weighted_median(&mut column).unwrap_or(f64::NAN)
         })
         .collect();
     if others.is_some() {
